@@ -1,0 +1,44 @@
+"""warpchain: discrete breathers in a mass-in-mass chain with Hertzian local resonators.
+
+The model (``model``), float64 Warp ensemble integrators (``ensemble``, ``kernels``), a numpy
+reference of every scheme (``reference``), and zarr output (``store``).
+"""
+
+from .ensemble import (
+    IntegrationError,
+    SimulationResult,
+    StepSizeError,
+    TangentResult,
+    available_devices,
+    propagate_tangent,
+    resolve_device,
+    simulate,
+    stability_limit,
+)
+from .integrators import METHODS, Method, get_method
+from .model import (
+    BOUNDARIES,
+    ChainParams,
+    accelerations,
+    band_edges,
+    contact_force,
+    contact_stiffness,
+    dispersion,
+    dispersion_long_wave,
+    energy,
+    linear_modes,
+    long_wave_speed,
+    lowest_optical_mode,
+    min_contact,
+    state_from_positions,
+)
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "BOUNDARIES", "ChainParams", "IntegrationError", "METHODS", "Method", "SimulationResult", "StepSizeError",
+    "TangentResult", "accelerations", "available_devices", "band_edges", "contact_force", "contact_stiffness",
+    "dispersion", "dispersion_long_wave", "energy", "get_method", "linear_modes", "long_wave_speed",
+    "lowest_optical_mode", "min_contact", "propagate_tangent", "resolve_device", "simulate", "stability_limit",
+    "state_from_positions",
+]

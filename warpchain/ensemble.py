@@ -1,0 +1,403 @@
+"""Batched runs on a Warp device: ``simulate`` (direct simulation with recording and a stability
+guard) and ``propagate_tangent`` (end state plus Jacobian columns of the discrete map).
+
+A run is split into chunks of many steps; each chunk is one kernel launch that loops over time
+inside the kernel. Between chunks the state is checked (finite, energy within bound), recorded
+fields are copied out (and optionally handed to a callback, e.g. a zarr writer), and the
+progress bar advances.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import threading
+import time
+import warnings
+from typing import Callable
+
+import numpy as np
+
+from .integrators import Method, get_method, steps_for
+from .model import BOUNDARY_CODES, ChainParams, as_batch, band_edges, energy, min_contact, per_lattice_parameters
+
+
+class IntegrationError(RuntimeError):
+    """A run blew up (non-finite state or energy error past its bound).
+
+    Attributes:
+        method, dt, stability_limit: the scheme, its step, and its linear stability limit.
+        failed: indices of the failing lattices.
+        t: time reached when the failure was detected.
+    """
+
+    def __init__(self, message, *, method, dt, stability_limit, failed, t):
+        super().__init__(message)
+        self.method = method
+        self.dt = dt
+        self.stability_limit = stability_limit
+        self.failed = failed
+        self.t = t
+
+
+class StepSizeError(ValueError):
+    """A step above the method's linear stability limit was refused before the run started."""
+
+
+@dataclasses.dataclass(frozen=True)
+class SimulationResult:
+    """Outcome of ``simulate``.
+
+    Attributes:
+        x: final state, shape (batch, 4, N).
+        t: times of the recorded fields, shape (n_saved,); ``[0, t_final]`` when nothing was saved.
+        u, v: recorded fields, shape (n_saved, batch, N) each, or None without ``save_every``.
+        energy_initial, energy_final: Hamiltonian of each lattice, shape (batch,).
+        energy_error: relative energy error |E(t_final) - E(0)| / |E(0)| per lattice, shape (batch,).
+        max_energy_error: largest relative energy error seen at chunk boundaries, per lattice.
+        min_contact: min over sites and checked times of 1 + u_j - v_j, per lattice (<= 0:
+            contact was lost at some point).
+        method, dt, nsteps, t_final, device, wall_seconds: how it ran (dt is the step used).
+    """
+
+    x: np.ndarray
+    t: np.ndarray
+    u: np.ndarray | None
+    v: np.ndarray | None
+    energy_initial: np.ndarray
+    energy_final: np.ndarray
+    energy_error: np.ndarray
+    max_energy_error: np.ndarray
+    min_contact: np.ndarray
+    method: str
+    dt: float
+    nsteps: int
+    t_final: float
+    device: str
+    wall_seconds: float
+
+
+# ----------------------------------------------------------------------------- devices
+
+
+_WARP_LOCK = threading.Lock()
+
+
+def _warp():
+    import warp as wp
+
+    with _WARP_LOCK:
+        if not getattr(_warp, "_initialised", False):
+            wp.config.quiet = True
+            wp.init()
+            _warp._initialised = True
+    return wp
+
+
+def available_devices() -> list[str]:
+    """Warp devices on this machine, e.g. ``["cpu", "cuda:0"]``."""
+    wp = _warp()
+    return [str(d) for d in wp.get_devices()]
+
+
+def resolve_device(device: str | None) -> str:
+    """``None`` -> ``"cuda"`` when Warp sees a GPU, else ``"cpu"``; otherwise validated."""
+    wp = _warp()
+    if device is None:
+        return "cuda:0" if wp.get_cuda_device_count() > 0 else "cpu"
+    if not isinstance(device, str):
+        raise ValueError(f"device must be a string such as 'cpu' or 'cuda', got {device!r}")
+    name = device.strip().lower()
+    if name == "cuda":
+        name = "cuda:0"
+    if name not in available_devices():
+        raise ValueError(f"unknown or unavailable device {device!r}; available: {available_devices()}")
+    return name
+
+
+# ----------------------------------------------------------------------------- helpers
+
+
+def stability_limit(method: Method | str, params: ChainParams, M=None, K=None) -> float:
+    """Linear stability limit on dt of ``method`` for these parameters (smallest over a batch),
+    from the top of the optical band, w_max: dt < bound / w_max (bound = 2 for Verlet)."""
+    method = get_method(method)
+    Ms = np.atleast_1d(params.M if M is None else M).astype(float)
+    Ks = np.atleast_1d(params.K if K is None else K).astype(float)
+    Ms, Ks = np.broadcast_arrays(Ms, Ks)
+    w_max = max(band_edges(float(m), float(k))["optical_top"] for m, k in zip(Ms, Ks))
+    return method.linear_stability_limit(w_max)
+
+
+def _check_step(method: Method, params, dt, M, K, allow_unstable_step: bool) -> float:
+    if not (isinstance(dt, (int, float, np.floating)) and math.isfinite(dt)) or dt <= 0:
+        raise ValueError(f"dt must be a finite number > 0, got {dt!r}")
+    limit = stability_limit(method, params, M, K)
+    if dt >= limit:
+        message = (
+            f"dt = {dt:g} is above the linear stability limit {limit:.6g} of method '{method.name}' "
+            f"for these parameters (bound {method.stability_bound:.4f} / optical band top); "
+            f"use dt < {limit:.6g}"
+        )
+        if not allow_unstable_step:
+            raise StepSizeError(message + " or pass allow_unstable_step=True to run anyway")
+        warnings.warn(message, RuntimeWarning, stacklevel=3)
+    return limit
+
+
+def _relative_energy_error(E, E0, N):
+    scale = np.maximum(np.abs(E0), 1e-14 * N)
+    return np.abs(E - E0) / scale
+
+
+class _Runner:
+    """Device buffers and launches for one batch and one method."""
+
+    def __init__(self, method: Method, params: ChainParams, x0: np.ndarray, M, K, device: str,
+                 record_stiffness_steps: int = 0):
+        wp = _warp()
+        from . import kernels
+
+        self.wp, self.k, self.method, self.device = wp, kernels, method, device
+        self.batch, _, self.N = x0.shape
+        self.boundary = BOUNDARY_CODES[params.boundary]
+        f64 = wp.float64
+        self.x = wp.array(x0, dtype=f64, device=device)
+        self.mass = wp.array(M, dtype=f64, device=device)
+        self.coupling = wp.array(K, dtype=f64, device=device)
+        if method.family == "splitting":
+            self.acc = wp.zeros((self.batch, 2, self.N), dtype=f64, device=device)
+            self.drifts = wp.array(np.array(method.drifts), dtype=f64, device=device)
+            self.kicks = wp.array(np.array(method.kicks), dtype=f64, device=device)
+        else:
+            shape = (self.batch, 4, self.N)
+            self.y, self.kbuf, self.total = (wp.zeros(shape, dtype=f64, device=device) for _ in range(3))
+        self.no_record = wp.zeros((1, 1, 2, 1), dtype=f64, device=device)
+        if record_stiffness_steps:
+            self.hist = wp.zeros((self.history_length(record_stiffness_steps), self.batch, self.N), dtype=f64,
+                                 device=device)
+        else:
+            self.hist = wp.zeros((1, 1, 1), dtype=f64, device=device)
+
+    def history_length(self, nsteps: int) -> int:
+        s = self.method.stages
+        return nsteps * s + 1 if self.method.family == "splitting" else nsteps * s
+
+    def launch(self, nsteps: int, dt: float, save_every: int = 0, rec=None, record_stiffness: bool = False):
+        wp, k = self.wp, self.k
+        rec = self.no_record if rec is None else rec
+        common = [self.mass, self.coupling]
+        tail = [self.boundary, wp.float64(dt), int(nsteps), int(save_every), rec, int(record_stiffness), self.hist]
+        if self.method.family == "splitting":
+            wp.launch(k.splitting_kernel, dim=self.batch, device=self.device,
+                      inputs=[self.x, self.acc, *common, self.drifts, self.kicks, *tail])
+        else:
+            wp.launch(k.rk4_kernel, dim=self.batch, device=self.device,
+                      inputs=[self.x, self.y, self.kbuf, self.total, *common, *tail])
+
+    def launch_tangent(self, dx, column_base, nsteps: int, dt: float):
+        """Propagate tangent columns (device array (ncols, 4, N)) along the recorded history."""
+        wp, k = self.wp, self.k
+        ncols = dx.shape[0]
+        f64 = wp.float64
+        if self.method.family == "splitting":
+            dacc = wp.zeros((ncols, 2, self.N), dtype=f64, device=self.device)
+            wp.launch(k.splitting_tangent_kernel, dim=ncols, device=self.device,
+                      inputs=[dx, dacc, column_base, self.mass, self.coupling, self.drifts, self.kicks,
+                              self.boundary, f64(dt), int(nsteps), self.hist])
+        else:
+            scratch = [wp.zeros((ncols, 4, self.N), dtype=f64, device=self.device) for _ in range(3)]
+            wp.launch(k.rk4_tangent_kernel, dim=ncols, device=self.device,
+                      inputs=[dx, *scratch, column_base, self.mass, self.coupling, self.boundary, f64(dt),
+                              int(nsteps), self.hist])
+
+
+# ----------------------------------------------------------------------------- public API
+
+
+def simulate(params: ChainParams, x0, t_final: float, dt: float, *, method: str = "verlet",
+             device: str | None = None, save_every: int | None = None, progress: bool = False,
+             M=None, K=None, max_energy_error: float | None = 0.05, allow_unstable_step: bool = False,
+             chunks: int | None = None,
+             on_chunk: Callable[[np.ndarray, np.ndarray, np.ndarray], None] | None = None) -> SimulationResult:
+    """Integrate a batch of lattices with a float64 Warp kernel.
+
+    Args:
+        params: the chain (N, boundary, and M, K unless given per lattice).
+        x0: initial state, shape (4, N) (a batch of one) or (batch, 4, N), ordered (u, v, u', v').
+        t_final: final time (>= 0). When it is not a whole multiple of ``dt`` the step is
+            shortened slightly so that it is; the result reports the step used.
+        dt: time step (> 0), below the method's linear stability limit.
+        method: a name in ``METHODS`` (``verlet``, ``yoshida4``, ``yoshida6``, ``rk4``).
+        device: ``"cpu"``, ``"cuda"`` or ``"cuda:N"``; None picks CUDA when Warp sees a GPU.
+        save_every: record u and v every this many steps (and at t = 0).
+        progress: show a tqdm progress bar.
+        M, K: per-lattice parameters, shape (batch,), so that a sweep runs in one launch.
+        max_energy_error: relative energy error that counts as a blow-up (None: only non-finite).
+        allow_unstable_step: run (with a warning) even when dt is above the linear stability limit.
+        chunks: number of launches the run is split into (default: 10, or 50 with progress).
+        on_chunk: called after every chunk with (t, u, v) of the frames recorded in that chunk,
+            shapes (n,), (n, batch, N), (n, batch, N) (the t = 0 frame comes with the first call).
+
+    Returns:
+        SimulationResult.
+
+    Raises:
+        ValueError: bad input (shape, non-finite values, dt, t_final, method, device).
+        StepSizeError: dt above the linear stability limit.
+        IntegrationError: the state became non-finite or the energy error exceeded its bound.
+    """
+    start = time.perf_counter()
+    meth = get_method(method)
+    x0 = as_batch(x0, params.N, "x0")
+    batch = x0.shape[0]
+    Mb, Kb = per_lattice_parameters(params, batch, M, K)
+    if not (isinstance(t_final, (int, float, np.floating)) and math.isfinite(t_final)) or t_final < 0:
+        raise ValueError(f"t_final must be a finite number >= 0, got {t_final!r}")
+    limit = _check_step(meth, params, dt, Mb, Kb, allow_unstable_step)
+    if save_every is not None and (not isinstance(save_every, (int, np.integer)) or save_every < 1):
+        raise ValueError(f"save_every must be a positive integer or None, got {save_every!r}")
+    device = resolve_device(device)
+    nsteps, dt_used = steps_for(float(t_final), float(dt))
+
+    runner = _Runner(meth, params, x0, Mb, Kb, device)
+    wp = runner.wp
+    E0 = energy(params, x0, Mb, Kb)
+    max_err = np.zeros(batch)
+    contact = min_contact(x0)
+
+    # chunk length: a whole number of save intervals
+    n_chunks = chunks or (50 if progress else 10)
+    unit = save_every or 1
+    units_total = max(1, math.ceil(nsteps / unit))
+    chunk_steps = max(1, math.ceil(units_total / n_chunks)) * unit
+
+    saved_t = [0.0] if save_every else []
+    saved_u = [x0[:, 0].copy()] if save_every else []
+    saved_v = [x0[:, 1].copy()] if save_every else []
+    if on_chunk is not None and save_every:
+        on_chunk(np.array([0.0]), x0[None, :, 0].copy(), x0[None, :, 1].copy())
+
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=nsteps, desc=f"{meth.name} dt={dt_used:.4g}", unit="step", leave=False)
+    done = 0
+    try:
+        while done < nsteps:
+            steps = min(chunk_steps, nsteps - done)
+            n_rec = steps // save_every if save_every else 0
+            rec = wp.zeros((n_rec, batch, 2, params.N), dtype=wp.float64, device=device) if n_rec else None
+            runner.launch(steps, dt_used, save_every or 0, rec)
+            x = runner.x.numpy()
+            done += steps
+            t_now = done * dt_used
+            finite = np.isfinite(x).all(axis=(1, 2))
+            E = energy(params, np.where(finite[:, None, None], x, 0.0), Mb, Kb)
+            err = np.where(finite, _relative_energy_error(E, E0, params.N), np.inf)
+            max_err = np.maximum(max_err, err)
+            bad = ~finite | ((err > max_energy_error) if max_energy_error is not None else False)
+            if np.any(bad):
+                failed = np.flatnonzero(bad).tolist()
+                what = "non-finite state" if not finite.all() else f"energy error above {max_energy_error:g}"
+                raise IntegrationError(
+                    f"integration blew up ({what}) at t = {t_now:.6g} with method '{meth.name}', "
+                    f"dt = {dt_used:.6g} (linear stability limit {limit:.6g}); failing lattices: {failed[:20]}"
+                    + (" ..." if len(failed) > 20 else "")
+                    + f"; largest relative energy error {np.nanmax(err):.3g}. Reduce dt or choose another method.",
+                    method=meth.name, dt=dt_used, stability_limit=limit, failed=failed, t=t_now)
+            contact = np.minimum(contact, min_contact(x))
+            if n_rec:
+                frames = rec.numpy()
+                ts = (np.arange(1, n_rec + 1) * save_every + (done - steps)) * dt_used
+                saved_t.extend(ts.tolist())
+                saved_u.extend(frames[:, :, 0])
+                saved_v.extend(frames[:, :, 1])
+                contact = np.minimum(contact, np.min(1.0 + frames[:, :, 0] - frames[:, :, 1], axis=(0, 2)))
+                if on_chunk is not None:
+                    on_chunk(ts, frames[:, :, 0].copy(), frames[:, :, 1].copy())
+            if bar is not None:
+                bar.update(steps)
+    finally:
+        if bar is not None:
+            bar.close()
+    x = runner.x.numpy()
+    E1 = energy(params, x, Mb, Kb)
+    if save_every:
+        t_arr, u_arr, v_arr = np.array(saved_t), np.stack(saved_u), np.stack(saved_v)
+    else:
+        t_arr, u_arr, v_arr = np.array([0.0, nsteps * dt_used]), None, None
+    return SimulationResult(
+        x=x, t=t_arr, u=u_arr, v=v_arr, energy_initial=E0, energy_final=E1,
+        energy_error=_relative_energy_error(E1, E0, params.N), max_energy_error=max_err, min_contact=contact,
+        method=meth.name, dt=dt_used, nsteps=nsteps, t_final=nsteps * dt_used, device=device,
+        wall_seconds=time.perf_counter() - start)
+
+
+@dataclasses.dataclass(frozen=True)
+class TangentResult:
+    """Outcome of ``propagate_tangent``.
+
+    Attributes:
+        x: end states of the base trajectories, shape (n_base, 4, N).
+        columns: propagated tangent columns, shape (ncols, 4, N): column c is the derivative of
+            the end state of base ``column_base[c]`` along the initial direction ``dx0[c]``.
+        column_base: base trajectory of each column, shape (ncols,).
+        method, dt, nsteps, device, wall_seconds.
+    """
+
+    x: np.ndarray
+    columns: np.ndarray
+    column_base: np.ndarray
+    method: str
+    dt: float
+    nsteps: int
+    device: str
+    wall_seconds: float
+
+
+def propagate_tangent(params: ChainParams, x0, dx0, nsteps: int, dt: float, *, method: str = "verlet",
+                      column_base=None, device: str | None = None, M=None, K=None,
+                      allow_unstable_step: bool = False) -> TangentResult:
+    """End states and Jacobian columns of ``nsteps`` steps of the discrete map.
+
+    The base trajectories run once, recording the contact stiffness at every force evaluation;
+    the tangent columns (one per thread, batched like lattices) then replay it, so each column is
+    the exact derivative of the discrete map along its initial direction.
+
+    Args:
+        x0: base states, shape (4, N) or (n_base, 4, N).
+        dx0: initial tangent directions, shape (ncols, 4, N) (e.g. unit vectors: Jacobian columns).
+        nsteps: number of steps; dt: step size.
+        column_base: base index of each column, shape (ncols,); default all 0.
+    """
+    start = time.perf_counter()
+    meth = get_method(method)
+    x0 = as_batch(x0, params.N, "x0")
+    dx0 = as_batch(dx0, params.N, "dx0")
+    n_base, ncols = x0.shape[0], dx0.shape[0]
+    Mb, Kb = per_lattice_parameters(params, n_base, M, K)
+    _check_step(meth, params, dt, Mb, Kb, allow_unstable_step)
+    if not isinstance(nsteps, (int, np.integer)) or nsteps < 0:
+        raise ValueError(f"nsteps must be a non-negative integer, got {nsteps!r}")
+    base = np.zeros(ncols, dtype=np.int32) if column_base is None else np.asarray(column_base, dtype=np.int32)
+    if base.shape != (ncols,) or (base < 0).any() or (base >= n_base).any():
+        raise ValueError(f"column_base must have shape ({ncols},) with entries in [0, {n_base})")
+    device = resolve_device(device)
+    runner = _Runner(meth, params, x0, Mb, Kb, device, record_stiffness_steps=max(int(nsteps), 1))
+    wp = runner.wp
+    dx = wp.array(dx0, dtype=wp.float64, device=device)
+    if nsteps:
+        runner.launch(int(nsteps), float(dt), record_stiffness=True)
+        runner.launch_tangent(dx, wp.array(base, dtype=wp.int32, device=device), int(nsteps), float(dt))
+    x = runner.x.numpy()
+    columns = dx.numpy()
+    if not (np.isfinite(x).all() and np.isfinite(columns).all()):
+        raise IntegrationError(
+            f"tangent propagation produced non-finite values with method '{meth.name}', dt = {dt:g} "
+            f"(linear stability limit {stability_limit(meth, params, Mb, Kb):.6g})",
+            method=meth.name, dt=dt, stability_limit=stability_limit(meth, params, Mb, Kb),
+            failed=np.flatnonzero(~np.isfinite(x).all(axis=(1, 2))).tolist(), t=nsteps * dt)
+    return TangentResult(x=x, columns=columns, column_base=base, method=meth.name, dt=float(dt), nsteps=int(nsteps),
+                         device=device, wall_seconds=time.perf_counter() - start)

@@ -1,0 +1,159 @@
+"""The integrators, registered by name in ``METHODS``.
+
+Two families:
+
+* **splitting** methods for the separable Hamiltonian H = T(p) + V(q): a step is the sequence
+  ``kick d_0, drift c_1, kick d_1, ..., drift c_s, kick d_s`` (kick: velocities += d_i dt a(q);
+  drift: positions += c_i dt velocities). The acceleration after the last drift is reused by the
+  next step's first kick, so a step costs s force evaluations. Velocity Verlet and the symmetric
+  compositions of it (Yoshida's triple jump, order 4; Yoshida's 7-stage solution A, order 6) are
+  of this form and are symplectic.
+* **rk4**: the classical Runge-Kutta method (4 force evaluations, not symplectic).
+
+The Warp kernels (``kernels.py``) and the numpy reference (``reference.py``) both read the
+coefficients from here, so they integrate the same scheme step for step.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+
+import numpy as np
+
+
+@dataclasses.dataclass(frozen=True)
+class Method:
+    """One integration scheme.
+
+    Attributes:
+        name: registry key.
+        order: nominal order of accuracy.
+        family: ``"splitting"`` or ``"rk4"``.
+        symplectic: whether the discrete map is symplectic.
+        drifts: c_1..c_s (splitting only).
+        kicks: d_0..d_s (splitting only).
+        description: one line for listings.
+    """
+
+    name: str
+    order: int
+    family: str
+    symplectic: bool
+    drifts: tuple = ()
+    kicks: tuple = ()
+    description: str = ""
+
+    @property
+    def force_evaluations(self) -> int:
+        """Force evaluations per step."""
+        return len(self.drifts) if self.family == "splitting" else 4
+
+    @property
+    def stages(self) -> int:
+        """Stage states per step whose contact stiffness a tangent run records."""
+        return self.force_evaluations
+
+    def harmonic_step_matrix(self, h: float) -> np.ndarray:
+        """The one-step map of x'' = -x with step h, as a 2x2 matrix on (x, x')."""
+        if self.family == "splitting":
+            mat = np.eye(2)
+            kick = lambda d: np.array([[1.0, 0.0], [-d * h, 1.0]])
+            drift = lambda c: np.array([[1.0, c * h], [0.0, 1.0]])
+            mat = kick(self.kicks[0]) @ mat
+            for c, d in zip(self.drifts, self.kicks[1:]):
+                mat = kick(d) @ drift(c) @ mat
+            return mat
+        # RK4 on y' = A y is the degree-4 Taylor polynomial of exp(hA)
+        A = np.array([[0.0, 1.0], [-1.0, 0.0]])
+        hA = h * A
+        return np.eye(2) + hA + hA @ hA / 2 + hA @ hA @ hA / 6 + hA @ hA @ hA @ hA / 24
+
+    @functools.cached_property
+    def stability_bound(self) -> float:
+        """Largest h = w dt for which the harmonic step map is stable for all smaller h.
+
+        Found by scanning and bisection of the spectral radius of ``harmonic_step_matrix``; for
+        velocity Verlet this is 2, for RK4 2 sqrt(2).
+        """
+
+        def stable(h):
+            return np.max(np.abs(np.linalg.eigvals(self.harmonic_step_matrix(h)))) <= 1.0 + 1e-12
+
+        grid = np.linspace(1e-3, 6.0, 6000)
+        lo = grid[0]
+        for h in grid[1:]:
+            if not stable(h):
+                hi = h
+                break
+            lo = h
+        else:
+            return float(grid[-1])
+        for _ in range(60):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if stable(mid) else (lo, mid)
+        return float(lo)
+
+    def linear_stability_limit(self, omega_max: float) -> float:
+        """Largest stable dt for a linear system whose highest frequency is ``omega_max``."""
+        return self.stability_bound / omega_max
+
+
+def _composition(weights) -> tuple[tuple, tuple]:
+    """Drift and kick coefficients of a composition of velocity Verlet with the given weights."""
+    weights = [float(w) for w in weights]
+    drifts = tuple(weights)
+    kicks = [0.5 * weights[0]]
+    for a, b in zip(weights[:-1], weights[1:]):
+        kicks.append(0.5 * (a + b))
+    kicks.append(0.5 * weights[-1])
+    return drifts, tuple(kicks)
+
+
+_CBRT2 = 2.0 ** (1.0 / 3.0)
+_Y4_OUTER = 1.0 / (2.0 - _CBRT2)
+_Y4 = (_Y4_OUTER, -_CBRT2 * _Y4_OUTER, _Y4_OUTER)
+# Yoshida (1990), Phys. Lett. A 150, 262, solution A of the 7-stage 6th-order composition.
+_Y6_W1, _Y6_W2, _Y6_W3 = -1.17767998417887, 0.235573213359357, 0.784513610477560
+_Y6_W0 = 1.0 - 2.0 * (_Y6_W1 + _Y6_W2 + _Y6_W3)
+_Y6 = (_Y6_W3, _Y6_W2, _Y6_W1, _Y6_W0, _Y6_W1, _Y6_W2, _Y6_W3)
+
+
+def _splitting(name, order, weights, description):
+    drifts, kicks = _composition(weights)
+    return Method(name, order, "splitting", True, drifts, kicks, description)
+
+
+METHODS: dict[str, Method] = {
+    m.name: m
+    for m in (
+        _splitting("verlet", 2, (1.0,), "velocity Verlet (kick-drift-kick), order 2, symplectic"),
+        _splitting("yoshida4", 4, _Y4, "Yoshida triple-jump composition of Verlet, order 4, symplectic"),
+        _splitting("yoshida6", 6, _Y6, "Yoshida 7-stage composition (solution A), order 6, symplectic"),
+        Method("rk4", 4, "rk4", False, description="classical Runge-Kutta, order 4, not symplectic"),
+    )
+}
+
+
+def get_method(name: str) -> Method:
+    """Look a method up by name, with a helpful error."""
+    if isinstance(name, Method):
+        return name
+    try:
+        return METHODS[name]
+    except (KeyError, TypeError):
+        raise ValueError(f"unknown method {name!r}; choose one of {sorted(METHODS)}") from None
+
+
+def steps_for(t_final: float, dt: float) -> tuple[int, float]:
+    """Whole number of steps to reach t_final with a step no larger than dt.
+
+    Returns:
+        (nsteps, dt_used) with nsteps * dt_used == t_final; dt_used == dt when t_final is a
+        whole multiple of dt (up to 1e-9 relative).
+    """
+    if t_final == 0:
+        return 0, float(dt)
+    nsteps = max(1, int(math.ceil(t_final / dt - 1e-9)))
+    return nsteps, float(t_final) / nsteps

@@ -1,0 +1,296 @@
+"""NVIDIA Warp kernels (float64) for batches of mass-in-mass chains.
+
+Layout: a batch state is a ``wp.array3d`` of shape (batch, 4, N) ordered (u, v, u', v'). Each
+kernel thread owns one lattice (``b = wp.tid()``) and loops over time *inside* the kernel, so a
+long run costs one launch per chunk of many steps, never one per step. All per-site arithmetic
+lives in ``@wp.func`` helpers that take (lattice, site) indices, so that a later kernel where a
+thread block owns a lattice (one thread per site) can reuse them unchanged.
+
+Float constants are module-level ``wp.constant`` values: a literal such as ``wp.float64(2.0/3.0)``
+written inside a kernel is evaluated in float32 (errors of ~5e-9), which these avoid.
+
+Tangent runs (exact derivative of the discrete map): the base kernel records the contact stiffness
+f'(z_j) at every force evaluation of the base trajectory into a history array (n_evals, n_base, N);
+the tangent kernels then propagate Jacobian columns, one column per thread, reading that history.
+A column costs a linear step, not a nonlinear one, and all columns of a base trajectory share it.
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+wp.config.quiet = True
+
+ZERO = wp.constant(wp.float64(0.0))
+ONE = wp.constant(wp.float64(1.0))
+TWO = wp.constant(wp.float64(2.0))
+HALF = wp.constant(wp.float64(0.5))
+SIX = wp.constant(wp.float64(6.0))
+TWO_THIRDS = wp.constant(wp.float64(2.0 / 3.0))
+
+BOUNDARY_FIXED = wp.constant(0)
+BOUNDARY_FREE = wp.constant(1)
+BOUNDARY_PERIODIC = wp.constant(2)
+
+
+# ----------------------------------------------------------------------------- per-site helpers
+
+
+@wp.func
+def contact_force(z: wp.float64) -> wp.float64:
+    """f(z) = (2/3)([1 + z]_+^{3/2} - 1)."""
+    s = ONE + z
+    if s <= ZERO:
+        return -TWO_THIRDS
+    return TWO_THIRDS * (s * wp.sqrt(s) - ONE)
+
+
+@wp.func
+def contact_stiffness(z: wp.float64) -> wp.float64:
+    """f'(z) = [1 + z]_+^{1/2}."""
+    s = ONE + z
+    if s <= ZERO:
+        return ZERO
+    return wp.sqrt(s)
+
+
+@wp.func
+def laplacian_at(x: wp.array3d(dtype=wp.float64), b: int, comp: int, j: int, n: int, boundary: int) -> wp.float64:
+    """(u_j - u_{j-1}) + (u_j - u_{j+1}) of component ``comp`` of lattice b at site j."""
+    u = x[b, comp, j]
+    left = ZERO
+    right = ZERO
+    if j > 0:
+        left = x[b, comp, j - 1]
+    elif boundary == BOUNDARY_FREE:
+        left = u
+    elif boundary == BOUNDARY_PERIODIC:
+        left = x[b, comp, n - 1]
+    if j < n - 1:
+        right = x[b, comp, j + 1]
+    elif boundary == BOUNDARY_FREE:
+        right = u
+    elif boundary == BOUNDARY_PERIODIC:
+        right = x[b, comp, 0]
+    return (u - left) + (u - right)
+
+
+@wp.func
+def acceleration_at(x: wp.array3d(dtype=wp.float64), b: int, j: int, n: int, boundary: int,
+                    mass: wp.float64, coupling: wp.float64) -> wp.vec2d:
+    """(u_j'', v_j'') of lattice b from the positions in rows 0 and 1 of x."""
+    force = contact_force(x[b, 0, j] - x[b, 1, j])
+    au = -(coupling * laplacian_at(x, b, 0, j, n, boundary) + force) / mass
+    return wp.vec2d(au, force)
+
+
+@wp.func
+def tangent_acceleration_at(dx: wp.array3d(dtype=wp.float64), c: int, j: int, n: int, boundary: int,
+                            mass: wp.float64, coupling: wp.float64, stiffness: wp.float64) -> wp.vec2d:
+    """Derivative of (u_j'', v_j'') along the tangent column c (positions in rows 0, 1 of dx)."""
+    dz = dx[c, 0, j] - dx[c, 1, j]
+    au = -(coupling * laplacian_at(dx, c, 0, j, n, boundary) + stiffness * dz) / mass
+    return wp.vec2d(au, stiffness * dz)
+
+
+@wp.func
+def compute_accelerations(x: wp.array3d(dtype=wp.float64), acc: wp.array3d(dtype=wp.float64), b: int,
+                          n: int, boundary: int, mass: wp.float64, coupling: wp.float64,
+                          hist: wp.array3d(dtype=wp.float64), record: int, slot: int):
+    """acc[b] = a(x[b]); when ``record`` is set, also hist[slot, b, :] = f'(z)."""
+    for j in range(n):
+        a = acceleration_at(x, b, j, n, boundary, mass, coupling)
+        acc[b, 0, j] = a[0]
+        acc[b, 1, j] = a[1]
+        if record != 0:
+            hist[slot, b, j] = contact_stiffness(x[b, 0, j] - x[b, 1, j])
+
+
+@wp.func
+def compute_tangent_accelerations(dx: wp.array3d(dtype=wp.float64), dacc: wp.array3d(dtype=wp.float64),
+                                  c: int, base: int, n: int, boundary: int, mass: wp.float64,
+                                  coupling: wp.float64, hist: wp.array3d(dtype=wp.float64), slot: int):
+    for j in range(n):
+        a = tangent_acceleration_at(dx, c, j, n, boundary, mass, coupling, hist[slot, base, j])
+        dacc[c, 0, j] = a[0]
+        dacc[c, 1, j] = a[1]
+
+
+@wp.func
+def kick(x: wp.array3d(dtype=wp.float64), acc: wp.array3d(dtype=wp.float64), b: int, n: int, h: wp.float64):
+    for j in range(n):
+        x[b, 2, j] = x[b, 2, j] + h * acc[b, 0, j]
+        x[b, 3, j] = x[b, 3, j] + h * acc[b, 1, j]
+
+
+@wp.func
+def drift(x: wp.array3d(dtype=wp.float64), b: int, n: int, h: wp.float64):
+    for j in range(n):
+        x[b, 0, j] = x[b, 0, j] + h * x[b, 2, j]
+        x[b, 1, j] = x[b, 1, j] + h * x[b, 3, j]
+
+
+@wp.func
+def save_positions(x: wp.array3d(dtype=wp.float64), rec: wp.array4d(dtype=wp.float64), b: int, n: int,
+                   step: int, save_every: int):
+    if save_every > 0:
+        if (step + 1) % save_every == 0:
+            r = (step + 1) / save_every - 1
+            for j in range(n):
+                rec[r, b, 0, j] = x[b, 0, j]
+                rec[r, b, 1, j] = x[b, 1, j]
+
+
+# ----------------------------------------------------------------------------- splitting methods
+
+
+@wp.kernel
+def splitting_kernel(x: wp.array3d(dtype=wp.float64), acc: wp.array3d(dtype=wp.float64),
+                     mass: wp.array(dtype=wp.float64), coupling: wp.array(dtype=wp.float64),
+                     drifts: wp.array(dtype=wp.float64), kicks: wp.array(dtype=wp.float64),
+                     boundary: int, dt: wp.float64, nsteps: int,
+                     save_every: int, rec: wp.array4d(dtype=wp.float64),
+                     record_stiffness: int, hist: wp.array3d(dtype=wp.float64)):
+    """``nsteps`` steps of a kick-drift splitting method for lattice b = tid.
+
+    hist slot 0 holds f'(z) at the start, slot step*s + k + 1 after drift k of ``step``.
+    """
+    b = wp.tid()
+    n = x.shape[2]
+    stages = drifts.shape[0]
+    m = mass[b]
+    k = coupling[b]
+    compute_accelerations(x, acc, b, n, boundary, m, k, hist, record_stiffness, 0)
+    for step in range(nsteps):
+        kick(x, acc, b, n, kicks[0] * dt)
+        for s in range(stages):
+            drift(x, b, n, drifts[s] * dt)
+            compute_accelerations(x, acc, b, n, boundary, m, k, hist, record_stiffness, step * stages + s + 1)
+            kick(x, acc, b, n, kicks[s + 1] * dt)
+        save_positions(x, rec, b, n, step, save_every)
+
+
+@wp.kernel
+def splitting_tangent_kernel(dx: wp.array3d(dtype=wp.float64), dacc: wp.array3d(dtype=wp.float64),
+                             column_base: wp.array(dtype=wp.int32),
+                             mass: wp.array(dtype=wp.float64), coupling: wp.array(dtype=wp.float64),
+                             drifts: wp.array(dtype=wp.float64), kicks: wp.array(dtype=wp.float64),
+                             boundary: int, dt: wp.float64, nsteps: int,
+                             hist: wp.array3d(dtype=wp.float64)):
+    """Tangent column c = tid of the splitting step, along base trajectory column_base[c]."""
+    c = wp.tid()
+    base = column_base[c]
+    n = dx.shape[2]
+    stages = drifts.shape[0]
+    m = mass[base]
+    k = coupling[base]
+    compute_tangent_accelerations(dx, dacc, c, base, n, boundary, m, k, hist, 0)
+    for step in range(nsteps):
+        kick(dx, dacc, c, n, kicks[0] * dt)
+        for s in range(stages):
+            drift(dx, c, n, drifts[s] * dt)
+            compute_tangent_accelerations(dx, dacc, c, base, n, boundary, m, k, hist, step * stages + s + 1)
+            kick(dx, dacc, c, n, kicks[s + 1] * dt)
+
+
+# ----------------------------------------------------------------------------- classical RK4
+
+
+@wp.func
+def rk4_stage_derivative(y: wp.array3d(dtype=wp.float64), out: wp.array3d(dtype=wp.float64), b: int, n: int,
+                         boundary: int, mass: wp.float64, coupling: wp.float64,
+                         record: int, hist: wp.array3d(dtype=wp.float64), slot: int):
+    """out[b] = F(y[b]) = (y', a(y)); records f'(z) of the stage when asked."""
+    for j in range(n):
+        a = acceleration_at(y, b, j, n, boundary, mass, coupling)
+        out[b, 0, j] = y[b, 2, j]
+        out[b, 1, j] = y[b, 3, j]
+        out[b, 2, j] = a[0]
+        out[b, 3, j] = a[1]
+        if record != 0:
+            hist[slot, b, j] = contact_stiffness(y[b, 0, j] - y[b, 1, j])
+
+
+@wp.func
+def rk4_tangent_stage_derivative(dy: wp.array3d(dtype=wp.float64), out: wp.array3d(dtype=wp.float64), c: int,
+                                 base: int, n: int, boundary: int, mass: wp.float64, coupling: wp.float64,
+                                 hist: wp.array3d(dtype=wp.float64), slot: int):
+    for j in range(n):
+        a = tangent_acceleration_at(dy, c, j, n, boundary, mass, coupling, hist[slot, base, j])
+        out[c, 0, j] = dy[c, 2, j]
+        out[c, 1, j] = dy[c, 3, j]
+        out[c, 2, j] = a[0]
+        out[c, 3, j] = a[1]
+
+
+@wp.func
+def rk4_advance(x: wp.array3d(dtype=wp.float64), y: wp.array3d(dtype=wp.float64),
+                k: wp.array3d(dtype=wp.float64), total: wp.array3d(dtype=wp.float64), b: int, n: int,
+                stage: int, dt: wp.float64):
+    """After stage ``stage`` (0..3) has put its derivative in k: accumulate it into total and,
+    for stages 0..2, form the next stage state y = x + a dt k."""
+    weight = TWO
+    a = HALF
+    if stage == 0 or stage == 3:
+        weight = ONE
+    if stage == 2:
+        a = ONE
+    for i in range(4):
+        for j in range(n):
+            if stage == 0:
+                total[b, i, j] = k[b, i, j]
+            else:
+                total[b, i, j] = total[b, i, j] + weight * k[b, i, j]
+            if stage < 3:
+                y[b, i, j] = x[b, i, j] + (a * dt) * k[b, i, j]
+
+
+@wp.func
+def rk4_finish(x: wp.array3d(dtype=wp.float64), total: wp.array3d(dtype=wp.float64), b: int, n: int,
+               dt: wp.float64):
+    for i in range(4):
+        for j in range(n):
+            x[b, i, j] = x[b, i, j] + (dt / SIX) * total[b, i, j]
+
+
+@wp.kernel
+def rk4_kernel(x: wp.array3d(dtype=wp.float64), y: wp.array3d(dtype=wp.float64),
+               k: wp.array3d(dtype=wp.float64), total: wp.array3d(dtype=wp.float64),
+               mass: wp.array(dtype=wp.float64), coupling: wp.array(dtype=wp.float64),
+               boundary: int, dt: wp.float64, nsteps: int,
+               save_every: int, rec: wp.array4d(dtype=wp.float64),
+               record_stiffness: int, hist: wp.array3d(dtype=wp.float64)):
+    """``nsteps`` classical RK4 steps for lattice b = tid; hist slot 4 step + stage."""
+    b = wp.tid()
+    n = x.shape[2]
+    m = mass[b]
+    cpl = coupling[b]
+    for step in range(nsteps):
+        rk4_stage_derivative(x, k, b, n, boundary, m, cpl, record_stiffness, hist, 4 * step)
+        rk4_advance(x, y, k, total, b, n, 0, dt)
+        for stage in range(1, 4):
+            rk4_stage_derivative(y, k, b, n, boundary, m, cpl, record_stiffness, hist, 4 * step + stage)
+            rk4_advance(x, y, k, total, b, n, stage, dt)
+        rk4_finish(x, total, b, n, dt)
+        save_positions(x, rec, b, n, step, save_every)
+
+
+@wp.kernel
+def rk4_tangent_kernel(dx: wp.array3d(dtype=wp.float64), dy: wp.array3d(dtype=wp.float64),
+                       dk: wp.array3d(dtype=wp.float64), dtotal: wp.array3d(dtype=wp.float64),
+                       column_base: wp.array(dtype=wp.int32),
+                       mass: wp.array(dtype=wp.float64), coupling: wp.array(dtype=wp.float64),
+                       boundary: int, dt: wp.float64, nsteps: int, hist: wp.array3d(dtype=wp.float64)):
+    """Tangent column c = tid of the RK4 step along base trajectory column_base[c]."""
+    c = wp.tid()
+    base = column_base[c]
+    n = dx.shape[2]
+    m = mass[base]
+    cpl = coupling[base]
+    for step in range(nsteps):
+        rk4_tangent_stage_derivative(dx, dk, c, base, n, boundary, m, cpl, hist, 4 * step)
+        rk4_advance(dx, dy, dk, dtotal, c, n, 0, dt)
+        for stage in range(1, 4):
+            rk4_tangent_stage_derivative(dy, dk, c, base, n, boundary, m, cpl, hist, 4 * step + stage)
+            rk4_advance(dx, dy, dk, dtotal, c, n, stage, dt)
+        rk4_finish(dx, dtotal, c, n, dt)

@@ -1,0 +1,333 @@
+"""The dimensionless mass-in-mass chain with Hertzian local resonators.
+
+Notation (DESIGN.md section 1): sites j = 1..N, chain displacement u_j, resonator displacement v_j,
+relative displacement z_j = u_j - v_j (the contact overlap is 1 + z_j)::
+
+    M u_j'' + K (2 u_j - u_{j-1} - u_{j+1}) + f(z_j) = 0
+      v_j''                                 - f(z_j) = 0
+    f(z) = (2/3) ([1 + z]_+^{3/2} - 1)
+
+A lattice's phase-space state has shape (4, N) ordered (u, v, u', v'); a batch has shape
+(batch, 4, N). Everything here is plain numpy, batched, float64.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Sequence
+
+import numpy as np
+
+BOUNDARIES = ("fixed", "free", "periodic")
+#: Integer codes used by the Warp kernels for each boundary condition.
+BOUNDARY_CODES = {name: code for code, name in enumerate(BOUNDARIES)}
+
+
+@dataclasses.dataclass(frozen=True)
+class ChainParams:
+    """Parameters of one chain (or one value shared by a whole batch).
+
+    Args:
+        M: mass ratio m1 / m2 (> 0).
+        K: coupling ratio k1 / k2 (>= 0).
+        N: number of unit cells (>= 1).
+        boundary: ``"fixed"`` (u_0 = u_{N+1} = 0, wall bonds included), ``"free"`` or
+            ``"periodic"``.
+    """
+
+    M: float
+    K: float
+    N: int = 201
+    boundary: str = "fixed"
+
+    def __post_init__(self):
+        for name in ("M", "K"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+                raise ValueError(f"ChainParams.{name} must be a real number, got {value!r}")
+            if not math.isfinite(float(value)):
+                raise ValueError(f"ChainParams.{name} must be finite, got {value!r}")
+            object.__setattr__(self, name, float(value))
+        if self.M <= 0:
+            raise ValueError(f"ChainParams.M must be > 0 (mass ratio), got {self.M}")
+        if self.K < 0:
+            raise ValueError(f"ChainParams.K must be >= 0 (coupling), got {self.K}")
+        if isinstance(self.N, bool) or not isinstance(self.N, (int, np.integer)) or self.N < 1:
+            raise ValueError(f"ChainParams.N must be an integer >= 1, got {self.N!r}")
+        object.__setattr__(self, "N", int(self.N))
+        if self.boundary not in BOUNDARIES:
+            raise ValueError(
+                f"ChainParams.boundary must be one of {BOUNDARIES}, got {self.boundary!r}"
+            )
+
+    @property
+    def omega0(self) -> float:
+        """Linear resonance of one uncoupled site (optical band bottom), sqrt((M + 1) / M)."""
+        return math.sqrt((self.M + 1.0) / self.M)
+
+    def replace(self, **changes) -> "ChainParams":
+        """A copy with some fields changed (validated again)."""
+        return dataclasses.replace(self, **changes)
+
+    def as_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+# ----------------------------------------------------------------------------- forces, energy
+
+
+def contact_force(z):
+    """f(z) = (2/3)([1 + z]_+^{3/2} - 1): the Hertzian contact force minus its static preload."""
+    s = np.maximum(1.0 + np.asarray(z, dtype=np.float64), 0.0)
+    return (2.0 / 3.0) * (s * np.sqrt(s) - 1.0)
+
+
+def contact_stiffness(z):
+    """f'(z) = [1 + z]_+^{1/2} (continuous, not Lipschitz where contact is lost)."""
+    return np.sqrt(np.maximum(1.0 + np.asarray(z, dtype=np.float64), 0.0))
+
+
+def contact_potential(z):
+    """Per-site contact energy (2/3)((2/5)[1+z]_+^{5/2} - z) - 4/15 (zero at z = 0)."""
+    z = np.asarray(z, dtype=np.float64)
+    s = np.maximum(1.0 + z, 0.0)
+    return (2.0 / 3.0) * (0.4 * s * s * np.sqrt(s) - z) - 4.0 / 15.0
+
+
+def _per_lattice(value, batch: int) -> np.ndarray:
+    """Broadcast a scalar or per-lattice parameter to shape (batch, 1)."""
+    arr = np.broadcast_to(np.asarray(value, dtype=np.float64), (batch,))
+    return arr.reshape(batch, 1)
+
+
+def laplacian(u: np.ndarray, boundary: str) -> np.ndarray:
+    """Discrete 2 u_j - u_{j-1} - u_{j+1} along the last axis for the given boundary."""
+    left = np.empty_like(u)
+    right = np.empty_like(u)
+    left[..., 1:] = u[..., :-1]
+    right[..., :-1] = u[..., 1:]
+    if boundary == "fixed":
+        left[..., 0] = 0.0
+        right[..., -1] = 0.0
+    elif boundary == "free":
+        left[..., 0] = u[..., 0]
+        right[..., -1] = u[..., -1]
+    elif boundary == "periodic":
+        left[..., 0] = u[..., -1]
+        right[..., -1] = u[..., 0]
+    else:
+        raise ValueError(f"unknown boundary {boundary!r}; expected one of {BOUNDARIES}")
+    return (u - left) + (u - right)
+
+
+def as_batch(x, N: int | None = None, name: str = "x") -> np.ndarray:
+    """Validate a state and return it as a float64 array of shape (batch, 4, N).
+
+    Args:
+        x: a state of shape (4, N) (a batch of one) or (batch, 4, N).
+        N: expected number of sites, if known.
+    """
+    arr = np.asarray(x, dtype=np.float64)
+    if arr.ndim == 2:
+        arr = arr[None]
+    if arr.ndim != 3 or arr.shape[1] != 4:
+        raise ValueError(
+            f"{name} must have shape (4, N) or (batch, 4, N) ordered (u, v, u', v'); got {np.shape(x)}"
+        )
+    if N is not None and arr.shape[2] != N:
+        raise ValueError(f"{name} has {arr.shape[2]} sites but the chain has N = {N}")
+    if arr.shape[0] < 1:
+        raise ValueError(f"{name} has an empty batch")
+    bad = ~np.isfinite(arr).all(axis=(1, 2))
+    if bad.any():
+        raise ValueError(f"{name} has non-finite entries in lattice(s) {np.flatnonzero(bad).tolist()}")
+    return arr
+
+
+def accelerations(params: ChainParams, x, M=None, K=None) -> np.ndarray:
+    """Accelerations (u'', v'') of a batch.
+
+    Args:
+        params: the chain (N, boundary; M, K unless given per lattice).
+        x: state, shape (batch, 4, N) or (batch, 2, N) (positions only).
+        M, K: optional per-lattice values, shape (batch,).
+
+    Returns:
+        array of shape (batch, 2, N).
+    """
+    x = np.asarray(x, dtype=np.float64)
+    batch = x.shape[0]
+    Mb = _per_lattice(params.M if M is None else M, batch)
+    Kb = _per_lattice(params.K if K is None else K, batch)
+    u, v = x[:, 0], x[:, 1]
+    force = contact_force(u - v)
+    acc = np.empty((batch, 2, x.shape[-1]))
+    acc[:, 0] = -(Kb * laplacian(u, params.boundary) + force) / Mb
+    acc[:, 1] = force
+    return acc
+
+
+def energy(params: ChainParams, x, M=None, K=None) -> np.ndarray:
+    """Hamiltonian of each lattice (paper Eq. (3)), with wall bonds for fixed ends.
+
+    Args:
+        x: state, shape (4, N) or (batch, 4, N).
+
+    Returns:
+        energies, shape (batch,).
+    """
+    x = np.asarray(x, dtype=np.float64)
+    if x.ndim == 2:
+        x = x[None]
+    batch = x.shape[0]
+    Mb = _per_lattice(params.M if M is None else M, batch)[:, 0]
+    Kb = _per_lattice(params.K if K is None else K, batch)[:, 0]
+    u, v, du, dv = x[:, 0], x[:, 1], x[:, 2], x[:, 3]
+    kinetic = 0.5 * Mb * np.sum(du * du, axis=-1) + 0.5 * np.sum(dv * dv, axis=-1)
+    bonds = np.diff(u, axis=-1)
+    spring = np.sum(bonds * bonds, axis=-1)
+    if params.boundary == "fixed":
+        spring = spring + u[:, 0] ** 2 + u[:, -1] ** 2
+    elif params.boundary == "periodic" and u.shape[-1] > 1:
+        spring = spring + (u[:, 0] - u[:, -1]) ** 2
+    elif params.boundary == "periodic":
+        spring = spring * 0.0
+    contact = np.sum(contact_potential(u - v), axis=-1)
+    return kinetic + 0.5 * Kb * spring + contact
+
+
+def min_contact(x) -> np.ndarray:
+    """min_j (1 + u_j - v_j) of each lattice: <= 0 means a resonator has lost contact."""
+    x = np.asarray(x, dtype=np.float64)
+    if x.ndim == 2:
+        x = x[None]
+    return np.min(1.0 + x[:, 0] - x[:, 1], axis=-1)
+
+
+# ----------------------------------------------------------------------------- linear waves
+
+
+def dispersion(q, M: float, K: float) -> tuple[np.ndarray, np.ndarray]:
+    """Acoustic and optical frequencies of the infinite chain at Bloch numbers q.
+
+    Solves M w^4 - [2K(1 - cos q) + M + 1] w^2 + 2K(1 - cos q) = 0.
+
+    Returns:
+        (w_acoustic, w_optical), each of the shape of q.
+    """
+    s = 2.0 * K * (1.0 - np.cos(np.asarray(q, dtype=np.float64)))
+    return _two_branches(s, M)
+
+
+def dispersion_long_wave(q, M: float, K: float) -> tuple[np.ndarray, np.ndarray]:
+    """Long-wave (continuum) limit: 2K(1 - cos q) -> K q^2 (the paper's Eq. (9) with k^2 = K q^2)."""
+    s = K * np.asarray(q, dtype=np.float64) ** 2
+    return _two_branches(s, M)
+
+
+def _two_branches(s, M):
+    a = s + M + 1.0
+    disc = np.sqrt(np.maximum(a * a - 4.0 * M * s, 0.0))
+    # the lower root in the cancellation-free form 2c / (b + sqrt(b^2 - 4ac))
+    lower = np.sqrt(2.0 * s / (a + disc))
+    upper = np.sqrt((a + disc) / (2.0 * M))
+    return lower, upper
+
+
+def band_edges(M: float, K: float) -> dict:
+    """Band edges of the infinite chain (closed forms of DESIGN.md section 1).
+
+    Returns:
+        dict with ``acoustic_top``, ``optical_bottom``, ``optical_top``, ``gap_width``.
+    """
+    a = 4.0 * K + M + 1.0
+    root = math.sqrt(a * a - 16.0 * K * M)
+    acoustic_top = math.sqrt(8.0 * K / (a + root))  # = sqrt((a - root) / (2M)) without cancellation
+    optical_bottom = math.sqrt((M + 1.0) / M)
+    optical_top = math.sqrt((a + root) / (2.0 * M))
+    return {
+        "acoustic_top": acoustic_top,
+        "optical_bottom": optical_bottom,
+        "optical_top": optical_top,
+        "gap_width": optical_bottom - acoustic_top,
+    }
+
+
+def long_wave_speed(M: float, K: float) -> float:
+    """Exact long-wave sound speed of the discrete chain, sqrt(K / (M + 1)) cells per unit time."""
+    return math.sqrt(K / (M + 1.0))
+
+
+def stiffness_and_mass(params: ChainParams) -> tuple[np.ndarray, np.ndarray]:
+    """Linearised stiffness and mass matrices (2N x 2N) in the ordering (u_1..u_N, v_1..v_N)."""
+    N = params.N
+    eye = np.eye(N)
+    lap = laplacian(eye, params.boundary)  # column j is the Laplacian of e_j
+    stiff = np.block([[params.K * lap + eye, -eye], [-eye, eye]])
+    mass = np.diag(np.concatenate([np.full(N, params.M), np.ones(N)]))
+    return stiff, mass
+
+
+def linear_modes(params: ChainParams) -> tuple[np.ndarray, np.ndarray]:
+    """Linear modes of the finite chain about rest.
+
+    Returns:
+        (frequencies, shapes): frequencies shape (2N,), ascending; shapes shape (2N, 2, N) with
+        shapes[m, 0] the u profile and shapes[m, 1] the v profile of mode m, normalised so that
+        the modes are mass-orthonormal (sum M u_a u_b + v_a v_b = delta_ab).
+    """
+    from scipy.linalg import eigh
+
+    stiff, mass = stiffness_and_mass(params)
+    w2, vecs = eigh(stiff, mass)
+    freqs = np.sqrt(np.maximum(w2, 0.0))
+    shapes = vecs.T.reshape(2 * params.N, 2, params.N)
+    # a sign convention so that mode shapes are reproducible: largest |u| entry positive
+    for m in range(shapes.shape[0]):
+        flat = shapes[m].ravel()
+        if flat[np.argmax(np.abs(flat))] < 0:
+            shapes[m] *= -1.0
+    return freqs, shapes
+
+
+def lowest_optical_mode(params: ChainParams) -> tuple[float, np.ndarray]:
+    """Frequency and (u, v) shape (2, N) of the lowest optical mode of the finite chain.
+
+    The acoustic branch holds N modes (N - 1 plus a zero mode for free/periodic chains), so
+    the lowest optical mode is mode number N in ascending order. The shape is scaled so that
+    v at the centre site is negative and u positive there (z = u - v > 0 at t = 0).
+    """
+    freqs, shapes = linear_modes(params)
+    shape = shapes[params.N].copy()
+    centre = params.N // 2
+    if shape[0, centre] < 0:
+        shape *= -1.0
+    return float(freqs[params.N]), shape
+
+
+def state_from_positions(u, v, du=None, dv=None) -> np.ndarray:
+    """Stack positions (and optional velocities) into a (4, N) or (batch, 4, N) state."""
+    u = np.asarray(u, dtype=np.float64)
+    v = np.asarray(v, dtype=np.float64)
+    du = np.zeros_like(u) if du is None else np.asarray(du, dtype=np.float64)
+    dv = np.zeros_like(v) if dv is None else np.asarray(dv, dtype=np.float64)
+    return np.stack([u, v, du, dv], axis=-2)
+
+
+def per_lattice_parameters(params: ChainParams, batch: int, M: Sequence | None, K: Sequence | None):
+    """Per-lattice (M, K) arrays of shape (batch,), validated."""
+    out = []
+    for name, value, default in (("M", M, params.M), ("K", K, params.K)):
+        arr = np.asarray(default if value is None else value, dtype=np.float64)
+        if arr.ndim > 1 or (arr.ndim == 1 and arr.shape[0] != batch):
+            raise ValueError(f"per-lattice {name} must be a scalar or have shape ({batch},); got {arr.shape}")
+        arr = np.broadcast_to(arr, (batch,)).copy()
+        if not np.isfinite(arr).all():
+            raise ValueError(f"per-lattice {name} has non-finite values")
+        if name == "M" and (arr <= 0).any():
+            raise ValueError("per-lattice M must be > 0")
+        if name == "K" and (arr < 0).any():
+            raise ValueError("per-lattice K must be >= 0")
+        out.append(arr)
+    return out[0], out[1]
