@@ -88,7 +88,8 @@ def _warp():
 
     with _WARP_LOCK:
         if not getattr(_warp, "_initialised", False):
-            wp.config.quiet = True
+            from . import kernels  # noqa: F401  (sets Warp's log level before init)
+
             wp.init()
             _warp._initialised = True
     return wp

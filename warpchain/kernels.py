@@ -19,6 +19,9 @@ from __future__ import annotations
 
 import warp as wp
 
+# keep Warp's start-up banner and per-module compile lines out of scene logs
+if hasattr(wp, "LOG_WARNING") and hasattr(wp.config, "log_level"):
+    wp.config.log_level = wp.LOG_WARNING
 wp.config.quiet = True
 
 ZERO = wp.constant(wp.float64(0.0))

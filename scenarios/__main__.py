@@ -1,0 +1,47 @@
+"""Command line: ``python -m scenarios list | run NAME [...] | paper [...]``."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+
+from ._common import PAPER_SCENES, SCENES, load_scene, run_scene
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m scenarios", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+    sub.add_parser("list", help="list the scenes")
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--out", default="results", type=Path, help="output root (default: results/)")
+    common.add_argument("--device", default=None, help="cpu or cuda (default: cuda when Warp sees a GPU)")
+    common.add_argument("--quick", action="store_true", help="reduced variant for smoke tests")
+    run = sub.add_parser("run", parents=[common], help="run one scene")
+    run.add_argument("name", help="scene name (see 'list')")
+    sub.add_parser("paper", parents=[common], help="run every paper scene in order")
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s", datefmt="%H:%M:%S")
+
+    if args.command == "list":
+        for name in SCENES:
+            doc = (load_scene(name).__doc__ or "").strip().splitlines()
+            print(f"{name:20s} {doc[0] if doc else ''}")
+        return 0
+    if args.device is not None and args.device.lower() not in ("cpu", "cuda") and not args.device.startswith("cuda:"):
+        parser.error(f"--device must be cpu or cuda, got {args.device!r}")
+    names = [args.name] if args.command == "run" else PAPER_SCENES
+    if args.command == "run" and args.name not in SCENES:
+        parser.error(f"unknown scene {args.name!r}; known scenes: {', '.join(SCENES)}")
+    try:
+        for name in names:
+            run_scene(name, args.out, args.device, args.quick)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

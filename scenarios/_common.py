@@ -1,0 +1,111 @@
+"""Shared scene plumbing: the registry, output folders, summaries, figures and logging."""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import json
+import logging
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+#: scene name -> module (in the order ``paper`` runs them)
+SCENES = {
+    "dispersion": "scenarios.dispersion",
+}
+#: scenes that reproduce the paper (``python -m scenarios paper``)
+PAPER_SCENES = list(SCENES)
+
+log = logging.getLogger("scenarios")
+
+
+@dataclasses.dataclass
+class Context:
+    """What a scene is run with.
+
+    Attributes:
+        out: the scene's own output folder (OUT/NAME), created.
+        device: resolved Warp device (``cpu`` or ``cuda:0``).
+        quick: a reduced, fast variant (CI smoke tests).
+    """
+
+    name: str
+    out: Path
+    device: str
+    quick: bool = False
+
+    def log(self, message: str, *args) -> None:
+        log.info(f"[{self.name}] " + message, *args)
+
+
+def load_scene(name: str):
+    if name not in SCENES:
+        raise SystemExit(f"unknown scene {name!r}; known scenes: {', '.join(SCENES)}")
+    return importlib.import_module(SCENES[name])
+
+
+def _jsonable(value):
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _jsonable(value.tolist())
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None if math.isnan(value) else ("inf" if value > 0 else "-inf")
+    return value
+
+
+def write_summary(out: Path, summary: dict) -> Path:
+    path = Path(out) / "summary.json"
+    path.write_text(json.dumps(_jsonable(summary), indent=2) + "\n")
+    return path
+
+
+def read_summary(out: Path) -> dict:
+    return json.loads((Path(out) / "summary.json").read_text())
+
+
+def save_figure(fig, out: Path, stem: str) -> list[Path]:
+    """Save a matplotlib figure as PNG and PDF; returns the paths."""
+    paths = []
+    for ext in ("png", "pdf"):
+        path = Path(out) / f"{stem}.{ext}"
+        fig.savefig(path, dpi=150, bbox_inches="tight")
+        paths.append(path)
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    return paths
+
+
+def pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def run_scene(name: str, out_root: Path, device: str | None, quick: bool) -> dict:
+    """Run one scene (compute, store, summary) and then its plots (which read the stored data)."""
+    from warpchain import resolve_device
+
+    module = load_scene(name)
+    out = Path(out_root) / name
+    out.mkdir(parents=True, exist_ok=True)
+    ctx = Context(name=name, out=out, device=resolve_device(device), quick=quick)
+    start = time.perf_counter()
+    ctx.log("start (device %s%s) -> %s", ctx.device, ", quick" if quick else "", out)
+    summary = module.run(ctx)
+    summary.setdefault("wall_seconds", time.perf_counter() - start)
+    write_summary(out, summary)
+    module.plot(out)
+    ctx.log("done in %.1f s", time.perf_counter() - start)
+    return summary

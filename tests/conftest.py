@@ -1,0 +1,25 @@
+import numpy as np
+import pytest
+
+from warpchain import ChainParams
+
+
+def localized_state(N, amplitude=0.6, width=2.0, batch=1, centre=None, seed=None):
+    """A localized, large-amplitude profile at rest (optionally with small random velocities)."""
+    j = np.arange(N)
+    c = N // 2 if centre is None else centre
+    bump = np.exp(-(((j - c) / width) ** 2))
+    x = np.zeros((batch, 4, N))
+    for b in range(batch):
+        scale = 1.0 + 0.25 * b
+        x[b, 0] = amplitude * scale * bump / 30.0
+        x[b, 1] = -amplitude * scale * bump
+    if seed is not None:
+        rng = np.random.default_rng(seed)
+        x[:, 2:] = 0.05 * rng.standard_normal((batch, 2, N))
+    return x
+
+
+@pytest.fixture
+def small_chain():
+    return ChainParams(M=3.0, K=4.0, N=31)

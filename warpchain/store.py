@@ -1,0 +1,261 @@
+"""zarr v3 output: fields chunked along time and written in whole chunks, with parameters and
+provenance in attributes, readable by ``xarray.open_zarr(path, group=...)``.
+
+Layout of a store (DESIGN.md section 5)::
+
+    data.zarr/                      root attrs: params, provenance
+      <group>/                      attrs: complete, n_written, t_written (+ scene attributes)
+        u, v  (t, site) or (t, lattice, site)   float64, chunked along t
+        t     (t,)                              single chunk
+        site  (site,)                           single chunk, 1-based site index
+
+A run that stops half way leaves ``complete = false`` and ``n_written`` / ``t_written`` saying
+how far it got; every chunk present is whole and readable.
+"""
+
+from __future__ import annotations
+
+import datetime
+import functools
+import os
+import platform
+import subprocess
+import sys
+import warnings
+from importlib import metadata
+from pathlib import Path
+
+import numpy as np
+import zarr
+
+
+def _version(name: str) -> str | None:
+    try:
+        return metadata.version(name)
+    except metadata.PackageNotFoundError:
+        return None
+
+
+@functools.lru_cache(maxsize=1)
+def cpu_model() -> str:
+    """The CPU's model name (from /proc/cpuinfo on Linux)."""
+    try:
+        with open("/proc/cpuinfo") as fh:
+            for line in fh:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def git_commit() -> str | None:
+    """Commit of the checkout this package runs from (with ``-dirty`` for local changes)."""
+    here = Path(__file__).resolve().parent
+    try:
+        commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=here, capture_output=True, text=True,
+                                timeout=5).stdout.strip()
+        if not commit:
+            return None
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=here,
+                               capture_output=True, text=True, timeout=5).stdout.strip()
+        return commit + ("-dirty" if dirty else "")
+    except (OSError, subprocess.SubprocessError):
+        return None
+
+
+def device_description(device: str | None) -> str:
+    """Human-readable name of a Warp device (GPU model, or the CPU model for ``cpu``)."""
+    if device is None or device == "cpu":
+        return f"cpu ({cpu_model()}, {os.cpu_count()} cores)"
+    try:
+        import warp as wp
+
+        return f"{device} ({wp.get_device(device).name})"
+    except Exception:  # pragma: no cover - depends on the machine
+        return device
+
+
+def provenance(device: str | None = None, **extra) -> dict:
+    """Package versions, device, git commit, command line and time of a run, as plain JSON."""
+    info = {
+        "created_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "command_line": " ".join(sys.argv),
+        "git_commit": git_commit(),
+        "device": device_description(device),
+        "python": platform.python_version(),
+        "platform": platform.platform(),
+        "cpu": cpu_model(),
+        "packages": {name: _version(name) for name in
+                     ("warpchain", "warp-lang", "numpy", "scipy", "zarr", "matplotlib", "xarray")},
+    }
+    info.update(extra)
+    return info
+
+
+def _plain(value):
+    """Convert numpy scalars/arrays in nested attributes to JSON-able Python values."""
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def consolidate(path) -> None:
+    """Write consolidated metadata so xarray opens the store without probing (zarr warns that
+    consolidation is not yet part of the v3 spec; the store stays valid without it)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        zarr.consolidate_metadata(str(path))
+
+
+def open_store(path, *, params: dict | None = None, provenance_info: dict | None = None, mode: str = "w") -> zarr.Group:
+    """Create (``mode="w"``) or open (``"a"``, ``"r"``) a zarr v3 store; sets root attributes."""
+    root = zarr.open_group(str(path), mode=mode, zarr_format=3)
+    if mode != "r":
+        attrs = {}
+        if params is not None:
+            attrs["params"] = _plain(params)
+        if provenance_info is not None:
+            attrs["provenance"] = _plain(provenance_info)
+        if attrs:
+            root.attrs.update(attrs)
+    return root
+
+
+class FieldWriter:
+    """Streams time-dependent fields into a group, one whole time chunk at a time.
+
+    Args:
+        root: the store's root group; path: its file path (for consolidation).
+        group: name of the group to create.
+        fields: field name -> shape of one frame (e.g. ``{"u": (N,), "v": (N,)}``).
+        dims: dimension names of a field, starting with ``"t"`` (e.g. ``("t", "site")``).
+        chunk_t: frames per chunk.
+        coords: extra coordinates, name -> (dims, values); ``site`` (1..N) is added when a dim
+            is named ``site`` and no coordinate is given.
+        expected_frames: total frames if known (sizes the single chunk of the ``t`` coordinate).
+        attrs: attributes of the group.
+    """
+
+    def __init__(self, root: zarr.Group, path, group: str, fields: dict, dims: tuple, chunk_t: int,
+                 coords: dict | None = None, expected_frames: int | None = None, attrs: dict | None = None):
+        if not dims or dims[0] != "t":
+            raise ValueError(f"field dims must start with 't', got {dims}")
+        if chunk_t < 1:
+            raise ValueError("chunk_t must be >= 1")
+        self.path, self.chunk_t, self.dims = path, int(chunk_t), tuple(dims)
+        self.group = root.require_group(group)
+        self.arrays = {}
+        for name, frame_shape in fields.items():
+            frame_shape = tuple(frame_shape)
+            if len(frame_shape) != len(dims) - 1:
+                raise ValueError(f"field {name}: frame shape {frame_shape} does not match dims {dims}")
+            self.arrays[name] = self.group.create_array(
+                name, shape=(0, *frame_shape), chunks=(self.chunk_t, *frame_shape), dtype="f8",
+                dimension_names=self.dims, overwrite=True)
+        t_chunk = max(int(expected_frames or 0), 1 << 16)
+        self.t = self.group.create_array("t", shape=(0,), chunks=(t_chunk,), dtype="f8", dimension_names=("t",),
+                                         overwrite=True)
+        coords = dict(coords or {})
+        first = next(iter(fields.values())) if fields else ()
+        if "site" in dims and "site" not in coords:
+            n_sites = tuple(first)[dims.index("site") - 1]
+            coords["site"] = (("site",), np.arange(1, n_sites + 1))
+        for name, (cdims, values) in coords.items():
+            values = np.asarray(values)
+            arr = self.group.create_array(name, shape=values.shape, chunks=values.shape or (1,), dtype=values.dtype,
+                                          dimension_names=tuple(cdims), overwrite=True)
+            arr[...] = values
+        self.group.attrs.update(_plain({**(attrs or {}), "complete": False, "n_written": 0, "t_written": None}))
+        self.n_written = 0
+        self._pending_t: list[np.ndarray] = []
+        self._pending: dict[str, list[np.ndarray]] = {name: [] for name in self.arrays}
+        consolidate(self.path)
+
+    @property
+    def _n_pending(self) -> int:
+        return int(sum(len(t) for t in self._pending_t))
+
+    def append(self, t, **frames) -> None:
+        """Queue frames: ``t`` shape (n,), each field shape (n, *frame_shape); writes whole chunks."""
+        t = np.atleast_1d(np.asarray(t, dtype=np.float64))
+        if set(frames) != set(self.arrays):
+            raise ValueError(f"append needs exactly the fields {sorted(self.arrays)}, got {sorted(frames)}")
+        for name, values in frames.items():
+            values = np.asarray(values, dtype=np.float64)
+            if values.shape != (len(t), *self.arrays[name].shape[1:]):
+                raise ValueError(f"field {name}: got shape {values.shape}, expected {(len(t), *self.arrays[name].shape[1:])}")
+            self._pending[name].append(values)
+        self._pending_t.append(t)
+        if self._n_pending >= self.chunk_t:
+            self._flush(whole_only=True)
+
+    def _flush(self, whole_only: bool) -> None:
+        n = self._n_pending
+        if n == 0:
+            return
+        take = (n // self.chunk_t) * self.chunk_t if whole_only else n
+        if take == 0:
+            return
+        t_all = np.concatenate(self._pending_t)
+        start, stop = self.n_written, self.n_written + take
+        for name, arr in self.arrays.items():
+            values = np.concatenate(self._pending[name])
+            arr.resize((stop, *arr.shape[1:]))
+            arr[start:stop] = values[:take]
+            self._pending[name] = [values[take:]] if take < n else []
+        self.t.resize((stop,))
+        self.t[start:stop] = t_all[:take]
+        self._pending_t = [t_all[take:]] if take < n else []
+        self.n_written = stop
+        self.group.attrs.update({"n_written": int(stop), "t_written": float(t_all[take - 1])})
+        consolidate(self.path)
+
+    def close(self, **attrs) -> None:
+        """Write what is left (the last, possibly partial, chunk) and mark the group complete."""
+        self._flush(whole_only=False)
+        self.group.attrs.update(_plain({**attrs, "complete": True}))
+        consolidate(self.path)
+
+
+def write_fields(root: zarr.Group, path, group: str, t, fields: dict, dims: tuple, chunk_t: int = 256,
+                 coords: dict | None = None, attrs: dict | None = None) -> None:
+    """Write complete fields (name -> array of shape (n_t, ...)) to a new group in one go."""
+    t = np.asarray(t, dtype=np.float64)
+    writer = FieldWriter(root, path, group, {k: np.shape(v)[1:] for k, v in fields.items()}, dims,
+                         min(chunk_t, max(len(t), 1)), coords=coords, expected_frames=len(t), attrs=attrs)
+    writer.append(t, **fields)
+    writer.close()
+
+
+def write_table(root: zarr.Group, group: str, columns: dict, dim: str = "point", attrs: dict | None = None) -> zarr.Group:
+    """Write 1-D or N-D arrays sharing a leading dimension ``dim`` (e.g. points along a branch)."""
+    g = root.require_group(group)
+    for name, values in columns.items():
+        values = np.asarray(values)
+        dims = (dim,) + tuple(f"{name}_{k}" for k in range(1, values.ndim))
+        arr = g.create_array(name, shape=values.shape, chunks=values.shape if values.size else (1,) * values.ndim,
+                             dtype=values.dtype, dimension_names=dims, overwrite=True)
+        arr[...] = values
+    if attrs:
+        g.attrs.update(_plain(attrs))
+    return g
+
+
+def read_group(path, group: str) -> tuple[dict, dict]:
+    """Read every array of a group into numpy; returns (arrays, attributes)."""
+    root = zarr.open_group(str(path), mode="r", zarr_format=3)
+    g = root[group]
+    arrays = {name: arr[...] for name, arr in g.arrays()}
+    return arrays, dict(g.attrs)
+
+
+def read_attrs(path) -> dict:
+    """Root attributes (params, provenance) of a store."""
+    return dict(zarr.open_group(str(path), mode="r", zarr_format=3).attrs)
