@@ -1,0 +1,217 @@
+"""Initial guesses for breathers: anti-continuum, linear eigenmode and NLS seeds.
+
+All seeds are time-reversible states at a turning point: positions (u, v) with zero velocities,
+returned as a (4, N) state.
+
+**NLS coefficients** (derived here again; the paper's appendix has typos). With z = u - v and
+w = M u + v the continuum equations (x = j / sqrt(K)) read exactly
+
+    z_tt + w0^2 g(z) = u_xx / M,   w_tt = u_xx,   u = (w + z) / (M + 1),
+    g(z) = z + z^2/4 - z^3/24 + ...,  w0^2 = (M + 1) / M.
+
+Multiple scales with z = eps (A(X, T) e^{i w0 t} + c.c.) + eps^2 z2 + ..., X = eps x, T = eps^2 t
+give at O(eps^2) z2 = (A^2 e^{2 i w0 t} + c.c.) / 12 - |A|^2 / 2 (w carries no oscillating part
+at this order) and, from the secular terms at O(eps^3),
+
+    2 i w0 A_T = D A_XX + G |A|^2 A,   D = 1 / (M (M + 1)),   G = w0^2 / 3.
+
+With A = B(X) e^{-i nu T} (frequency w_b = w0 - eps^2 nu): D B'' = 2 w0 nu B - G B^3, whose
+bright soliton is B = alpha sech(beta X), beta^2 = 2 w0 nu / D, alpha^2 = 2 beta^2 D / G = 12 nu / w0.
+Undoing the scalings (Delta = w0 - w_b = eps^2 nu):
+
+    z(j, t) ~ 2 sqrt(12 Delta / w0) sech(kappa j) cos(w_b t),   kappa = sqrt(2 w0 Delta M (M + 1) / K),
+    u ~ z / (M + 1),  v ~ -M z / (M + 1)   (plus the O(eps^2) terms above).
+
+Two independent checks (tests/test_seeds.py): the uniform case gives the single oscillator's
+frequency shift, w = w0 (1 - a^2 / 24) for amplitude a (Lindstedt), and D is the curvature of the
+optical band at q = 0, w ~ w0 + K D q^2 / (2 w0) ... i.e. d(w^2)/d(k^2) = D with k^2 = K q^2.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+from scipy.integrate import solve_ivp
+from scipy.optimize import brentq
+
+from warpchain.model import ChainParams, contact_force, lowest_optical_mode, state_from_positions
+
+
+# ----------------------------------------------------------------------------- anti-continuum
+
+
+@dataclasses.dataclass(frozen=True)
+class OscillatorOrbit:
+    """A periodic orbit of one uncoupled site, z'' = -w0^2 f(z) (K = 0).
+
+    Attributes:
+        omega: frequency; period: 2 pi / omega.
+        z_max, z_min: turning points (z_max at t = 0, z_min at t = T/2).
+        t, z: one period sampled (for plots).
+    """
+
+    omega: float
+    period: float
+    z_max: float
+    z_min: float
+    t: np.ndarray
+    z: np.ndarray
+
+
+def _half_period(z0: float, omega0: float, dense: bool = False):
+    """Time from the turning point z0 > 0 (at rest) to the next turning point."""
+
+    def rhs(t, y):
+        return [y[1], -omega0 ** 2 * float(contact_force(y[0]))]
+
+    def turning(t, y):
+        return y[1]
+
+    turning.direction = 1.0  # z' goes from negative to zero at the lower turning point
+    turning.terminal = True
+    sol = solve_ivp(rhs, (0.0, 100.0 / omega0), [z0, 0.0], method="DOP853", rtol=1e-12, atol=1e-14,
+                    events=turning, dense_output=dense)
+    if not sol.t_events[0].size:
+        raise RuntimeError(f"no turning point found from z0 = {z0}")
+    return sol.t_events[0][0], sol.y_events[0][0][0], sol
+
+
+def oscillator_frequency(z_max: float, M: float) -> float:
+    """Frequency of the K = 0 site oscillation with upper turning point ``z_max`` > 0."""
+    omega0 = math.sqrt((M + 1.0) / M)
+    half, _, _ = _half_period(z_max, omega0)
+    return math.pi / half
+
+
+def anticontinuum_orbit(omega: float, M: float, samples: int = 256) -> OscillatorOrbit:
+    """The single-site periodic orbit of frequency ``omega`` (0 < omega < w0), solved as the
+    one-degree-of-freedom problem it is: the upper turning point is found by root finding on the
+    period (the oscillator softens, so its frequency falls monotonically with amplitude).
+
+    Raises:
+        ValueError: omega outside (0, w0), or too low to be reached.
+    """
+    omega0 = math.sqrt((M + 1.0) / M)
+    if not 0.0 < omega < omega0:
+        raise ValueError(f"the anti-continuum orbit needs 0 < omega < w0 = {omega0:.6f} (the oscillator softens); "
+                         f"got omega = {omega}")
+    target = lambda z0: oscillator_frequency(z0, M) - omega  # noqa: E731
+    lo, hi = 1e-6, 0.5
+    while target(hi) > 0:
+        hi *= 2.0
+        if hi > 1e3:
+            raise ValueError(f"omega = {omega} is below the frequencies this oscillator reaches")
+    z_max = brentq(target, lo, hi, xtol=1e-14, rtol=1e-14)
+    half, z_min, sol = _half_period(z_max, omega0, dense=True)
+    t = np.linspace(0.0, 2 * half, samples)
+    first = sol.sol(np.minimum(t, half))[0]
+    # the second half is the time reverse of the first (reversible oscillator)
+    z = np.where(t <= half, first, sol.sol(np.clip(2 * half - t, 0, half))[0])
+    return OscillatorOrbit(omega=omega, period=2 * half, z_max=z_max, z_min=z_min, t=t, z=z)
+
+
+def anticontinuum_seed(params: ChainParams, omega: float, kind: str = "site", centre: int | None = None) -> np.ndarray:
+    """Anti-continuum seed: the single-oscillator orbit on one site (``"site"``), or on two
+    neighbouring sites in phase (``"bond-in-phase"``) or out of phase (``"bond-out-of-phase"``),
+    with M u + v = 0 on the excited sites and rest elsewhere.
+
+    Returns:
+        state (4, N) at t = 0 (turning point, zero velocities).
+    """
+    kinds = ("site", "bond-in-phase", "bond-out-of-phase")
+    if kind not in kinds:
+        raise ValueError(f"kind must be one of {kinds}, got {kind!r}")
+    orbit = anticontinuum_orbit(omega, params.M)
+    N = params.N
+    j0 = N // 2 if centre is None else int(centre)
+    if not 0 <= j0 < N - (0 if kind == "site" else 1):
+        raise ValueError(f"centre {j0} is outside the chain of N = {N}")
+    z = np.zeros(N)
+    z[j0] = orbit.z_max
+    if kind == "bond-in-phase":
+        z[j0 + 1] = orbit.z_max
+    elif kind == "bond-out-of-phase":
+        z[j0 + 1] = orbit.z_min  # half a period later on the neighbour
+    return state_from_positions(z / (params.M + 1.0), -params.M * z / (params.M + 1.0))
+
+
+# ----------------------------------------------------------------------------- eigenmode
+
+
+def eigenmode_seed(params: ChainParams, amplitude: float, centre_component: str = "v") -> np.ndarray:
+    """The finite chain's lowest optical eigenmode at rest, scaled so that |v| (or |u|, |z|) at the
+    centre site equals ``amplitude``.
+
+    Returns:
+        state (4, N).
+    """
+    _, shape = lowest_optical_mode(params)
+    c = params.N // 2
+    ref = {"v": shape[1, c], "u": shape[0, c], "z": shape[0, c] - shape[1, c]}[centre_component]
+    shape = shape * (amplitude / abs(ref))
+    return state_from_positions(shape[0], shape[1])
+
+
+# ----------------------------------------------------------------------------- NLS
+
+
+@dataclasses.dataclass(frozen=True)
+class NLSBreather:
+    """The NLS approximation of the standing breather (module docstring).
+
+    Attributes:
+        omega: breather frequency; delta: w0 - omega.
+        dispersion, nonlinearity: D and G of 2 i w0 A_T = D A_XX + G |A|^2 A.
+        amplitude: peak of z at t = 0 (first order), 2 sqrt(12 delta / w0).
+        kappa: inverse width in sites.
+    """
+
+    M: float
+    K: float
+    omega: float
+    delta: float
+    dispersion: float
+    nonlinearity: float
+    amplitude: float
+    kappa: float
+
+    def positions(self, N: int, centre: int | None = None, order: int = 2) -> tuple[np.ndarray, np.ndarray]:
+        """u and v profiles at t = 0 on N sites."""
+        c = N // 2 if centre is None else centre
+        j = np.arange(N) - c
+        b = 0.5 * self.amplitude / np.cosh(self.kappa * j)
+        z_osc = 2.0 * b + (b * b / 6.0 if order >= 2 else 0.0)
+        u = z_osc / (self.M + 1.0)
+        v = -self.M * z_osc / (self.M + 1.0)
+        if order >= 2:
+            v = v + b * b / 2.0  # the mean shift sits on the resonators (u's mean is zero)
+        return u, v
+
+
+def nls_coefficients(M: float) -> tuple[float, float]:
+    """(D, G) of the NLS 2 i w0 A_T = D A_XX + G |A|^2 A for the optical band edge at q = 0."""
+    omega0_sq = (M + 1.0) / M
+    return 1.0 / (M * (M + 1.0)), omega0_sq / 3.0
+
+
+def nls_breather(M: float, K: float, omega: float) -> NLSBreather:
+    """NLS approximation of the band-gap breather of frequency omega < w0 (needs K > 0)."""
+    omega0 = math.sqrt((M + 1.0) / M)
+    if not 0.0 < omega < omega0:
+        raise ValueError(f"the NLS breather needs omega below the optical band edge w0 = {omega0:.6f}; got {omega}")
+    if K <= 0:
+        raise ValueError("the NLS (continuum) approximation needs K > 0")
+    D, G = nls_coefficients(M)
+    delta = omega0 - omega
+    amplitude = 2.0 * math.sqrt(12.0 * delta / omega0)
+    kappa = math.sqrt(2.0 * omega0 * delta / D / K)
+    return NLSBreather(M=M, K=K, omega=omega, delta=delta, dispersion=D, nonlinearity=G, amplitude=amplitude,
+                       kappa=kappa)
+
+
+def nls_seed(params: ChainParams, omega: float, order: int = 2, centre: int | None = None) -> np.ndarray:
+    """NLS seed state (4, N) at t = 0 for the chain's M, K."""
+    u, v = nls_breather(params.M, params.K, omega).positions(params.N, centre, order)
+    return state_from_positions(u, v)
