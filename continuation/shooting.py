@@ -308,7 +308,7 @@ def find_breather(params: ChainParams, omega: float, seed, *, formulation: str =
                    f"(omega = {omega:.6g}, {formulation} formulation, {jacobian} Jacobian)")
     else:
         report = frequency_report(params, omega)
-        message = (f"Newton failed for omega = {omega:.6g} ({report['location']}): {message}. {status.advice}.")
+        message = (f"Newton failed for omega = {omega:.6g} ({report['location']}): {message}. What to do: {status.advice}.")
     half = simulate(params, state, n_half * dt_used, dt_used, method=method, device=device, max_energy_error=None,
                     chunks=1) if status is not ShootingStatus.INTEGRATION_ERROR else None
     contact = float(min(min_contact(state)[0], min_contact(half.x)[0])) if half is not None else float("nan")

@@ -34,3 +34,23 @@ def test_dispersion_scene(tmp_path):
     assert (tmp_path / "dispersion" / "dispersion.png").stat().st_size > 10_000
     assert (tmp_path / "dispersion" / "dispersion.pdf").exists()
     assert 10 < summary["appendix_estimates"]["M"] < 100
+
+
+def test_breather_scenes_quick(tmp_path):
+    for name in ("anticontinuum", "nls", "breather"):
+        out = _run("run", name, "--quick", "--out", str(tmp_path), "--device", "cpu")
+        assert out.returncode == 0, out.stderr
+    s = json.loads((tmp_path / "breather" / "summary.json").read_text())
+    for key in ("M", "K", "N", "omega", "energy", "residual", "newton_iterations", "u_center", "v_center",
+                "max_floquet_modulus", "floquet_pairing_error", "stable", "method", "dt", "wall_seconds"):
+        assert key in s, key
+    assert s["residual"] <= 1e-10 and s["floquet_pairing_error"] <= 1e-8
+    assert s["direct_simulation"]["max_relative_deviation"] < 1e-8
+    assert s["u_center"] > 0 > s["v_center"]
+    n = json.loads((tmp_path / "nls" / "summary.json").read_text())
+    assert {"nls_energy", "numerical_energy", "profile_max_difference"} <= set(n)
+    assert n["numerical_energy"] == pytest.approx(s["energy"], rel=1e-12)
+    a = json.loads((tmp_path / "anticontinuum" / "summary.json").read_text())
+    assert a["period"] == pytest.approx(2 * 3.141592653589793 / 1.01, rel=1e-9)
+    for name in ("anticontinuum", "nls", "breather"):
+        assert (tmp_path / name / f"{name}.png").exists()

@@ -106,12 +106,13 @@ def _plain(value):
     return value
 
 
-def consolidate(path) -> None:
-    """Write consolidated metadata so xarray opens the store without probing (zarr warns that
-    consolidation is not yet part of the v3 spec; the store stays valid without it)."""
+def consolidate(store) -> None:
+    """Write consolidated metadata (path or zarr store) so xarray opens the store without probing
+    (zarr warns that consolidation is not yet part of the v3 spec; the store stays valid without it).
+    Every writer here calls it after writing, so the consolidated view never lags the arrays."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        zarr.consolidate_metadata(str(path))
+        zarr.consolidate_metadata(str(store) if isinstance(store, (str, os.PathLike)) else store)
 
 
 def open_store(path, *, params: dict | None = None, provenance_info: dict | None = None, mode: str = "w") -> zarr.Group:
@@ -235,22 +236,27 @@ def write_fields(root: zarr.Group, path, group: str, t, fields: dict, dims: tupl
 
 
 def write_table(root: zarr.Group, group: str, columns: dict, dim: str = "point", attrs: dict | None = None) -> zarr.Group:
-    """Write 1-D or N-D arrays sharing a leading dimension ``dim`` (e.g. points along a branch)."""
+    """Write 1-D or N-D numeric arrays sharing a leading dimension ``dim`` (e.g. points along a
+    branch). Strings are not stored as arrays (zarr v3 has no stable string type): put labels in
+    ``attrs``."""
     g = root.require_group(group)
     for name, values in columns.items():
         values = np.asarray(values)
+        if values.dtype.kind not in "biufc":
+            raise TypeError(f"column {name!r} has dtype {values.dtype}; store labels in attrs instead")
         dims = (dim,) + tuple(f"{name}_{k}" for k in range(1, values.ndim))
         arr = g.create_array(name, shape=values.shape, chunks=values.shape if values.size else (1,) * values.ndim,
                              dtype=values.dtype, dimension_names=dims, overwrite=True)
         arr[...] = values
     if attrs:
         g.attrs.update(_plain(attrs))
+    consolidate(root.store)
     return g
 
 
 def read_group(path, group: str) -> tuple[dict, dict]:
     """Read every array of a group into numpy; returns (arrays, attributes)."""
-    root = zarr.open_group(str(path), mode="r", zarr_format=3)
+    root = zarr.open_group(str(path), mode="r", zarr_format=3, use_consolidated=False)
     g = root[group]
     arrays = {name: arr[...] for name, arr in g.arrays()}
     return arrays, dict(g.attrs)
@@ -258,4 +264,4 @@ def read_group(path, group: str) -> tuple[dict, dict]:
 
 def read_attrs(path) -> dict:
     """Root attributes (params, provenance) of a store."""
-    return dict(zarr.open_group(str(path), mode="r", zarr_format=3).attrs)
+    return dict(zarr.open_group(str(path), mode="r", zarr_format=3, use_consolidated=False).attrs)

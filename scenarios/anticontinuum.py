@@ -1,0 +1,78 @@
+"""Anti-continuum limit (paper Fig. 5a): the single-site orbit at w_b = 1.01 and the frequency-amplitude curve.
+
+Command: ``python -m scenarios run anticontinuum`` (about 5 s on a 2-core CPU).
+
+At K = 0 each site is the oscillator z'' = -w0^2 f(z), w0^2 = (M + 1)/M; it softens, so the orbit of
+frequency w_b < w0 is found by root finding on its period (a one-degree-of-freedom problem). The
+seed puts it on the centre site with M u + v = 0 and the rest of the chain at rest.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from continuation import anticontinuum_orbit, anticontinuum_seed, oscillator_frequency
+from warpchain import ChainParams
+from warpchain.store import open_store, provenance, read_group, write_table
+
+from ._common import PAPER_M, PAPER_N, PAPER_OMEGA, Context, pyplot, read_summary, save_figure
+
+# parameters
+M, N, OMEGA, K_SEED = PAPER_M, PAPER_N, PAPER_OMEGA, 0.01
+AMPLITUDES = np.geomspace(1e-3, 3.0, 60)  # upper turning points z_max
+
+
+def run(ctx: Context) -> dict:
+    params = ChainParams(M, K_SEED, N)
+    orbit = anticontinuum_orbit(OMEGA, M)
+    ctx.log("orbit at w_b = %.4f: z in [%.6f, %.6f], period %.6f", OMEGA, orbit.z_min, orbit.z_max, orbit.period)
+    amplitudes = AMPLITUDES[::4] if ctx.quick else AMPLITUDES
+    freqs = np.array([oscillator_frequency(a, M) for a in amplitudes])
+    seed = anticontinuum_seed(params, OMEGA)
+    omega0 = params.omega0
+    small = amplitudes < 0.05
+    # Lindstedt: w = w0 (1 - a^2 / 24) for z = a cos(w t) + O(a^2); the largest relative deviation
+    # among the small amplitudes checks the expansion (it should shrink like a^4)
+    lindstedt = omega0 * (1 - amplitudes ** 2 / 24)
+    root = open_store(ctx.out / "data.zarr", params=params.as_dict(), provenance_info=provenance(ctx.device))
+    write_table(root, "orbit", {"t": orbit.t, "z": orbit.z}, dim="t",
+                attrs={"omega": OMEGA, "z_max": orbit.z_max, "z_min": orbit.z_min})
+    write_table(root, "frequency_amplitude", {"z_max": amplitudes, "omega": freqs, "lindstedt": lindstedt},
+                dim="point", attrs={"omega0": omega0})
+    write_table(root, "seed", {"u": seed[0], "v": seed[1], "site": np.arange(1, N + 1)}, dim="site")
+    return {
+        "M": M, "omega": OMEGA, "omega0": omega0, "z_max": orbit.z_max, "z_min": orbit.z_min,
+        "period": orbit.period, "seed_u_center": seed[0, N // 2], "seed_v_center": seed[1, N // 2],
+        "lindstedt_max_relative_deviation_small_amplitude": float(np.max(np.abs(freqs[small] / lindstedt[small] - 1))),
+    }
+
+
+def plot(out) -> None:
+    orbit, oattrs = read_group(out / "data.zarr", "orbit")
+    curve, cattrs = read_group(out / "data.zarr", "frequency_amplitude")
+    seed, _ = read_group(out / "data.zarr", "seed")
+    s = read_summary(out)
+    plt = pyplot()
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
+    c = len(seed["site"]) // 2
+    sl = slice(c - 10, c + 11)
+    axes[0].plot(seed["site"][sl], seed["u"][sl], "o-", label="u_j")
+    axes[0].plot(seed["site"][sl], seed["v"][sl], "s-", label="v_j")
+    axes[0].set_title(f"single-site seed, $\\omega_b$ = {s['omega']}")
+    axes[0].set_xlabel("site j")
+    axes[0].legend()
+    axes[1].plot(orbit["t"], orbit["z"])
+    axes[1].axhline(-1, color="r", ls=":", label="contact lost (1 + z = 0)")
+    axes[1].set_xlabel("t")
+    axes[1].set_ylabel("z = u - v")
+    axes[1].set_title("the site's orbit over one period")
+    axes[1].legend(fontsize=8)
+    axes[2].semilogx(curve["z_max"], curve["omega"], label="oscillator (computed)")
+    axes[2].semilogx(curve["z_max"], curve["lindstedt"], "--", label=r"Lindstedt $\omega_0(1 - a^2/24)$")
+    axes[2].axhline(cattrs["omega0"], color="k", ls=":", lw=0.8)
+    axes[2].axhline(s["omega"], color="tab:red", lw=0.8, label=r"$\omega_b$")
+    axes[2].set_ylim(0.5, 1.1)
+    axes[2].set_xlabel("upper turning point z_max")
+    axes[2].set_ylabel(r"frequency $\omega$")
+    axes[2].legend(fontsize=8)
+    save_figure(fig, out, "anticontinuum")

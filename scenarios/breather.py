@@ -1,0 +1,186 @@
+"""The w_b = 1.01, K = 160, M = 30, N = 201 breather: Newton shooting, Floquet multipliers, and a check
+by direct simulation over 100 periods; tangent vs finite-difference Jacobians charted.
+
+Command: ``python -m scenarios run breather --device cpu`` (about 40 s on a 2-core CPU; ``--quick`` ~15 s).
+
+Steps: the NLS seed -> Newton on the time-reversible half-period map (tangent Jacobian, yoshida6,
+128 steps per period) -> the full 804 x 804 monodromy and its multipliers -> the general
+formulation (full state, x(T) - x0 plus a phase condition) from the same seed as a cross-check
+-> 100 periods of direct simulation with the same integrator and an independent scipy DOP853 run.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from continuation import find_breather, floquet, nls_seed, require
+from warpchain import ChainParams, propagate_tangent, simulate
+from warpchain.reference import solve_ivp_reference
+from warpchain.store import open_store, provenance, read_group, write_fields, write_table
+
+from ._common import (BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD, PAPER_K, PAPER_M, PAPER_N, PAPER_OMEGA, Context,
+                      paper_breather, pyplot, read_summary, save_figure)
+
+# parameters
+PERIODS = 100                 # direct-simulation check
+DOP853_PERIODS = 100          # independent scipy check
+FD_STEPS = (1e-3, 1e-5, 1e-7, 1e-9)
+CONTACT_LOSS_SCALE = 3.0      # the breather profile scaled up until resonators lose contact
+
+
+def _jacobian_comparison(params, state, n_half, dt, device, label):
+    """Half-period Jacobian (2N position columns): tangent vs central finite differences."""
+    N = params.N
+    directions = np.eye(4 * N)[: 2 * N].reshape(2 * N, 4, N)
+    t0 = time.perf_counter()
+    tan = propagate_tangent(params, state, directions, n_half, dt, method=BREATHER_METHOD, device=device)
+    t_tan = time.perf_counter() - t0
+    J = tan.columns.reshape(2 * N, -1)
+    rows = [{"case": label, "jacobian": "tangent", "h": None, "seconds": t_tan, "relative_difference": 0.0}]
+    for h in FD_STEPS:
+        t0 = time.perf_counter()
+        batch = np.concatenate([state[None] + h * directions, state[None] - h * directions])
+        run = simulate(params, batch, n_half * dt, dt, method=BREATHER_METHOD, device=device, max_energy_error=None,
+                       chunks=1)
+        fd = ((run.x[: 2 * N] - run.x[2 * N :]) / (2 * h)).reshape(2 * N, -1)
+        rows.append({"case": label, "jacobian": "finite-difference", "h": h, "seconds": time.perf_counter() - t0,
+                     "relative_difference": float(np.max(np.abs(fd - J)) / np.max(np.abs(J)))})
+    return rows
+
+
+def run(ctx: Context) -> dict:
+    start = time.perf_counter()
+    params = ChainParams(PAPER_M, PAPER_K, PAPER_N)
+    b = paper_breather(ctx.device, log=ctx.log)
+    ctx.log(b.message)
+    fl = floquet(b, device=ctx.device)
+    ctx.log("Floquet: max nontrivial |l| = %.8f, pairing error %.2e, tolerance %.2e -> %s (%.1f s)", fl.max_modulus,
+            fl.pairing_error, fl.tolerance, "stable" if fl.stable else "unstable", fl.wall_seconds)
+
+    # cross-check: the general formulation from the same seed
+    seed = nls_seed(params, PAPER_OMEGA)
+    if ctx.quick:  # start next to the solution: a few cheap iterations
+        seed = b.state + 1e-4 * np.exp(-((np.arange(params.N) - params.N // 2) / 3.0) ** 2)
+    general = require(find_breather(params, PAPER_OMEGA, seed, formulation="general", method=BREATHER_METHOD,
+                                    steps_per_period=BREATHER_STEPS_PER_PERIOD, device=ctx.device))
+    general_diff = float(np.max(np.abs(general.state - b.state)))
+    ctx.log("general formulation: %s; max state difference to the reversible one %.2e", general.message, general_diff)
+
+    # direct simulation over many periods with the same integrator, sampled once per period
+    n_period = 2 * b.nsteps
+    direct = simulate(params, b.state, PERIODS * n_period * b.dt, b.dt, method=b.method, device=ctx.device,
+                      save_every=n_period, progress=False)
+    amp = np.max(np.abs(b.state[:2]))
+    deviation = np.maximum(np.max(np.abs(direct.u[:, 0] - b.state[0]), axis=-1),
+                           np.max(np.abs(direct.v[:, 0] - b.state[1]), axis=-1)) / amp
+    ctx.log("direct simulation: %d periods, max relative deviation from the initial profile %.2e, energy error %.1e",
+            PERIODS, deviation.max(), direct.energy_error[0])
+    t0 = time.perf_counter()
+    dop_periods = 10 if ctx.quick else DOP853_PERIODS
+    dop_end, sol = solve_ivp_reference(params, b.state, dop_periods * b.period, rtol=1e-11, atol=1e-13)
+    dop_dev = float(np.max(np.abs(dop_end[:2] - b.state[:2])) / amp)
+    ctx.log("scipy DOP853 (rtol 1e-11): %d periods in %.1f s, relative deviation %.2e", dop_periods,
+            time.perf_counter() - t0, dop_dev)
+
+    # tangent vs finite-difference Jacobians: smooth orbit and an orbit that loses contact
+    rows = _jacobian_comparison(params, b.state, b.nsteps, b.dt, ctx.device, "breather (smooth)")
+    loss_state = CONTACT_LOSS_SCALE * b.state
+    rows_loss = _jacobian_comparison(params, loss_state, b.nsteps, b.dt, ctx.device, "contact loss")
+    loss_contact = float(simulate(params, loss_state, b.nsteps * b.dt, b.dt, method=b.method, device=ctx.device,
+                                  save_every=1, max_energy_error=None).min_contact[0])
+    ctx.log("contact-loss orbit: min(1 + u - v) = %.3f over the half period", loss_contact)
+    rows += rows_loss
+
+    root = open_store(ctx.out / "data.zarr", params=params.as_dict(), provenance_info=provenance(ctx.device))
+    write_table(root, "breather", {"site": np.arange(1, params.N + 1), "u": b.state[0], "v": b.state[1],
+                                   "u_general": general.state[0], "v_general": general.state[1]}, dim="site",
+                attrs={"omega": b.omega, "energy": b.energy, "method": b.method, "dt": b.dt})
+    write_table(root, "multipliers", {"real": fl.multipliers.real, "imag": fl.multipliers.imag,
+                                      "trivial": np.isin(np.arange(len(fl.multipliers)), fl.trivial)},
+                dim="multiplier", attrs={"pairing_error": fl.pairing_error, "tolerance": fl.tolerance})
+    write_table(root, "newton", {"residual": np.array(b.residual_history)}, dim="iteration")
+    write_fields(root, ctx.out / "data.zarr", "direct", direct.t, {"u": direct.u[:, 0], "v": direct.v[:, 0]},
+                 ("t", "site"), chunk_t=64, attrs={"method": direct.method, "dt": direct.dt, "sampled": "once per period"})
+    write_table(root, "periodicity", {"period": np.arange(PERIODS + 1), "relative_deviation": deviation}, dim="period")
+    cases = sorted({r["case"] for r in rows})
+    write_table(root, "jacobian_comparison", {
+        "case": np.array([cases.index(r["case"]) for r in rows]),
+        "finite_difference": np.array([r["jacobian"] == "finite-difference" for r in rows]),
+        "h": np.array([np.nan if r["h"] is None else r["h"] for r in rows]),
+        "seconds": np.array([r["seconds"] for r in rows]),
+        "relative_difference": np.array([r["relative_difference"] for r in rows])}, dim="row",
+        attrs={"case_names": cases, "half_period_columns": 2 * params.N})
+    c = params.N // 2
+    return {
+        "M": params.M, "K": params.K, "N": params.N, "omega": b.omega, "energy": b.energy, "residual": b.residual,
+        "newton_iterations": b.iterations, "residual_history": list(b.residual_history),
+        "u_center": float(b.state[0, c]), "v_center": float(b.state[1, c]),
+        "max_floquet_modulus": fl.max_modulus, "floquet_pairing_error": fl.pairing_error,
+        "floquet_tolerance": fl.tolerance, "stable": fl.stable, "symplecticity_error": fl.symplecticity_error,
+        "method": b.method, "dt": b.dt, "steps_per_period": 2 * b.nsteps,
+        "newton_seconds": b.wall_seconds, "floquet_seconds": fl.wall_seconds,
+        "general_formulation": {"iterations": general.iterations, "residual": general.residual,
+                                "max_state_difference": general_diff, "seconds": general.wall_seconds},
+        "direct_simulation": {"periods": PERIODS, "max_relative_deviation": float(deviation.max()),
+                              "energy_error": float(direct.energy_error[0]), "seconds": direct.wall_seconds},
+        "dop853_check": {"periods": dop_periods, "rtol": 1e-11, "relative_deviation": dop_dev},
+        "jacobian_comparison": rows, "contact_loss_min_contact": loss_contact,
+        "wall_seconds": time.perf_counter() - start,
+    }
+
+
+def plot(out) -> None:
+    br, battrs = read_group(out / "data.zarr", "breather")
+    mult, mattrs = read_group(out / "data.zarr", "multipliers")
+    per, _ = read_group(out / "data.zarr", "periodicity")
+    jac, jattrs = read_group(out / "data.zarr", "jacobian_comparison")
+    s = read_summary(out)
+    plt = pyplot()
+    fig, axes = plt.subplots(2, 2, figsize=(11, 8))
+    c = len(br["site"]) // 2
+    sl = slice(c - 25, c + 26)
+    axes[0, 0].plot(br["site"][sl], br["u"][sl], "o-", ms=3)
+    axes[0, 0].set_title(f"u_j at t = 0 ($\\omega_b$ = {s['omega']}, K = {s['K']:g}, M = {s['M']:g})")
+    axes[0, 1].plot(br["site"][sl], br["v"][sl], "o-", ms=3, color="tab:orange")
+    axes[0, 1].set_title(f"v_j at t = 0 (E = {s['energy']:.6f})")
+    for ax in axes[0]:
+        ax.set_xlabel("site j")
+    lam = mult["real"] + 1j * mult["imag"]
+    ax = axes[1, 0]
+    th = np.linspace(0, 2 * np.pi, 400)
+    ax.plot(np.cos(th), np.sin(th), "k-", lw=0.6)
+    ax.plot(lam.real, lam.imag, ".", ms=4, label="multipliers")
+    ax.plot(lam[mult["trivial"]].real, lam[mult["trivial"]].imag, "x", color="k", label="trivial pair")
+    ax.set_aspect("equal")
+    ax.set_title(f"Floquet: max |l| = {s['max_floquet_modulus']:.6f}, pairing err {s['floquet_pairing_error']:.1e}",
+                 fontsize=9)
+    ax.legend(fontsize=8, loc="lower left")
+    inset = ax.inset_axes([0.58, 0.58, 0.4, 0.4])
+    inset.plot(np.abs(lam), np.angle(lam), ".", ms=3)
+    inset.axvline(1, color="k", lw=0.5)
+    inset.set_xlim(1 - 4e-4, 1 + 4e-4)
+    inset.set_xlabel("|l|", fontsize=7)
+    inset.set_ylabel("arg l", fontsize=7)
+    inset.tick_params(labelsize=6)
+    ax = axes[1, 1]
+    ax.semilogy(per["period"], np.maximum(per["relative_deviation"], 1e-17), "-")
+    ax.set_xlabel("periods")
+    ax.set_ylabel("max |x(nT) - x(0)| / max |x(0)|")
+    ax.set_title("direct simulation with the same integrator")
+    fig.tight_layout()
+    save_figure(fig, out, "breather")
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for k, (case, marker) in enumerate(zip(jattrs["case_names"], "os")):
+        m = (jac["case"] == k) & jac["finite_difference"]
+        ax.loglog(jac["h"][m], jac["relative_difference"][m], marker + "-", label=f"{case}: FD vs tangent")
+        t = (jac["case"] == k) & ~jac["finite_difference"]
+        ax.annotate(f"{case}: tangent {jac['seconds'][t][0]:.2f} s, FD {np.mean(jac['seconds'][m]):.2f} s per h",
+                    xy=(0.02, 0.95 - 0.07 * k), xycoords="axes fraction", fontsize=7)
+    ax.set_xlabel("finite-difference step h")
+    ax.set_ylabel("max |J_FD - J_tangent| / max |J|")
+    ax.set_title("half-period Jacobian: finite differences vs tangent", fontsize=10)
+    ax.legend(fontsize=8, loc="lower right")
+    save_figure(fig, out, "jacobian_comparison")
