@@ -223,6 +223,79 @@ class _PeriodMap:
         return r, J, x_end
 
 
+@dataclasses.dataclass(frozen=True)
+class NewtonOutcome:
+    """What ``newton`` returns: the last iterate, residual norms, and why it stopped."""
+
+    unknowns: np.ndarray
+    history: tuple
+    iterations: int
+    status: ShootingStatus
+    message: str
+    used_lstsq: int
+
+
+def newton(unknowns, residual_and_jacobian, residual, *, tol: float, max_iterations: int, amplitude=None,
+           collapse_below: float = 0.0, max_halvings: int = 8, log=None) -> NewtonOutcome:
+    """Damped Newton: LU solve (least squares when singular or ill-conditioned, or when J is not
+    square), step halved while the residual grows.
+
+    Args:
+        unknowns: initial iterate.
+        residual_and_jacobian: y -> (r, J); residual: y -> r (for the damped trial points).
+        tol: stop when ||r||_2 <= tol.
+        amplitude, collapse_below: an iterate with amplitude(y) < collapse_below is reported as
+            ``TRIVIAL`` (Newton fell onto the rest state).
+    """
+    history, used_lstsq, iterations, message = [], 0, 0, ""
+    status = None
+    try:
+        r, J = residual_and_jacobian(unknowns)
+        norm = float(np.linalg.norm(r))
+        history.append(norm)
+        while True:
+            if not math.isfinite(norm):
+                status, message = ShootingStatus.INTEGRATION_ERROR, "the residual is not finite"
+                break
+            if amplitude is not None:
+                amp = amplitude(unknowns)
+                if amp < collapse_below or amp == 0.0:
+                    status = ShootingStatus.TRIVIAL
+                    message = f"amplitude collapsed to {amp:.3g}: the rest state is not a breather"
+                    break
+            if norm <= tol:
+                status = ShootingStatus.CONVERGED
+                break
+            if iterations >= max_iterations:
+                status = ShootingStatus.MAX_ITERATIONS
+                message = f"residual {norm:.3g} > tol {tol:g} after {iterations} iterations"
+                break
+            step, lstsq_used = _solve(J, r)
+            used_lstsq += int(lstsq_used)
+            lam, trial_norm = 1.0, math.inf
+            for _ in range(max_halvings):
+                trial = unknowns - lam * step
+                trial_norm = float(np.linalg.norm(residual(trial)))
+                if math.isfinite(trial_norm) and trial_norm < norm:
+                    break
+                lam *= 0.5
+            iterations += 1
+            if not (math.isfinite(trial_norm) and trial_norm < norm):
+                status = ShootingStatus.STAGNATED
+                message = f"no damped step (down to 1/{2 ** max_halvings}) reduced the residual {norm:.3g}"
+                break
+            unknowns = trial
+            r, J = residual_and_jacobian(unknowns)
+            norm = float(np.linalg.norm(r))
+            history.append(norm)
+            if log is not None:
+                log(f"newton {iterations}: residual {norm:.3e} (damping {lam:g}{', lstsq' if lstsq_used else ''})")
+    except IntegrationError as exc:
+        status, message = ShootingStatus.INTEGRATION_ERROR, str(exc)
+    return NewtonOutcome(unknowns=unknowns, history=tuple(history), iterations=iterations, status=status,
+                         message=message, used_lstsq=used_lstsq)
+
+
 def find_breather(params: ChainParams, omega: float, seed, *, formulation: str = "reversible",
                   method: str = DEFAULT_METHOD, dt: float | None = None, steps_per_period: int | None = None,
                   tol: float = 1e-10, max_iterations: int = 30, jacobian: str = "tangent", fd_step: float = 1e-7,
@@ -255,53 +328,16 @@ def find_breather(params: ChainParams, omega: float, seed, *, formulation: str =
     pmap = _PeriodMap(params, omega, formulation, method, n_half, dt_used, jacobian, fd_step, device, seed)
     unknowns = pmap.from_state(seed)
     seed_amplitude = float(np.max(np.abs(seed[0] - seed[1])))
-    history, used_lstsq, status, message = [], 0, None, ""
-    iterations = 0
-    try:
-        r, J, _ = pmap.residual_and_jacobian(unknowns)
-        norm = float(np.linalg.norm(r))
-        history.append(norm)
-        while True:
-            if not math.isfinite(norm):
-                status, message = ShootingStatus.INTEGRATION_ERROR, "the residual is not finite"
-                break
-            current = pmap.to_state(unknowns)
-            amplitude = float(np.max(np.abs(current[0] - current[1])))
-            if amplitude < collapse_ratio * seed_amplitude or amplitude == 0.0:
-                status = ShootingStatus.TRIVIAL
-                message = (f"amplitude collapsed to {amplitude:.3g} (seed {seed_amplitude:.3g}): the rest state is "
-                           f"not a breather")
-                break
-            if norm <= tol:
-                status = ShootingStatus.CONVERGED
-                break
-            if iterations >= max_iterations:
-                status = ShootingStatus.MAX_ITERATIONS
-                message = f"residual {norm:.3g} > tol {tol:g} after {iterations} iterations"
-                break
-            step, lstsq_used = _solve(J, r)
-            used_lstsq += int(lstsq_used)
-            # damped step: halve it while the residual grows
-            lam, trial_norm = 1.0, math.inf
-            for _ in range(8):
-                trial = unknowns - lam * step
-                trial_norm = float(np.linalg.norm(pmap.residual(trial)))
-                if math.isfinite(trial_norm) and trial_norm < norm:
-                    break
-                lam *= 0.5
-            iterations += 1
-            if not (math.isfinite(trial_norm) and trial_norm < norm):
-                status = ShootingStatus.STAGNATED
-                message = f"no damped step (down to 1/128) reduced the residual {norm:.3g}"
-                break
-            unknowns = trial
-            r, J, _ = pmap.residual_and_jacobian(unknowns)
-            norm = float(np.linalg.norm(r))
-            history.append(norm)
-            if log is not None:
-                log(f"newton {iterations}: residual {norm:.3e} (damping {lam:g}{', lstsq' if lstsq_used else ''})")
-    except IntegrationError as exc:
-        status, message = ShootingStatus.INTEGRATION_ERROR, str(exc)
+
+    def amplitude(unknowns):
+        x = pmap.to_state(unknowns)
+        return float(np.max(np.abs(x[0] - x[1])))
+
+    outcome = newton(unknowns, lambda y: pmap.residual_and_jacobian(y)[:2], pmap.residual, tol=tol,
+                     max_iterations=max_iterations, amplitude=amplitude,
+                     collapse_below=collapse_ratio * seed_amplitude, log=log)
+    unknowns, history, iterations = outcome.unknowns, outcome.history, outcome.iterations
+    status, message, used_lstsq = outcome.status, outcome.message, outcome.used_lstsq
     state = pmap.to_state(unknowns)
     if status is ShootingStatus.CONVERGED:
         message = (f"converged in {iterations} iterations to residual {history[-1]:.3g} "
@@ -314,7 +350,7 @@ def find_breather(params: ChainParams, omega: float, seed, *, formulation: str =
     contact = float(min(min_contact(state)[0], min_contact(half.x)[0])) if half is not None else float("nan")
     return ShootingResult(
         state=state, omega=float(omega), period=2 * math.pi / omega, energy=float(energy(params, state)[0]),
-        residual=history[-1] if history else float("nan"), residual_history=tuple(history), iterations=iterations,
+        residual=history[-1] if history else float("nan"), residual_history=history, iterations=iterations,
         status=status, message=message, min_contact=contact, method=method, dt=dt_used,
         nsteps=pmap.nsteps, formulation=formulation, jacobian=jacobian, used_lstsq=used_lstsq,
         wall_seconds=time.perf_counter() - start, params=params)

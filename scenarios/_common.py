@@ -18,6 +18,8 @@ SCENES = {
     "anticontinuum": "scenarios.anticontinuum",
     "nls": "scenarios.nls",
     "breather": "scenarios.breather",
+    "continuation-k": "scenarios.continuation_k",
+    "continuation-omega": "scenarios.continuation_omega",
 }
 #: scenes that reproduce the paper (``python -m scenarios paper``)
 PAPER_SCENES = list(SCENES)
