@@ -20,6 +20,8 @@ SCENES = {
     "breather": "scenarios.breather",
     "continuation-k": "scenarios.continuation_k",
     "continuation-omega": "scenarios.continuation_omega",
+    "direct-simulation": "scenarios.direct_simulation",
+    "work-precision": "scenarios.work_precision",
 }
 #: scenes that reproduce the paper (``python -m scenarios paper``)
 PAPER_SCENES = list(SCENES)

@@ -57,6 +57,8 @@ class SimulationResult:
         max_energy_error: largest relative energy error seen at chunk boundaries, per lattice.
         min_contact: min over sites and checked times of 1 + u_j - v_j, per lattice (<= 0:
             contact was lost at some point).
+        energy_t, energy_trace: times of the chunk ends and the energy of each lattice there,
+            shapes (n_chunks + 1,) and (n_chunks + 1, batch) (the t = 0 value first).
         method, dt, nsteps, t_final, device, wall_seconds: how it ran (dt is the step used).
     """
 
@@ -69,6 +71,8 @@ class SimulationResult:
     energy_error: np.ndarray
     max_energy_error: np.ndarray
     min_contact: np.ndarray
+    energy_t: np.ndarray
+    energy_trace: np.ndarray
     method: str
     dt: float
     nsteps: int
@@ -264,6 +268,7 @@ def simulate(params: ChainParams, x0, t_final: float, dt: float, *, method: str 
     runner = _Runner(meth, params, x0, Mb, Kb, device)
     wp = runner.wp
     E0 = energy(params, x0, Mb, Kb)
+    trace_t, trace_E = [0.0], [E0]
     max_err = np.zeros(batch)
     contact = min_contact(x0)
 
@@ -298,6 +303,8 @@ def simulate(params: ChainParams, x0, t_final: float, dt: float, *, method: str 
             E = energy(params, np.where(finite[:, None, None], x, 0.0), Mb, Kb)
             err = np.where(finite, _relative_energy_error(E, E0, params.N), np.inf)
             max_err = np.maximum(max_err, err)
+            trace_t.append(t_now)
+            trace_E.append(E)
             bad = ~finite | ((err > max_energy_error) if max_energy_error is not None else False)
             if np.any(bad):
                 failed = np.flatnonzero(bad).tolist()
@@ -332,6 +339,7 @@ def simulate(params: ChainParams, x0, t_final: float, dt: float, *, method: str 
     return SimulationResult(
         x=x, t=t_arr, u=u_arr, v=v_arr, energy_initial=E0, energy_final=E1,
         energy_error=_relative_energy_error(E1, E0, params.N), max_energy_error=max_err, min_contact=contact,
+        energy_t=np.array(trace_t), energy_trace=np.stack(trace_E),
         method=meth.name, dt=dt_used, nsteps=nsteps, t_final=nsteps * dt_used, device=device,
         wall_seconds=time.perf_counter() - start)
 
