@@ -3,8 +3,8 @@ by direct simulation over 100 periods; tangent vs finite-difference Jacobians ch
 
 Command: ``python -m scenarios run breather --device cpu`` (about 40 s on a 2-core CPU; ``--quick`` ~15 s).
 
-Steps: the NLS seed -> Newton on the time-reversible half-period map (tangent Jacobian, yoshida6,
-128 steps per period) -> the full 804 x 804 monodromy and its multipliers -> the general
+Steps: the NLS seed -> Newton on the time-reversible half-period map (tangent Jacobian, kahan8,
+32 steps per period) -> the full 804 x 804 monodromy and its multipliers -> the general
 formulation (full state, x(T) - x0 plus a phase condition) from the same seed as a cross-check
 -> 100 periods of direct simulation with the same integrator and an independent scipy DOP853 run.
 """

@@ -153,8 +153,8 @@ def plot(out) -> None:
     data, attrs = read_group(out / "data.zarr", "points")
     plt = pyplot()
     fig, axes = plt.subplots(1, 3, figsize=(16, 4.8))
-    colors = {"verlet": "tab:blue", "yoshida4": "tab:orange", "yoshida6": "tab:green", "rk4": "tab:red",
-              "DOP853": "k"}
+    colors = {"verlet": "tab:blue", "yoshida4": "tab:orange", "yoshida6": "tab:green", "kahan6": "tab:purple",
+              "kahan8": "tab:brown", "rk4": "tab:red", "DOP853": "k"}
     for k, case in enumerate(attrs["case_names"]):
         ax = axes[k]
         for i_impl, impl in enumerate(attrs["implementation_names"]):
@@ -176,7 +176,9 @@ def plot(out) -> None:
         ax.legend(fontsize=6, ncol=2)
     ax = axes[2]
     for case, ls in zip(attrs["case_names"], ("-", ":")):
-        for method in ("verlet", "yoshida4", "yoshida6", "rk4"):
+        for method in colors:
+            if method == "DOP853":
+                continue
             d, _ = read_group(out / "data.zarr", f"energy/{case}/{method}")
             ax.semilogy(d["t"] / s["cases"][case]["period"], np.maximum(d["relative_energy_error"], 1e-17), ls,
                         color=colors[method], label=f"{case} {method}")

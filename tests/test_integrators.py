@@ -39,7 +39,7 @@ def test_warp_matches_numpy_reference_boundaries(boundary):
 
 
 ORDER_STEPS = {"verlet": (0.04, 0.02, 0.01), "yoshida4": (0.1, 0.05, 0.025), "yoshida6": (0.2, 0.1, 0.05),
-               "rk4": (0.1, 0.05, 0.025)}
+               "kahan6": (0.4, 0.2, 0.1), "kahan8": (0.8, 0.4, 0.2), "rk4": (0.1, 0.05, 0.025)}
 
 
 @pytest.fixture(scope="module")
@@ -60,7 +60,7 @@ def test_observed_order_of_convergence(method, smooth_reference):
     assert abs(slope - METHODS[method].order) <= 0.3, (method, errors, slope)
 
 
-@pytest.mark.parametrize("method", ["verlet", "yoshida4", "yoshida6"])
+@pytest.mark.parametrize("method", ["verlet", "yoshida4", "yoshida6", "kahan6", "kahan8"])
 def test_symplectic_energy_bounded_not_drifting(method):
     p = ChainParams(30.0, 160.0, 41)
     x0 = localized_state(p.N, amplitude=0.5)
