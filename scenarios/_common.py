@@ -22,6 +22,8 @@ SCENES = {
     "continuation-omega": "scenarios.continuation_omega",
     "direct-simulation": "scenarios.direct_simulation",
     "work-precision": "scenarios.work_precision",
+    "stability-limits": "scenarios.stability_limits",
+    "throughput": "scenarios.throughput",
 }
 #: scenes that reproduce the paper (``python -m scenarios paper``)
 PAPER_SCENES = list(SCENES)

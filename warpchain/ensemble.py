@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import threading
 import time
 import warnings
@@ -150,6 +151,50 @@ def _check_step(method: Method, params, dt, M, K, allow_unstable_step: bool) -> 
     return limit
 
 
+def cpu_threads() -> int:
+    """Threads used for CPU launches: WARPCHAIN_CPU_THREADS, else the number of cores."""
+    env = os.environ.get("WARPCHAIN_CPU_THREADS")
+    if env:
+        try:
+            value = int(env)
+        except ValueError:
+            raise ValueError(f"WARPCHAIN_CPU_THREADS must be a positive integer, got {env!r}") from None
+        if value < 1:
+            raise ValueError(f"WARPCHAIN_CPU_THREADS must be a positive integer, got {env!r}")
+        return value
+    return os.cpu_count() or 1
+
+
+def _slices(n: int, device: str) -> list[tuple[int, int]]:
+    """Contiguous slices of n lattices: one per CPU thread (Warp runs a CPU launch on one core,
+    so concurrent launches on disjoint slices use the others), or one slice on a GPU."""
+    k = min(cpu_threads(), n) if device == "cpu" else 1
+    bounds = np.linspace(0, n, max(k, 1) + 1).astype(int)
+    return [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
+
+
+def _in_parallel(tasks) -> None:
+    """Run callables concurrently (one thread each); re-raise the first error."""
+    if len(tasks) == 1:
+        tasks[0]()
+        return
+    errors = []
+
+    def wrap(task):
+        try:
+            task()
+        except BaseException as exc:  # pragma: no cover - surfaced below
+            errors.append(exc)
+
+    threads = [threading.Thread(target=wrap, args=(t,)) for t in tasks]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    if errors:
+        raise errors[0]
+
+
 def _relative_energy_error(E, E0, N):
     scale = np.maximum(np.abs(E0), 1e-14 * N)
     return np.abs(E - E0) / scale
@@ -188,33 +233,53 @@ class _Runner:
         s = self.method.stages
         return nsteps * s + 1 if self.method.family == "splitting" else nsteps * s
 
-    def launch(self, nsteps: int, dt: float, save_every: int = 0, rec=None, record_stiffness: bool = False):
+    def launch(self, nsteps: int, dt: float, save_every: int = 0, n_rec: int = 0, record_stiffness: bool = False):
+        """Advance every lattice by nsteps; returns the recorded frames (n_rec, batch, 2, N) or None.
+
+        On the CPU the batch is split into one slice per thread (launched concurrently); a run that
+        records the contact stiffness (tangent base) runs as one slice, since its history is shared."""
         wp, k = self.wp, self.k
-        rec = self.no_record if rec is None else rec
-        common = [self.mass, self.coupling]
-        tail = [self.boundary, wp.float64(dt), int(nsteps), int(save_every), rec, int(record_stiffness), self.hist]
-        if self.method.family == "splitting":
-            wp.launch(k.splitting_kernel, dim=self.batch, device=self.device,
-                      inputs=[self.x, self.acc, *common, self.drifts, self.kicks, *tail])
-        else:
-            wp.launch(k.rk4_kernel, dim=self.batch, device=self.device,
-                      inputs=[self.x, self.y, self.kbuf, self.total, *common, *tail])
+        slices = [(0, self.batch)] if record_stiffness else _slices(self.batch, self.device)
+        recs = [wp.zeros((n_rec, hi - lo, 2, self.N), dtype=wp.float64, device=self.device) if n_rec else self.no_record
+                for lo, hi in slices]
+        tail = [self.boundary, wp.float64(dt), int(nsteps), int(save_every) if n_rec else 0]
+
+        def task(lo, hi, rec):
+            common = [self.mass[lo:hi], self.coupling[lo:hi]]
+            end = [*tail, rec, int(record_stiffness), self.hist]
+            if self.method.family == "splitting":
+                wp.launch(k.splitting_kernel, dim=hi - lo, device=self.device,
+                          inputs=[self.x[lo:hi], self.acc[lo:hi], *common, self.drifts, self.kicks, *end])
+            else:
+                wp.launch(k.rk4_kernel, dim=hi - lo, device=self.device,
+                          inputs=[self.x[lo:hi], self.y[lo:hi], self.kbuf[lo:hi], self.total[lo:hi], *common, *end])
+
+        _in_parallel([lambda lo=lo, hi=hi, rec=rec: task(lo, hi, rec) for (lo, hi), rec in zip(slices, recs)])
+        if not n_rec:
+            return None
+        return np.concatenate([rec.numpy() for rec in recs], axis=1)
 
     def launch_tangent(self, dx, column_base, nsteps: int, dt: float):
-        """Propagate tangent columns (device array (ncols, 4, N)) along the recorded history."""
+        """Propagate tangent columns (device array (ncols, 4, N)) along the recorded history; on the
+        CPU the columns are split into one slice per thread."""
         wp, k = self.wp, self.k
         ncols = dx.shape[0]
         f64 = wp.float64
-        if self.method.family == "splitting":
-            dacc = wp.zeros((ncols, 2, self.N), dtype=f64, device=self.device)
-            wp.launch(k.splitting_tangent_kernel, dim=ncols, device=self.device,
-                      inputs=[dx, dacc, column_base, self.mass, self.coupling, self.drifts, self.kicks,
-                              self.boundary, f64(dt), int(nsteps), self.hist])
-        else:
-            scratch = [wp.zeros((ncols, 4, self.N), dtype=f64, device=self.device) for _ in range(3)]
-            wp.launch(k.rk4_tangent_kernel, dim=ncols, device=self.device,
-                      inputs=[dx, *scratch, column_base, self.mass, self.coupling, self.boundary, f64(dt),
-                              int(nsteps), self.hist])
+
+        def task(lo, hi):
+            n = hi - lo
+            if self.method.family == "splitting":
+                dacc = wp.zeros((n, 2, self.N), dtype=f64, device=self.device)
+                wp.launch(k.splitting_tangent_kernel, dim=n, device=self.device,
+                          inputs=[dx[lo:hi], dacc, column_base[lo:hi], self.mass, self.coupling, self.drifts,
+                                  self.kicks, self.boundary, f64(dt), int(nsteps), self.hist])
+            else:
+                scratch = [wp.zeros((n, 4, self.N), dtype=f64, device=self.device) for _ in range(3)]
+                wp.launch(k.rk4_tangent_kernel, dim=n, device=self.device,
+                          inputs=[dx[lo:hi], *scratch, column_base[lo:hi], self.mass, self.coupling, self.boundary,
+                                  f64(dt), int(nsteps), self.hist])
+
+        _in_parallel([lambda lo=lo, hi=hi: task(lo, hi) for lo, hi in _slices(ncols, self.device)])
 
 
 # ----------------------------------------------------------------------------- public API
@@ -266,7 +331,6 @@ def simulate(params: ChainParams, x0, t_final: float, dt: float, *, method: str 
     nsteps, dt_used = steps_for(float(t_final), float(dt))
 
     runner = _Runner(meth, params, x0, Mb, Kb, device)
-    wp = runner.wp
     E0 = energy(params, x0, Mb, Kb)
     trace_t, trace_E = [0.0], [E0]
     max_err = np.zeros(batch)
@@ -294,8 +358,7 @@ def simulate(params: ChainParams, x0, t_final: float, dt: float, *, method: str 
         while done < nsteps:
             steps = min(chunk_steps, nsteps - done)
             n_rec = steps // save_every if save_every else 0
-            rec = wp.zeros((n_rec, batch, 2, params.N), dtype=wp.float64, device=device) if n_rec else None
-            runner.launch(steps, dt_used, save_every or 0, rec)
+            frames = runner.launch(steps, dt_used, save_every or 0, n_rec)
             x = runner.x.numpy()
             done += steps
             t_now = done * dt_used
@@ -317,7 +380,6 @@ def simulate(params: ChainParams, x0, t_final: float, dt: float, *, method: str 
                     method=meth.name, dt=dt_used, stability_limit=limit, failed=failed, t=t_now)
             contact = np.minimum(contact, min_contact(x))
             if n_rec:
-                frames = rec.numpy()
                 ts = (np.arange(1, n_rec + 1) * save_every + (done - steps)) * dt_used
                 saved_t.extend(ts.tolist())
                 saved_u.extend(frames[:, :, 0])

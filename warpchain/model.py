@@ -77,15 +77,23 @@ class ChainParams:
 # ----------------------------------------------------------------------------- forces, energy
 
 
+def _floating(z):
+    """z as a floating array, keeping float32 (the reference's float32 runs) and promoting the rest."""
+    z = np.asarray(z)
+    return z if z.dtype in (np.float32, np.float64) else z.astype(np.float64)
+
+
 def contact_force(z):
     """f(z) = (2/3)([1 + z]_+^{3/2} - 1): the Hertzian contact force minus its static preload."""
-    s = np.maximum(1.0 + np.asarray(z, dtype=np.float64), 0.0)
-    return (2.0 / 3.0) * (s * np.sqrt(s) - 1.0)
+    z = _floating(z)
+    s = np.maximum(1 + z, 0)
+    return z.dtype.type(2.0 / 3.0) * (s * np.sqrt(s) - 1)
 
 
 def contact_stiffness(z):
     """f'(z) = [1 + z]_+^{1/2} (continuous, not Lipschitz where contact is lost)."""
-    return np.sqrt(np.maximum(1.0 + np.asarray(z, dtype=np.float64), 0.0))
+    z = _floating(z)
+    return np.sqrt(np.maximum(1 + z, 0))
 
 
 def contact_potential(z):
@@ -156,13 +164,13 @@ def accelerations(params: ChainParams, x, M=None, K=None) -> np.ndarray:
     Returns:
         array of shape (batch, 2, N).
     """
-    x = np.asarray(x, dtype=np.float64)
+    x = _floating(x)
     batch = x.shape[0]
-    Mb = _per_lattice(params.M if M is None else M, batch)
-    Kb = _per_lattice(params.K if K is None else K, batch)
+    Mb = _per_lattice(params.M if M is None else M, batch).astype(x.dtype)
+    Kb = _per_lattice(params.K if K is None else K, batch).astype(x.dtype)
     u, v = x[:, 0], x[:, 1]
     force = contact_force(u - v)
-    acc = np.empty((batch, 2, x.shape[-1]))
+    acc = np.empty((batch, 2, x.shape[-1]), dtype=x.dtype)
     acc[:, 0] = -(Kb * laplacian(u, params.boundary) + force) / Mb
     acc[:, 1] = force
     return acc

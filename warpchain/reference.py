@@ -5,7 +5,8 @@ vectorised over lattices and sites instead of looped. It also propagates tangent
 exact derivative of the discrete map), used to check the Warp tangent kernels.
 
 Shapes: a batch state ``x`` is (batch, 4, N) ordered (u, v, u', v'); tangent columns ``dx`` are
-(batch, ncols, 4, N), each column attached to its lattice.
+(batch, ncols, 4, N), each column attached to its lattice. ``dtype=np.float32`` runs the same
+schemes in single precision (the stability-limits scene's float32 comparison).
 """
 
 from __future__ import annotations
@@ -21,12 +22,12 @@ def _linear_accelerations(params: ChainParams, q, dq, M, K):
     stiff = contact_stiffness(q[:, 0] - q[:, 1])[:, None, :]  # (batch, 1, N)
     dz = dq[:, :, 0] - dq[:, :, 1]
     out = np.empty_like(dq)
-    out[:, :, 0] = -(K[:, None, None] * laplacian(dq[:, :, 0], params.boundary) + stiff * dz) / M[:, None, None]
+    out[:, :, 0] = -(K[:, None, None] * laplacian(dq[:, :, 0], params.boundary) + stiff * dz) / M[:, None, None]  # noqa: E501
     out[:, :, 1] = stiff * dz
     return out
 
 
-def step(method: Method | str, params: ChainParams, x, dt: float, M=None, K=None, dx=None):
+def step(method: Method | str, params: ChainParams, x, dt: float, M=None, K=None, dx=None, dtype=np.float64):
     """Advance a batch (and optionally its tangent columns) by one step of ``method``.
 
     Args:
@@ -34,23 +35,26 @@ def step(method: Method | str, params: ChainParams, x, dt: float, M=None, K=None
         dt: step size.
         M, K: per-lattice parameters, shape (batch,), or None for ``params``' values.
         dx: tangent columns, shape (batch, ncols, 4, N), or None.
+        dtype: float64 (default) or float32; coefficients and the step are rounded to it.
 
     Returns:
         the new state, or (state, tangent columns) when ``dx`` is given.
     """
     method = get_method(method)
-    x = np.array(x, dtype=np.float64, copy=True)
+    x = np.array(x, dtype=dtype, copy=True)
     batch = x.shape[0]
-    M = np.broadcast_to(np.asarray(params.M if M is None else M, dtype=np.float64), (batch,))
-    K = np.broadcast_to(np.asarray(params.K if K is None else K, dtype=np.float64), (batch,))
-    dx = None if dx is None else np.array(dx, dtype=np.float64, copy=True)
+    M = np.broadcast_to(np.asarray(params.M if M is None else M, dtype=dtype), (batch,))
+    K = np.broadcast_to(np.asarray(params.K if K is None else K, dtype=dtype), (batch,))
+    dx = None if dx is None else np.array(dx, dtype=dtype, copy=True)
+    dt = dtype(dt)
     if method.family == "splitting":
         acc = accelerations(params, x, M, K)
         dacc = None if dx is None else _linear_accelerations(params, x[:, :2], dx[:, :, :2], M, K)
-        x[:, 2:] += method.kicks[0] * dt * acc
+        kicks, drifts = [dtype(k) for k in method.kicks], [dtype(c) for c in method.drifts]
+        x[:, 2:] += kicks[0] * dt * acc
         if dx is not None:
-            dx[:, :, 2:] += method.kicks[0] * dt * dacc
-        for c, d in zip(method.drifts, method.kicks[1:]):
+            dx[:, :, 2:] += kicks[0] * dt * dacc
+        for c, d in zip(drifts, kicks[1:]):
             x[:, :2] += c * dt * x[:, 2:]
             acc = accelerations(params, x, M, K)
             x[:, 2:] += d * dt * acc
@@ -73,8 +77,8 @@ def step(method: Method | str, params: ChainParams, x, dt: float, M=None, K=None
         out[:, :, 2:] = _linear_accelerations(params, y[:, :2], dy[:, :, :2], M, K)
         return out
 
-    stage_coefficients = (0.5, 0.5, 1.0)
-    weights = (1.0, 2.0, 2.0, 1.0)
+    stage_coefficients = tuple(dtype(a) for a in (0.5, 0.5, 1.0))
+    weights = tuple(dtype(w) for w in (1.0, 2.0, 2.0, 1.0))
     k = rhs(x)
     dk = None if dx is None else tangent_rhs(x, dx)
     total = weights[0] * k
@@ -86,14 +90,14 @@ def step(method: Method | str, params: ChainParams, x, dt: float, M=None, K=None
             dtotal = dtotal + w * dk
         k = rhs(y)
         total = total + w * k
-    x_new = x + (dt / 6.0) * total
+    x_new = x + (dt / dtype(6.0)) * total
     if dx is None:
         return x_new
-    return x_new, dx + (dt / 6.0) * dtotal
+    return x_new, dx + (dt / dtype(6.0)) * dtotal
 
 
 def integrate(method: Method | str, params: ChainParams, x0, dt: float, nsteps: int, M=None, K=None,
-              dx0=None, save_every: int | None = None):
+              dx0=None, save_every: int | None = None, dtype=np.float64):
     """Integrate ``nsteps`` steps with the numpy reference.
 
     Args:
@@ -105,14 +109,14 @@ def integrate(method: Method | str, params: ChainParams, x0, dt: float, nsteps: 
         dict with ``x`` (final state), ``dx`` (final tangent columns or None) and, when
         ``save_every`` is given, ``u`` and ``v`` of shape (n_saved, batch, N).
     """
-    x = np.array(x0, dtype=np.float64, copy=True)
-    dx = None if dx0 is None else np.array(dx0, dtype=np.float64, copy=True)
+    x = np.array(x0, dtype=dtype, copy=True)
+    dx = None if dx0 is None else np.array(dx0, dtype=dtype, copy=True)
     us, vs = ([x[:, 0].copy()], [x[:, 1].copy()]) if save_every else (None, None)
     for n in range(nsteps):
         if dx is None:
-            x = step(method, params, x, dt, M, K)
+            x = step(method, params, x, dt, M, K, dtype=dtype)
         else:
-            x, dx = step(method, params, x, dt, M, K, dx)
+            x, dx = step(method, params, x, dt, M, K, dx, dtype=dtype)
         if save_every and (n + 1) % save_every == 0:
             us.append(x[:, 0].copy())
             vs.append(x[:, 1].copy())
