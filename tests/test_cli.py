@@ -36,10 +36,17 @@ def test_dispersion_scene(tmp_path):
     assert 10 < summary["appendix_estimates"]["M"] < 100
 
 
-def test_breather_scenes_quick(tmp_path):
-    for name in ("anticontinuum", "nls", "breather"):
-        out = _run("run", name, "--quick", "--out", str(tmp_path), "--device", "cpu")
-        assert out.returncode == 0, out.stderr
+@pytest.fixture(scope="module")
+def paper_quick(tmp_path_factory):
+    """``python -m scenarios paper --quick``: every paper scene, once, in one process."""
+    out_dir = tmp_path_factory.mktemp("paper")
+    out = _run("paper", "--quick", "--out", str(out_dir), "--device", "cpu")
+    assert out.returncode == 0, out.stderr[-3000:]
+    return out_dir
+
+
+def test_breather_scenes_quick(paper_quick):
+    tmp_path = paper_quick
     s = json.loads((tmp_path / "breather" / "summary.json").read_text())
     for key in ("M", "K", "N", "omega", "energy", "residual", "newton_iterations", "u_center", "v_center",
                 "max_floquet_modulus", "floquet_pairing_error", "stable", "method", "dt", "wall_seconds"):
@@ -54,3 +61,48 @@ def test_breather_scenes_quick(tmp_path):
     assert a["period"] == pytest.approx(2 * 3.141592653589793 / 1.01, rel=1e-9)
     for name in ("anticontinuum", "nls", "breather"):
         assert (tmp_path / name / f"{name}.png").exists()
+
+
+def test_continuation_scenes_quick(paper_quick):
+    k = json.loads((paper_quick / "continuation-k" / "summary.json").read_text())
+    assert {"omega", "M", "N", "points", "nls_energy_at_K160", "stop_reason"} <= set(k)
+    assert k["stop_reason"] == "reached_end" and k["points"][-1]["K"] == 160.0 and k["points"][0]["K"] == 0.01
+    assert all({"K", "energy", "max_floquet_modulus", "stable"} <= set(p) for p in k["points"])
+    w = json.loads((paper_quick / "continuation-omega" / "summary.json").read_text())
+    assert {"K", "M", "N", "points", "stop_reason"} <= set(w)
+    assert all({"omega", "energy", "max_floquet_modulus", "min_contact"} <= set(p) for p in w["points"])
+    assert w["stop_reason"] in ("left_range", "time_budget", "contact_lost") and w["message"]
+    for name, figure in (("continuation-k", "continuation_k"), ("continuation-omega", "continuation_omega_energy")):
+        assert (paper_quick / name / f"{figure}.png").exists()
+
+
+def test_direct_simulation_quick(paper_quick):
+    xr = pytest.importorskip("xarray")
+    s = json.loads((paper_quick / "direct-simulation" / "summary.json").read_text())
+    assert {"periods", "method", "dt", "wall_seconds", "cases"} <= set(s)
+    assert set(s["cases"]) == {"eigenmode-low", "breather-low", "eigenmode-high", "breather-high"}
+    for case in s["cases"].values():
+        assert {"energy_error", "min_contact"} <= set(case)
+    assert s["cases"]["breather-high"]["energy_error"] < 1e-8
+    ds = xr.open_zarr(paper_quick / "direct-simulation" / "data.zarr", group="breather-high")
+    assert ds["u"].dims == ("t", "site") and ds.sizes["site"] == 201
+    assert ds.sizes["t"] == s["periods"] * s["frames_per_period"] + 1
+
+
+@pytest.mark.parametrize("name", ["work-precision", "stability-limits", "throughput"])
+def test_speed_accuracy_scenes_quick(tmp_path, name):
+    out = _run("run", name, "--quick", "--out", str(tmp_path), "--device", "cpu")
+    assert out.returncode == 0, out.stderr[-3000:]
+    s = json.loads((tmp_path / name / "summary.json").read_text())
+    if name == "work-precision":
+        p = s["points"][0]
+        assert {"case", "implementation", "method", "dt", "rtol", "error", "seconds"} <= set(p)
+        assert {q["implementation"] for q in s["points"]} >= {"warp", "scipy"}
+    elif name == "stability-limits":
+        for m in s["methods"].values():
+            assert {"linear_limit", "measured_limit", "order_smooth", "order_contact_loss"} <= set(m)
+        assert abs(s["methods"]["verlet"]["order_smooth"] - 2) < 0.3
+        assert "newton_fails_below_omega" in s and "float32" in s
+    else:
+        assert s["device"].startswith("cpu") and s["results"]
+        assert {"implementation", "method", "batch", "site_steps_per_second"} <= set(s["results"][0])
