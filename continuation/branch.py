@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from warpchain import ChainParams, band_edges, energy, simulate
-from warpchain.store import consolidate, open_store, provenance
+from warpchain.store import consolidate, jsonable, open_store, provenance
 
 from .floquet import analyse_multipliers, monodromy
 from .shooting import (DEFAULT_METHOD, DEFAULT_STEPS_PER_PERIOD, ShootingStatus, _PeriodMap,
@@ -164,12 +164,10 @@ class BranchStore:
 
     def finish(self, branch: Branch) -> None:
         self.group.attrs.update({"complete": True, "stop_reason": branch.stop_reason, "message": branch.message,
-                                 "events": _plain_events(branch.events)})
+                                 "events": jsonable(branch.events)})
         consolidate(self.path)
 
 
-def _plain_events(events):
-    return [{k: (float(v) if isinstance(v, (np.floating,)) else v) for k, v in e.items()} for e in events]
 
 
 def load_branch(path, group: str) -> tuple[ChainParams, list, dict]:
@@ -243,6 +241,17 @@ def _contact_event(prev, point, parameter):
     at = a + (b - a) * ca / (ca - cb) if ca != cb else b
     return {"type": "contact_lost", "bracket": [a, b], "estimate": at,
             "message": f"contact lost between {parameter} = {a:.6g} and {b:.6g} (interpolated {at:.6g})"}
+
+
+def _finish(points, reason, message, events, start, store, bar) -> Branch:
+    """Close the progress bar, build the Branch with its stated stop reason, mark the store complete."""
+    if bar:
+        bar.close()
+    branch = Branch(points, reason, STOP_REASONS[reason] + (f": {message}" if message else ""), events,
+                    time.perf_counter() - start)
+    if store:
+        store.finish(branch)
+    return branch
 
 
 def _progress(total, desc, enabled):
@@ -339,13 +348,7 @@ def continue_in_coupling(params: ChainParams, omega: float, seed, K_end: float, 
             store.append(point)
         if point.iterations <= 3:
             step = min(step * 1.5, max_step)
-    if bar:
-        bar.close()
-    full = f"{STOP_REASONS[reason]}" + (f": {message}" if message else "")
-    branch = Branch(points, reason, full, events, time.perf_counter() - start)
-    if store:
-        store.finish(branch)
-    return branch
+    return _finish(points, reason, message, events, start, store, bar)
 
 
 # ----------------------------------------------------------------------------- continuation in frequency
@@ -449,7 +452,6 @@ def continue_in_frequency(params: ChainParams, start_points, *, method: str = DE
         resume: stored points to continue from (the last two set the secant); start_points unused.
     """
     start = time.perf_counter()
-    N = params.N
     edges = band_edges(params.M, params.K)
     W = _weights(params, theta)
     n_half = math.ceil(int(steps_per_period) / 2)
@@ -521,6 +523,18 @@ def continue_in_frequency(params: ChainParams, start_points, *, method: str = DE
                            f"({frequency_report(params, last.omega)['location']})")
                 break
             continue
+        step_taken = out.unknowns - y[-1]
+        if np.sum(W * step_taken * d) <= 0:
+            # the corrector landed behind the last point (backtracking, typical next to a resonance):
+            # not progress along the branch, so retry with a shorter step
+            ds *= 0.5
+            if log:
+                log(f"corrector went backwards along the branch; ds halved to {ds:.3g}")
+            if ds < min_ds:
+                reason = "step_underflow"
+                message = f"the corrector kept turning back near w_b = {last.omega:.6g}"
+                break
+            continue
         omega_new = float(out.unknowns[-1])
         state = _state_of(params, out.unknowns)
         point = analyse_point(params, omega_new, state, n_half, method, device, out.iterations, out.history)
@@ -532,10 +546,4 @@ def continue_in_frequency(params: ChainParams, start_points, *, method: str = DE
             store.append(point)
         if out.iterations <= 3:
             ds = min(ds * 1.3, max_ds)
-    if bar:
-        bar.close()
-    branch = Branch(points, reason, f"{STOP_REASONS[reason]}" + (f": {message}" if message else ""), events,
-                    time.perf_counter() - start)
-    if store:
-        store.finish(branch)
-    return branch
+    return _finish(points, reason, message, events, start, store, bar)

@@ -6,11 +6,10 @@ import dataclasses
 import importlib
 import json
 import logging
-import math
 import time
 from pathlib import Path
 
-import numpy as np
+from warpchain.store import jsonable
 
 #: scene name -> module (in the order ``paper`` runs them)
 SCENES = {
@@ -57,23 +56,9 @@ def load_scene(name: str):
     return importlib.import_module(SCENES[name])
 
 
-def _jsonable(value):
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _jsonable(value.tolist())
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, float) and not math.isfinite(value):
-        return None if math.isnan(value) else ("inf" if value > 0 else "-inf")
-    return value
-
-
 def write_summary(out: Path, summary: dict) -> Path:
     path = Path(out) / "summary.json"
-    path.write_text(json.dumps(_jsonable(summary), indent=2) + "\n")
+    path.write_text(json.dumps(jsonable(summary), indent=2) + "\n")
     return path
 
 

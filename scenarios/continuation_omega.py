@@ -46,17 +46,22 @@ def run(ctx: Context) -> dict:
 
     omegas = branch.column("omega")
     energies = branch.column("energy")
-    order = np.argsort(omegas)
-    # energy-frequency dependence, computed: monotonic if dE/dw keeps one sign along the branch
-    dE = np.diff(energies[order])
-    monotonic = bool(np.all(dE < 0) or np.all(dE > 0))
+    edges = band_edges(PAPER_M, PAPER_K)
+    # energy-frequency dependence, computed along the branch (it is parametrised by arclength, so w
+    # may turn back): monotonic where every step has dE dw < 0; folds are where dw changes sign
+    dw, dE = np.diff(omegas), np.diff(energies)
+    in_gap = (omegas[:-1] > edges["acoustic_top"]) & (omegas[1:] > edges["acoustic_top"])
+    monotonic_gap = bool(np.all(dE[in_gap] * dw[in_gap] < 0))
+    folds = [float(omegas[i + 1]) for i in range(len(dw) - 1) if dw[i] * dw[i + 1] < 0]
+    monotonic_all = bool(np.all(dE * dw < 0) and not folds)
+    ctx.log("energy vs frequency: monotonic in the gap: %s; along the whole branch: %s (%d folds in w_b)",
+            monotonic_gap, monotonic_all, len(folds))
     at_101 = None
     if omegas.min() <= PAPER_OMEGA <= omegas.max():
         nearest = branch.points[int(np.argmin(np.abs(omegas - PAPER_OMEGA)))]
         at_101 = require(find_breather(params, PAPER_OMEGA, nearest.state, method=BREATHER_METHOD,
                                        steps_per_period=BREATHER_STEPS_PER_PERIOD, device=ctx.device))
         ctx.log("w_b = 1.01 on this branch: E = %.12f", at_101.energy)
-    edges = band_edges(PAPER_M, PAPER_K)
     in_band = [p.omega for p in branch.points if p.omega <= edges["acoustic_top"]]
     return {
         "K": PAPER_K, "M": PAPER_M, "N": N,
@@ -64,7 +69,8 @@ def run(ctx: Context) -> dict:
                     "min_contact": p.min_contact, "stable": p.stable, "newton_iterations": p.iterations}
                    for p in branch.points],
         "stop_reason": branch.stop_reason, "message": branch.message,
-        "energy_monotonic_in_frequency": monotonic,
+        "energy_monotonic_in_frequency_in_gap": monotonic_gap,
+        "energy_monotonic_in_frequency_whole_branch": monotonic_all, "frequency_folds_at": folds,
         "energy_at_omega_1_01": None if at_101 is None else at_101.energy,
         "omega_range": [float(omegas.min()), float(omegas.max())],
         "entered_acoustic_band": bool(in_band), "lowest_omega": float(omegas.min()),
@@ -109,7 +115,6 @@ def plot(out) -> None:
     for k, (n, i) in enumerate(zip(names, labels)):
         a = fig.add_subplot(2, 4, 5 + k)
         prof = points[i].state
-        c = prof.shape[1] // 2
         a.plot(np.arange(prof.shape[1]) + 1, prof[1] - prof[0], "-", lw=1)
         a.set_title(f"({n}) $\\omega_b$ = {w[i]:.5f}", fontsize=9)
         a.set_xlabel("site j", fontsize=8)

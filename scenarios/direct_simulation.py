@@ -25,7 +25,7 @@ from continuation import eigenmode_seed
 from warpchain import ChainParams, simulate
 from warpchain.store import FieldWriter, open_store, provenance, read_group
 
-from ._common import (BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD, PAPER_K, PAPER_M, PAPER_N, Context, paper_breather,
+from ._common import (PAPER_K, PAPER_M, PAPER_N, Context, paper_breather,
                       pyplot, read_summary, save_figure)
 
 # parameters

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import continuation as ct
-from warpchain import ChainParams, dispersion, energy, linear_modes, simulate
+from warpchain import ChainParams, dispersion, linear_modes, simulate
 
 
 @pytest.fixture(scope="module")

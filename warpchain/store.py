@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import datetime
 import functools
+import math
 import os
 import platform
 import subprocess
@@ -93,16 +94,19 @@ def provenance(device: str | None = None, **extra) -> dict:
     return info
 
 
-def _plain(value):
-    """Convert numpy scalars/arrays in nested attributes to JSON-able Python values."""
+def jsonable(value):
+    """Nested numpy scalars/arrays -> plain JSON values (NaN -> None, +-inf -> "inf"/"-inf"), for
+    zarr attributes and summary.json alike."""
     if isinstance(value, dict):
-        return {str(k): _plain(v) for k, v in value.items()}
+        return {str(k): jsonable(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
+        return [jsonable(v) for v in value]
     if isinstance(value, np.ndarray):
-        return value.tolist()
+        return jsonable(value.tolist())
     if isinstance(value, np.generic):
-        return value.item()
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None if math.isnan(value) else ("inf" if value > 0 else "-inf")
     return value
 
 
@@ -121,9 +125,9 @@ def open_store(path, *, params: dict | None = None, provenance_info: dict | None
     if mode != "r":
         attrs = {}
         if params is not None:
-            attrs["params"] = _plain(params)
+            attrs["params"] = jsonable(params)
         if provenance_info is not None:
-            attrs["provenance"] = _plain(provenance_info)
+            attrs["provenance"] = jsonable(provenance_info)
         if attrs:
             root.attrs.update(attrs)
     return root
@@ -173,7 +177,7 @@ class FieldWriter:
             arr = self.group.create_array(name, shape=values.shape, chunks=values.shape or (1,), dtype=values.dtype,
                                           dimension_names=tuple(cdims), overwrite=True)
             arr[...] = values
-        self.group.attrs.update(_plain({**(attrs or {}), "complete": False, "n_written": 0, "t_written": None}))
+        self.group.attrs.update(jsonable({**(attrs or {}), "complete": False, "n_written": 0, "t_written": None}))
         self.n_written = 0
         self._pending_t: list[np.ndarray] = []
         self._pending: dict[str, list[np.ndarray]] = {name: [] for name in self.arrays}
@@ -221,7 +225,7 @@ class FieldWriter:
     def close(self, **attrs) -> None:
         """Write what is left (the last, possibly partial, chunk) and mark the group complete."""
         self._flush(whole_only=False)
-        self.group.attrs.update(_plain({**attrs, "complete": True}))
+        self.group.attrs.update(jsonable({**attrs, "complete": True}))
         consolidate(self.path)
 
 
@@ -249,7 +253,7 @@ def write_table(root: zarr.Group, group: str, columns: dict, dim: str = "point",
                              dtype=values.dtype, dimension_names=dims, overwrite=True)
         arr[...] = values
     if attrs:
-        g.attrs.update(_plain(attrs))
+        g.attrs.update(jsonable(attrs))
     consolidate(root.store)
     return g
 
