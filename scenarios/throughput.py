@@ -1,10 +1,24 @@
-"""Throughput: site-steps per second (batch x N x steps / seconds) of the Warp integrators against the
-numpy reference over batch sizes 1 to 32768 (4096 on the CPU, capped by time), all measured in one
-run on the current device; on a GPU also JAX (vmap + fori_loop) and a hand-written CUDA kernel through
-CuPy, when importable. Each result is also given as a fraction of the best at its batch size.
+"""Throughput: how fast the Warp kernels step ensembles of lattices and monodromy batches, against the
+numpy reference and (on a GPU, when importable) JAX (vmap + fori_loop) and a hand-written CUDA kernel
+through CuPy - all measured in one run on the current device and reported as ratios.
 
-Command: ``python -m scenarios run throughput`` (about 1-2 minutes on a 2-core CPU; ``--quick`` ~20 s).
-The device, CPU or GPU model and package versions are recorded in summary.json.
+Three parts:
+
+* **ensemble**: site-steps per second (batch x N x steps / seconds) of velocity Verlet for batch sizes
+  1 to 32768, every implementation, each also as a fraction of the best at its batch size; every
+  Warp method in the block layout (the GPU default) as force evaluations per second relative to
+  Verlet; a single lattice as nanoseconds per Verlet step.
+* **monodromy**: the paper breather (w_b = 1.01, K = 160, kahan8, 32 steps per period): the full
+  804-column monodromy (kernel time and wall time) and one Newton iteration end to end (tangent
+  batch of the half-period map, transfers, linear solve).
+* **kernels** (GPU): registers per thread, local memory and theoretical occupancy of each kernel.
+
+Timings are kernel time (device synchronised before and after, transfers excluded; best of 3), with
+the step count sized so that a measurement takes about ``SECONDS`` s.
+
+Command: ``python -m scenarios run throughput [--device cuda]`` (about 2 minutes on a 2-core CPU,
+about 1 minute on an H200; ``--quick`` ~20 s). Device, CPU/GPU model and package versions are
+recorded in summary.json.
 """
 
 from __future__ import annotations
@@ -13,59 +27,82 @@ import time
 
 import numpy as np
 
-from warpchain import METHODS, ChainParams, lowest_optical_mode, reference, simulate
-from warpchain.ensemble import cpu_threads
+from warpchain import METHODS, ChainParams, lowest_optical_mode, propagate_tangent, reference
+from warpchain.ensemble import cpu_threads, time_steps
 from warpchain.store import device_description, open_store, provenance, read_group, write_table
 
 from ._baselines import cupy_verlet_runner, jax_verlet_runner
-from ._common import PAPER_K, PAPER_M, PAPER_N, Context, pyplot, read_summary, save_figure
+from ._common import PAPER_K, PAPER_M, PAPER_N, Context, paper_breather, pyplot, read_summary, save_figure
 
 # parameters
-BATCHES_CPU = (1, 4, 16, 64, 256, 805, 4096)        # 32768 would take minutes per method on 2 cores
+BATCHES_CPU = (1, 16, 64, 256, 805, 4096)
 BATCHES_GPU = (1, 16, 64, 256, 805, 4096, 32768)
 BATCHES_QUICK = (1, 64, 805)
+ALL_METHODS_AT = (805, 32768)        # batches where every method is timed (those present)
+THREAD_LAYOUT_MAX_BATCH_GPU = 4096   # the thread-per-lattice layout is slow on a GPU; enough to show it
+NUMPY_MAX_BATCH = 805
 DT = 0.1
-SECONDS_PER_MEASUREMENT = 0.5    # each measurement is sized from a short probe to take about this long
-PROBE_STEPS = 2
-NUMPY_MAX_BATCH = 4096
+SECONDS = 0.4                        # target duration of one timed run
+MAX_STEPS = 2_000_000
+REPEATS = 3
+CUDA_SM_REGISTERS, CUDA_SM_THREADS, CUDA_SM_BLOCKS = 65536, 2048, 32
 
 
 def _measure(run_steps, seconds):
-    """Time run_steps(n) -> seconds for a step count sized (from a probe) to take ``seconds``."""
-    probe = run_steps(PROBE_STEPS)
-    steps = int(np.clip(PROBE_STEPS * seconds / max(probe, 1e-9), PROBE_STEPS, 500000))
-    return steps, run_steps(steps)
+    """(steps, seconds) of run_steps(steps) -> seconds, with steps grown until a run takes about
+    ``seconds`` (short runs are dominated by launch latency and clock ramp-up)."""
+    steps = 8
+    while True:
+        took = run_steps(steps)
+        if took >= seconds / 4 or steps >= MAX_STEPS:
+            break
+        steps = int(min(MAX_STEPS, steps * min(64.0, max(2.0, seconds / 4 / max(took, 1e-7)))))
+    final = int(np.clip(steps * seconds / max(took, 1e-9), 1, MAX_STEPS))
+    return final, run_steps(final)
 
 
-def run(ctx: Context) -> dict:
-    params = ChainParams(PAPER_M, PAPER_K, PAPER_N)
-    _, shape = lowest_optical_mode(params)
-    one = np.zeros((4, params.N))
-    one[:2] = 0.3 * shape / np.max(np.abs(shape))
-    gpu = ctx.device.startswith("cuda")
+def _occupancy(registers: int, block: int, shared_bytes: int = 0) -> float:
+    """Theoretical occupancy (resident threads / 2048 per SM) on an H100/H200-class SM."""
+    warps = -(-block // 32)
+    regs_per_warp = -(-registers * 32 // 256) * 256
+    by_regs = CUDA_SM_REGISTERS // max(regs_per_warp * warps, 1)
+    by_threads = CUDA_SM_THREADS // (warps * 32)
+    by_smem = (228 * 1024) // shared_bytes if shared_bytes else CUDA_SM_BLOCKS
+    blocks = min(by_regs, by_threads, by_smem, CUDA_SM_BLOCKS)
+    return blocks * warps * 32 / CUDA_SM_THREADS
+
+
+def _ensemble(ctx, params, one, gpu):
     batches = BATCHES_QUICK if ctx.quick else (BATCHES_GPU if gpu else BATCHES_CPU)
-    seconds = SECONDS_PER_MEASUREMENT * (0.3 if ctx.quick else 1.0)
+    seconds = SECONDS * (0.3 if ctx.quick else 1.0)
     results = []
 
-    def record(impl, method, batch, steps, seconds, **extra):
-        rate = batch * params.N * steps / seconds
-        results.append({"implementation": impl, "method": method, "batch": batch, "steps": steps,
-                        "seconds": seconds, "site_steps_per_second": rate, **extra})
-        ctx.log("%-6s %-8s batch %6d: %.3g site-steps/s", impl, method, batch, rate)
+    def record(impl, method, batch, steps, sec, evals=1):
+        rate = batch * params.N * steps / sec
+        results.append({"implementation": impl, "method": method, "batch": batch, "steps": steps, "seconds": sec,
+                        "site_steps_per_second": rate, "force_evals_per_second": rate * evals,
+                        "ns_per_step": 1e9 * sec / steps})
+        ctx.log("%-11s %-8s batch %6d: %.3g site-steps/s (%.3g ns/step)", impl, method, batch, rate, 1e9 * sec / steps)
 
     jax_run = jax_verlet_runner(PAPER_M, PAPER_K) if gpu else None
     cupy_run = cupy_verlet_runner(PAPER_M, PAPER_K) if gpu else None
+    layouts = ["block", "thread"] if gpu else ["thread", "block"]
     for batch in batches:
         x0 = np.repeat(one[None], batch, axis=0)
-        for name in METHODS:
-            simulate(params, x0, 2 * DT, DT, method=name, device=ctx.device, chunks=1)  # warm-up / compile
+        for layout in layouts:
+            if gpu and layout == "thread" and batch > THREAD_LAYOUT_MAX_BATCH_GPU:
+                continue
+            if not gpu and layout == "block" and batch > 64:
+                continue  # CPU fibers: a correctness path, not a fast one; one point shows it
+            main = layout == ("block" if gpu else "thread")
+            names = sorted(METHODS) if main and (batch in ALL_METHODS_AT or batch == batches[-1]) else ["verlet"]
+            for name in names:
+                def warp_run(n, name=name, layout=layout):
+                    return time_steps(params, x0, n, DT, method=name, device=ctx.device, layout=layout,
+                                      repeats=REPEATS)
 
-            def warp_run(n, name=name):
-                return simulate(params, x0, n * DT, DT, method=name, device=ctx.device, chunks=1,
-                                max_energy_error=None).wall_seconds
-
-            steps, sec = _measure(warp_run, seconds)
-            record("warp", name, batch, steps, sec)
+                steps, sec = _measure(warp_run, seconds)
+                record(f"warp-{layout}", name, batch, steps, sec, METHODS[name].force_evaluations)
         if batch <= NUMPY_MAX_BATCH:
             def numpy_run(n):
                 t0 = time.perf_counter()
@@ -76,47 +113,167 @@ def run(ctx: Context) -> dict:
             record("numpy", "verlet", batch, steps, sec)
         for impl, runner in (("jax", jax_run), ("cupy", cupy_run)):
             if runner is not None:
-                steps, sec = _measure(lambda n: runner(x0, n, DT)[1], seconds)
+                steps, sec = _measure(lambda n: min(runner(x0, n, DT)[1] for _ in range(REPEATS)), seconds)
                 record(impl, "verlet", batch, steps, sec)
-    # fraction of the best Verlet implementation at each batch size
     for batch in batches:
         same = [r for r in results if r["batch"] == batch and r["method"] == "verlet"]
         best = max(r["site_steps_per_second"] for r in same)
         for r in same:
             r["fraction_of_best"] = r["site_steps_per_second"] / best
-    ratios = {}
+    return batches, results
+
+
+def _ratios(batches, results, gpu):
+    """Headline ratios, each from numbers of this one run."""
+    def rate(impl, batch, method="verlet"):
+        hit = [r for r in results if r["implementation"] == impl and r["batch"] == batch and r["method"] == method]
+        return hit[0]["site_steps_per_second"] if hit else None
+
+    main = "warp-block" if gpu else "warp-thread"
+    out = {"main_layout": main, "over_numpy": {}, "over_jax": {}, "over_cupy": {}, "over_thread_layout": {},
+           "force_eval_cost_over_verlet": {}}
     for batch in batches:
-        w = [r for r in results if r["batch"] == batch and r["implementation"] == "warp" and r["method"] == "verlet"]
-        n = [r for r in results if r["batch"] == batch and r["implementation"] == "numpy"]
-        if w and n:
-            ratios[str(batch)] = w[0]["site_steps_per_second"] / n[0]["site_steps_per_second"]
+        w = rate(main, batch)
+        for key, other in (("over_numpy", "numpy"), ("over_jax", "jax"), ("over_cupy", "cupy")):
+            o = rate(other, batch)
+            if w and o:
+                out[key][str(batch)] = w / o
+        if gpu and rate("warp-thread", batch):
+            out["over_thread_layout"][str(batch)] = w / rate("warp-thread", batch)
+        per_method = {}
+        for name, meth in METHODS.items():
+            r = rate(main, batch, name)
+            if r and name != "verlet":
+                # cost per force evaluation relative to Verlet's (1.0: no overhead beyond the evaluations)
+                per_method[name] = w / (r * meth.force_evaluations)
+        if per_method:
+            out["force_eval_cost_over_verlet"][str(batch)] = per_method
+    single = [r for r in results if r["implementation"] == main and r["batch"] == 1 and r["method"] == "verlet"]
+    out["single_lattice_ns_per_step"] = single[0]["ns_per_step"] if single else None
+    return out
+
+
+def _monodromy(ctx):
+    """Monodromy and Newton-iteration timings on the paper breather."""
+    from continuation.shooting import _PeriodMap, _solve
+
+    breather = paper_breather(ctx.device, log=ctx.log)
+    params = breather.params
+    n = 4 * params.N
+    eye = np.eye(n).reshape(n, 4, params.N)
+    period_steps = 2 * breather.nsteps
+    runs = [propagate_tangent(params, breather.state, eye, period_steps, breather.dt, method=breather.method,
+                              device=ctx.device) for _ in range(1 if ctx.quick else REPEATS)]
+    kernel = min(r.kernel_seconds for r in runs)
+    wall = min(r.wall_seconds for r in runs)
+    ctx.log("monodromy (%d columns, %d steps of %s): kernel %.3g ms, wall %.3g ms", n, period_steps,
+            breather.method, 1e3 * kernel, 1e3 * wall)
+    pmap = _PeriodMap(params, breather.omega, "reversible", breather.method, breather.nsteps, breather.dt, "tangent",
+                      None, ctx.device, None)
+    unknowns = pmap.from_state(breather.state)
+    iteration = []
+    for _ in range(1 if ctx.quick else REPEATS):
+        t0 = time.perf_counter()
+        r, J, _ = pmap.residual_and_jacobian(unknowns)
+        step, _ = _solve(J, r)
+        iteration.append(time.perf_counter() - t0)
+    t0 = time.perf_counter()
+    _solve(J, r)
+    solve = time.perf_counter() - t0
+    ctx.log("Newton iteration (%d columns, half period): %.3g ms end to end, of which linear solve %.3g ms",
+            J.shape[1], 1e3 * min(iteration), 1e3 * solve)
+    return {"columns": n, "period_steps": period_steps, "method": breather.method,
+            "force_evaluations": period_steps * METHODS[breather.method].force_evaluations,
+            "monodromy_kernel_seconds": kernel, "monodromy_wall_seconds": wall,
+            "newton_columns": int(J.shape[1]), "newton_iteration_seconds": min(iteration),
+            "newton_linear_solve_seconds": solve, "layout": runs[0].layout}
+
+
+def _kernel_properties(ctx, params):
+    """Registers, local memory and theoretical occupancy of the kernels that ran (CUDA only)."""
+    import warp as wp
+
+    from warpchain import block_kernels, kernels
+
+    block = block_kernels.block_size(params.N)
+    rows = []
+    for name, kernel in block_kernels.block_kernels(block).items():
+        try:
+            props = wp.get_cuda_kernel_properties(kernel, ctx.device, block_dim=block)
+        except Exception as exc:  # not loaded in this run, or the query is unsupported
+            ctx.log("kernel properties of %s unavailable: %s", name, exc)
+            continue
+        smem = 2 * block * 8
+        rows.append({"kernel": f"block/{name}", "block": block, **props, "shared_bytes": smem,
+                     "occupancy": _occupancy(props["register_count"], block, smem)})
+    for name in ("splitting_kernel", "rk4_kernel"):
+        try:
+            props = wp.get_cuda_kernel_properties(getattr(kernels, name), ctx.device)
+            rows.append({"kernel": f"thread/{name}", "block": 256, **props,
+                         "occupancy": _occupancy(props["register_count"], 256)})
+        except Exception as exc:
+            ctx.log("kernel properties of %s unavailable: %s", name, exc)
+    for row in rows:
+        ctx.log("%-28s %4d registers, %4d B local, occupancy %.2f", row["kernel"], row["register_count"],
+                row["local_memory_size"], row["occupancy"])
+    return rows
+
+
+def run(ctx: Context) -> dict:
+    params = ChainParams(PAPER_M, PAPER_K, PAPER_N)
+    _, shape = lowest_optical_mode(params)
+    one = np.zeros((4, params.N))
+    one[:2] = 0.3 * shape / np.max(np.abs(shape))
+    gpu = ctx.device.startswith("cuda")
+    batches, results = _ensemble(ctx, params, one, gpu)
+    ratios = _ratios(batches, results, gpu)
+    # the monodromy part needs the paper breather (Newton, ~10 s on a CPU): skipped by --quick
+    monodromy = None if ctx.quick else _monodromy(ctx)
+    props = _kernel_properties(ctx, params) if gpu else []
+
     root = open_store(ctx.out / "data.zarr", params=params.as_dict(), provenance_info=provenance(ctx.device))
     impls = sorted({r["implementation"] for r in results})
     methods = sorted({r["method"] for r in results})
     write_table(root, "results", {
         "implementation": [impls.index(r["implementation"]) for r in results],
         "method": [methods.index(r["method"]) for r in results], "batch": [r["batch"] for r in results],
-        "site_steps_per_second": [r["site_steps_per_second"] for r in results]}, dim="result",
+        "site_steps_per_second": [r["site_steps_per_second"] for r in results],
+        "force_evals_per_second": [r["force_evals_per_second"] for r in results]}, dim="result",
         attrs={"implementation_names": impls, "method_names": methods})
     prov = provenance(ctx.device)
     return {"device": device_description(ctx.device), "cpu": prov["cpu"], "packages": prov["packages"],
             "cpu_threads": cpu_threads() if not gpu else None, "N": params.N, "dt": DT,
-            "results": results, "warp_verlet_over_numpy": ratios}
+            "timing": f"kernel time, best of {REPEATS}, runs sized to ~{SECONDS} s",
+            "results": results, "ratios": ratios, "monodromy": monodromy, "kernel_properties": props}
 
 
 def plot(out) -> None:
     s = read_summary(out)
     d, attrs = read_group(out / "data.zarr", "results")
     plt = pyplot()
-    fig, ax = plt.subplots(figsize=(8, 5))
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(13, 5))
+    styles = {"warp-block": "o-", "warp-thread": "o:", "numpy": "s--", "jax": "^-", "cupy": "D-"}
+    verlet = attrs["method_names"].index("verlet")
     for i, impl in enumerate(attrs["implementation_names"]):
-        for k, method in enumerate(attrs["method_names"]):
-            m = (d["implementation"] == i) & (d["method"] == k)
-            if m.any():
-                style = {"warp": "o-", "numpy": "s--", "jax": "^-", "cupy": "D-"}.get(impl, "x-")
-                ax.loglog(d["batch"][m], d["site_steps_per_second"][m], style, ms=4, label=f"{impl} {method}")
+        m = (d["implementation"] == i) & (d["method"] == verlet)
+        if m.any():
+            ax.loglog(d["batch"][m], d["site_steps_per_second"][m], styles.get(impl, "x-"), ms=4, label=impl)
     ax.set_xlabel("lattices in the batch")
-    ax.set_ylabel("site-steps per second")
-    ax.set_title(f"throughput, N = {s['N']}, float64 - {s['device']}", fontsize=9)
-    ax.legend(fontsize=7, ncol=2)
+    ax.set_ylabel("site-steps per second (velocity Verlet)")
+    ax.set_title(f"ensemble throughput, N = {s['N']}, float64\n{s['device']}", fontsize=9)
+    ax.legend(fontsize=8)
+    main = attrs["implementation_names"].index(s["ratios"]["main_layout"])
+    for k, method in enumerate(attrs["method_names"]):
+        m = (d["implementation"] == main) & (d["method"] == k)
+        if m.sum() > 0:
+            bx.loglog(d["batch"][m], d["force_evals_per_second"][m], "o-", ms=4, label=method)
+    mono = s["monodromy"]
+    bx.set_xlabel("lattices in the batch")
+    bx.set_ylabel("site force evaluations per second")
+    title = f"{s['ratios']['main_layout']}, every method"
+    if mono:
+        title += (f"; monodromy ({mono['columns']} columns) {1e3 * mono['monodromy_kernel_seconds']:.3g} ms,\n"
+                  f"Newton iteration {1e3 * mono['newton_iteration_seconds']:.3g} ms")
+    bx.set_title(title, fontsize=9)
+    bx.legend(fontsize=8)
     save_figure(fig, out, "throughput")

@@ -9,15 +9,20 @@ from warpchain import (METHODS, ChainParams, IntegrationError, StepSizeError, en
 from warpchain import reference
 
 
+LAYOUTS = ["thread", "block"]  # block: the GPU kernels, run here as CPU fibers
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
 @pytest.mark.parametrize("method", sorted(METHODS))
-def test_warp_matches_numpy_reference_per_lattice_parameters(method):
+def test_warp_matches_numpy_reference_per_lattice_parameters(method, layout):
     """1000 steps, a localized large-amplitude state, per-lattice (M, K): relative agreement <= 1e-12."""
     p = ChainParams(30.0, 160.0, 41)
     x0 = localized_state(p.N, amplitude=0.8, batch=3, seed=3)
     M = np.array([30.0, 10.0, 50.0])
     K = np.array([160.0, 40.0, 100.0])
     dt = 0.02
-    warp = simulate(p, x0, 1000 * dt, dt, method=method, device="cpu", M=M, K=K, save_every=250)
+    warp = simulate(p, x0, 1000 * dt, dt, method=method, device="cpu", M=M, K=K, save_every=250, layout=layout)
+    assert warp.layout == layout
     ref = reference.integrate(method, p, x0, dt, 1000, M=M, K=K, save_every=250)
     scale = np.max(np.abs(ref["x"]))
     assert warp.nsteps == 1000
@@ -28,12 +33,13 @@ def test_warp_matches_numpy_reference_per_lattice_parameters(method):
     assert np.max(np.abs(warp.x[0] - warp.x[1])) > 1e-3
 
 
+@pytest.mark.parametrize("layout", LAYOUTS)
 @pytest.mark.parametrize("boundary", ["free", "periodic"])
-def test_warp_matches_numpy_reference_boundaries(boundary):
+def test_warp_matches_numpy_reference_boundaries(boundary, layout):
     p = ChainParams(3.0, 4.0, 17, boundary)
     x0 = localized_state(p.N, amplitude=0.5, batch=2, centre=2, seed=4)
     for method in METHODS:
-        warp = simulate(p, x0, 200 * 0.05, 0.05, method=method, device="cpu")
+        warp = simulate(p, x0, 200 * 0.05, 0.05, method=method, device="cpu", layout=layout)
         ref = reference.integrate(method, p, x0, 0.05, 200)
         assert np.max(np.abs(warp.x - ref["x"])) <= 1e-12 * np.max(np.abs(ref["x"]))
 
@@ -166,8 +172,9 @@ def test_recording_and_callback(small_chain):
     assert r.energy_initial.shape == (2,) and np.allclose(r.energy_initial, energy(small_chain, x0))
 
 
+@pytest.mark.parametrize("layout", LAYOUTS)
 @pytest.mark.parametrize("method", sorted(METHODS))
-def test_tangent_columns_match_reference_and_finite_differences(method):
+def test_tangent_columns_match_reference_and_finite_differences(method, layout):
     p = ChainParams(3.0, 4.0, 9)
     x0 = localized_state(p.N, amplitude=0.7, batch=2, seed=5)
     ncols = 4 * p.N
@@ -175,7 +182,9 @@ def test_tangent_columns_match_reference_and_finite_differences(method):
     dx0 = np.concatenate([eye, eye])
     base = np.repeat([0, 1], ncols)
     nsteps, dt = 40, 0.05
-    tan = propagate_tangent(p, x0, dx0, nsteps, dt, method=method, column_base=base, device="cpu")
+    tan = propagate_tangent(p, x0, dx0, nsteps, dt, method=method, column_base=base, device="cpu",
+                            layout=layout)
+    assert tan.layout == layout
     ref = reference.integrate(method, p, x0, dt, nsteps, dx0=dx0.reshape(2, ncols, 4, p.N))
     J = tan.columns.reshape(2, ncols, ncols)
     assert np.max(np.abs(tan.x - ref["x"])) <= 1e-12 * np.max(np.abs(ref["x"]))

@@ -61,6 +61,7 @@ class SimulationResult:
         energy_t, energy_trace: times of the chunk ends and the energy of each lattice there,
             shapes (n_chunks + 1,) and (n_chunks + 1, batch) (the t = 0 value first).
         method, dt, nsteps, t_final, device, wall_seconds: how it ran (dt is the step used).
+        layout: the kernel layout that ran (``"block"`` or ``"thread"``).
     """
 
     x: np.ndarray
@@ -80,6 +81,7 @@ class SimulationResult:
     t_final: float
     device: str
     wall_seconds: float
+    layout: str = "thread"
 
 
 # ----------------------------------------------------------------------------- devices
@@ -195,6 +197,24 @@ def _in_parallel(tasks) -> None:
         raise errors[0]
 
 
+LAYOUTS = ("auto", "block", "thread")
+
+
+def resolve_layout(layout: str, device: str, n_sites: int) -> str:
+    """Kernel layout: ``"block"`` (a thread block per lattice, a thread per site: the GPU path) or
+    ``"thread"`` (a thread per lattice: the CPU path). ``"auto"`` picks block on a GPU when the
+    lattice fits one block, thread otherwise."""
+    from . import block_kernels
+
+    if layout not in LAYOUTS:
+        raise ValueError(f"layout must be one of {LAYOUTS}, got {layout!r}")
+    if layout == "auto":
+        return "block" if device != "cpu" and block_kernels.supports(n_sites) else "thread"
+    if layout == "block" and not block_kernels.supports(n_sites):
+        raise ValueError(f"layout 'block' needs N <= {block_kernels.MAX_BLOCK} (one site per thread), got N = {n_sites}")
+    return layout
+
+
 def _relative_energy_error(E, E0, N):
     scale = np.maximum(np.abs(E0), 1e-14 * N)
     return np.abs(E - E0) / scale
@@ -204,22 +224,32 @@ class _Runner:
     """Device buffers and launches for one batch and one method."""
 
     def __init__(self, method: Method, params: ChainParams, x0: np.ndarray, M, K, device: str,
-                 record_stiffness_steps: int = 0):
+                 record_stiffness_steps: int = 0, layout: str = "auto"):
         wp = _warp()
-        from . import kernels
+        from . import block_kernels, kernels
 
         self.wp, self.k, self.method, self.device = wp, kernels, method, device
         self.batch, _, self.N = x0.shape
+        self.layout = resolve_layout(layout, device, self.N)
+        if self.layout == "block":
+            self.block = block_kernels.block_size(self.N)
+            self.bk = block_kernels.block_kernels(self.block)
+            if device == "cpu":
+                # run the block's threads as cooperative fibers (Warp's experimental CPU blocks)
+                wp.config.enable_cpu_blocks = True
+        # CPU fiber blocks crash when launched from several Python threads at once: one launch
+        self.serial = self.layout == "block" and device == "cpu"
         self.boundary = BOUNDARY_CODES[params.boundary]
         f64 = wp.float64
         self.x = wp.array(x0, dtype=f64, device=device)
         self.mass = wp.array(M, dtype=f64, device=device)
         self.coupling = wp.array(K, dtype=f64, device=device)
         if method.family == "splitting":
-            self.acc = wp.zeros((self.batch, 2, self.N), dtype=f64, device=device)
+            if self.layout == "thread":
+                self.acc = wp.zeros((self.batch, 2, self.N), dtype=f64, device=device)
             self.drifts = wp.array(np.array(method.drifts), dtype=f64, device=device)
             self.kicks = wp.array(np.array(method.kicks), dtype=f64, device=device)
-        else:
+        elif self.layout == "thread":
             shape = (self.batch, 4, self.N)
             self.y, self.kbuf, self.total = (wp.zeros(shape, dtype=f64, device=device) for _ in range(3))
         self.no_record = wp.zeros((1, 1, 2, 1), dtype=f64, device=device)
@@ -239,7 +269,7 @@ class _Runner:
         On the CPU the batch is split into one slice per thread (launched concurrently); a run that
         records the contact stiffness (tangent base) runs as one slice, since its history is shared."""
         wp, k = self.wp, self.k
-        slices = [(0, self.batch)] if record_stiffness else _slices(self.batch, self.device)
+        slices = [(0, self.batch)] if record_stiffness or self.serial else _slices(self.batch, self.device)
         recs = [wp.zeros((n_rec, hi - lo, 2, self.N), dtype=wp.float64, device=self.device) if n_rec else self.no_record
                 for lo, hi in slices]
         tail = [self.boundary, wp.float64(dt), int(nsteps), int(save_every) if n_rec else 0]
@@ -247,7 +277,11 @@ class _Runner:
         def task(lo, hi, rec):
             common = [self.mass[lo:hi], self.coupling[lo:hi]]
             end = [*tail, rec, int(record_stiffness), self.hist]
-            if self.method.family == "splitting":
+            if self.layout == "block":
+                extra = [self.drifts, self.kicks] if self.method.family == "splitting" else []
+                wp.launch(self.bk[self.method.family], dim=(hi - lo, self.block), block_dim=self.block,
+                          device=self.device, inputs=[self.x[lo:hi], *common, *extra, *end])
+            elif self.method.family == "splitting":
                 wp.launch(k.splitting_kernel, dim=hi - lo, device=self.device,
                           inputs=[self.x[lo:hi], self.acc[lo:hi], *common, self.drifts, self.kicks, *end])
             else:
@@ -268,7 +302,12 @@ class _Runner:
 
         def task(lo, hi):
             n = hi - lo
-            if self.method.family == "splitting":
+            if self.layout == "block":
+                extra = [self.drifts, self.kicks] if self.method.family == "splitting" else []
+                wp.launch(self.bk[self.method.family + "_tangent"], dim=(n, self.block), block_dim=self.block,
+                          device=self.device, inputs=[dx[lo:hi], column_base[lo:hi], self.mass, self.coupling, *extra,
+                                                      self.boundary, f64(dt), int(nsteps), self.hist])
+            elif self.method.family == "splitting":
                 dacc = wp.zeros((n, 2, self.N), dtype=f64, device=self.device)
                 wp.launch(k.splitting_tangent_kernel, dim=n, device=self.device,
                           inputs=[dx[lo:hi], dacc, column_base[lo:hi], self.mass, self.coupling, self.drifts,
@@ -279,7 +318,8 @@ class _Runner:
                           inputs=[dx[lo:hi], *scratch, column_base[lo:hi], self.mass, self.coupling, self.boundary,
                                   f64(dt), int(nsteps), self.hist])
 
-        _in_parallel([lambda lo=lo, hi=hi: task(lo, hi) for lo, hi in _slices(ncols, self.device)])
+        slices = [(0, ncols)] if self.serial else _slices(ncols, self.device)
+        _in_parallel([lambda lo=lo, hi=hi: task(lo, hi) for lo, hi in slices])
 
 
 # ----------------------------------------------------------------------------- public API
@@ -288,7 +328,7 @@ class _Runner:
 def simulate(params: ChainParams, x0, t_final: float, dt: float, *, method: str = "verlet",
              device: str | None = None, save_every: int | None = None, progress: bool = False,
              M=None, K=None, max_energy_error: float | None = 0.05, allow_unstable_step: bool = False,
-             chunks: int | None = None,
+             chunks: int | None = None, layout: str = "auto",
              on_chunk: Callable[[np.ndarray, np.ndarray, np.ndarray], None] | None = None) -> SimulationResult:
     """Integrate a batch of lattices with a float64 Warp kernel.
 
@@ -306,6 +346,8 @@ def simulate(params: ChainParams, x0, t_final: float, dt: float, *, method: str 
         max_energy_error: relative energy error that counts as a blow-up (None: only non-finite).
         allow_unstable_step: run (with a warning) even when dt is above the linear stability limit.
         chunks: number of launches the run is split into (default: 10, or 50 with progress).
+        layout: ``"block"`` (a thread block per lattice: the GPU path), ``"thread"`` (a thread per
+            lattice: the CPU path) or ``"auto"`` (block on a GPU, thread on the CPU).
         on_chunk: called after every chunk with (t, u, v) of the frames recorded in that chunk,
             shapes (n,), (n, batch, N), (n, batch, N) (the t = 0 frame comes with the first call).
 
@@ -330,7 +372,7 @@ def simulate(params: ChainParams, x0, t_final: float, dt: float, *, method: str 
     device = resolve_device(device)
     nsteps, dt_used = steps_for(float(t_final), float(dt))
 
-    runner = _Runner(meth, params, x0, Mb, Kb, device)
+    runner = _Runner(meth, params, x0, Mb, Kb, device, layout=layout)
     E0 = energy(params, x0, Mb, Kb)
     trace_t, trace_E = [0.0], [E0]
     max_err = np.zeros(batch)
@@ -403,7 +445,7 @@ def simulate(params: ChainParams, x0, t_final: float, dt: float, *, method: str 
         energy_error=_relative_energy_error(E1, E0, params.N), max_energy_error=max_err, min_contact=contact,
         energy_t=np.array(trace_t), energy_trace=np.stack(trace_E),
         method=meth.name, dt=dt_used, nsteps=nsteps, t_final=nsteps * dt_used, device=device,
-        wall_seconds=time.perf_counter() - start)
+        wall_seconds=time.perf_counter() - start, layout=runner.layout)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -415,7 +457,9 @@ class TangentResult:
         columns: propagated tangent columns, shape (ncols, 4, N): column c is the derivative of
             the end state of base ``column_base[c]`` along the initial direction ``dx0[c]``.
         column_base: base trajectory of each column, shape (ncols,).
-        method, dt, nsteps, device, wall_seconds.
+        method, dt, nsteps, device, wall_seconds, layout.
+        kernel_seconds: time of the two launches alone (base run and tangent columns, device
+            synchronised before and after; no transfers, no set-up).
     """
 
     x: np.ndarray
@@ -426,11 +470,13 @@ class TangentResult:
     nsteps: int
     device: str
     wall_seconds: float
+    layout: str = "thread"
+    kernel_seconds: float = float("nan")
 
 
 def propagate_tangent(params: ChainParams, x0, dx0, nsteps: int, dt: float, *, method: str = "verlet",
                       column_base=None, device: str | None = None, M=None, K=None,
-                      allow_unstable_step: bool = False) -> TangentResult:
+                      allow_unstable_step: bool = False, layout: str = "auto") -> TangentResult:
     """End states and Jacobian columns of ``nsteps`` steps of the discrete map.
 
     The base trajectories run once, recording the contact stiffness at every force evaluation;
@@ -442,6 +488,7 @@ def propagate_tangent(params: ChainParams, x0, dx0, nsteps: int, dt: float, *, m
         dx0: initial tangent directions, shape (ncols, 4, N) (e.g. unit vectors: Jacobian columns).
         nsteps: number of steps; dt: step size.
         column_base: base index of each column, shape (ncols,); default all 0.
+        layout: kernel layout, as in ``simulate``.
     """
     start = time.perf_counter()
     meth = get_method(method)
@@ -456,12 +503,18 @@ def propagate_tangent(params: ChainParams, x0, dx0, nsteps: int, dt: float, *, m
     if base.shape != (ncols,) or (base < 0).any() or (base >= n_base).any():
         raise ValueError(f"column_base must have shape ({ncols},) with entries in [0, {n_base})")
     device = resolve_device(device)
-    runner = _Runner(meth, params, x0, Mb, Kb, device, record_stiffness_steps=max(int(nsteps), 1))
+    runner = _Runner(meth, params, x0, Mb, Kb, device, record_stiffness_steps=max(int(nsteps), 1),
+                     layout=layout)
     wp = runner.wp
     dx = wp.array(dx0, dtype=wp.float64, device=device)
+    base_dev = wp.array(base, dtype=wp.int32, device=device)
+    wp.synchronize_device(device)
+    kernel_start = time.perf_counter()
     if nsteps:
         runner.launch(int(nsteps), float(dt), record_stiffness=True)
-        runner.launch_tangent(dx, wp.array(base, dtype=wp.int32, device=device), int(nsteps), float(dt))
+        runner.launch_tangent(dx, base_dev, int(nsteps), float(dt))
+    wp.synchronize_device(device)
+    kernel_seconds = time.perf_counter() - kernel_start
     x = runner.x.numpy()
     columns = dx.numpy()
     if not (np.isfinite(x).all() and np.isfinite(columns).all()):
@@ -471,4 +524,36 @@ def propagate_tangent(params: ChainParams, x0, dx0, nsteps: int, dt: float, *, m
             method=meth.name, dt=dt, stability_limit=stability_limit(meth, params, Mb, Kb),
             failed=np.flatnonzero(~np.isfinite(x).all(axis=(1, 2))).tolist(), t=nsteps * dt)
     return TangentResult(x=x, columns=columns, column_base=base, method=meth.name, dt=float(dt), nsteps=int(nsteps),
-                         device=device, wall_seconds=time.perf_counter() - start)
+                         device=device, wall_seconds=time.perf_counter() - start, layout=runner.layout,
+                         kernel_seconds=kernel_seconds)
+
+
+def time_steps(params: ChainParams, x0, nsteps: int, dt: float, *, method: str = "verlet",
+               device: str | None = None, layout: str = "auto", repeats: int = 3, M=None, K=None) -> float:
+    """Best of ``repeats`` timings (seconds) of one launch of ``nsteps`` steps on a batch already on
+    the device: kernel time alone (the device is synchronised before and after; compilation, set-up
+    and transfers are excluded). This is what the throughput benchmark divides by.
+
+    Args:
+        x0: state, shape (4, N) or (batch, 4, N); it keeps evolving from one repeat to the next.
+    """
+    meth = get_method(method)
+    x0 = as_batch(x0, params.N, "x0")
+    Mb, Kb = per_lattice_parameters(params, x0.shape[0], M, K)
+    _check_step(meth, params, dt, Mb, Kb, False)
+    if not isinstance(nsteps, (int, np.integer)) or nsteps < 1:
+        raise ValueError(f"nsteps must be a positive integer, got {nsteps!r}")
+    if not isinstance(repeats, (int, np.integer)) or repeats < 1:
+        raise ValueError(f"repeats must be a positive integer, got {repeats!r}")
+    device = resolve_device(device)
+    runner = _Runner(meth, params, x0, Mb, Kb, device, layout=layout)
+    wp = runner.wp
+    runner.launch(1, float(dt))  # compile and load the kernel
+    best = math.inf
+    for _ in range(repeats):
+        wp.synchronize_device(device)
+        t0 = time.perf_counter()
+        runner.launch(int(nsteps), float(dt))
+        wp.synchronize_device(device)
+        best = min(best, time.perf_counter() - t0)
+    return best

@@ -1,0 +1,404 @@
+"""Block-per-lattice Warp kernels (float64): the GPU path.
+
+Layout and arithmetic match ``kernels.py`` (state (batch, 4, N) ordered (u, v, u', v'), the same
+``@wp.func`` contact law, the same operation order as the numpy reference), but the work is laid
+out the way a GPU wants it:
+
+* one thread block owns one lattice (or one tangent column), one thread owns one site;
+* a site's state lives in registers for the whole launch, the time loop runs inside the kernel;
+* the only communication, the neighbours' u for the coupling term, goes through a shared-memory
+  tile that each thread writes once per force evaluation (``wp.tile`` of the per-thread value,
+  ``wp.tile_assign`` into shared storage) and reads two entries of. The tile has two halves used in
+  turn (ping-pong), so the barrier inside ``tile_assign`` that follows the writes also guarantees
+  that every thread has finished reading the other half: one barrier per force evaluation.
+
+The block size is the lattice length rounded up to a whole number of warps (32 lanes); threads past
+the end of the lattice carry zeros and only take part in the barriers. It is a compile-time
+constant of the tile, so kernels are built per block size (``block_kernels(block)``, cached).
+
+On the CPU, Warp runs a block of threads as cooperative fibers only when
+``wp.config.enable_cpu_blocks`` is set; ``ensemble`` does that so the tests can check these kernels
+against the numpy reference without a GPU. The thread-per-lattice kernels stay the CPU default.
+"""
+
+import functools
+
+import warp as wp
+
+from .kernels import BOUNDARY_FREE, BOUNDARY_PERIODIC, HALF, ONE, SIX, TWO, ZERO, contact_force, contact_stiffness
+
+#: Largest block Warp launches (CUDA's limit); longer lattices use the thread-per-lattice kernels.
+MAX_BLOCK = 1024
+WARP_LANES = 32
+
+
+def block_size(n_sites: int) -> int:
+    """Threads per block for a lattice of ``n_sites``: rounded up to whole warps."""
+    return max(WARP_LANES, -(-int(n_sites) // WARP_LANES) * WARP_LANES)
+
+
+def supports(n_sites: int) -> bool:
+    """Whether a lattice of this length fits one block (one site per thread)."""
+    return block_size(n_sites) <= MAX_BLOCK
+
+
+# ----------------------------------------------------------------------------- per-site helpers
+
+
+@wp.func
+def left_index(j: int, n: int, boundary: int) -> int:
+    """Index (in the shared tile) of site j's left neighbour; j itself where there is none."""
+    if j > 0:
+        return j - 1
+    if boundary == BOUNDARY_PERIODIC:
+        return n - 1
+    return j
+
+
+@wp.func
+def right_index(j: int, n: int, boundary: int) -> int:
+    if j < n - 1:
+        return j + 1
+    if boundary == BOUNDARY_PERIODIC:
+        return 0
+    return j
+
+
+@wp.func
+def neighbour_or_wall(value: wp.float64, u: wp.float64, has_neighbour: int, boundary: int) -> wp.float64:
+    """The neighbour's u, or at a chain end 0 (fixed wall) or u itself (free end)."""
+    if has_neighbour != 0:
+        return value
+    if boundary == BOUNDARY_FREE:
+        return u
+    return ZERO
+
+
+@wp.func
+def has_left(j: int, boundary: int) -> int:
+    if j > 0 or boundary == BOUNDARY_PERIODIC:
+        return 1
+    return 0
+
+
+@wp.func
+def has_right(j: int, n: int, boundary: int) -> int:
+    if j < n - 1 or boundary == BOUNDARY_PERIODIC:
+        return 1
+    return 0
+
+
+@wp.func
+def site_acceleration(u: wp.float64, v: wp.float64, left: wp.float64, right: wp.float64,
+                      mass: wp.float64, coupling: wp.float64) -> wp.vec2d:
+    """(u'', v'') of one site from its positions and its neighbours' u (same order as the
+    thread-per-lattice ``acceleration_at`` and the numpy reference)."""
+    force = contact_force(u - v)
+    au = -(coupling * ((u - left) + (u - right)) + force) / mass
+    return wp.vec2d(au, force)
+
+
+@wp.func
+def site_tangent_acceleration(du: wp.float64, dv: wp.float64, left: wp.float64, right: wp.float64,
+                              mass: wp.float64, coupling: wp.float64, stiffness: wp.float64) -> wp.vec2d:
+    dz = du - dv
+    au = -(coupling * ((du - left) + (du - right)) + stiffness * dz) / mass
+    return wp.vec2d(au, stiffness * dz)
+
+
+# ----------------------------------------------------------------------------- kernel factory
+
+
+@functools.lru_cache(maxsize=None)
+def block_kernels(block: int) -> dict:
+    """The block kernels for blocks of ``block`` threads (a multiple of 32, at most 1024).
+
+    Returns:
+        dict with ``splitting``, ``splitting_tangent``, ``rk4``, ``rk4_tangent`` kernels; launch
+        each with ``dim=(lattices, block), block_dim=block``.
+    """
+    if block % WARP_LANES or not WARP_LANES <= block <= MAX_BLOCK:
+        raise ValueError(f"block must be a multiple of {WARP_LANES} in [{WARP_LANES}, {MAX_BLOCK}], got {block}")
+    halves = 2 * block
+
+    @wp.func
+    def exchange(buf: wp.tile[wp.float64, halves], u: wp.float64,
+                 parity: int, li: int, ri: int, hl: int, hr: int, boundary: int) -> wp.vec2d:
+        """Publish u in half ``parity`` of the shared tile; return (left, right) neighbour values."""
+        offset = parity * block
+        wp.tile_assign(buf, wp.tile(u), offset=(offset,))
+        left = neighbour_or_wall(buf[offset + li], u, hl, boundary)
+        right = neighbour_or_wall(buf[offset + ri], u, hr, boundary)
+        return wp.vec2d(left, right)
+
+    options = {"enable_backward": False, "module": "unique", "grid_stride": False, "launch_bounds": block}
+
+    @wp.kernel(**options)
+    def splitting(x: wp.array3d(dtype=wp.float64), mass: wp.array(dtype=wp.float64),
+                  coupling: wp.array(dtype=wp.float64), drifts: wp.array(dtype=wp.float64),
+                  kicks: wp.array(dtype=wp.float64), boundary: int, dt: wp.float64, nsteps: int,
+                  save_every: int, rec: wp.array4d(dtype=wp.float64),
+                  record_stiffness: int, hist: wp.array3d(dtype=wp.float64)):
+        """``nsteps`` steps of a kick-drift splitting method; block b = lattice, thread j = site.
+        hist slot 0 holds f'(z) at the start, slot step*s + k + 1 after drift k of ``step``."""
+        b, j = wp.tid()
+        n = x.shape[2]
+        stages = drifts.shape[0]
+        active = j < n
+        u = ZERO
+        v = ZERO
+        pu = ZERO
+        pv = ZERO
+        if active:
+            u = x[b, 0, j]
+            v = x[b, 1, j]
+            pu = x[b, 2, j]
+            pv = x[b, 3, j]
+        m = mass[b]
+        k = coupling[b]
+        li = left_index(j, n, boundary)
+        ri = right_index(j, n, boundary)
+        hl = has_left(j, boundary)
+        hr = has_right(j, n, boundary)
+        buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
+        parity = int(0)
+        nb = exchange(buf, u, parity, li, ri, hl, hr, boundary)
+        a = site_acceleration(u, v, nb[0], nb[1], m, k)
+        if record_stiffness != 0 and active:
+            hist[0, b, j] = contact_stiffness(u - v)
+        for step in range(nsteps):
+            h = kicks[0] * dt
+            pu = pu + h * a[0]
+            pv = pv + h * a[1]
+            for s in range(stages):
+                h = drifts[s] * dt
+                u = u + h * pu
+                v = v + h * pv
+                parity = 1 - parity
+                nb = exchange(buf, u, parity, li, ri, hl, hr, boundary)
+                a = site_acceleration(u, v, nb[0], nb[1], m, k)
+                if record_stiffness != 0 and active:
+                    hist[step * stages + s + 1, b, j] = contact_stiffness(u - v)
+                h = kicks[s + 1] * dt
+                pu = pu + h * a[0]
+                pv = pv + h * a[1]
+            if save_every > 0 and active:
+                if (step + 1) % save_every == 0:
+                    r = (step + 1) / save_every - 1
+                    rec[r, b, 0, j] = u
+                    rec[r, b, 1, j] = v
+        if active:
+            x[b, 0, j] = u
+            x[b, 1, j] = v
+            x[b, 2, j] = pu
+            x[b, 3, j] = pv
+
+    @wp.kernel(**options)
+    def splitting_tangent(dx: wp.array3d(dtype=wp.float64), column_base: wp.array(dtype=wp.int32),
+                          mass: wp.array(dtype=wp.float64), coupling: wp.array(dtype=wp.float64),
+                          drifts: wp.array(dtype=wp.float64), kicks: wp.array(dtype=wp.float64),
+                          boundary: int, dt: wp.float64, nsteps: int, hist: wp.array3d(dtype=wp.float64)):
+        """Tangent column c (block) of the splitting map along base trajectory column_base[c]."""
+        c, j = wp.tid()
+        n = dx.shape[2]
+        stages = drifts.shape[0]
+        active = j < n
+        base = column_base[c]
+        jj = wp.min(j, n - 1)  # idle threads read a valid (unused) history entry
+        du = ZERO
+        dv = ZERO
+        dpu = ZERO
+        dpv = ZERO
+        if active:
+            du = dx[c, 0, j]
+            dv = dx[c, 1, j]
+            dpu = dx[c, 2, j]
+            dpv = dx[c, 3, j]
+        m = mass[base]
+        k = coupling[base]
+        li = left_index(j, n, boundary)
+        ri = right_index(j, n, boundary)
+        hl = has_left(j, boundary)
+        hr = has_right(j, n, boundary)
+        buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
+        parity = int(0)
+        nb = exchange(buf, du, parity, li, ri, hl, hr, boundary)
+        a = site_tangent_acceleration(du, dv, nb[0], nb[1], m, k, hist[0, base, jj])
+        for step in range(nsteps):
+            h = kicks[0] * dt
+            dpu = dpu + h * a[0]
+            dpv = dpv + h * a[1]
+            for s in range(stages):
+                h = drifts[s] * dt
+                du = du + h * dpu
+                dv = dv + h * dpv
+                parity = 1 - parity
+                nb = exchange(buf, du, parity, li, ri, hl, hr, boundary)
+                a = site_tangent_acceleration(du, dv, nb[0], nb[1], m, k, hist[step * stages + s + 1, base, jj])
+                h = kicks[s + 1] * dt
+                dpu = dpu + h * a[0]
+                dpv = dpv + h * a[1]
+        if active:
+            dx[c, 0, j] = du
+            dx[c, 1, j] = dv
+            dx[c, 2, j] = dpu
+            dx[c, 3, j] = dpv
+
+    @wp.kernel(**options)
+    def rk4(x: wp.array3d(dtype=wp.float64), mass: wp.array(dtype=wp.float64),
+            coupling: wp.array(dtype=wp.float64), boundary: int, dt: wp.float64, nsteps: int,
+            save_every: int, rec: wp.array4d(dtype=wp.float64),
+            record_stiffness: int, hist: wp.array3d(dtype=wp.float64)):
+        """``nsteps`` classical RK4 steps; block b = lattice; hist slot 4 step + stage."""
+        b, j = wp.tid()
+        n = x.shape[2]
+        active = j < n
+        u = ZERO
+        v = ZERO
+        pu = ZERO
+        pv = ZERO
+        if active:
+            u = x[b, 0, j]
+            v = x[b, 1, j]
+            pu = x[b, 2, j]
+            pv = x[b, 3, j]
+        m = mass[b]
+        k = coupling[b]
+        li = left_index(j, n, boundary)
+        ri = right_index(j, n, boundary)
+        hl = has_left(j, boundary)
+        hr = has_right(j, n, boundary)
+        buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
+        parity = int(0)
+        for step in range(nsteps):
+            # stage state y and the weighted derivative sum, as in kernels.rk4_advance
+            yu = u
+            yv = v
+            ypu = pu
+            ypv = pv
+            tu = ZERO
+            tv = ZERO
+            tpu = ZERO
+            tpv = ZERO
+            for stage in range(4):
+                parity = 1 - parity
+                nb = exchange(buf, yu, parity, li, ri, hl, hr, boundary)
+                a = site_acceleration(yu, yv, nb[0], nb[1], m, k)
+                if record_stiffness != 0 and active:
+                    hist[4 * step + stage, b, j] = contact_stiffness(yu - yv)
+                ku = ypu
+                kv = ypv
+                if stage == 0:
+                    tu = ku
+                    tv = kv
+                    tpu = a[0]
+                    tpv = a[1]
+                else:
+                    weight = TWO
+                    if stage == 3:
+                        weight = ONE
+                    tu = tu + weight * ku
+                    tv = tv + weight * kv
+                    tpu = tpu + weight * a[0]
+                    tpv = tpv + weight * a[1]
+                if stage < 3:
+                    c = HALF
+                    if stage == 2:
+                        c = ONE
+                    h = c * dt
+                    yu = u + h * ku
+                    yv = v + h * kv
+                    ypu = pu + h * a[0]
+                    ypv = pv + h * a[1]
+            h = dt / SIX
+            u = u + h * tu
+            v = v + h * tv
+            pu = pu + h * tpu
+            pv = pv + h * tpv
+            if save_every > 0 and active:
+                if (step + 1) % save_every == 0:
+                    r = (step + 1) / save_every - 1
+                    rec[r, b, 0, j] = u
+                    rec[r, b, 1, j] = v
+        if active:
+            x[b, 0, j] = u
+            x[b, 1, j] = v
+            x[b, 2, j] = pu
+            x[b, 3, j] = pv
+
+    @wp.kernel(**options)
+    def rk4_tangent(dx: wp.array3d(dtype=wp.float64), column_base: wp.array(dtype=wp.int32),
+                    mass: wp.array(dtype=wp.float64), coupling: wp.array(dtype=wp.float64),
+                    boundary: int, dt: wp.float64, nsteps: int, hist: wp.array3d(dtype=wp.float64)):
+        """Tangent column c (block) of the RK4 map along base trajectory column_base[c]."""
+        c, j = wp.tid()
+        n = dx.shape[2]
+        active = j < n
+        base = column_base[c]
+        jj = wp.min(j, n - 1)
+        u = ZERO
+        v = ZERO
+        pu = ZERO
+        pv = ZERO
+        if active:
+            u = dx[c, 0, j]
+            v = dx[c, 1, j]
+            pu = dx[c, 2, j]
+            pv = dx[c, 3, j]
+        m = mass[base]
+        k = coupling[base]
+        li = left_index(j, n, boundary)
+        ri = right_index(j, n, boundary)
+        hl = has_left(j, boundary)
+        hr = has_right(j, n, boundary)
+        buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
+        parity = int(0)
+        for step in range(nsteps):
+            yu = u
+            yv = v
+            ypu = pu
+            ypv = pv
+            tu = ZERO
+            tv = ZERO
+            tpu = ZERO
+            tpv = ZERO
+            for stage in range(4):
+                parity = 1 - parity
+                nb = exchange(buf, yu, parity, li, ri, hl, hr, boundary)
+                a = site_tangent_acceleration(yu, yv, nb[0], nb[1], m, k, hist[4 * step + stage, base, jj])
+                ku = ypu
+                kv = ypv
+                if stage == 0:
+                    tu = ku
+                    tv = kv
+                    tpu = a[0]
+                    tpv = a[1]
+                else:
+                    weight = TWO
+                    if stage == 3:
+                        weight = ONE
+                    tu = tu + weight * ku
+                    tv = tv + weight * kv
+                    tpu = tpu + weight * a[0]
+                    tpv = tpv + weight * a[1]
+                if stage < 3:
+                    cc = HALF
+                    if stage == 2:
+                        cc = ONE
+                    h = cc * dt
+                    yu = u + h * ku
+                    yv = v + h * kv
+                    ypu = pu + h * a[0]
+                    ypv = pv + h * a[1]
+            h = dt / SIX
+            u = u + h * tu
+            v = v + h * tv
+            pu = pu + h * tpu
+            pv = pv + h * tpv
+        if active:
+            dx[c, 0, j] = u
+            dx[c, 1, j] = v
+            dx[c, 2, j] = pu
+            dx[c, 3, j] = pv
+
+    return {"splitting": splitting, "splitting_tangent": splitting_tangent, "rk4": rk4, "rk4_tangent": rk4_tangent}
