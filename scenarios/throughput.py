@@ -197,7 +197,8 @@ def _kernel_properties(ctx, params):
 
     block = block_kernels.block_size(params.N)
     rows = []
-    for name, kernel in block_kernels.block_kernels(block).items():
+    for key, kernel in block_kernels.block_kernels(block).items():
+        name = "/".join(str(part) for part in key) if isinstance(key, tuple) else key
         try:
             props = wp.get_cuda_kernel_properties(kernel, ctx.device, block_dim=block)
         except Exception as exc:  # not loaded in this run, or the query is unsupported

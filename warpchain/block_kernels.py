@@ -109,14 +109,37 @@ def site_tangent_acceleration(du: wp.float64, dv: wp.float64, left: wp.float64, 
 # ----------------------------------------------------------------------------- kernel factory
 
 
+#: Splitting methods are compiled per stage count (their stage loop unrolled, coefficients in kernel
+#: arguments) up to this many stages; kick and drift coefficients travel as float64 vectors.
+MAX_STAGES = 15
+coefficients = wp.types.vector(length=MAX_STAGES + 1, dtype=wp.float64)
+
+
+def pack_coefficients(values) -> "coefficients":
+    """A method's drift or kick coefficients as the fixed-length kernel argument (zero padded)."""
+    values = [float(c) for c in values]
+    if len(values) > MAX_STAGES + 1:
+        raise ValueError(f"at most {MAX_STAGES} stages are supported by the block kernels, got {len(values)}")
+    return coefficients(*(values + [0.0] * (MAX_STAGES + 1 - len(values))))
+
+
 @functools.lru_cache(maxsize=None)
-def block_kernels(block: int) -> dict:
+def block_kernels(block: int, min_blocks_per_sm: int = 0) -> dict:
     """The block kernels for blocks of ``block`` threads (a multiple of 32, at most 1024).
 
+    Args:
+        block: threads per block.
+        min_blocks_per_sm: passed to ``__launch_bounds__`` (0: none), which caps registers so that
+            this many blocks fit on one SM.
+
     Returns:
-        dict with ``splitting``, ``splitting_tangent``, ``rk4``, ``rk4_tangent`` kernels; launch
-        each with ``dim=(lattices, block), block_dim=block``.
+        dict with ``("splitting", stages)`` and ``("splitting_tangent", stages)`` for every stage
+        count up to ``MAX_STAGES`` that a registered method uses, and ``"rk4"``, ``"rk4_tangent"``;
+        launch each with ``dim=(lattices, block), block_dim=block``. They share one Warp module
+        (one compilation per block size and device).
     """
+    from .integrators import METHODS
+
     if block % WARP_LANES or not WARP_LANES <= block <= MAX_BLOCK:
         raise ValueError(f"block must be a multiple of {WARP_LANES} in [{WARP_LANES}, {MAX_BLOCK}], got {block}")
     halves = 2 * block
@@ -131,118 +154,127 @@ def block_kernels(block: int) -> dict:
         right = neighbour_or_wall(buf[offset + ri], u, hr, boundary)
         return wp.vec2d(left, right)
 
-    options = {"enable_backward": False, "module": "unique", "grid_stride": False, "launch_bounds": block}
+    bounds = (block, min_blocks_per_sm) if min_blocks_per_sm else block
+    options = {"enable_backward": False, "module": f"warpchain_block_{block}_{min_blocks_per_sm}",
+               "grid_stride": False, "launch_bounds": bounds}
+    kernels = {}
 
-    @wp.kernel(**options)
-    def splitting(x: wp.array3d(dtype=wp.float64), mass: wp.array(dtype=wp.float64),
-                  coupling: wp.array(dtype=wp.float64), drifts: wp.array(dtype=wp.float64),
-                  kicks: wp.array(dtype=wp.float64), boundary: int, dt: wp.float64, nsteps: int,
-                  save_every: int, rec: wp.array4d(dtype=wp.float64),
-                  record_stiffness: int, hist: wp.array3d(dtype=wp.float64)):
-        """``nsteps`` steps of a kick-drift splitting method; block b = lattice, thread j = site.
-        hist slot 0 holds f'(z) at the start, slot step*s + k + 1 after drift k of ``step``."""
-        b, j = wp.tid()
-        n = x.shape[2]
-        stages = drifts.shape[0]
-        active = j < n
-        u = ZERO
-        v = ZERO
-        pu = ZERO
-        pv = ZERO
-        if active:
-            u = x[b, 0, j]
-            v = x[b, 1, j]
-            pu = x[b, 2, j]
-            pv = x[b, 3, j]
-        m = mass[b]
-        k = coupling[b]
-        li = left_index(j, n, boundary)
-        ri = right_index(j, n, boundary)
-        hl = has_left(j, boundary)
-        hr = has_right(j, n, boundary)
-        buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
-        parity = int(0)
-        nb = exchange(buf, u, parity, li, ri, hl, hr, boundary)
-        a = site_acceleration(u, v, nb[0], nb[1], m, k)
-        if record_stiffness != 0 and active:
-            hist[0, b, j] = contact_stiffness(u - v)
-        for step in range(nsteps):
-            h = kicks[0] * dt
-            pu = pu + h * a[0]
-            pv = pv + h * a[1]
-            for s in range(stages):
-                h = drifts[s] * dt
-                u = u + h * pu
-                v = v + h * pv
-                parity = 1 - parity
-                nb = exchange(buf, u, parity, li, ri, hl, hr, boundary)
-                a = site_acceleration(u, v, nb[0], nb[1], m, k)
-                if record_stiffness != 0 and active:
-                    hist[step * stages + s + 1, b, j] = contact_stiffness(u - v)
-                h = kicks[s + 1] * dt
+    def make_splitting(stages: int):
+        @wp.kernel(**options)
+        def splitting(x: wp.array3d(dtype=wp.float64), mass: wp.array(dtype=wp.float64),
+                      coupling: wp.array(dtype=wp.float64), drifts: coefficients, kicks: coefficients,
+                      boundary: int, dt: wp.float64, nsteps: int,
+                      save_every: int, rec: wp.array4d(dtype=wp.float64),
+                      record_stiffness: int, hist: wp.array3d(dtype=wp.float64)):
+            """``nsteps`` steps of a kick-drift splitting method; block b = lattice, thread j = site.
+            hist slot 0 holds f'(z) at the start, slot step*s + k + 1 after drift k of ``step``."""
+            b, j = wp.tid()
+            n = x.shape[2]
+            active = j < n
+            u = ZERO
+            v = ZERO
+            pu = ZERO
+            pv = ZERO
+            if active:
+                u = x[b, 0, j]
+                v = x[b, 1, j]
+                pu = x[b, 2, j]
+                pv = x[b, 3, j]
+            m = mass[b]
+            k = coupling[b]
+            li = left_index(j, n, boundary)
+            ri = right_index(j, n, boundary)
+            hl = has_left(j, boundary)
+            hr = has_right(j, n, boundary)
+            buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
+            parity = int(0)
+            nb = exchange(buf, u, parity, li, ri, hl, hr, boundary)
+            a = site_acceleration(u, v, nb[0], nb[1], m, k)
+            if record_stiffness != 0 and active:
+                hist[0, b, j] = contact_stiffness(u - v)
+            for step in range(nsteps):
+                h = kicks[0] * dt
                 pu = pu + h * a[0]
                 pv = pv + h * a[1]
-            if save_every > 0 and active:
-                if (step + 1) % save_every == 0:
-                    r = (step + 1) / save_every - 1
-                    rec[r, b, 0, j] = u
-                    rec[r, b, 1, j] = v
-        if active:
-            x[b, 0, j] = u
-            x[b, 1, j] = v
-            x[b, 2, j] = pu
-            x[b, 3, j] = pv
+                for s in range(wp.static(stages)):  # unrolled: coefficients become constants
+                    h = drifts[s] * dt
+                    u = u + h * pu
+                    v = v + h * pv
+                    parity = 1 - parity
+                    nb = exchange(buf, u, parity, li, ri, hl, hr, boundary)
+                    a = site_acceleration(u, v, nb[0], nb[1], m, k)
+                    if record_stiffness != 0 and active:
+                        hist[step * wp.static(stages) + s + 1, b, j] = contact_stiffness(u - v)
+                    h = kicks[s + 1] * dt
+                    pu = pu + h * a[0]
+                    pv = pv + h * a[1]
+                if save_every > 0 and active:
+                    if (step + 1) % save_every == 0:
+                        r = (step + 1) / save_every - 1
+                        rec[r, b, 0, j] = u
+                        rec[r, b, 1, j] = v
+            if active:
+                x[b, 0, j] = u
+                x[b, 1, j] = v
+                x[b, 2, j] = pu
+                x[b, 3, j] = pv
 
-    @wp.kernel(**options)
-    def splitting_tangent(dx: wp.array3d(dtype=wp.float64), column_base: wp.array(dtype=wp.int32),
-                          mass: wp.array(dtype=wp.float64), coupling: wp.array(dtype=wp.float64),
-                          drifts: wp.array(dtype=wp.float64), kicks: wp.array(dtype=wp.float64),
-                          boundary: int, dt: wp.float64, nsteps: int, hist: wp.array3d(dtype=wp.float64)):
-        """Tangent column c (block) of the splitting map along base trajectory column_base[c]."""
-        c, j = wp.tid()
-        n = dx.shape[2]
-        stages = drifts.shape[0]
-        active = j < n
-        base = column_base[c]
-        jj = wp.min(j, n - 1)  # idle threads read a valid (unused) history entry
-        du = ZERO
-        dv = ZERO
-        dpu = ZERO
-        dpv = ZERO
-        if active:
-            du = dx[c, 0, j]
-            dv = dx[c, 1, j]
-            dpu = dx[c, 2, j]
-            dpv = dx[c, 3, j]
-        m = mass[base]
-        k = coupling[base]
-        li = left_index(j, n, boundary)
-        ri = right_index(j, n, boundary)
-        hl = has_left(j, boundary)
-        hr = has_right(j, n, boundary)
-        buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
-        parity = int(0)
-        nb = exchange(buf, du, parity, li, ri, hl, hr, boundary)
-        a = site_tangent_acceleration(du, dv, nb[0], nb[1], m, k, hist[0, base, jj])
-        for step in range(nsteps):
-            h = kicks[0] * dt
-            dpu = dpu + h * a[0]
-            dpv = dpv + h * a[1]
-            for s in range(stages):
-                h = drifts[s] * dt
-                du = du + h * dpu
-                dv = dv + h * dpv
-                parity = 1 - parity
-                nb = exchange(buf, du, parity, li, ri, hl, hr, boundary)
-                a = site_tangent_acceleration(du, dv, nb[0], nb[1], m, k, hist[step * stages + s + 1, base, jj])
-                h = kicks[s + 1] * dt
+        @wp.kernel(**options)
+        def splitting_tangent(dx: wp.array3d(dtype=wp.float64), column_base: wp.array(dtype=wp.int32),
+                              mass: wp.array(dtype=wp.float64), coupling: wp.array(dtype=wp.float64),
+                              drifts: coefficients, kicks: coefficients,
+                              boundary: int, dt: wp.float64, nsteps: int, hist: wp.array3d(dtype=wp.float64)):
+            """Tangent column c (block) of the splitting map along base trajectory column_base[c]."""
+            c, j = wp.tid()
+            n = dx.shape[2]
+            active = j < n
+            base = column_base[c]
+            jj = wp.min(j, n - 1)  # idle threads read a valid (unused) history entry
+            du = ZERO
+            dv = ZERO
+            dpu = ZERO
+            dpv = ZERO
+            if active:
+                du = dx[c, 0, j]
+                dv = dx[c, 1, j]
+                dpu = dx[c, 2, j]
+                dpv = dx[c, 3, j]
+            m = mass[base]
+            k = coupling[base]
+            li = left_index(j, n, boundary)
+            ri = right_index(j, n, boundary)
+            hl = has_left(j, boundary)
+            hr = has_right(j, n, boundary)
+            buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
+            parity = int(0)
+            nb = exchange(buf, du, parity, li, ri, hl, hr, boundary)
+            a = site_tangent_acceleration(du, dv, nb[0], nb[1], m, k, hist[0, base, jj])
+            for step in range(nsteps):
+                h = kicks[0] * dt
                 dpu = dpu + h * a[0]
                 dpv = dpv + h * a[1]
-        if active:
-            dx[c, 0, j] = du
-            dx[c, 1, j] = dv
-            dx[c, 2, j] = dpu
-            dx[c, 3, j] = dpv
+                for s in range(wp.static(stages)):
+                    h = drifts[s] * dt
+                    du = du + h * dpu
+                    dv = dv + h * dpv
+                    parity = 1 - parity
+                    nb = exchange(buf, du, parity, li, ri, hl, hr, boundary)
+                    a = site_tangent_acceleration(du, dv, nb[0], nb[1], m, k,
+                                                  hist[step * wp.static(stages) + s + 1, base, jj])
+                    h = kicks[s + 1] * dt
+                    dpu = dpu + h * a[0]
+                    dpv = dpv + h * a[1]
+            if active:
+                dx[c, 0, j] = du
+                dx[c, 1, j] = dv
+                dx[c, 2, j] = dpu
+                dx[c, 3, j] = dpv
+
+        kernels[("splitting", stages)] = splitting
+        kernels[("splitting_tangent", stages)] = splitting_tangent
+
+    for stages in sorted({m.stages for m in METHODS.values() if m.family == "splitting" and m.stages <= MAX_STAGES}):
+        make_splitting(stages)
 
     @wp.kernel(**options)
     def rk4(x: wp.array3d(dtype=wp.float64), mass: wp.array(dtype=wp.float64),
@@ -401,4 +433,6 @@ def block_kernels(block: int) -> dict:
             dx[c, 2, j] = pu
             dx[c, 3, j] = pv
 
-    return {"splitting": splitting, "splitting_tangent": splitting_tangent, "rk4": rk4, "rk4_tangent": rk4_tangent}
+    kernels["rk4"] = rk4
+    kernels["rk4_tangent"] = rk4_tangent
+    return kernels

@@ -234,6 +234,15 @@ class _Runner:
         if self.layout == "block":
             self.block = block_kernels.block_size(self.N)
             self.bk = block_kernels.block_kernels(self.block)
+            if method.family == "splitting":
+                key = method.stages
+                self.block_step = self.bk[("splitting", key)]
+                self.block_tangent = self.bk[("splitting_tangent", key)]
+                self.block_coefficients = [block_kernels.pack_coefficients(method.drifts),
+                                           block_kernels.pack_coefficients(method.kicks)]
+            else:
+                self.block_step, self.block_tangent = self.bk["rk4"], self.bk["rk4_tangent"]
+                self.block_coefficients = []
             if device == "cpu":
                 # run the block's threads as cooperative fibers (Warp's experimental CPU blocks)
                 wp.config.enable_cpu_blocks = True
@@ -278,9 +287,8 @@ class _Runner:
             common = [self.mass[lo:hi], self.coupling[lo:hi]]
             end = [*tail, rec, int(record_stiffness), self.hist]
             if self.layout == "block":
-                extra = [self.drifts, self.kicks] if self.method.family == "splitting" else []
-                wp.launch(self.bk[self.method.family], dim=(hi - lo, self.block), block_dim=self.block,
-                          device=self.device, inputs=[self.x[lo:hi], *common, *extra, *end])
+                wp.launch(self.block_step, dim=(hi - lo, self.block), block_dim=self.block, device=self.device,
+                          inputs=[self.x[lo:hi], *common, *self.block_coefficients, *end])
             elif self.method.family == "splitting":
                 wp.launch(k.splitting_kernel, dim=hi - lo, device=self.device,
                           inputs=[self.x[lo:hi], self.acc[lo:hi], *common, self.drifts, self.kicks, *end])
@@ -303,10 +311,9 @@ class _Runner:
         def task(lo, hi):
             n = hi - lo
             if self.layout == "block":
-                extra = [self.drifts, self.kicks] if self.method.family == "splitting" else []
-                wp.launch(self.bk[self.method.family + "_tangent"], dim=(n, self.block), block_dim=self.block,
-                          device=self.device, inputs=[dx[lo:hi], column_base[lo:hi], self.mass, self.coupling, *extra,
-                                                      self.boundary, f64(dt), int(nsteps), self.hist])
+                wp.launch(self.block_tangent, dim=(n, self.block), block_dim=self.block, device=self.device,
+                          inputs=[dx[lo:hi], column_base[lo:hi], self.mass, self.coupling, *self.block_coefficients,
+                                  self.boundary, f64(dt), int(nsteps), self.hist])
             elif self.method.family == "splitting":
                 dacc = wp.zeros((n, 2, self.N), dtype=f64, device=self.device)
                 wp.launch(k.splitting_tangent_kernel, dim=n, device=self.device,

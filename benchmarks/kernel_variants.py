@@ -1,0 +1,142 @@
+"""Where the block kernels' time goes: the stage-specialised splitting kernels (Verlet and kahan8;
+without and with ``__launch_bounds__`` minimum blocks per SM, which caps registers) against a
+hand-reduced Verlet-only Warp kernel (no recording branches), at 1, 805 and 32768 lattices, in one
+run; then registers per kernel.
+
+Command (GPU): ``python benchmarks/kernel_variants.py [--profile]``; ``--profile`` runs one short
+launch of each for ``ncu``.
+"""
+
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import warp as wp
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from warpchain import ChainParams, lowest_optical_mode  # noqa: E402
+from warpchain import block_kernels as bk  # noqa: E402
+from warpchain.block_kernels import (ZERO, has_left, has_right, left_index, neighbour_or_wall,  # noqa: E402
+                                     right_index, site_acceleration)
+
+BLOCK = bk.block_size(201)
+HALVES = 2 * BLOCK
+
+
+@wp.func
+def exchange(buf: wp.tile[wp.float64, HALVES], u: wp.float64, parity: int, li: int, ri: int, hl: int, hr: int,
+             boundary: int) -> wp.vec2d:
+    offset = parity * BLOCK
+    wp.tile_assign(buf, wp.tile(u), offset=(offset,))
+    return wp.vec2d(neighbour_or_wall(buf[offset + li], u, hl, boundary),
+                    neighbour_or_wall(buf[offset + ri], u, hr, boundary))
+
+
+@wp.kernel(enable_backward=False, module="unique", grid_stride=False, launch_bounds=BLOCK)
+def verlet_only(x: wp.array3d(dtype=wp.float64), mass: wp.array(dtype=wp.float64),
+                coupling: wp.array(dtype=wp.float64), boundary: int, half: wp.float64, dt: wp.float64, nsteps: int):
+    b, j = wp.tid()
+    n = x.shape[2]
+    active = j < n
+    u = ZERO
+    v = ZERO
+    pu = ZERO
+    pv = ZERO
+    if active:
+        u = x[b, 0, j]
+        v = x[b, 1, j]
+        pu = x[b, 2, j]
+        pv = x[b, 3, j]
+    m = mass[b]
+    k = coupling[b]
+    li = left_index(j, n, boundary)
+    ri = right_index(j, n, boundary)
+    hl = has_left(j, boundary)
+    hr = has_right(j, n, boundary)
+    buf = wp.tile_zeros(shape=(HALVES,), dtype=wp.float64, storage="shared")
+    parity = int(0)
+    nb = exchange(buf, u, parity, li, ri, hl, hr, boundary)
+    a = site_acceleration(u, v, nb[0], nb[1], m, k)
+    for _step in range(nsteps):
+        pu = pu + half * a[0]
+        pv = pv + half * a[1]
+        u = u + dt * pu
+        v = v + dt * pv
+        parity = 1 - parity
+        nb = exchange(buf, u, parity, li, ri, hl, hr, boundary)
+        a = site_acceleration(u, v, nb[0], nb[1], m, k)
+        pu = pu + half * a[0]
+        pv = pv + half * a[1]
+    if active:
+        x[b, 0, j] = u
+        x[b, 1, j] = v
+        x[b, 2, j] = pu
+        x[b, 3, j] = pv
+
+
+def main():
+    profile = "--profile" in sys.argv
+    wp.init()
+    p = ChainParams(30.0, 160.0, 201)
+    _, shape = lowest_optical_mode(p)
+    one = np.zeros((4, p.N))
+    one[:2] = 0.3 * shape / np.max(np.abs(shape))
+    f64 = wp.float64
+    from warpchain.integrators import get_method
+
+    variants = {}
+    for min_blocks in (0, 6, 7):
+        kernels = bk.block_kernels(BLOCK, min_blocks)
+        for name in ("verlet", "kahan8"):
+            m = get_method(name)
+            variants[f"{name} min_blocks={min_blocks}"] = (kernels[("splitting", m.stages)], m)
+    for batch in ((1,) if profile else (1, 805, 32768)):
+        x = wp.array(np.repeat(one[None], batch, 0), dtype=f64, device="cuda")
+        mass = wp.array(np.full(batch, 30.0), dtype=f64, device="cuda")
+        cpl = wp.array(np.full(batch, 160.0), dtype=f64, device="cuda")
+        rec = wp.zeros((1, 1, 2, 1), dtype=f64, device="cuda")
+        hist = wp.zeros((1, 1, 1), dtype=f64, device="cuda")
+
+        def runner(kernel, m):
+            dr, ki = bk.pack_coefficients(m.drifts), bk.pack_coefficients(m.kicks)
+            return lambda n: wp.launch(kernel, dim=(batch, BLOCK), block_dim=BLOCK, device="cuda",
+                                       inputs=[x, mass, cpl, dr, ki, 0, f64(0.1 if m.stages == 1 else 0.5), n, 0,
+                                               rec, 0, hist])
+
+        def run_verlet(n):
+            wp.launch(verlet_only, dim=(batch, BLOCK), block_dim=BLOCK, device="cuda",
+                      inputs=[x, mass, cpl, 0, f64(0.05), f64(0.1), n])
+
+        runs = [("verlet-only", run_verlet, 1)] + [(k, runner(kern, m), m.stages) for k, (kern, m) in variants.items()]
+        for name, fn, evals in runs:
+            fn(10)
+            wp.synchronize()
+            if profile:
+                fn(200)
+                wp.synchronize()
+                continue
+            steps = (20000 if batch < 1000 else 2000) // evals
+            best = 1e9
+            for _ in range(3):
+                t0 = time.perf_counter()
+                fn(steps)
+                wp.synchronize()
+                best = min(best, time.perf_counter() - t0)
+            print(f"{name:24s} batch {batch:6d}: {1e9 * best / steps / evals:8.1f} ns per force evaluation, "
+                  f"{batch * p.N * steps / best:.3g} site-steps/s", flush=True)
+    for key, kern in bk.block_kernels(BLOCK, 0).items():
+        if not profile:
+            try:
+                print(key, wp.get_cuda_kernel_properties(kern, "cuda", block_dim=BLOCK))
+            except Exception as exc:
+                print(key, exc)
+    for mb in (6, 7):
+        for key in (("splitting", 1), ("splitting", 15)):
+            if not profile:
+                print(mb, key, wp.get_cuda_kernel_properties(bk.block_kernels(BLOCK, mb)[key], "cuda", block_dim=BLOCK))
+
+
+if __name__ == "__main__":
+    main()
