@@ -87,11 +87,11 @@ def main():
     from warpchain.integrators import get_method
 
     variants = {}
-    for min_blocks in (0, 6, 7):
+    for min_blocks in (0, 5, 7):
         kernels = bk.block_kernels(BLOCK, min_blocks)
-        for name in ("verlet", "kahan8"):
+        for name in ("verlet", "yoshida4", "kahan8"):
             m = get_method(name)
-            variants[f"{name} min_blocks={min_blocks}"] = (kernels[("splitting", m.stages)], m)
+            variants[f"{name} min_blocks={min_blocks}"] = (kernels.splitting(m.stages), m)
     for batch in ((1,) if profile else (1, 805, 32768)):
         x = wp.array(np.repeat(one[None], batch, 0), dtype=f64, device="cuda")
         mass = wp.array(np.full(batch, 30.0), dtype=f64, device="cuda")
@@ -126,17 +126,10 @@ def main():
                 best = min(best, time.perf_counter() - t0)
             print(f"{name:24s} batch {batch:6d}: {1e9 * best / steps / evals:8.1f} ns per force evaluation, "
                   f"{batch * p.N * steps / best:.3g} site-steps/s", flush=True)
-    for key, kern in bk.block_kernels(BLOCK, 0).items():
-        if not profile:
-            try:
-                print(key, wp.get_cuda_kernel_properties(kern, "cuda", block_dim=BLOCK))
-            except Exception as exc:
-                print(key, exc)
-    for mb in (6, 7):
-        for key in (("splitting", 1), ("splitting", 15)):
-            if not profile:
-                print(mb, key, wp.get_cuda_kernel_properties(bk.block_kernels(BLOCK, mb)[key], "cuda", block_dim=BLOCK))
-
+    if not profile:
+        for min_blocks in (0, 5, 7):
+            for key, kern in bk.block_kernels(BLOCK, min_blocks).built().items():
+                print(min_blocks, key, wp.get_cuda_kernel_properties(kern, "cuda", block_dim=BLOCK))
 
 if __name__ == "__main__":
     main()

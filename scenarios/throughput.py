@@ -197,8 +197,12 @@ def _kernel_properties(ctx, params):
 
     block = block_kernels.block_size(params.N)
     rows = []
-    for key, kernel in block_kernels.block_kernels(block).items():
-        name = "/".join(str(part) for part in key) if isinstance(key, tuple) else key
+    built = {}
+    for method in METHODS.values():
+        min_blocks = block_kernels.min_blocks_per_sm(method.stages)
+        for key, kernel in block_kernels.block_kernels(block, min_blocks).built().items():
+            built["/".join(str(part) for part in key) + f" (min blocks {min_blocks})"] = kernel
+    for name, kernel in sorted(built.items()):
         try:
             props = wp.get_cuda_kernel_properties(kernel, ctx.device, block_dim=block)
         except Exception as exc:  # not loaded in this run, or the query is unsupported
@@ -215,7 +219,7 @@ def _kernel_properties(ctx, params):
         except Exception as exc:
             ctx.log("kernel properties of %s unavailable: %s", name, exc)
     for row in rows:
-        ctx.log("%-28s %4d registers, %4d B local, occupancy %.2f", row["kernel"], row["register_count"],
+        ctx.log("%-44s %4d registers, %4d B local, occupancy %.2f", row["kernel"], row["register_count"],
                 row["local_memory_size"], row["occupancy"])
     return rows
 

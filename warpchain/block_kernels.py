@@ -123,23 +123,62 @@ def pack_coefficients(values) -> "coefficients":
     return coefficients(*(values + [0.0] * (MAX_STAGES + 1 - len(values))))
 
 
+class BlockKernels:
+    """The block kernels for one block size, built (and compiled, each in its own Warp module) on
+    first use: ``splitting(stages, record, save)``, ``splitting_tangent(stages)``, ``rk4``,
+    ``rk4_tangent``. Launch each with ``dim=(lattices, block), block_dim=block``."""
+
+    def __init__(self, makers: dict):
+        self._makers = makers
+        self._built: dict = {}
+
+    def _get(self, *key):
+        if key not in self._built:
+            self._built[key] = self._makers[key[0]](*key[1:])
+        return self._built[key]
+
+    def splitting(self, stages: int, record: bool = False, save: bool = False):
+        """Splitting kernel for ``stages`` stages; ``record``/``save`` compile in the stiffness
+        history and the field recording (left out, they cost nothing)."""
+        if not 1 <= stages <= MAX_STAGES:
+            raise ValueError(f"the block kernels support 1 to {MAX_STAGES} stages, got {stages}")
+        return self._get("splitting", int(stages), bool(record), bool(save))
+
+    def splitting_tangent(self, stages: int):
+        if not 1 <= stages <= MAX_STAGES:
+            raise ValueError(f"the block kernels support 1 to {MAX_STAGES} stages, got {stages}")
+        return self._get("splitting_tangent", int(stages))
+
+    @property
+    def rk4(self):
+        return self._get("rk4")
+
+    @property
+    def rk4_tangent(self):
+        return self._get("rk4_tangent")
+
+    def built(self) -> dict:
+        """The kernels built so far, by key."""
+        return dict(self._built)
+
+
+def min_blocks_per_sm(stages: int) -> int:
+    """``__launch_bounds__`` minimum blocks per SM used for a method with this many force
+    evaluations per step (0: no register cap). Measured on the H200 (``benchmarks/kernel_variants.py``):
+    the many-stage kernels hold ~120 registers uncapped, and capping them to fit 7 blocks of 224
+    threads per SM is faster despite a few spills; Verlet and RK4 are best uncapped."""
+    return 0 if stages <= 4 else 7
+
+
 @functools.lru_cache(maxsize=None)
-def block_kernels(block: int, min_blocks_per_sm: int = 0) -> dict:
+def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
     """The block kernels for blocks of ``block`` threads (a multiple of 32, at most 1024).
 
     Args:
         block: threads per block.
         min_blocks_per_sm: passed to ``__launch_bounds__`` (0: none), which caps registers so that
             this many blocks fit on one SM.
-
-    Returns:
-        dict with ``("splitting", stages)`` and ``("splitting_tangent", stages)`` for every stage
-        count up to ``MAX_STAGES`` that a registered method uses, and ``"rk4"``, ``"rk4_tangent"``;
-        launch each with ``dim=(lattices, block), block_dim=block``. They share one Warp module
-        (one compilation per block size and device).
     """
-    from .integrators import METHODS
-
     if block % WARP_LANES or not WARP_LANES <= block <= MAX_BLOCK:
         raise ValueError(f"block must be a multiple of {WARP_LANES} in [{WARP_LANES}, {MAX_BLOCK}], got {block}")
     halves = 2 * block
@@ -155,11 +194,9 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> dict:
         return wp.vec2d(left, right)
 
     bounds = (block, min_blocks_per_sm) if min_blocks_per_sm else block
-    options = {"enable_backward": False, "module": f"warpchain_block_{block}_{min_blocks_per_sm}",
-               "grid_stride": False, "launch_bounds": bounds}
-    kernels = {}
+    options = {"enable_backward": False, "module": "unique", "grid_stride": False, "launch_bounds": bounds}
 
-    def make_splitting(stages: int):
+    def make_splitting(stages: int, record: bool, save: bool):
         @wp.kernel(**options)
         def splitting(x: wp.array3d(dtype=wp.float64), mass: wp.array(dtype=wp.float64),
                       coupling: wp.array(dtype=wp.float64), drifts: coefficients, kicks: coefficients,
@@ -190,8 +227,9 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> dict:
             parity = int(0)
             nb = exchange(buf, u, parity, li, ri, hl, hr, boundary)
             a = site_acceleration(u, v, nb[0], nb[1], m, k)
-            if record_stiffness != 0 and active:
-                hist[0, b, j] = contact_stiffness(u - v)
+            if wp.static(record):
+                if active:
+                    hist[0, b, j] = contact_stiffness(u - v)
             for step in range(nsteps):
                 h = kicks[0] * dt
                 pu = pu + h * a[0]
@@ -203,13 +241,14 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> dict:
                     parity = 1 - parity
                     nb = exchange(buf, u, parity, li, ri, hl, hr, boundary)
                     a = site_acceleration(u, v, nb[0], nb[1], m, k)
-                    if record_stiffness != 0 and active:
-                        hist[step * wp.static(stages) + s + 1, b, j] = contact_stiffness(u - v)
+                    if wp.static(record):
+                        if active:
+                            hist[step * wp.static(stages) + s + 1, b, j] = contact_stiffness(u - v)
                     h = kicks[s + 1] * dt
                     pu = pu + h * a[0]
                     pv = pv + h * a[1]
-                if save_every > 0 and active:
-                    if (step + 1) % save_every == 0:
+                if wp.static(save):
+                    if active and (step + 1) % save_every == 0:
                         r = (step + 1) / save_every - 1
                         rec[r, b, 0, j] = u
                         rec[r, b, 1, j] = v
@@ -219,6 +258,9 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> dict:
                 x[b, 2, j] = pu
                 x[b, 3, j] = pv
 
+        return splitting
+
+    def make_splitting_tangent(stages: int):
         @wp.kernel(**options)
         def splitting_tangent(dx: wp.array3d(dtype=wp.float64), column_base: wp.array(dtype=wp.int32),
                               mass: wp.array(dtype=wp.float64), coupling: wp.array(dtype=wp.float64),
@@ -270,11 +312,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> dict:
                 dx[c, 2, j] = dpu
                 dx[c, 3, j] = dpv
 
-        kernels[("splitting", stages)] = splitting
-        kernels[("splitting_tangent", stages)] = splitting_tangent
-
-    for stages in sorted({m.stages for m in METHODS.values() if m.family == "splitting" and m.stages <= MAX_STAGES}):
-        make_splitting(stages)
+        return splitting_tangent
 
     @wp.kernel(**options)
     def rk4(x: wp.array3d(dtype=wp.float64), mass: wp.array(dtype=wp.float64),
@@ -433,6 +471,5 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> dict:
             dx[c, 2, j] = pu
             dx[c, 3, j] = pv
 
-    kernels["rk4"] = rk4
-    kernels["rk4_tangent"] = rk4_tangent
-    return kernels
+    return BlockKernels({"splitting": make_splitting, "splitting_tangent": make_splitting_tangent,
+                         "rk4": lambda: rk4, "rk4_tangent": lambda: rk4_tangent})

@@ -233,15 +233,13 @@ class _Runner:
         self.layout = resolve_layout(layout, device, self.N)
         if self.layout == "block":
             self.block = block_kernels.block_size(self.N)
-            self.bk = block_kernels.block_kernels(self.block)
+            self.bk = block_kernels.block_kernels(self.block, block_kernels.min_blocks_per_sm(method.stages))
             if method.family == "splitting":
-                key = method.stages
-                self.block_step = self.bk[("splitting", key)]
-                self.block_tangent = self.bk[("splitting_tangent", key)]
+                self.block_tangent = self.bk.splitting_tangent(method.stages)
                 self.block_coefficients = [block_kernels.pack_coefficients(method.drifts),
                                            block_kernels.pack_coefficients(method.kicks)]
             else:
-                self.block_step, self.block_tangent = self.bk["rk4"], self.bk["rk4_tangent"]
+                self.block_tangent = self.bk.rk4_tangent
                 self.block_coefficients = []
             if device == "cpu":
                 # run the block's threads as cooperative fibers (Warp's experimental CPU blocks)
@@ -287,7 +285,11 @@ class _Runner:
             common = [self.mass[lo:hi], self.coupling[lo:hi]]
             end = [*tail, rec, int(record_stiffness), self.hist]
             if self.layout == "block":
-                wp.launch(self.block_step, dim=(hi - lo, self.block), block_dim=self.block, device=self.device,
+                if self.method.family == "splitting":
+                    kernel = self.bk.splitting(self.method.stages, record=record_stiffness, save=bool(n_rec))
+                else:
+                    kernel = self.bk.rk4
+                wp.launch(kernel, dim=(hi - lo, self.block), block_dim=self.block, device=self.device,
                           inputs=[self.x[lo:hi], *common, *self.block_coefficients, *end])
             elif self.method.family == "splitting":
                 wp.launch(k.splitting_kernel, dim=hi - lo, device=self.device,
