@@ -165,9 +165,10 @@ class BlockKernels:
 def min_blocks_per_sm(stages: int) -> int:
     """``__launch_bounds__`` minimum blocks per SM used for a method with this many force
     evaluations per step (0: no register cap). Measured on the H200 (``benchmarks/kernel_variants.py``):
-    the many-stage kernels hold ~120 registers uncapped, and capping them to fit 7 blocks of 224
-    threads per SM is faster despite a few spills; Verlet and RK4 are best uncapped."""
-    return 0 if stages <= 4 else 7
+    the many-stage kernels hold ~110 registers uncapped; capped at 56 (5 blocks of 224 threads per
+    SM, no spills) kahan8 runs 1.25x faster at 805 lattices and 1.3x at 32768 (a cap of 32 with
+    spills is no better); Verlet, the 3-stage methods and RK4 are fastest uncapped."""
+    return 0 if stages <= 4 else 5
 
 
 @functools.lru_cache(maxsize=None)
