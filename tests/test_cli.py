@@ -34,6 +34,11 @@ def test_dispersion_scene(tmp_path):
     assert (tmp_path / "dispersion" / "dispersion.png").stat().st_size > 10_000
     assert (tmp_path / "dispersion" / "dispersion.pdf").exists()
     assert 10 < summary["appendix_estimates"]["M"] < 100
+    # the fit of M, K to the continuous surface-wave model (issue 7)
+    assert 20 < summary["fit_M"] < 60 and 100 < summary["fit_K"] < 350 and summary["fit_residual"] < 1e-12
+    assert summary["material_set"]["contact_frequency_hz"] == 215e6
+    assert set(summary["sensitivity"]) >= {"diameter", "rho_sphere", "rho_substrate", "E_substrate"}
+    assert (tmp_path / "dispersion" / "fig2_fitted.png").stat().st_size > 10_000
 
 
 @pytest.fixture(scope="module")
