@@ -106,6 +106,26 @@ def site_tangent_acceleration(du: wp.float64, dv: wp.float64, left: wp.float64, 
     return wp.vec2d(au, stiffness * dz)
 
 
+@wp.func
+def rk4_accumulate(stage: int, total: wp.vec4d, k: wp.vec4d) -> wp.vec4d:
+    """The RK4 weighted sum k0 + 2 k1 + 2 k2 + k3 after stage ``stage`` (as kernels.rk4_advance)."""
+    if stage == 0:
+        return k
+    weight = TWO
+    if stage == 3:
+        weight = ONE
+    return total + weight * k
+
+
+@wp.func
+def rk4_stage_state(stage: int, x: wp.vec4d, k: wp.vec4d, dt: wp.float64) -> wp.vec4d:
+    """The state of the next stage, x + c dt k with c = 1/2, 1/2, 1 after stages 0, 1, 2."""
+    c = HALF
+    if stage == 2:
+        c = ONE
+    return x + (c * dt) * k
+
+
 # ----------------------------------------------------------------------------- kernel factory
 
 
@@ -324,15 +344,9 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
         b, j = wp.tid()
         n = x.shape[2]
         active = j < n
-        u = ZERO
-        v = ZERO
-        pu = ZERO
-        pv = ZERO
+        state = wp.vec4d()  # (u, v, u', v') of site j
         if active:
-            u = x[b, 0, j]
-            v = x[b, 1, j]
-            pu = x[b, 2, j]
-            pv = x[b, 3, j]
+            state = wp.vec4d(x[b, 0, j], x[b, 1, j], x[b, 2, j], x[b, 3, j])
         m = mass[b]
         k = coupling[b]
         li = left_index(j, n, boundary)
@@ -342,60 +356,27 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
         buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
         parity = int(0)
         for step in range(nsteps):
-            # stage state y and the weighted derivative sum, as in kernels.rk4_advance
-            yu = u
-            yv = v
-            ypu = pu
-            ypv = pv
-            tu = ZERO
-            tv = ZERO
-            tpu = ZERO
-            tpv = ZERO
+            y = state
+            total = wp.vec4d()
             for stage in range(4):
                 parity = 1 - parity
-                nb = exchange(buf, yu, parity, li, ri, hl, hr, boundary)
-                a = site_acceleration(yu, yv, nb[0], nb[1], m, k)
+                nb = exchange(buf, y[0], parity, li, ri, hl, hr, boundary)
+                a = site_acceleration(y[0], y[1], nb[0], nb[1], m, k)
                 if record_stiffness != 0 and active:
-                    hist[4 * step + stage, b, j] = contact_stiffness(yu - yv)
-                ku = ypu
-                kv = ypv
-                if stage == 0:
-                    tu = ku
-                    tv = kv
-                    tpu = a[0]
-                    tpv = a[1]
-                else:
-                    weight = TWO
-                    if stage == 3:
-                        weight = ONE
-                    tu = tu + weight * ku
-                    tv = tv + weight * kv
-                    tpu = tpu + weight * a[0]
-                    tpv = tpv + weight * a[1]
+                    hist[4 * step + stage, b, j] = contact_stiffness(y[0] - y[1])
+                slope = wp.vec4d(y[2], y[3], a[0], a[1])
+                total = rk4_accumulate(stage, total, slope)
                 if stage < 3:
-                    c = HALF
-                    if stage == 2:
-                        c = ONE
-                    h = c * dt
-                    yu = u + h * ku
-                    yv = v + h * kv
-                    ypu = pu + h * a[0]
-                    ypv = pv + h * a[1]
-            h = dt / SIX
-            u = u + h * tu
-            v = v + h * tv
-            pu = pu + h * tpu
-            pv = pv + h * tpv
+                    y = rk4_stage_state(stage, state, slope, dt)
+            state = state + (dt / SIX) * total
             if save_every > 0 and active:
                 if (step + 1) % save_every == 0:
                     r = (step + 1) / save_every - 1
-                    rec[r, b, 0, j] = u
-                    rec[r, b, 1, j] = v
+                    rec[r, b, 0, j] = state[0]
+                    rec[r, b, 1, j] = state[1]
         if active:
-            x[b, 0, j] = u
-            x[b, 1, j] = v
-            x[b, 2, j] = pu
-            x[b, 3, j] = pv
+            for i in range(4):
+                x[b, i, j] = state[i]
 
     @wp.kernel(**options)
     def rk4_tangent(dx: wp.array3d(dtype=wp.float64), column_base: wp.array(dtype=wp.int32),
@@ -407,15 +388,9 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
         active = j < n
         base = column_base[c]
         jj = wp.min(j, n - 1)
-        u = ZERO
-        v = ZERO
-        pu = ZERO
-        pv = ZERO
+        state = wp.vec4d()
         if active:
-            u = dx[c, 0, j]
-            v = dx[c, 1, j]
-            pu = dx[c, 2, j]
-            pv = dx[c, 3, j]
+            state = wp.vec4d(dx[c, 0, j], dx[c, 1, j], dx[c, 2, j], dx[c, 3, j])
         m = mass[base]
         k = coupling[base]
         li = left_index(j, n, boundary)
@@ -425,52 +400,20 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
         buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
         parity = int(0)
         for step in range(nsteps):
-            yu = u
-            yv = v
-            ypu = pu
-            ypv = pv
-            tu = ZERO
-            tv = ZERO
-            tpu = ZERO
-            tpv = ZERO
+            y = state
+            total = wp.vec4d()
             for stage in range(4):
                 parity = 1 - parity
-                nb = exchange(buf, yu, parity, li, ri, hl, hr, boundary)
-                a = site_tangent_acceleration(yu, yv, nb[0], nb[1], m, k, hist[4 * step + stage, base, jj])
-                ku = ypu
-                kv = ypv
-                if stage == 0:
-                    tu = ku
-                    tv = kv
-                    tpu = a[0]
-                    tpv = a[1]
-                else:
-                    weight = TWO
-                    if stage == 3:
-                        weight = ONE
-                    tu = tu + weight * ku
-                    tv = tv + weight * kv
-                    tpu = tpu + weight * a[0]
-                    tpv = tpv + weight * a[1]
+                nb = exchange(buf, y[0], parity, li, ri, hl, hr, boundary)
+                a = site_tangent_acceleration(y[0], y[1], nb[0], nb[1], m, k, hist[4 * step + stage, base, jj])
+                slope = wp.vec4d(y[2], y[3], a[0], a[1])
+                total = rk4_accumulate(stage, total, slope)
                 if stage < 3:
-                    cc = HALF
-                    if stage == 2:
-                        cc = ONE
-                    h = cc * dt
-                    yu = u + h * ku
-                    yv = v + h * kv
-                    ypu = pu + h * a[0]
-                    ypv = pv + h * a[1]
-            h = dt / SIX
-            u = u + h * tu
-            v = v + h * tv
-            pu = pu + h * tpu
-            pv = pv + h * tpv
+                    y = rk4_stage_state(stage, state, slope, dt)
+            state = state + (dt / SIX) * total
         if active:
-            dx[c, 0, j] = u
-            dx[c, 1, j] = v
-            dx[c, 2, j] = pu
-            dx[c, 3, j] = pv
+            for i in range(4):
+                dx[c, i, j] = state[i]
 
     return BlockKernels({"splitting": make_splitting, "splitting_tangent": make_splitting_tangent,
                          "rk4": lambda: rk4, "rk4_tangent": lambda: rk4_tangent})
