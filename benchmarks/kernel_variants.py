@@ -18,20 +18,19 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from warpchain import ChainParams, lowest_optical_mode  # noqa: E402
 from warpchain import block_kernels as bk  # noqa: E402
-from warpchain.block_kernels import (ZERO, has_left, has_right, left_index, neighbour_or_wall,  # noqa: E402
-                                     right_index, site_acceleration)
+from warpchain.block_kernels import (load_site, neighbour_or_wall, site_acceleration,  # noqa: E402
+                                     site_neighbours, store_site)
 
 BLOCK = bk.block_size(201)
 HALVES = 2 * BLOCK
 
 
 @wp.func
-def exchange(buf: wp.tile[wp.float64, HALVES], u: wp.float64, parity: int, li: int, ri: int, hl: int, hr: int,
-             boundary: int) -> wp.vec2d:
+def exchange(buf: wp.tile[wp.float64, HALVES], u: wp.float64, parity: int, nbr: wp.vec4i, boundary: int) -> wp.vec2d:
     offset = parity * BLOCK
     wp.tile_assign(buf, wp.tile(u), offset=(offset,))
-    return wp.vec2d(neighbour_or_wall(buf[offset + li], u, hl, boundary),
-                    neighbour_or_wall(buf[offset + ri], u, hr, boundary))
+    return wp.vec2d(neighbour_or_wall(buf[offset + nbr[0]], u, nbr[2], boundary),
+                    neighbour_or_wall(buf[offset + nbr[1]], u, nbr[3], boundary))
 
 
 @wp.kernel(enable_backward=False, module="unique", grid_stride=False, launch_bounds=BLOCK)
@@ -40,24 +39,17 @@ def verlet_only(x: wp.array3d(dtype=wp.float64), mass: wp.array(dtype=wp.float64
     b, j = wp.tid()
     n = x.shape[2]
     active = j < n
-    u = ZERO
-    v = ZERO
-    pu = ZERO
-    pv = ZERO
-    if active:
-        u = x[b, 0, j]
-        v = x[b, 1, j]
-        pu = x[b, 2, j]
-        pv = x[b, 3, j]
+    start = load_site(x, b, j, active)
+    u = start[0]
+    v = start[1]
+    pu = start[2]
+    pv = start[3]
     m = mass[b]
     k = coupling[b]
-    li = left_index(j, n, boundary)
-    ri = right_index(j, n, boundary)
-    hl = has_left(j, boundary)
-    hr = has_right(j, n, boundary)
+    nbr = site_neighbours(j, n, boundary)
     buf = wp.tile_zeros(shape=(HALVES,), dtype=wp.float64, storage="shared")
     parity = int(0)
-    nb = exchange(buf, u, parity, li, ri, hl, hr, boundary)
+    nb = exchange(buf, u, parity, nbr, boundary)
     a = site_acceleration(u, v, nb[0], nb[1], m, k)
     for _step in range(nsteps):
         pu = pu + half * a[0]
@@ -65,15 +57,11 @@ def verlet_only(x: wp.array3d(dtype=wp.float64), mass: wp.array(dtype=wp.float64
         u = u + dt * pu
         v = v + dt * pv
         parity = 1 - parity
-        nb = exchange(buf, u, parity, li, ri, hl, hr, boundary)
+        nb = exchange(buf, u, parity, nbr, boundary)
         a = site_acceleration(u, v, nb[0], nb[1], m, k)
         pu = pu + half * a[0]
         pv = pv + half * a[1]
-    if active:
-        x[b, 0, j] = u
-        x[b, 1, j] = v
-        x[b, 2, j] = pu
-        x[b, 3, j] = pv
+    store_site(x, b, j, active, wp.vec4d(u, v, pu, pv))
 
 
 def main():

@@ -89,6 +89,28 @@ def has_right(j: int, n: int, boundary: int) -> int:
 
 
 @wp.func
+def site_neighbours(j: int, n: int, boundary: int) -> wp.vec4i:
+    """(left index, right index, has left, has right) of site j: fixed for the whole launch."""
+    return wp.vec4i(left_index(j, n, boundary), right_index(j, n, boundary), has_left(j, boundary),
+                    has_right(j, n, boundary))
+
+
+@wp.func
+def load_site(x: wp.array3d(dtype=wp.float64), b: int, j: int, active: bool) -> wp.vec4d:
+    """(u, v, u', v') of site j of lattice (or column) b; zeros for the block's idle threads."""
+    if active:
+        return wp.vec4d(x[b, 0, j], x[b, 1, j], x[b, 2, j], x[b, 3, j])
+    return wp.vec4d()
+
+
+@wp.func
+def store_site(x: wp.array3d(dtype=wp.float64), b: int, j: int, active: bool, state: wp.vec4d):
+    if active:
+        for i in range(4):
+            x[b, i, j] = state[i]
+
+
+@wp.func
 def site_acceleration(u: wp.float64, v: wp.float64, left: wp.float64, right: wp.float64,
                       mass: wp.float64, coupling: wp.float64) -> wp.vec2d:
     """(u'', v'') of one site from its positions and its neighbours' u (same order as the
@@ -205,13 +227,13 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
     halves = 2 * block
 
     @wp.func
-    def exchange(buf: wp.tile[wp.float64, halves], u: wp.float64,
-                 parity: int, li: int, ri: int, hl: int, hr: int, boundary: int) -> wp.vec2d:
+    def exchange(buf: wp.tile[wp.float64, halves], u: wp.float64, parity: int, nbr: wp.vec4i,
+                 boundary: int) -> wp.vec2d:
         """Publish u in half ``parity`` of the shared tile; return (left, right) neighbour values."""
         offset = parity * block
         wp.tile_assign(buf, wp.tile(u), offset=(offset,))
-        left = neighbour_or_wall(buf[offset + li], u, hl, boundary)
-        right = neighbour_or_wall(buf[offset + ri], u, hr, boundary)
+        left = neighbour_or_wall(buf[offset + nbr[0]], u, nbr[2], boundary)
+        right = neighbour_or_wall(buf[offset + nbr[1]], u, nbr[3], boundary)
         return wp.vec2d(left, right)
 
     bounds = (block, min_blocks_per_sm) if min_blocks_per_sm else block
@@ -229,24 +251,17 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             b, j = wp.tid()
             n = x.shape[2]
             active = j < n
-            u = ZERO
-            v = ZERO
-            pu = ZERO
-            pv = ZERO
-            if active:
-                u = x[b, 0, j]
-                v = x[b, 1, j]
-                pu = x[b, 2, j]
-                pv = x[b, 3, j]
+            start = load_site(x, b, j, active)
+            u = start[0]
+            v = start[1]
+            pu = start[2]
+            pv = start[3]
             m = mass[b]
             k = coupling[b]
-            li = left_index(j, n, boundary)
-            ri = right_index(j, n, boundary)
-            hl = has_left(j, boundary)
-            hr = has_right(j, n, boundary)
+            nbr = site_neighbours(j, n, boundary)
             buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
             parity = int(0)
-            nb = exchange(buf, u, parity, li, ri, hl, hr, boundary)
+            nb = exchange(buf, u, parity, nbr, boundary)
             a = site_acceleration(u, v, nb[0], nb[1], m, k)
             if wp.static(record):
                 if active:
@@ -260,7 +275,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
                     u = u + h * pu
                     v = v + h * pv
                     parity = 1 - parity
-                    nb = exchange(buf, u, parity, li, ri, hl, hr, boundary)
+                    nb = exchange(buf, u, parity, nbr, boundary)
                     a = site_acceleration(u, v, nb[0], nb[1], m, k)
                     if wp.static(record):
                         if active:
@@ -273,11 +288,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
                         r = (step + 1) / save_every - 1
                         rec[r, b, 0, j] = u
                         rec[r, b, 1, j] = v
-            if active:
-                x[b, 0, j] = u
-                x[b, 1, j] = v
-                x[b, 2, j] = pu
-                x[b, 3, j] = pv
+            store_site(x, b, j, active, wp.vec4d(u, v, pu, pv))
 
         return splitting
 
@@ -293,24 +304,17 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             active = j < n
             base = column_base[c]
             jj = wp.min(j, n - 1)  # idle threads read a valid (unused) history entry
-            du = ZERO
-            dv = ZERO
-            dpu = ZERO
-            dpv = ZERO
-            if active:
-                du = dx[c, 0, j]
-                dv = dx[c, 1, j]
-                dpu = dx[c, 2, j]
-                dpv = dx[c, 3, j]
+            start = load_site(dx, c, j, active)
+            du = start[0]
+            dv = start[1]
+            dpu = start[2]
+            dpv = start[3]
             m = mass[base]
             k = coupling[base]
-            li = left_index(j, n, boundary)
-            ri = right_index(j, n, boundary)
-            hl = has_left(j, boundary)
-            hr = has_right(j, n, boundary)
+            nbr = site_neighbours(j, n, boundary)
             buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
             parity = int(0)
-            nb = exchange(buf, du, parity, li, ri, hl, hr, boundary)
+            nb = exchange(buf, du, parity, nbr, boundary)
             a = site_tangent_acceleration(du, dv, nb[0], nb[1], m, k, hist[0, base, jj])
             for step in range(nsteps):
                 h = kicks[0] * dt
@@ -321,17 +325,13 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
                     du = du + h * dpu
                     dv = dv + h * dpv
                     parity = 1 - parity
-                    nb = exchange(buf, du, parity, li, ri, hl, hr, boundary)
+                    nb = exchange(buf, du, parity, nbr, boundary)
                     a = site_tangent_acceleration(du, dv, nb[0], nb[1], m, k,
                                                   hist[step * wp.static(stages) + s + 1, base, jj])
                     h = kicks[s + 1] * dt
                     dpu = dpu + h * a[0]
                     dpv = dpv + h * a[1]
-            if active:
-                dx[c, 0, j] = du
-                dx[c, 1, j] = dv
-                dx[c, 2, j] = dpu
-                dx[c, 3, j] = dpv
+            store_site(dx, c, j, active, wp.vec4d(du, dv, dpu, dpv))
 
         return splitting_tangent
 
@@ -344,15 +344,10 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
         b, j = wp.tid()
         n = x.shape[2]
         active = j < n
-        state = wp.vec4d()  # (u, v, u', v') of site j
-        if active:
-            state = wp.vec4d(x[b, 0, j], x[b, 1, j], x[b, 2, j], x[b, 3, j])
+        state = load_site(x, b, j, active)  # (u, v, u', v') of site j
         m = mass[b]
         k = coupling[b]
-        li = left_index(j, n, boundary)
-        ri = right_index(j, n, boundary)
-        hl = has_left(j, boundary)
-        hr = has_right(j, n, boundary)
+        nbr = site_neighbours(j, n, boundary)
         buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
         parity = int(0)
         for step in range(nsteps):
@@ -360,7 +355,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             total = wp.vec4d()
             for stage in range(4):
                 parity = 1 - parity
-                nb = exchange(buf, y[0], parity, li, ri, hl, hr, boundary)
+                nb = exchange(buf, y[0], parity, nbr, boundary)
                 a = site_acceleration(y[0], y[1], nb[0], nb[1], m, k)
                 if record_stiffness != 0 and active:
                     hist[4 * step + stage, b, j] = contact_stiffness(y[0] - y[1])
@@ -374,9 +369,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
                     r = (step + 1) / save_every - 1
                     rec[r, b, 0, j] = state[0]
                     rec[r, b, 1, j] = state[1]
-        if active:
-            for i in range(4):
-                x[b, i, j] = state[i]
+        store_site(x, b, j, active, state)
 
     @wp.kernel(**options)
     def rk4_tangent(dx: wp.array3d(dtype=wp.float64), column_base: wp.array(dtype=wp.int32),
@@ -388,15 +381,10 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
         active = j < n
         base = column_base[c]
         jj = wp.min(j, n - 1)
-        state = wp.vec4d()
-        if active:
-            state = wp.vec4d(dx[c, 0, j], dx[c, 1, j], dx[c, 2, j], dx[c, 3, j])
+        state = load_site(dx, c, j, active)
         m = mass[base]
         k = coupling[base]
-        li = left_index(j, n, boundary)
-        ri = right_index(j, n, boundary)
-        hl = has_left(j, boundary)
-        hr = has_right(j, n, boundary)
+        nbr = site_neighbours(j, n, boundary)
         buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
         parity = int(0)
         for step in range(nsteps):
@@ -404,16 +392,14 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             total = wp.vec4d()
             for stage in range(4):
                 parity = 1 - parity
-                nb = exchange(buf, y[0], parity, li, ri, hl, hr, boundary)
+                nb = exchange(buf, y[0], parity, nbr, boundary)
                 a = site_tangent_acceleration(y[0], y[1], nb[0], nb[1], m, k, hist[4 * step + stage, base, jj])
                 slope = wp.vec4d(y[2], y[3], a[0], a[1])
                 total = rk4_accumulate(stage, total, slope)
                 if stage < 3:
                     y = rk4_stage_state(stage, state, slope, dt)
             state = state + (dt / SIX) * total
-        if active:
-            for i in range(4):
-                dx[c, i, j] = state[i]
+        store_site(dx, c, j, active, state)
 
     return BlockKernels({"splitting": make_splitting, "splitting_tangent": make_splitting_tangent,
                          "rk4": lambda: rk4, "rk4_tangent": lambda: rk4_tangent})
