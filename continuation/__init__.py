@@ -1,9 +1,13 @@
 """Breathers: seeds, Newton shooting on the period map, Floquet stability and continuation.
 
-Knows nothing of Warp beyond warpchain's ensemble API (``simulate``, ``propagate_tangent``).
+Knows nothing of Warp: the integrator is seen only through a ``warpchain.Flow`` (``run`` and
+``linearize``), so every routine here also runs on the numpy reference (``warpchain.ReferenceFlow``).
 """
 
-from .floquet import FloquetResult, analyse_multipliers, floquet, monodromy, pairing_error
+from . import branch, driver, events
+from .floquet import (FloquetResult, Instability, analyse_multipliers, floquet, full_floquet, monodromy,
+                      pairing_error, reduced_floquet, reduced_matrix)
+from .newton import NewtonOutcome, NewtonSettings, ShootingStatus, newton
 from .seeds import (
     NLSBreather,
     OscillatorOrbit,
@@ -16,18 +20,20 @@ from .seeds import (
     oscillator_frequency,
 )
 from .shooting import (
+    PeriodMap,
     ShootingError,
     ShootingResult,
-    ShootingStatus,
     find_breather,
     frequency_report,
+    make_flow,
     require,
     time_grid,
 )
 
 __all__ = [
-    "FloquetResult", "NLSBreather", "OscillatorOrbit", "ShootingError", "ShootingResult", "ShootingStatus",
-    "analyse_multipliers", "anticontinuum_orbit", "anticontinuum_seed", "eigenmode_seed", "find_breather", "floquet",
-    "frequency_report", "monodromy", "nls_breather", "nls_coefficients", "nls_seed", "oscillator_frequency",
-    "pairing_error", "require", "time_grid",
+    "FloquetResult", "Instability", "NLSBreather", "NewtonOutcome", "NewtonSettings", "OscillatorOrbit", "PeriodMap",
+    "ShootingError", "ShootingResult", "ShootingStatus", "analyse_multipliers", "anticontinuum_orbit",
+    "anticontinuum_seed", "branch", "driver", "eigenmode_seed", "events", "find_breather", "floquet", "frequency_report",
+    "full_floquet", "make_flow", "monodromy", "newton", "nls_breather", "nls_coefficients", "nls_seed",
+    "oscillator_frequency", "pairing_error", "reduced_floquet", "reduced_matrix", "require", "time_grid",
 ]

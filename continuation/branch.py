@@ -1,405 +1,295 @@
-"""Branches of breathers: natural-parameter continuation in the coupling K, pseudo-arclength
-continuation in the frequency, events along the way, and a resumable zarr store.
+"""Branches of breathers: the two continuation problems the driver walks, and short entry points.
 
-* ``continue_in_coupling``: fixed w_b; secant predictor in K (or log K); adaptive steps (halved when
-  Newton fails, grown by 1.5 after an easy solve); lands exactly on requested ``targets``.
-* ``continue_in_frequency``: unknowns (positions q, w_b), tangent (secant) predictor, corrector
-  Newton on [R(q, w); <tau, y - y_pred>_W = 0] with the weighted inner product
+* ``NaturalParameter`` (continuation in the coupling K at fixed w_b): the coordinate is log10 K (or
+  K); secant predictor on the states; corrector: fixed-K Newton shooting (reversible formulation);
+  lands exactly on requested ``targets``.
+* ``PseudoArclength`` (continuation in the frequency at fixed K): unknowns y = (q, w_b), secant
+  tangent tau, corrector Newton on [R(q, w); <tau, y - y_pred>_W = 0] with the weighted inner product
   <a, b>_W = a_q . b_q + theta^2 a_w b_w, theta = 1 / (gap width), so that crossing the gap counts
-  like a unit change of the profile. The half period keeps a fixed number of steps (dt follows w);
-  dR/dw is a central difference in w (two extra base runs per iteration).
+  like a unit change of the profile. The half period keeps a fixed number of steps (dt follows w).
+  dR/dw is read from the same trajectory: R is the velocity at T/2 = n dt, so
+  dR/dw = -(pi / w^2) a(q(T/2)) up to the integrator's error in the modified flow (O(dt^8) for kahan8),
+  which leaves Newton's convergence unchanged at the tolerances used; no extra trajectory is run.
 
-Events: a change of the stability verdict between two points is located by bisection with the
-multipliers recomputed at every trial point; a harmonic n w_b entering a phonon band is flagged;
-loss of contact (min over the orbit of 1 + u - v <= 0) stops a branch; Newton failures shrink the
-step, and a step below ``min_step`` stops the branch with the last Newton message.
+Every corrector step is one ``Flow.linearize`` per Newton point (``shooting``), and the converged
+point's linearization gives the reduced Floquet problem its position columns.
 
-Every point keeps its state, K, w_b, energy, all multipliers and the Newton history; with
-``store=`` the branch is written point by point, and ``resume=`` continues from a stored branch.
+``continue_in_coupling`` and ``continue_in_frequency`` build the problem and call
+``driver.continuation``; ``start_from_eigenmode`` gives the two first points of the frequency branch.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
-import time
-from pathlib import Path
 
 import numpy as np
 
-from warpchain import ChainParams, band_edges, energy, simulate
-from warpchain.store import consolidate, jsonable, open_store, provenance
+from warpchain import ChainParams, Flow, band_edges, lowest_optical_mode
+from warpchain.model import accelerations
 
-from .floquet import analyse_multipliers, monodromy
-from .shooting import (DEFAULT_METHOD, DEFAULT_STEPS_PER_PERIOD, ShootingStatus, _PeriodMap,
-                       find_breather, frequency_report, newton, time_grid)
+from .driver import Branch, BranchPoint, ContinuationSettings, Failure, Solution, continuation
+from .newton import NewtonSettings, newton
+from .shooting import PeriodMap, find_breather, make_flow
 
-STOP_REASONS = {
-    "reached_end": "the branch reached its end parameter",
-    "contact_lost": "a resonator lost contact (min over the orbit of 1 + u - v <= 0)",
-    "step_underflow": "Newton kept failing and the step fell below its minimum",
-    "left_range": "the branch left the requested parameter range",
-    "max_points": "the maximum number of points was reached",
-    "time_budget": "the time budget was spent before the branch ended (resume it from its store to go on)",
-    "start_failed": "Newton failed at the first point",
-}
-
-
-@dataclasses.dataclass
-class BranchPoint:
-    """One solution on a branch (all that is needed to restart from it)."""
-
-    K: float
-    omega: float
-    state: np.ndarray
-    energy: float
-    iterations: int
-    residual_history: tuple
-    multipliers: np.ndarray
-    max_modulus: float
-    pairing_error: float
-    stable: bool
-    min_contact: float
-    harmonics_in_bands: tuple
-
-    def summary(self) -> dict:
-        return {"K": self.K, "omega": self.omega, "energy": self.energy, "max_floquet_modulus": self.max_modulus,
-                "stable": self.stable, "min_contact": self.min_contact, "newton_iterations": self.iterations,
-                "pairing_error": self.pairing_error}
-
-
-@dataclasses.dataclass
-class Branch:
-    """A computed branch: its points, events and why it stopped."""
-
-    points: list
-    stop_reason: str
-    message: str
-    events: list
-    wall_seconds: float
-
-    def column(self, name: str) -> np.ndarray:
-        return np.array([getattr(p, name) for p in self.points])
-
-
-# ----------------------------------------------------------------------------- analysis of one point
-
-
-def orbit_min_contact(params, state, n_half, dt, method, device) -> float:
-    """min over one period and all sites of 1 + u - v."""
-    run = simulate(params, state, 2 * n_half * dt, dt, method=method, device=device, save_every=1,
-                   max_energy_error=None, chunks=1)
-    return float(run.min_contact[0])
-
-
-def analyse_point(params: ChainParams, omega: float, state, n_half: int, method: str, device, iterations: int,
-                  history, with_floquet: bool = True) -> BranchPoint:
-    dt = math.pi / omega / n_half
-    if with_floquet:
-        lam = np.linalg.eigvals(monodromy(params, state, 2 * n_half, dt, method=method, device=device))
-        info = analyse_multipliers(lam)
-    else:
-        lam = np.full(4 * params.N, np.nan + 0j)
-        info = {"max_modulus": float("nan"), "pairing_error": float("nan"), "stable": False}
-    return BranchPoint(K=params.K, omega=float(omega), state=np.array(state), energy=float(energy(params, state)[0]),
-                       iterations=int(iterations), residual_history=tuple(history), multipliers=lam,
-                       max_modulus=info["max_modulus"], pairing_error=info["pairing_error"], stable=info["stable"],
-                       min_contact=orbit_min_contact(params, state, n_half, dt, method, device),
-                       harmonics_in_bands=tuple(frequency_report(params, omega)["harmonics_in_bands"]))
-
-
-# ----------------------------------------------------------------------------- store
-
-
-class BranchStore:
-    """Writes a branch to a zarr group point by point (each point is one whole chunk)."""
-
-    SCALARS = ("K", "omega", "energy", "max_modulus", "pairing_error", "min_contact", "iterations")
-
-    def __init__(self, path, group: str, params: ChainParams, attrs: dict, max_newton: int, mode: str = "w",
-                 device=None):
-        self.path, self.params, self.max_newton = Path(path), params, max_newton
-        root = open_store(self.path, params=params.as_dict(), provenance_info=provenance(device),
-                          mode="a" if self.path.exists() else "w")
-        N = params.N
-        g = root.require_group(group)
-        self.group = g
-        spec = {name: ((), "f8") for name in self.SCALARS}
-        spec.update({"stable": ((), "i1"), "state": ((4, N), "f8"), "multipliers_real": ((4 * N,), "f8"),
-                     "multipliers_imag": ((4 * N,), "f8"), "newton_residuals": ((max_newton + 1,), "f8")})
-        dims = {"state": ("point", "component", "site"), "multipliers_real": ("point", "multiplier"),
-                "multipliers_imag": ("point", "multiplier"), "newton_residuals": ("point", "newton_iteration")}
-        self.arrays = {}
-        existing = set(g.array_keys()) if mode == "a" else set()
-        for name, (shape, dtype) in spec.items():
-            if name in existing:
-                self.arrays[name] = g[name]
-            else:
-                self.arrays[name] = g.create_array(name, shape=(0, *shape), chunks=(1, *shape), dtype=dtype,
-                                                   dimension_names=dims.get(name, ("point",)), overwrite=True)
-        if mode == "w":
-            g.attrs.update({**attrs, "complete": False, "n_points": 0, "events": [], "stop_reason": None})
-        consolidate(self.path)
-
-    @property
-    def n_points(self) -> int:
-        return int(self.arrays["K"].shape[0])
-
-    def append(self, point: BranchPoint) -> None:
-        n = self.n_points
-        values = {name: getattr(point, name) for name in self.SCALARS}
-        values["stable"] = int(point.stable)
-        values["state"] = point.state
-        values["multipliers_real"] = point.multipliers.real
-        values["multipliers_imag"] = point.multipliers.imag
-        hist = np.full(self.max_newton + 1, np.nan)
-        h = np.asarray(point.residual_history)[: self.max_newton + 1]
-        hist[: len(h)] = h
-        values["newton_residuals"] = hist
-        for name, arr in self.arrays.items():
-            arr.resize((n + 1, *arr.shape[1:]))
-            arr[n] = values[name]
-        self.group.attrs.update({"n_points": n + 1})
-        consolidate(self.path)
-
-    def finish(self, branch: Branch) -> None:
-        self.group.attrs.update({"complete": True, "stop_reason": branch.stop_reason, "message": branch.message,
-                                 "events": jsonable(branch.events)})
-        consolidate(self.path)
-
-
-
-
-def load_branch(path, group: str) -> tuple[ChainParams, list, dict]:
-    """Read a stored branch: (params, points, group attributes)."""
-    import zarr
-
-    root = zarr.open_group(str(path), mode="r", zarr_format=3, use_consolidated=False)
-    p = dict(root.attrs)["params"]
-    params = ChainParams(**p)
-    g = root[group]
-    a = {name: arr[...] for name, arr in g.arrays()}
-    points = []
-    for i in range(len(a["K"])):
-        hist = a["newton_residuals"][i]
-        pr = params.replace(K=float(a["K"][i]))
-        points.append(BranchPoint(
-            K=float(a["K"][i]), omega=float(a["omega"][i]), state=a["state"][i], energy=float(a["energy"][i]),
-            iterations=int(a["iterations"][i]), residual_history=tuple(hist[np.isfinite(hist)]),
-            multipliers=a["multipliers_real"][i] + 1j * a["multipliers_imag"][i],
-            max_modulus=float(a["max_modulus"][i]), pairing_error=float(a["pairing_error"][i]),
-            stable=bool(a["stable"][i]), min_contact=float(a["min_contact"][i]),
-            harmonics_in_bands=tuple(frequency_report(pr, float(a["omega"][i]))["harmonics_in_bands"])))
-    return params, points, dict(g.attrs)
-
-
-# ----------------------------------------------------------------------------- shared loop pieces
-
-
-def _bisect_stability(solve_at, a: float, b: float, stable_a: bool, steps: int, log):
-    """Locate a change of the stability verdict between parameters a and b by bisection; solve_at(p)
-    returns a BranchPoint (or None if Newton fails there)."""
-    lo, hi, trials = a, b, []
-    for _ in range(steps):
-        mid = 0.5 * (lo + hi)
-        point = solve_at(mid)
-        if point is None:
-            break
-        trials.append({"parameter": mid, "max_modulus": point.max_modulus, "stable": point.stable})
-        if point.stable == stable_a:
-            lo = mid
-        else:
-            hi = mid
-    if log:
-        log(f"stability change located in [{lo:.8g}, {hi:.8g}] after {len(trials)} bisection steps")
-    return {"type": "stability_change", "from_stable": stable_a, "bracket": [a, b], "located": [lo, hi],
-            "trials": trials}
-
-
-def _events_between(prev: BranchPoint, point: BranchPoint, parameter: str, solve_at, bisection_steps, log):
-    events = []
-    if prev.stable != point.stable:
-        a, b = getattr(prev, parameter), getattr(point, parameter)
-        if bisection_steps:
-            events.append(_bisect_stability(solve_at, a, b, prev.stable, bisection_steps, log))
-        else:
-            events.append({"type": "stability_change", "from_stable": prev.stable, "bracket": [a, b],
-                           "located": [a, b], "trials": []})
-    new = sorted(set(point.harmonics_in_bands) - set(prev.harmonics_in_bands))
-    if new:
-        events.append({"type": "harmonic_in_band", "harmonics": new, "at": getattr(point, parameter),
-                       "message": f"harmonic(s) {new} of w_b = {point.omega:.6g} entered a phonon band at "
-                                  f"{parameter} = {getattr(point, parameter):.6g}"})
-        if log:
-            log(events[-1]["message"])
-    return events
-
-
-def _contact_event(prev, point, parameter):
-    a, b = getattr(prev, parameter), getattr(point, parameter)
-    ca, cb = prev.min_contact, point.min_contact
-    at = a + (b - a) * ca / (ca - cb) if ca != cb else b
-    return {"type": "contact_lost", "bracket": [a, b], "estimate": at,
-            "message": f"contact lost between {parameter} = {a:.6g} and {b:.6g} (interpolated {at:.6g})"}
-
-
-def _finish(points, reason, message, events, start, store, bar) -> Branch:
-    """Close the progress bar, build the Branch with its stated stop reason, mark the store complete."""
-    if bar:
-        bar.close()
-    branch = Branch(points, reason, STOP_REASONS[reason] + (f": {message}" if message else ""), events,
-                    time.perf_counter() - start)
-    if store:
-        store.finish(branch)
-    return branch
-
-
-def _progress(total, desc, enabled):
-    if not enabled:
-        return None
-    from tqdm.auto import tqdm
-
-    return tqdm(total=total, desc=desc, leave=False, bar_format="{l_bar}{bar}| {n:.3g}/{total:.3g} [{elapsed}]")
+__all__ = ["Branch", "BranchPoint", "ContinuationSettings", "NaturalParameter", "PseudoArclength",
+           "continue_in_coupling", "continue_in_frequency", "start_from_eigenmode"]
 
 
 # ----------------------------------------------------------------------------- continuation in K
 
 
-def continue_in_coupling(params: ChainParams, omega: float, seed, K_end: float, *, targets=(), log_spacing=True,
-                         step: float = 0.15, min_step: float = 1e-3, max_step: float = 0.3, max_points: int = 400,
-                         method: str = DEFAULT_METHOD, steps_per_period: int = DEFAULT_STEPS_PER_PERIOD,
-                         tol: float = 1e-10, max_newton: int = 8, bisection_steps: int = 4, device=None,
-                         store: BranchStore | None = None, resume: list | None = None, progress: bool = False,
-                         log=None) -> Branch:
-    """Natural-parameter continuation in K at fixed omega, from ``params.K`` to ``K_end``.
+class NaturalParameter:
+    """Continuation in K at fixed omega from ``params.K`` to ``K_end`` (natural parameter).
 
     Args:
-        seed: state (4, N) near the solution at params.K (e.g. the anti-continuum seed).
-        targets: K values the branch must land on exactly (e.g. profiles wanted at K = 5, 20).
-        log_spacing: steps (``step``, ``min_step``, ``max_step``) are in log10 K, else in K.
-        resume: points of a stored branch to continue from (the last two seed the predictor).
+        params: the chain at the first K.
+        omega: the breather frequency.
+        seed: a (4, N) state near the solution at params.K (e.g. the anti-continuum seed).
+        K_end: the end of the branch.
+        flow: the integrator.
+        targets: K values the branch must land on exactly.
+        log_spacing: the coordinate (and the steps) is log10 K, else K.
     """
-    start = time.perf_counter()
-    n_half, _ = time_grid(omega, None, steps_per_period)
-    coord = (lambda K: math.log10(K)) if log_spacing else (lambda K: K)
-    inv = (lambda s: 10.0 ** s) if log_spacing else (lambda s: s)
-    direction = 1.0 if K_end >= params.K else -1.0
-    targets = sorted({float(t) for t in targets if (t - params.K) * direction > 0 and (K_end - t) * direction > 0}
-                     | {float(K_end)}, reverse=direction < 0)
 
-    def solve(K, guess, max_iter=max_newton):
-        pr = params.replace(K=K)
-        res = find_breather(pr, omega, guess, method=method, steps_per_period=steps_per_period, tol=tol,
-                            max_iterations=max_iter, device=device)
+    parameter = "K"
+
+    def __init__(self, params: ChainParams, omega: float, seed, K_end: float, flow: Flow, *, targets=(),
+                 log_spacing: bool = True):
+        if not (isinstance(K_end, (int, float, np.integer, np.floating)) and math.isfinite(K_end) and K_end > 0):
+            raise ValueError(f"K_end must be a finite number > 0, got {K_end!r}")
+        self.params, self.omega, self.seed, self.K_end, self.flow = params, float(omega), seed, float(K_end), flow
+        self.log_spacing = log_spacing
+        self.direction = 1.0 if K_end >= params.K else -1.0
+        self.targets = sorted({float(t) for t in targets
+                               if (t - params.K) * self.direction > 0 and (K_end - t) * self.direction > 0}
+                              | {float(K_end)}, reverse=self.direction < 0)
+        self.description = f"K-continuation, w_b = {omega:g}"
+
+    def coord(self, K: float) -> float:
+        return math.log10(K) if self.log_spacing else K
+
+    def inverse(self, s: float) -> float:
+        return 10.0 ** s if self.log_spacing else s
+
+    def _solve(self, K: float, guess, s: float, max_newton: int, tol: float):
+        pr = self.params.replace(K=K)
+        res = find_breather(pr, self.omega, guess, flow=self.flow, tol=tol, max_iterations=max_newton)
         if not res.success:
-            return None, res
-        return analyse_point(pr, omega, res.state, n_half, method, device, res.iterations, res.residual_history), res
+            return Failure(res.message)
+        return Solution(pr, self.omega, res.state, res.iterations, res.residual_history, res.linearization(), s)
 
-    events, points = [], list(resume or [])
-    if not points:
-        first, res = solve(params.K, seed, max_iter=3 * max_newton)
-        if first is None:
-            return Branch([], "start_failed", f"{STOP_REASONS['start_failed']}: {res.message}", [], 0.0)
-        points.append(first)
-        if store:
-            store.append(first)
-    bar = _progress(abs(coord(K_end) - coord(points[0].K)), f"K-continuation w_b={omega}", progress)
-    reason, message = "reached_end", ""
-    while True:
+    def prepare(self, settings: ContinuationSettings) -> None:
+        self._settings = settings
+
+    def start(self):
+        settings = self._settings
+        return [self._solve(self.params.K, self.seed, self.coord(self.params.K), 3 * settings.max_newton,
+                            settings.newton_tol)]
+
+    def _next_target(self, K: float) -> float:
+        return next(t for t in self.targets if (t - K) * self.direction > 1e-12 * max(1.0, abs(t)))
+
+    def clip_step(self, last: BranchPoint, h: float) -> float:
+        return min(h, abs(self.coord(self._next_target(last.K)) - self.coord(last.K)))
+
+    def step(self, points, h: float):
         last = points[-1]
-        if log:
-            log(f"K = {last.K:.6g}: E = {last.energy:.8f}, max|l| = {last.max_modulus:.8f}, "
-                f"{'stable' if last.stable else 'unstable'}, newton {last.iterations}, step {step:.3g}")
-        if bar:
-            bar.n = abs(coord(last.K) - coord(points[0].K))
-            bar.refresh()
-        if abs(last.K - K_end) <= 1e-12 * max(1.0, abs(K_end)):
-            break
-        if last.min_contact <= 0:
-            reason, message = "contact_lost", _contact_event(points[-2], last, "K")["message"] if len(points) > 1 else ""
-            break
-        if len(points) >= max_points:
-            reason = "max_points"
-            break
-        s_last = coord(last.K)
-        target = next(t for t in targets if (t - last.K) * direction > 1e-12 * max(1.0, abs(t)))
-        s_new = s_last + direction * step
-        if (coord(target) - s_new) * direction <= 0:
-            s_new = coord(target)
-        K_new = target if s_new == coord(target) else inv(s_new)
-        if len(points) >= 2:  # secant predictor in the continuation coordinate
-            s_prev = coord(points[-2].K)
+        s_last = self.coord(last.K)
+        s_new = s_last + self.direction * h
+        target = self._next_target(last.K)
+        K_new = target if abs(s_new - self.coord(target)) <= 1e-12 * max(1.0, abs(s_new)) else self.inverse(s_new)
+        if len(points) >= 2 and points[-2].K != last.K:
+            s_prev = self.coord(points[-2].K)
             guess = last.state + (last.state - points[-2].state) * (s_new - s_last) / (s_last - s_prev)
         else:
             guess = last.state
-        point, res = solve(K_new, guess)
-        if point is None:
-            step *= 0.5
-            if log:
-                log(f"K = {K_new:.6g}: {res.status.value}; step halved to {step:.3g}")
-            if step < min_step:
-                reason, message = "step_underflow", res.message
-                break
-            continue
-        solve_at = lambda K, a=last: solve(K, a.state)[0]  # noqa: E731
-        events += _events_between(last, point, "K", solve_at, bisection_steps, log)
-        points.append(point)
-        if store:
-            store.append(point)
-        if point.iterations <= 3:
-            step = min(step * 1.5, max_step)
-    return _finish(points, reason, message, events, start, store, bar)
+        return self._solve(K_new, guess, s_new, self._settings.max_newton, self._settings.newton_tol)
+
+    def between(self, a: BranchPoint, b: BranchPoint):
+        s = 0.5 * (self.coord(a.K) + self.coord(b.K))
+        return self._solve(self.inverse(s), 0.5 * (a.state + b.state), s, self._settings.max_newton,
+                           self._settings.newton_tol)
+
+    def is_between(self, a, m, b) -> bool:
+        return (m.K - a.K) * (b.K - m.K) > 0
+
+    def is_forward(self, points, new) -> bool:
+        return (new.K - points[-1].K) * self.direction > 0
+
+    def finished(self, last: BranchPoint):
+        if abs(last.K - self.K_end) <= 1e-12 * max(1.0, abs(self.K_end)):
+            return True, f"K = {last.K:.8g}"
+        return False, ""
+
+    def progress(self, first: BranchPoint, last: BranchPoint) -> float:
+        total = self.coord(self.K_end) - self.coord(first.K)
+        return (self.coord(last.K) - self.coord(first.K)) / total if total else 1.0
+
+    def describe(self, p: BranchPoint) -> str:
+        return f"K = {p.K:.8g}: E = {p.energy:.8f}, max|l| = {p.max_modulus:.8f}"
 
 
 # ----------------------------------------------------------------------------- continuation in frequency
 
 
-class _ArclengthCorrector:
-    """Newton on [R(q, w); <tau, y - y_pred>_W] for y = (q, w) at fixed K (q: positions, 2N)."""
-
-    def __init__(self, params, method, n_half, W, device, tol, max_newton, delta=1e-6):
-        self.params, self.method, self.n_half, self.W, self.device = params, method, n_half, W, device
-        self.tol, self.max_newton, self.delta = tol, max_newton, delta
-
-    def period_map(self, omega):
-        return _PeriodMap(self.params, omega, "reversible", self.method, self.n_half, math.pi / omega / self.n_half,
-                          "tangent", 0.0, self.device, None)
-
-    def correct(self, y_pred, tau):
-        W, N2, delta = self.W, 2 * self.params.N, self.delta
-
-        def residual(yy):
-            r = self.period_map(yy[-1]).residual(yy[:-1])
-            return np.append(r, np.sum(W * tau * (yy - y_pred)))
-
-        def residual_and_jacobian(yy):
-            q, omega = yy[:-1], yy[-1]
-            r, J, _ = self.period_map(omega).residual_and_jacobian(q)
-            dr = (self.period_map(omega + delta).residual(q) - self.period_map(omega - delta).residual(q)) / (2 * delta)
-            Jfull = np.zeros((N2 + 1, N2 + 1))
-            Jfull[:N2, :N2] = J
-            Jfull[:N2, -1] = dr
-            Jfull[-1] = W * tau
-            return np.append(r, np.sum(W * tau * (yy - y_pred))), Jfull
-
-        return newton(y_pred, residual_and_jacobian, residual, tol=self.tol, max_iterations=self.max_newton)
-
-
-def _weights(params, theta):
+def _weights(params: ChainParams, theta):
     edges = band_edges(params.M, params.K)
     theta = (1.0 / edges["gap_width"]) if theta is None else theta
     return np.concatenate([np.ones(2 * params.N), [theta ** 2]])
 
 
-def _state_of(params, y):
+def _pack(state, omega) -> np.ndarray:
+    return np.concatenate([np.asarray(state)[:2].ravel(), [omega]])
+
+
+def _state_of(params: ChainParams, y) -> np.ndarray:
     state = np.zeros((4, params.N))
     state[:2] = y[:-1].reshape(2, params.N)
     return state
 
 
-def start_from_eigenmode(params: ChainParams, amplitude: float = 0.03, *, method=DEFAULT_METHOD,
-                         steps_per_period=DEFAULT_STEPS_PER_PERIOD, theta=None, tol: float = 1e-10, device=None,
-                         log=None) -> tuple:
+class _BorderedPoint:
+    """One Newton point of the arclength corrector (one trajectory; Jacobian on request)."""
+
+    def __init__(self, corrector, y, y_pred, tau):
+        self.c, self.y = corrector, y
+        params = corrector.params
+        self.omega = float(y[-1])
+        if not (math.isfinite(self.omega) and self.omega > 0):
+            raise _BadFrequency(self.omega)
+        self.point = PeriodMap(params, self.omega, corrector.flow).evaluate(y[:-1])
+        self.linearization = self.point.linearization
+        self.row = corrector.W * tau
+        self.residual = np.append(self.point.residual, np.sum(self.row * (y - y_pred)))
+
+    def jacobian(self) -> np.ndarray:
+        params, n2 = self.c.params, 2 * self.c.params.N
+        J = np.zeros((n2 + 1, n2 + 1))
+        J[:n2, :n2] = self.point.jacobian()
+        x_end = self.linearization.x_end
+        J[:n2, -1] = -(math.pi / self.omega ** 2) * accelerations(params, x_end[None])[0].ravel()
+        J[-1] = self.row
+        return J
+
+
+class _BadFrequency(ValueError):
+    pass
+
+
+class _ArclengthCorrector:
+    def __init__(self, params: ChainParams, flow: Flow, W, settings: NewtonSettings):
+        self.params, self.flow, self.W, self.settings = params, flow, W, settings
+
+    def correct(self, y_pred, tau):
+        try:
+            return newton(y_pred, lambda y: _BorderedPoint(self, y, y_pred, tau), self.settings)
+        except _BadFrequency as exc:
+            return Failure(f"the corrector left the positive frequencies (w = {exc.args[0]:.3g})")
+
+
+class PseudoArclength:
+    """Pseudo-arclength continuation in (q, w_b) at fixed K, until contact is lost or w_b < omega_min.
+
+    Args:
+        params: the chain.
+        flow: the integrator.
+        start_points: two (state, omega, iterations, residual history) tuples that set the direction
+            (None: ``start_from_eigenmode``).
+        omega_min: the branch's floor in frequency (an end, reached only if contact holds until there).
+        theta: the frequency's weight (default 1 / gap width).
+        eigenmode_amplitude: amplitude of the first eigenmode point (when start_points is None).
+    """
+
+    parameter = "omega"
+
+    def __init__(self, params: ChainParams, flow: Flow, start_points=None, *, omega_min: float = 0.5,
+                 theta: float | None = None, eigenmode_amplitude: float = 0.03):
+        self.params, self.flow, self.start_points = params, flow, start_points
+        self.omega_min, self.theta, self.eigenmode_amplitude = float(omega_min), theta, eigenmode_amplitude
+        self.W = _weights(params, theta)
+        self.edges = band_edges(params.M, params.K)
+        self.description = f"frequency continuation, K = {params.K:g}"
+
+    def _norm(self, d) -> float:
+        return math.sqrt(float(np.sum(self.W * d * d)))
+
+    def prepare(self, settings: ContinuationSettings) -> None:
+        self._settings = settings
+        self.corrector = _ArclengthCorrector(self.params, self.flow, self.W,
+                                             NewtonSettings(tol=settings.newton_tol, max_iterations=settings.max_newton))
+
+    def start(self):
+        settings = self._settings
+        if self.start_points is None:
+            try:
+                self.start_points = start_from_eigenmode(self.params, self.eigenmode_amplitude, flow=self.flow,
+                                                         theta=self.theta, tol=settings.newton_tol)
+            except RuntimeError as exc:
+                return [Failure(str(exc))]
+        out, s = [], 0.0
+        for k, (state, omega, it, hist, *rest) in enumerate(self.start_points):
+            if k:
+                s += self._norm(_pack(state, omega) - _pack(*self.start_points[k - 1][:2]))
+            lin = rest[0] if rest else self.flow.linearize(self.params, state, *self.flow.grid(omega))
+            out.append(Solution(self.params, omega, state, it, hist, lin, s))
+        return out
+
+    def _solution(self, outcome, s) -> Solution | Failure:
+        if isinstance(outcome, Failure):
+            return outcome
+        if not outcome.success:
+            return Failure(f"{outcome.status.value}: {outcome.message}")
+        y = outcome.unknowns
+        return Solution(self.params, float(y[-1]), _state_of(self.params, y), outcome.iterations, outcome.history,
+                        outcome.evaluation.linearization, s)
+
+    def step(self, points, h: float):
+        y1, y0 = _pack(points[-1].state, points[-1].omega), _pack(points[-2].state, points[-2].omega)
+        d = y1 - y0
+        tau = d / self._norm(d)
+        return self._solution(self.corrector.correct(y1 + h * tau, tau), points[-1].s + h)
+
+    def between(self, a: BranchPoint, b: BranchPoint):
+        ya, yb = _pack(a.state, a.omega), _pack(b.state, b.omega)
+        d = yb - ya
+        tau = d / self._norm(d)
+        return self._solution(self.corrector.correct(0.5 * (ya + yb), tau), 0.5 * (a.s + b.s))
+
+    def is_between(self, a, m, b) -> bool:
+        ya, ym, yb = (_pack(p.state, p.omega) for p in (a, m, b))
+        d = yb - ya
+        t = float(np.sum(self.W * (ym - ya) * d)) / float(np.sum(self.W * d * d))
+        return 0.0 < t < 1.0
+
+    def is_forward(self, points, new) -> bool:
+        y1, y0 = _pack(points[-1].state, points[-1].omega), _pack(points[-2].state, points[-2].omega)
+        return float(np.sum(self.W * (_pack(new.state, new.omega) - y1) * (y1 - y0))) > 0
+
+    def clip_step(self, last, h: float) -> float:
+        return h
+
+    def finished(self, last: BranchPoint):
+        if last.omega < self.omega_min:
+            return True, f"w_b = {last.omega:.8g} < omega_min = {self.omega_min:g}"
+        if last.omega > self.edges["optical_bottom"] + 0.5 * self.edges["gap_width"]:
+            return True, f"w_b = {last.omega:.8g} went up into the optical band"
+        return False, ""
+
+    def progress(self, first: BranchPoint, last: BranchPoint) -> float:
+        # contact loss is the expected end, so progress is the fall of min contact towards 0 (or of
+        # w_b towards omega_min, whichever is further along)
+        c0 = first.min_contact
+        by_contact = (c0 - last.min_contact) / c0 if c0 > 0 else 0.0
+        by_omega = (first.omega - last.omega) / max(first.omega - self.omega_min, 1e-12)
+        return max(by_contact, by_omega)
+
+    def describe(self, p: BranchPoint) -> str:
+        return (f"w = {p.omega:.8f}: E = {p.energy:.8f}, max|l| = {p.max_modulus:.8f}, "
+                f"min contact {p.min_contact:.4f}")
+
+
+def start_from_eigenmode(params: ChainParams, amplitude: float = 0.03, *, flow: Flow | None = None, method=None,
+                         steps_per_period=None, theta=None, tol: float = 1e-10, device=None, log=None) -> tuple:
     """Two small-amplitude points of the breather branch that bifurcates from the lowest optical
     eigenmode, with max |u - v| = ``amplitude`` and 2 ``amplitude``.
 
@@ -409,141 +299,65 @@ def start_from_eigenmode(params: ChainParams, amplitude: float = 0.03, *, method
     the single-mode Lindstedt estimate dw / w = (1/24) A^2 sum(phi^4) / sum(phi^2) for z = A phi.
 
     Returns:
-        two ``BranchPoint``-ready tuples (state, omega, iterations, residual history).
+        two (state, omega, iterations, residual history, linearization) tuples.
     """
-    from warpchain import lowest_optical_mode
-
+    flow = make_flow(flow, method=method, steps_per_period=steps_per_period, device=device)
     w_lin, shape = lowest_optical_mode(params)
     z = shape[0] - shape[1]
     shape = shape / np.max(np.abs(z))
     phi = z / np.max(np.abs(z))
     ratio = np.sum(phi ** 4) / np.sum(phi ** 2)
     W = _weights(params, theta)
-    n_half, _ = time_grid(w_lin, None, steps_per_period)
-    corrector = _ArclengthCorrector(params, method, n_half, W, device, tol, max_newton=30)
-    direction = np.concatenate([shape.ravel(), [0.0]])
+    corrector = _ArclengthCorrector(params, flow, W, NewtonSettings(tol=tol, max_iterations=30))
+    direction = np.concatenate([shape[:2].ravel(), [0.0]])
     tau = direction / math.sqrt(np.sum(W * direction * direction))
     out = []
     for A in (amplitude, 2.0 * amplitude):
-        y_pred = np.concatenate([A * shape.ravel(), [w_lin * (1.0 - A * A * ratio / 24.0)]])
+        y_pred = np.concatenate([A * shape[:2].ravel(), [w_lin * (1.0 - A * A * ratio / 24.0)]])
         res = corrector.correct(y_pred, tau)
+        if isinstance(res, Failure) or not res.success:
+            why = res.message if isinstance(res, Failure) else res.message
+            raise RuntimeError(f"could not start the frequency branch from the eigenmode at amplitude {A}: {why}")
         if log:
-            log(f"start at mode amplitude {A:g}: w = {res.unknowns[-1]:.8f}, {res.status.value} in "
-                f"{res.iterations} iterations (residual {res.history[-1]:.2e})")
-        if res.status is not ShootingStatus.CONVERGED:
-            raise RuntimeError(f"could not start the frequency branch from the eigenmode at amplitude {A}: "
-                               f"{res.message}")
-        out.append((_state_of(params, res.unknowns), float(res.unknowns[-1]), res.iterations, res.history))
+            log(f"start at mode amplitude {A:g}: w = {res.unknowns[-1]:.8f}, converged in {res.iterations} "
+                f"iterations (residual {res.history[-1]:.2e})")
+        out.append((_state_of(params, res.unknowns), float(res.unknowns[-1]), res.iterations, res.history,
+                    res.evaluation.linearization))
     return tuple(out)
 
 
-def continue_in_frequency(params: ChainParams, start_points, *, method: str = DEFAULT_METHOD,
-                          steps_per_period: int = DEFAULT_STEPS_PER_PERIOD, omega_min: float = 0.5, ds: float = 0.05,
-                          min_ds: float = 1e-4, max_ds: float = 0.6, max_points: int = 400, theta: float | None = None,
-                          tol: float = 1e-10, max_newton: int = 8, bisection_steps: int = 3, device=None,
-                          store: BranchStore | None = None, resume: list | None = None, progress: bool = False,
-                          max_seconds: float | None = None, log=None) -> Branch:
-    """Pseudo-arclength continuation in (q, w_b) at fixed K from two solutions (which set the
-    direction; e.g. ``start_from_eigenmode``), until contact is lost, w_b < omega_min, or a failure.
+# ----------------------------------------------------------------------------- entry points
 
-    Args:
-        start_points: two (state, omega, iterations, residual history) tuples.
-        ds: initial arclength step in the weighted norm (theta defaults to 1 / gap width).
-        resume: stored points to continue from (the last two set the secant); start_points unused.
+
+def continue_in_coupling(params: ChainParams, omega: float, seed, K_end: float, *, targets=(),
+                         log_spacing: bool = True, settings: ContinuationSettings | None = None,
+                         flow: Flow | None = None, method: str | None = None, steps_per_period: int | None = None,
+                         device: str | None = None, resume: list | None = None, on_point=None, on_event=None,
+                         progress: bool = False, log=None) -> Branch:
+    """Continuation in K at fixed omega from ``params.K`` to ``K_end`` (``NaturalParameter``).
+
+    Default settings: steps of 0.15 in log10 K (at most 0.3), resolution 1e-4 in log10 K.
     """
-    start = time.perf_counter()
-    edges = band_edges(params.M, params.K)
-    W = _weights(params, theta)
-    n_half = math.ceil(int(steps_per_period) / 2)
-    corrector = _ArclengthCorrector(params, method, n_half, W, device, tol, max_newton)
+    settings = settings or ContinuationSettings(ds=0.15, ds_min=1e-4, ds_max=0.3, resolution=1e-4)
+    flow = make_flow(flow, method=method, steps_per_period=steps_per_period, device=device)
+    problem = NaturalParameter(params, omega, seed, K_end, flow, targets=targets, log_spacing=log_spacing)
+    return continuation(problem, settings, resume=resume, on_point=on_point, on_event=on_event, log=log,
+                        progress=progress)
 
-    def pack(state, omega):
-        return np.concatenate([state[:2].ravel(), [omega]])
 
-    def solve_fixed(omega, guess_state):
-        res = find_breather(params, omega, guess_state, method=method, steps_per_period=steps_per_period, tol=tol,
-                            max_iterations=max_newton, device=device)
-        if not res.success:
-            return None
-        return analyse_point(params, omega, res.state, n_half, method, device, res.iterations, res.residual_history)
+def continue_in_frequency(params: ChainParams, start_points=None, *, omega_min: float = 0.5,
+                          theta: float | None = None, settings: ContinuationSettings | None = None,
+                          flow: Flow | None = None, method: str | None = None, steps_per_period: int | None = None,
+                          device: str | None = None, resume: list | None = None, on_point=None, on_event=None,
+                          progress: bool = False, log=None) -> Branch:
+    """Pseudo-arclength continuation in (q, w_b) at fixed K (``PseudoArclength``), from two points
+    (``start_from_eigenmode`` when None) until contact is lost or w_b < omega_min.
 
-    events = []
-    if resume:
-        points = list(resume)
-    else:
-        points = [analyse_point(params, w, x, n_half, method, device, it, hist) for x, w, it, hist in start_points]
-        if store:
-            for p in points:
-                store.append(p)
-    y = [pack(p.state, p.omega) for p in points]
-    reason, message = "left_range", ""
-    bar = _progress(points[-1].omega - omega_min, "frequency continuation", progress)
-    while True:
-        last = points[-1]
-        if log:
-            log(f"w = {last.omega:.7f}: E = {last.energy:.8f}, max|l| = {last.max_modulus:.8f}, "
-                f"min contact {last.min_contact:.4f}, newton {last.iterations}, ds {ds:.3g}")
-        if bar:
-            bar.n = points[0].omega - last.omega
-            bar.refresh()
-        if last.min_contact <= 0:
-            ev = _contact_event(points[-2], last, "omega")
-            events.append(ev)
-            reason, message = "contact_lost", ev["message"]
-            break
-        if last.omega < omega_min or last.omega > edges["optical_bottom"] + 0.5 * edges["gap_width"]:
-            reason, message = "left_range", f"w_b = {last.omega:.6g} outside [{omega_min}, optical band]"
-            break
-        if len(points) >= max_points:
-            reason = "max_points"
-            break
-        if max_seconds is not None and time.perf_counter() - start > max_seconds:
-            recent = points[-10:]
-            reason = "time_budget"
-            message = (f"stopped after {max_seconds:g} s at w_b = {last.omega:.6g} "
-                       f"({frequency_report(params, last.omega)['location']}), min contact {last.min_contact:.3f}, "
-                       f"E = {last.energy:.4g}; over the last {len(recent)} points w_b moved by "
-                       f"{recent[0].omega - last.omega:.2e} while E grew by {last.energy - recent[0].energy:.3g}")
-            if last.omega <= edges["acoustic_top"]:
-                message += (": inside the acoustic band the branch follows resonances with the finite chain's "
-                            "phonon modes, energy flowing into oscillating tails at nearly fixed frequency")
-            break
-        d = y[-1] - y[-2]
-        tau = d / math.sqrt(np.sum(W * d * d))
-        y_pred = y[-1] + ds * tau
-
-        out = corrector.correct(y_pred, tau)
-        if out.status is not ShootingStatus.CONVERGED:
-            ds *= 0.5
-            if log:
-                log(f"arclength step failed ({out.status.value}: {out.message}); ds halved to {ds:.3g}")
-            if ds < min_ds:
-                reason = "step_underflow"
-                message = (f"{out.message} near w_b = {last.omega:.6g} "
-                           f"({frequency_report(params, last.omega)['location']})")
-                break
-            continue
-        step_taken = out.unknowns - y[-1]
-        if np.sum(W * step_taken * d) <= 0:
-            # the corrector landed behind the last point (backtracking, typical next to a resonance):
-            # not progress along the branch, so retry with a shorter step
-            ds *= 0.5
-            if log:
-                log(f"corrector went backwards along the branch; ds halved to {ds:.3g}")
-            if ds < min_ds:
-                reason = "step_underflow"
-                message = f"the corrector kept turning back near w_b = {last.omega:.6g}"
-                break
-            continue
-        omega_new = float(out.unknowns[-1])
-        state = _state_of(params, out.unknowns)
-        point = analyse_point(params, omega_new, state, n_half, method, device, out.iterations, out.history)
-        solve_at = lambda w, a=last: solve_fixed(w, a.state)  # noqa: E731
-        events += _events_between(last, point, "omega", solve_at, bisection_steps, log)
-        points.append(point)
-        y.append(out.unknowns)
-        if store:
-            store.append(point)
-        if out.iterations <= 3:
-            ds = min(ds * 1.3, max_ds)
-    return _finish(points, reason, message, events, start, store, bar)
+    Default settings: arclength steps 0.05 (at most 0.6) in the weighted norm, Newton up to 8
+    iterations, resolution 1e-3 in arclength (about 2e-5 in w_b for the paper chain).
+    """
+    settings = settings or ContinuationSettings(ds=0.05, ds_min=1e-4, ds_max=0.6, grow=1.3, resolution=1e-3)
+    flow = make_flow(flow, method=method, steps_per_period=steps_per_period, device=device)
+    problem = PseudoArclength(params, flow, start_points, omega_min=omega_min, theta=theta)
+    return continuation(problem, settings, resume=resume, on_point=on_point, on_event=on_event, log=log,
+                        progress=progress)

@@ -1,65 +1,163 @@
-"""Floquet analysis: the full monodromy of a periodic orbit, its multipliers, and stability.
+"""Floquet analysis: multipliers of a periodic orbit, their kinds, and stability.
 
-The monodromy V(T) (4N x 4N) is built from 4N tangent columns of the same discrete integrator
-over one period. Hamiltonian structure: multipliers come in quadruplets (l, 1/l, conj(l),
-1/conj(l)), and a pair sits at +1 (phase and energy directions, a Jordan block, which the eigen
-solver splits by about sqrt(machine eps * ||V||)).
+**Reduced Floquet for time-reversible orbits** (the default for breathers found in the reversible
+formulation). Coordinates x = (q, q') with q = (u, v) (2N each); the reversor R = diag(I, -I) flips
+velocities. Let A be the derivative of the half-period map at the orbit's start x0 = (q0, 0), with
+blocks A11 = dq/dq0, A12 = dq/dq0', A21 = dq'/dq0, A22 = dq'/dq0' at T/2.
 
-**Accuracy gauge and tolerance.** The pairing error is max_i min_j |l_i - 1 / l_j|: how far the
-computed spectrum is from being closed under l -> 1/l (conj pairs are exact for a real matrix).
-For the symplectic integrators the discrete monodromy is exactly symplectic, so the pairing error
-measures the eigen solver's accuracy; for RK4 it also contains the integrator's departure from
-symplecticity. A multiplier is counted on the unit circle when ||l| - 1| <= tol with
+1. Reversibility: the orbit's second half is the time reverse of the first, x(T/2 + s) = R x(T/2 - s),
+   so the second half's derivative is R A^-1 R and the monodromy is V = R A^-1 R A. This holds for
+   the discrete map too, because every splitting method here is a palindromic composition
+   (R Phi_h R = Phi_h^-1) and the half period is a whole number of steps.
+2. V = R Q with Q = A^-1 R A: a product of two involutions. Then V + V^-1 = RQ + QR commutes with R,
+   so on R's +1 eigenspace (pure positions, x = (a, 0)) it acts as 2 P+ Q P+: the eigenvalues mu of
+   the top-left block of Q are (l + 1/l) / 2 over the multipliers l, each pair (l, 1/l) once.
+3. Symplecticity in (q, p = Mm q'), Mm = diag(M I_N, I_N), gives A^-1 = [[Mm^-1 A22^T Mm,
+   -Mm^-1 A12^T Mm], [-Mm^-1 A21^T Mm, Mm^-1 A11^T Mm]] without a solve, hence
 
-    tol = max(10 * pairing_error, 1e-12),
+       Mu = Mm^-1 (A22^T Mm A11 + A12^T Mm A21)        (2N x 2N),   l = mu +- sqrt(mu^2 - 1).
 
-i.e. a deviation must exceed ten times what the computation demonstrably cannot resolve before it
-is called an instability. The trivial pair (the two multipliers closest to +1) is excluded.
+   Check: a harmonic oscillator with A a rotation by theta gives mu = cos 2 theta, V a rotation by
+   2 theta. tests/test_floquet.py checks Mu against the full 4N eig of the monodromy.
+4. A's position columns (A11, A21) are the last Newton Jacobian's columns, so Floquet costs only the
+   2N velocity columns over half a period and a 2N eig (instead of 4N columns over a period and a
+   4N eig). The trivial Jordan pair at l = +1 becomes one simple, well-conditioned mu = 1.
+
+**Kinds.** Real mu in (-1, 1): a pair on the unit circle (``elliptic``); real mu > 1: a real pair
+through +1 (``real_pair``: symmetry breaking, branch point); mu < -1: a pair through -1
+(``period_doubling``); complex mu (they come in conjugate pairs): a Krein quadruplet
+(``complex_quadruplet``).
+
+**Krein signature** of an elliptic mu with eigenvector a (Mu a = mu a): the V-eigenvector of the
+upper-half-plane multiplier is a + beta c with c the velocity part of Q a and beta = i / sqrt(1-mu^2),
+and its symplectic signature reduces to sigma = -sign((A11 a)^T Mm (A21 a)). A harmonic oscillator of
+frequency w gives sigma = sign(sin w T), as it must. Only elliptic multipliers of opposite signature
+can collide and leave the circle (Krein), so these are the collisions continuation watches.
+
+**Parity.** When the orbit is mirror-symmetric (q0 equal to its reflection j -> N + 1 - j), Mu
+commutes with the reflection and each eigenvector is even (+1) or odd (-1); multipliers of different
+parity cannot interact. Unknown or mixed: 0.
+
+**Accuracy gauge and tolerance** (what decides "stable"). Two measured quantities:
+``trivial_deviation`` = |mu_trivial - 1| (exactly 0 for an exactly periodic orbit of the exact
+discrete map, so it measures Newton's residual and the round-off of the whole chain of computation)
+and ``symplecticity`` = max |W^T J W - J| of the half-period map in (q, p) coordinates (0 for an
+exactly symplectic map; it bounds the error of using the transpose formula for A^-1). A mu counts as
+unstable when its distance from the real segment [-1, 1] exceeds
+
+    tolerance = 10 * max(trivial_deviation, symplecticity, 1e-13).
+
+On the paper breather (M = 30, K = 160, N = 201, kahan8, 32 steps per period) the two gauges are
+1.5e-12 and 9e-14, so the tolerance is 1.5e-11 in mu, i.e. |l| - 1 of 5.5e-6 for a real pair and
+~1.5e-11 / sin(arg l) for a quadruplet. The full-monodromy path (``reduced=False``, and the only path
+for non-reversible orbits or non-symplectic methods such as RK4) keeps the pairing-error gauge:
+tol = max(10 * pairing error, 1e-12) on ||l| - 1|.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
+import warnings
 
 import numpy as np
 
-from warpchain import ChainParams, propagate_tangent
+from warpchain import ChainParams, Flow, get_method, propagate_tangent
 
-from .shooting import ShootingResult
+KINDS = ("real_pair", "period_doubling", "complex_quadruplet")
+
+#: a mode counts as localized when the participation ratio of its Floquet vector (in sites, with
+#: site weight M |a_u|^2 + |a_v|^2) is below this fraction of N
+LOCALIZED_FRACTION = 0.1
+
+
+@dataclasses.dataclass(frozen=True)
+class Instability:
+    """One unstable multiplier pair (or quadruplet).
+
+    Attributes:
+        kind: ``real_pair``, ``period_doubling`` or ``complex_quadruplet``.
+        mu: (l + 1/l) / 2 (complex).
+        modulus: |l| >= 1 of the outer multiplier.
+        participation: participation ratio of its Floquet vector in sites (NaN on the full path).
+        localized: participation < LOCALIZED_FRACTION * N.
+        parity: +1 even, -1 odd, 0 unknown.
+    """
+
+    kind: str
+    mu: complex
+    modulus: float
+    participation: float
+    localized: bool
+    parity: int
+
+    def as_dict(self) -> dict:
+        return {"kind": self.kind, "mu_real": float(self.mu.real), "mu_imag": float(self.mu.imag),
+                "modulus": self.modulus, "participation": self.participation, "localized": self.localized,
+                "parity": self.parity}
 
 
 @dataclasses.dataclass(frozen=True)
 class FloquetResult:
-    """Multipliers of a periodic orbit and the stability verdict.
+    """Multipliers of a periodic orbit, their kinds and the stability verdict.
 
     Attributes:
         multipliers: all 4N multipliers, complex, shape (4N,).
-        trivial: indices of the trivial pair (closest to +1).
+        trivial: indices (into ``multipliers``) of the trivial pair at +1.
         max_modulus: largest |l| excluding the trivial pair.
-        pairing_error: the accuracy gauge (module docstring).
-        tolerance: the tolerance used for the verdict.
-        stable: every nontrivial multiplier within tolerance of the unit circle.
-        symplecticity_error: || V^T J V - J || / ||V||^2 in mass-weighted coordinates.
-        monodromy: V (4N x 4N), when kept.
-        wall_seconds: time for the tangent run and the eigenvalues.
+        tolerance: the verdict's tolerance (in mu on the reduced path, in |l| - 1 on the full path).
+        stable: no nontrivial multiplier off the unit circle by more than the tolerance.
+        instabilities: the unstable pairs/quadruplets, largest modulus first.
+        mu: (l + 1/l)/2 of each pair, shape (2N,) (reduced path; None on the full path).
+        mu_trivial: index of the trivial mu.
+        signature: Krein signature of each mu (+1/-1 for elliptic ones, 0 otherwise), shape (2N,).
+        parity: parity of each mu's Floquet vector (+1, -1, 0), shape (2N,).
+        participation: participation ratio (sites) of each mu's Floquet vector, shape (2N,).
+        accuracy: the measured gauges (``trivial_deviation``, ``symplecticity`` or ``pairing_error``).
+        path: ``"reduced"`` or ``"full"``.
+        pairing_error, symplecticity_error: kept for the full path's reports (0 / gauge on the reduced).
+        monodromy: V (4N x 4N) when kept (full path).
+        wall_seconds: time for the tangent columns and the eigenvalues.
+        stats: counters (``tangent_columns``).
     """
 
     multipliers: np.ndarray
     trivial: np.ndarray
     max_modulus: float
-    pairing_error: float
     tolerance: float
     stable: bool
+    instabilities: tuple
+    mu: np.ndarray | None
+    mu_trivial: int | None
+    signature: np.ndarray | None
+    parity: np.ndarray | None
+    participation: np.ndarray | None
+    accuracy: dict
+    path: str
+    pairing_error: float
     symplecticity_error: float
     monodromy: np.ndarray | None
     wall_seconds: float
+    stats: dict = dataclasses.field(default_factory=dict)
 
     @property
     def nontrivial(self) -> np.ndarray:
         mask = np.ones(len(self.multipliers), bool)
         mask[self.trivial] = False
         return self.multipliers[mask]
+
+    @property
+    def unstable_counts(self) -> dict:
+        """Number of unstable pairs of each kind (quadruplets counted once)."""
+        return {k: sum(1 for i in self.instabilities if i.kind == k) for k in KINDS}
+
+    @property
+    def kinds(self) -> tuple:
+        return tuple(k for k in KINDS if self.unstable_counts[k])
+
+
+# ----------------------------------------------------------------------------- building blocks
 
 
 def monodromy(params: ChainParams, state, period_steps: int, dt: float, *, method: str, device=None) -> np.ndarray:
@@ -77,39 +175,247 @@ def pairing_error(multipliers: np.ndarray) -> float:
     return float(np.max(np.min(np.abs(lam[:, None] - inv[None, :]), axis=1)))
 
 
+def _masses(M: float, N: int) -> np.ndarray:
+    return np.concatenate([np.full(N, float(M)), np.ones(N)])
+
+
 def symplecticity_error(V: np.ndarray, M: float) -> float:
-    """Departure of V from symplecticity for H with momenta (M u', v')."""
-    n = V.shape[0] // 4
-    scale = np.concatenate([np.ones(2 * n), np.full(n, M), np.ones(n)])
-    W = scale[:, None] * V / scale[None, :]  # V in (q, p) coordinates
-    Jmat = np.block([[np.zeros((2 * n, 2 * n)), np.eye(2 * n)], [-np.eye(2 * n), np.zeros((2 * n, 2 * n))]])
+    """max |W^T J W - J| / max(max|W|^2, 1) of a map V (4N x 4N, on (q, q')) in (q, p) coordinates."""
+    n2 = V.shape[0] // 2
+    scale = np.concatenate([np.ones(n2), _masses(M, n2 // 2)])
+    W = scale[:, None] * V / scale[None, :]
+    Jmat = np.block([[np.zeros((n2, n2)), np.eye(n2)], [-np.eye(n2), np.zeros((n2, n2))]])
     return float(np.max(np.abs(W.T @ Jmat @ W - Jmat)) / max(np.max(np.abs(W)) ** 2, 1.0))
 
 
+def half_map_symplecticity(A: np.ndarray, M: float) -> float:
+    """max |W^T J W - J| (absolute) of the half-period map A in (q, p) coordinates."""
+    n2 = A.shape[0] // 2
+    m = _masses(M, n2 // 2)
+    W11, W12, W21, W22 = A[:n2, :n2], A[:n2, n2:] / m[None, :], m[:, None] * A[n2:, :n2], m[:, None] * A[n2:, n2:] / m[None, :]
+    # W^T J W - J with J = [[0, I], [-I, 0]]: blocks S11 = W11^T W21 - W21^T W11, S12 = W11^T W22 - W21^T W12 - I,
+    # S22 = W12^T W22 - W22^T W12
+    S11 = W11.T @ W21 - W21.T @ W11
+    S12 = W11.T @ W22 - W21.T @ W12 - np.eye(n2)
+    S22 = W12.T @ W22 - W22.T @ W12
+    return float(max(np.max(np.abs(S11)), np.max(np.abs(S12)), np.max(np.abs(S22))))
+
+
+def reduced_matrix(A: np.ndarray, M: float) -> np.ndarray:
+    """Mu = Mm^-1 (A22^T Mm A11 + A12^T Mm A21) from the half-period map A (4N x 4N, on (q, q'))."""
+    n2 = A.shape[0] // 2
+    m = _masses(M, n2 // 2)
+    A11, A12, A21, A22 = A[:n2, :n2], A[:n2, n2:], A[n2:, :n2], A[n2:, n2:]
+    return ((A22.T * m) @ A11 + (A12.T * m) @ A21) / m[:, None]
+
+
+def multipliers_from_mu(mu: np.ndarray) -> np.ndarray:
+    """The pair (l, 1/l) of each mu, |l| >= 1 first: shape (2 * len(mu),)."""
+    mu = np.asarray(mu, dtype=complex)
+    root = np.sqrt(mu * mu - 1.0)
+    lam = mu + root
+    lam = np.where(np.abs(lam) < 1.0, mu - root, lam)
+    return np.concatenate([lam, 1.0 / lam])
+
+
+def outer_modulus(mu) -> np.ndarray:
+    """|l| >= 1 of the outer multiplier of each mu."""
+    mu = np.asarray(mu, dtype=complex)
+    root = np.sqrt(mu * mu - 1.0)
+    return np.maximum(np.abs(mu + root), np.abs(mu - root))
+
+
+def mu_kind(mu: np.ndarray, tol: float) -> np.ndarray:
+    """Kind of each mu: ``elliptic`` within tol of [-1, 1], else the instability kind."""
+    mu = np.asarray(mu, dtype=complex)
+    out = np.full(mu.shape, "elliptic", dtype=object)
+    out[mu.real > 1.0 + tol] = "real_pair"
+    out[mu.real < -1.0 - tol] = "period_doubling"
+    out[np.abs(mu.imag) > tol] = "complex_quadruplet"
+    return out
+
+
+def participation(vectors: np.ndarray, M: float) -> np.ndarray:
+    """Participation ratio in sites of each column (2N: u then v), site weight M|a_u|^2 + |a_v|^2."""
+    n = vectors.shape[0] // 2
+    w = M * np.abs(vectors[:n]) ** 2 + np.abs(vectors[n:]) ** 2
+    return np.sum(w, axis=0) ** 2 / np.maximum(np.sum(w * w, axis=0), 1e-300)
+
+
+def mirror_symmetric(state: np.ndarray, rtol: float = 1e-6) -> bool:
+    """Whether positions equal their reflection j -> N + 1 - j (to rtol of their size)."""
+    q = np.asarray(state)[:2]
+    return bool(np.max(np.abs(q - q[:, ::-1])) <= rtol * max(np.max(np.abs(q)), 1e-300))
+
+
+def vector_parity(vectors: np.ndarray, threshold: float = 0.9) -> np.ndarray:
+    """+1 / -1 where a column (2N: u then v) is (nearly) even / odd under reflection, else 0."""
+    n = vectors.shape[0] // 2
+    refl = np.concatenate([vectors[:n][::-1], vectors[n:][::-1]])
+    p = np.real(np.sum(np.conj(vectors) * refl, axis=0)) / np.maximum(np.sum(np.abs(vectors) ** 2, axis=0), 1e-300)
+    return np.where(p > threshold, 1, np.where(p < -threshold, -1, 0)).astype(int)
+
+
+# ----------------------------------------------------------------------------- the two paths
+
+
+def reduced_floquet(A: np.ndarray, M: float, state: np.ndarray | None = None, tolerance: float | None = None,
+                    *, wall_seconds: float = 0.0, stats: dict | None = None) -> FloquetResult:
+    """Floquet analysis of a time-reversible orbit from its half-period map A (module docstring).
+
+    Args:
+        A: half-period map at x0 = (q0, 0), shape (4N, 4N), on (q, q').
+        M: the chain's mass ratio.
+        state: the orbit's start (4, N), for the parity test (None: parity unknown).
+        tolerance: override of the measured tolerance (in mu).
+    """
+    start = time.perf_counter()
+    n2 = A.shape[0] // 2
+    N = n2 // 2
+    m = _masses(M, N)
+    Mu = reduced_matrix(A, M)
+    mu, vec = np.linalg.eig(Mu)
+    trivial = int(np.argmin(np.abs(mu - 1.0)))
+    sympl = half_map_symplecticity(A, M)
+    accuracy = {"trivial_deviation": float(abs(mu[trivial] - 1.0)), "symplecticity": sympl}
+    tol = 10.0 * max(accuracy["trivial_deviation"], sympl, 1e-13) if tolerance is None else float(tolerance)
+    if tol < 0:
+        raise ValueError(f"tolerance must be >= 0, got {tolerance!r}")
+    kinds = mu_kind(mu, tol)
+    # Krein signature of elliptic mu: -sign((A11 a)^T Mm (A21 a)) (real eigenvectors for real mu)
+    a = np.real(vec)
+    act = np.sum((A[:n2, :n2] @ a) * m[:, None] * (A[n2:, :n2] @ a), axis=0)
+    signature = np.where(kinds == "elliptic", -np.sign(act), 0).astype(int)
+    signature[trivial] = 0
+    parity = vector_parity(vec) if state is not None and mirror_symmetric(state) else np.zeros(len(mu), int)
+    pr = participation(vec, M)
+    modulus = outer_modulus(mu)
+    mask = np.ones(len(mu), bool)
+    mask[trivial] = False
+    instabilities = []
+    for i in np.flatnonzero(mask & (kinds != "elliptic")):
+        if kinds[i] == "complex_quadruplet" and mu[i].imag < 0:
+            continue  # the conjugate mu belongs to the same quadruplet
+        instabilities.append(Instability(kind=str(kinds[i]), mu=complex(mu[i]), modulus=float(modulus[i]),
+                                         participation=float(pr[i]), localized=bool(pr[i] < LOCALIZED_FRACTION * N),
+                                         parity=int(parity[i])))
+    instabilities.sort(key=lambda s: -s.modulus)
+    lam = multipliers_from_mu(mu)
+    return FloquetResult(
+        multipliers=lam, trivial=np.array([trivial, trivial + len(mu)]),
+        max_modulus=float(np.max(modulus[mask])) if mask.any() else 1.0, tolerance=tol,
+        stable=not instabilities, instabilities=tuple(instabilities), mu=mu, mu_trivial=trivial,
+        signature=signature, parity=parity, participation=pr, accuracy=accuracy, path="reduced", pairing_error=0.0,
+        symplecticity_error=sympl, monodromy=None, wall_seconds=wall_seconds + time.perf_counter() - start,
+        stats=dict(stats or {}))
+
+
 def analyse_multipliers(multipliers: np.ndarray, tolerance: float | None = None) -> dict:
-    """Trivial pair, pairing error, tolerance, largest nontrivial modulus and the verdict."""
+    """Full path: trivial pair, pairing error, tolerance, largest nontrivial modulus and the verdict."""
     lam = np.asarray(multipliers)
     trivial = np.argsort(np.abs(lam - 1.0))[:2]
     mask = np.ones(len(lam), bool)
     mask[trivial] = False
     err = pairing_error(lam)
-    tol = max(10.0 * err, 1e-12) if tolerance is None else tolerance
+    if tolerance is not None and not tolerance >= 0:
+        raise ValueError(f"tolerance must be >= 0, got {tolerance!r}")
+    tol = max(10.0 * err, 1e-12) if tolerance is None else float(tolerance)
     nontrivial = lam[mask]
     max_mod = float(np.max(np.abs(nontrivial))) if nontrivial.size else 1.0
     stable = bool(np.all(np.abs(np.abs(nontrivial) - 1.0) <= tol))
     return {"trivial": trivial, "pairing_error": err, "tolerance": tol, "max_modulus": max_mod, "stable": stable}
 
 
-def floquet(breather: ShootingResult, *, method: str | None = None, device=None, keep_monodromy: bool = False,
-            tolerance: float | None = None) -> FloquetResult:
-    """Floquet multipliers of a converged breather over one full period (same integrator and
-    step as its shooting unless ``method`` is given)."""
+def full_floquet(V: np.ndarray, M: float, tolerance: float | None = None, *, keep_monodromy: bool = False,
+                 wall_seconds: float = 0.0, stats: dict | None = None) -> FloquetResult:
+    """Floquet analysis from the full monodromy V (4N x 4N): any periodic orbit, any method."""
     start = time.perf_counter()
-    params = breather.params
-    half_steps = breather.nsteps if breather.formulation == "reversible" else breather.nsteps // 2
-    V = monodromy(params, breather.state, 2 * half_steps, breather.dt, method=method or breather.method, device=device)
     lam = np.linalg.eigvals(V)
     info = analyse_multipliers(lam, tolerance)
-    return FloquetResult(multipliers=lam, monodromy=V if keep_monodromy else None,
-                         symplecticity_error=symplecticity_error(V, params.M),
-                         wall_seconds=time.perf_counter() - start, **info)
+    mask = np.ones(len(lam), bool)
+    mask[info["trivial"]] = False
+    instabilities = []
+    tol = info["tolerance"]
+    for l in lam[mask]:
+        if abs(l) <= 1.0 + tol or (l.imag < -tol):
+            continue
+        mu = 0.5 * (l + 1.0 / l)
+        kind = str(mu_kind(np.array([mu]), 0.0)[0])
+        kind = "real_pair" if kind == "elliptic" and l.real > 0 else ("period_doubling" if kind == "elliptic" else kind)
+        instabilities.append(Instability(kind=kind, mu=complex(mu), modulus=float(abs(l)), participation=float("nan"),
+                                         localized=False, parity=0))
+    instabilities.sort(key=lambda s: -s.modulus)
+    return FloquetResult(
+        multipliers=lam, trivial=info["trivial"], max_modulus=info["max_modulus"], tolerance=tol,
+        stable=info["stable"], instabilities=tuple(instabilities), mu=None, mu_trivial=None, signature=None,
+        parity=None, participation=None, accuracy={"pairing_error": info["pairing_error"]}, path="full",
+        pairing_error=info["pairing_error"], symplecticity_error=symplecticity_error(V, M),
+        monodromy=V if keep_monodromy else None, wall_seconds=wall_seconds + time.perf_counter() - start,
+        stats=dict(stats or {}))
+
+
+# ----------------------------------------------------------------------------- public entry point
+
+
+def _is_reversible_method(method: str) -> bool:
+    m = get_method(method)
+    return m.symplectic and m.family == "splitting"
+
+
+def floquet(breather, *, method: str | None = None, reduced: bool | None = None, device=None,
+            keep_monodromy: bool = False, tolerance: float | None = None, flow: Flow | None = None) -> FloquetResult:
+    """Floquet multipliers of a converged breather, with the integrator and step of its shooting.
+
+    Args:
+        breather: a converged ``ShootingResult``.
+        method: another integrator: the orbit is first re-converged with it (with a warning),
+            since an orbit is periodic only for the map it was solved with.
+        reduced: use the reduced 2N problem (default where it applies: reversible formulation and a
+            symplectic palindromic method) or the full 4N monodromy (``False``).
+        keep_monodromy: keep V on the result (full path).
+        tolerance: override of the measured tolerance (>= 0).
+        flow: the Flow to use (default: the breather's own).
+
+    Raises:
+        TypeError: ``breather`` is not a ShootingResult.
+        ValueError: the solve had not converged (its multipliers would describe no orbit), or a bad option.
+    """
+    from .shooting import ShootingResult, find_breather
+
+    if not isinstance(breather, ShootingResult):
+        raise TypeError(f"floquet() takes a ShootingResult from find_breather, got {type(breather).__name__}")
+    if not breather.success:
+        raise ValueError(f"floquet() of a failed solve: there is no periodic orbit to analyse "
+                         f"({breather.status.value}: {breather.message})")
+    if tolerance is not None and not (isinstance(tolerance, (int, float, np.floating)) and tolerance >= 0):
+        raise ValueError(f"tolerance must be a number >= 0, got {tolerance!r}")
+    flow = flow or breather.flow
+    if device is not None:
+        flow = flow.replace(device=device)
+    if method is not None and method != breather.method:
+        warnings.warn(f"floquet(method={method!r}) on an orbit converged with {breather.method!r}: the orbit is "
+                      f"re-converged with {method!r} first (it is periodic only for the map it was solved with)",
+                      RuntimeWarning, stacklevel=2)
+        flow = flow.replace(method=method)
+        from .shooting import require
+
+        breather = require(find_breather(breather.params, breather.omega, breather.state, formulation=breather.formulation,
+                                         flow=flow))
+    if reduced is None:
+        reduced = breather.formulation == "reversible" and _is_reversible_method(flow.method)
+    if reduced and not (breather.formulation == "reversible" and _is_reversible_method(flow.method)):
+        raise ValueError("the reduced Floquet problem needs a reversible orbit (reversible formulation) and a "
+                         f"symplectic palindromic method; got {breather.formulation!r} with {flow.method!r}: "
+                         "use reduced=False")
+    params = breather.params
+    start = time.perf_counter()
+    if reduced:
+        lin = breather.linearization(flow)
+        cols = lin.stats["tangent_columns"]
+        A = np.hstack([lin.unit_columns("positions"), lin.unit_columns("velocities")])
+        return reduced_floquet(A, params.M, breather.state, tolerance, wall_seconds=time.perf_counter() - start,
+                               stats={"tangent_columns": lin.stats["tangent_columns"] - cols})
+    half = breather.nsteps if breather.formulation == "reversible" else breather.nsteps // 2
+    V = monodromy(params, breather.state, 2 * half, breather.dt, method=flow.method, device=flow.device)
+    return full_floquet(V, params.M, tolerance, keep_monodromy=keep_monodromy,
+                        wall_seconds=time.perf_counter() - start, stats={"tangent_columns": 4 * params.N})

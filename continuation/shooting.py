@@ -10,24 +10,26 @@ Two formulations:
   <x0 - x_ref, f(x_ref)> = 0; the (4N + 1) x 4N system is solved in the least-squares sense
   (the monodromy has the trivial double multiplier at +1, so V - I alone is singular).
 
-Jacobian columns come from tangent trajectories of the same discrete integrator (exact
-derivative of the discrete map), or, selectable by name, from central finite differences of
-batched perturbed trajectories (``jacobian="finite-difference"``), both in one launch.
+The integrator is seen only through a ``warpchain.Flow``: each Newton point is one
+``Flow.linearize`` (the base trajectory, run once with its contact stiffness recorded), from which
+the residual, the end state and the min contact are read at once, and the Jacobian's tangent
+columns are replayed only when Newton asks for them. The converged point's Linearization stays on
+the result, so ``floquet`` needs only the velocity columns. Finite-difference columns (batched
+perturbed trajectories, ``jacobian="finite-difference"``) exist as a check.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import enum
 import math
 import time
-import warnings
 
 import numpy as np
-import scipy.linalg
 
-from warpchain import ChainParams, IntegrationError, band_edges, energy, min_contact, propagate_tangent, simulate
+from warpchain import ChainParams, Flow, band_edges, energy
 from warpchain.model import accelerations, as_batch
+
+from .newton import NewtonOutcome, NewtonSettings, ShootingStatus, newton, solve_linear
 
 # the cheapest at the accuracy breathers need (work-precision scene, smooth case): kahan8 with 32
 # steps per period reaches a final-state error of 1.8e-9 over 20 periods with 480 force evaluations
@@ -35,28 +37,9 @@ from warpchain.model import accelerations, as_batch
 DEFAULT_METHOD = "kahan8"
 DEFAULT_STEPS_PER_PERIOD = 32
 
-
-class ShootingStatus(enum.Enum):
-    """Outcome of a Newton solve; ``.advice`` says what to do about it."""
-
-    CONVERGED = "converged"
-    MAX_ITERATIONS = "max_iterations"
-    STAGNATED = "stagnated"
-    TRIVIAL = "trivial"
-    INTEGRATION_ERROR = "integration_error"
-
-    @property
-    def advice(self) -> str:
-        return {
-            "converged": "",
-            "max_iterations": "Newton did not reach the tolerance: start closer (continuation with a smaller step), "
-                              "or check that the frequency lies in a gap (see frequency_report)",
-            "stagnated": "the damped Newton step could not reduce the residual: the seed is too far from a solution "
-                         "or none exists at this frequency (e.g. inside a phonon band); use continuation",
-            "trivial": "the iterate collapsed onto the rest state, which is not a breather: raise the seed amplitude or "
-                       "move the frequency further into the gap",
-            "integration_error": "the orbit blew up: reduce dt (steps_per_period) or the seed amplitude",
-        }[self.value]
+__all__ = ["DEFAULT_METHOD", "DEFAULT_STEPS_PER_PERIOD", "NewtonOutcome", "NewtonSettings", "PeriodMap",
+           "ShootingError", "ShootingResult", "ShootingStatus", "find_breather", "frequency_report", "make_flow",
+           "require", "solve_linear", "time_grid"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -71,11 +54,14 @@ class ShootingResult:
         residual_history: residual norm at every iterate, the seed first.
         iterations: Newton iterations taken.
         status: a ShootingStatus; message: what happened and what to do.
-        min_contact: min over sites of 1 + u - v at t = 0 and t = T/2.
+        min_contact: min over sites and step boundaries of 1 + u - v over the shooting interval (half
+            a period for reversible orbits, which covers the whole orbit by symmetry).
         method, dt, nsteps: integrator, step, and steps per half period (reversible) or period.
         formulation, jacobian: what was solved and how its Jacobian was formed.
         used_lstsq: iterations whose linear solve fell back to least squares.
         wall_seconds: time taken.
+        flow: the Flow it was solved with.
+        stats: counters (``evaluations``, ``jacobians``, ``tangent_columns``).
     """
 
     state: np.ndarray
@@ -96,10 +82,21 @@ class ShootingResult:
     used_lstsq: int
     wall_seconds: float
     params: ChainParams
+    flow: Flow | None = None
+    stats: dict = dataclasses.field(default_factory=dict)
+    _linearization: object = dataclasses.field(default=None, repr=False, compare=False)
 
     @property
     def success(self) -> bool:
         return self.status is ShootingStatus.CONVERGED
+
+    def linearization(self, flow: Flow | None = None):
+        """The Linearization of the shooting interval at ``state`` (the one Newton ended on when the
+        flow is the same; computed afresh otherwise)."""
+        flow = flow or self.flow
+        if self._linearization is not None and flow == self.flow:
+            return self._linearization
+        return flow.linearize(self.params, self.state, self.nsteps, self.dt)
 
 
 class ShootingError(RuntimeError):
@@ -154,37 +151,49 @@ def _state(params, q):
     return x
 
 
-def _solve(J, r):
-    """LU solve with a least-squares fallback for singular or ill-conditioned J; (step, used_lstsq)."""
-    if J.shape[0] == J.shape[1]:
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("error", scipy.linalg.LinAlgWarning)
-                return scipy.linalg.solve(J, r, check_finite=False), False
-        except (scipy.linalg.LinAlgError, scipy.linalg.LinAlgWarning, ValueError):
-            pass
-    return scipy.linalg.lstsq(J, r, check_finite=False)[0], True
+_solve = solve_linear  # older name, kept for scripts
 
 
-class _PeriodMap:
-    """Residual and Jacobian of one formulation, on one device."""
+def make_flow(flow: Flow | None = None, *, method: str | None = None, steps_per_period: int | None = None,
+              dt: float | None = None, omega: float | None = None, device: str | None = None) -> Flow:
+    """The Flow to solve with: ``flow`` as given, or one built from method / steps per period (or a
+    step ``dt`` at frequency ``omega``, rounded so the half period is a whole number of steps) / device."""
+    if flow is not None:
+        if not isinstance(flow, Flow):
+            raise TypeError(f"flow must be a warpchain.Flow, got {type(flow).__name__}")
+        if any(v is not None for v in (method, steps_per_period, dt)):
+            raise ValueError("give either flow= or method/steps_per_period/dt, not both")
+        return flow if device is None else flow.replace(device=device)
+    if dt is not None:
+        if steps_per_period is not None:
+            raise ValueError("give dt or steps_per_period, not both")
+        n_half, _ = time_grid(omega, dt, None)
+        steps_per_period = 2 * n_half
+    return Flow(method or DEFAULT_METHOD, DEFAULT_STEPS_PER_PERIOD if steps_per_period is None else steps_per_period,
+                device)
 
-    def __init__(self, params, omega, formulation, method, n_half, dt, jacobian, fd_step, device, x_ref):
-        self.params, self.omega, self.formulation = params, omega, formulation
-        self.method, self.n_half, self.dt, self.jacobian, self.fd_step = method, n_half, dt, jacobian, fd_step
-        self.device = device
+
+class PeriodMap:
+    """Residual and Jacobian of one formulation at one frequency, evaluated through a Flow.
+
+    ``evaluate(unknowns)`` returns a ``ShootingPoint`` (one base trajectory); its ``jacobian()``
+    propagates the tangent columns on that trajectory's recorded history.
+    """
+
+    def __init__(self, params: ChainParams, omega: float, flow: Flow, formulation: str = "reversible",
+                 jacobian: str = "tangent", fd_step: float = 1e-7, x_ref=None):
+        self.params, self.omega, self.flow, self.formulation = params, float(omega), flow, formulation
+        self.jacobian, self.fd_step = jacobian, fd_step
+        n_half, self.dt = flow.grid(omega)
         N = params.N
         if formulation == "reversible":
             self.nsteps = n_half
             self.n_unknowns = 2 * N
-            self.directions = np.eye(4 * N)[: 2 * N].reshape(2 * N, 4, N)  # position columns
         else:
             self.nsteps = 2 * n_half
             self.n_unknowns = 4 * N
-            self.directions = np.eye(4 * N).reshape(4 * N, 4, N)
-            self.x_ref = x_ref.copy()
-            self.phase_row = np.concatenate([np.zeros(2 * N), accelerations(params, x_ref[None])[0].ravel()])
-            self.phase_row[: 2 * N] = x_ref[2:].ravel()  # f(x_ref) = (x_ref', a(x_ref))
+            self.x_ref = np.array(x_ref, dtype=float)
+            self.phase_row = np.concatenate([self.x_ref[2:].ravel(), accelerations(params, self.x_ref[None])[0].ravel()])
 
     def to_state(self, unknowns):
         return _state(self.params, unknowns) if self.formulation == "reversible" else unknowns.reshape(4, self.params.N)
@@ -192,117 +201,68 @@ class _PeriodMap:
     def from_state(self, x):
         return x[:2].ravel().copy() if self.formulation == "reversible" else x.ravel().copy()
 
-    def _residual_from_end(self, x0, x_end):
+    def residual_from_end(self, x0, x_end):
         if self.formulation == "reversible":
-            return x_end[2:].ravel()
+            return x_end[2:].ravel().copy()
         r = x_end.ravel() - x0.ravel()
         return np.append(r, self.phase_row @ (x0.ravel() - self.x_ref.ravel()))
 
-    def residual(self, unknowns):
+    def evaluate(self, unknowns) -> "ShootingPoint":
         x0 = self.to_state(unknowns)
-        run = simulate(self.params, x0, self.nsteps * self.dt, self.dt, method=self.method, device=self.device,
-                       max_energy_error=None, chunks=1)
-        return self._residual_from_end(x0, run.x[0])
-
-    def residual_and_jacobian(self, unknowns):
-        x0 = self.to_state(unknowns)
-        if self.jacobian == "tangent":
-            tan = propagate_tangent(self.params, x0, self.directions, self.nsteps, self.dt, method=self.method,
-                                    device=self.device)
-            x_end, cols = tan.x[0], tan.columns.reshape(len(self.directions), -1).T  # (4N, ncols)
-        else:
-            h = self.fd_step
-            batch = np.concatenate([x0[None], x0[None] + h * self.directions, x0[None] - h * self.directions])
-            run = simulate(self.params, batch, self.nsteps * self.dt, self.dt, method=self.method, device=self.device,
-                           max_energy_error=None, chunks=1)
-            n = len(self.directions)
-            x_end = run.x[0]
-            cols = ((run.x[1 : n + 1] - run.x[n + 1 :]) / (2 * h)).reshape(n, -1).T
-        r = self._residual_from_end(x0, x_end)
-        if self.formulation == "reversible":
-            J = cols[2 * self.params.N :, :]  # velocity rows
-        else:
-            J = np.vstack([cols - np.eye(cols.shape[0]), self.phase_row[None]])
-        return r, J, x_end
+        lin = self.flow.linearize(self.params, x0, self.nsteps, self.dt)
+        return ShootingPoint(self, x0, lin)
 
 
-@dataclasses.dataclass(frozen=True)
-class NewtonOutcome:
-    """What ``newton`` returns: the last iterate, residual norms, and why it stopped."""
+class ShootingPoint:
+    """One Newton point: residual, end state and min contact now; the Jacobian on request."""
 
-    unknowns: np.ndarray
-    history: tuple
-    iterations: int
-    status: ShootingStatus
-    message: str
-    used_lstsq: int
+    def __init__(self, pmap: PeriodMap, x0, lin):
+        self.pmap, self.x0, self.linearization = pmap, x0, lin
+        self.residual = pmap.residual_from_end(x0, lin.x_end)
+        self._jacobian = None
+
+    @property
+    def min_contact(self) -> float:
+        return self.linearization.min_contact
+
+    def columns(self) -> np.ndarray:
+        """End-state derivatives along the unknowns' directions, shape (4N, n_unknowns)."""
+        pmap, N = self.pmap, self.pmap.params.N
+        which = "positions" if pmap.formulation == "reversible" else "all"
+        if pmap.jacobian == "tangent":
+            return self.linearization.unit_columns(which)
+        eye = np.eye(4 * N).reshape(4 * N, 4, N)
+        directions = eye[: 2 * N] if which == "positions" else eye
+        h = pmap.fd_step
+        batch = np.concatenate([self.x0[None] + h * directions, self.x0[None] - h * directions])
+        x_end = pmap.flow.run(pmap.params, batch, pmap.nsteps, pmap.dt).x_end
+        n = len(directions)
+        return ((x_end[:n] - x_end[n:]) / (2 * h)).reshape(n, -1).T
+
+    def jacobian(self) -> np.ndarray:
+        if self._jacobian is None:
+            cols = self.columns()
+            if self.pmap.formulation == "reversible":
+                self._jacobian = cols[2 * self.pmap.params.N:, :]  # velocity rows
+            else:
+                self._jacobian = np.vstack([cols - np.eye(cols.shape[0]), self.pmap.phase_row[None]])
+        return self._jacobian
 
 
-def newton(unknowns, residual_and_jacobian, residual, *, tol: float, max_iterations: int, amplitude=None,
-           collapse_below: float = 0.0, max_halvings: int = 8, log=None) -> NewtonOutcome:
-    """Damped Newton: LU solve (least squares when singular or ill-conditioned, or when J is not
-    square), step halved while the residual grows.
-
-    Args:
-        unknowns: initial iterate.
-        residual_and_jacobian: y -> (r, J); residual: y -> r (for the damped trial points).
-        tol: stop when ||r||_2 <= tol.
-        amplitude, collapse_below: an iterate with amplitude(y) < collapse_below is reported as
-            ``TRIVIAL`` (Newton fell onto the rest state).
-    """
-    history, used_lstsq, iterations, message = [], 0, 0, ""
-    status = None
-    try:
-        r, J = residual_and_jacobian(unknowns)
-        norm = float(np.linalg.norm(r))
-        history.append(norm)
-        while True:
-            if not math.isfinite(norm):
-                status, message = ShootingStatus.INTEGRATION_ERROR, "the residual is not finite"
-                break
-            if amplitude is not None:
-                amp = amplitude(unknowns)
-                if amp < collapse_below or amp == 0.0:
-                    status = ShootingStatus.TRIVIAL
-                    message = f"amplitude collapsed to {amp:.3g}: the rest state is not a breather"
-                    break
-            if norm <= tol:
-                status = ShootingStatus.CONVERGED
-                break
-            if iterations >= max_iterations:
-                status = ShootingStatus.MAX_ITERATIONS
-                message = f"residual {norm:.3g} > tol {tol:g} after {iterations} iterations"
-                break
-            step, lstsq_used = _solve(J, r)
-            used_lstsq += int(lstsq_used)
-            lam, trial_norm = 1.0, math.inf
-            for _ in range(max_halvings):
-                trial = unknowns - lam * step
-                trial_norm = float(np.linalg.norm(residual(trial)))
-                if math.isfinite(trial_norm) and trial_norm < norm:
-                    break
-                lam *= 0.5
-            iterations += 1
-            if not (math.isfinite(trial_norm) and trial_norm < norm):
-                status = ShootingStatus.STAGNATED
-                message = f"no damped step (down to 1/{2 ** max_halvings}) reduced the residual {norm:.3g}"
-                break
-            unknowns = trial
-            r, J = residual_and_jacobian(unknowns)
-            norm = float(np.linalg.norm(r))
-            history.append(norm)
-            if log is not None:
-                log(f"newton {iterations}: residual {norm:.3e} (damping {lam:g}{', lstsq' if lstsq_used else ''})")
-    except IntegrationError as exc:
-        status, message = ShootingStatus.INTEGRATION_ERROR, str(exc)
-    return NewtonOutcome(unknowns=unknowns, history=tuple(history), iterations=iterations, status=status,
-                         message=message, used_lstsq=used_lstsq)
+def _check_number(name, value, *, positive=True):
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) or np.iscomplexobj(value):
+        raise ValueError(f"{name} must be a real number, got {value!r}")
+    value = float(value)
+    if not math.isfinite(value) or (positive and value <= 0):
+        raise ValueError(f"{name} must be a finite number{' > 0' if positive else ''}, got {value!r}")
+    return value
 
 
 def find_breather(params: ChainParams, omega: float, seed, *, formulation: str = "reversible",
-                  method: str = DEFAULT_METHOD, dt: float | None = None, steps_per_period: int | None = None,
-                  tol: float = 1e-10, max_iterations: int = 30, jacobian: str = "tangent", fd_step: float = 1e-7,
-                  collapse_ratio: float = 1e-3, device: str | None = None, log=None) -> ShootingResult:
+                  flow: Flow | None = None, method: str | None = None, dt: float | None = None,
+                  steps_per_period: int | None = None, tol: float = 1e-10, max_iterations: int = 30,
+                  jacobian: str = "tangent", fd_step: float = 1e-7, collapse_ratio: float = 1e-3,
+                  device: str | None = None, log=None) -> ShootingResult:
     """Newton shooting for a breather of frequency ``omega`` from ``seed``.
 
     Args:
@@ -310,8 +270,8 @@ def find_breather(params: ChainParams, omega: float, seed, *, formulation: str =
         omega: breather frequency (period T = 2 pi / omega).
         seed: initial guess, a (4, N) state (the reversible formulation uses its positions).
         formulation: ``"reversible"`` or ``"general"``.
-        method, dt, steps_per_period: integrator and time grid (the half period is a whole number of
-            steps; default 32 steps per period).
+        flow: the integrator (a ``warpchain.Flow``); or build one from ``method``, ``dt`` or
+            ``steps_per_period`` (default kahan8, 32 steps per period) and ``device``.
         tol: convergence threshold on the residual's 2-norm.
         jacobian: ``"tangent"`` (exact derivative of the discrete map) or ``"finite-difference"``.
         collapse_ratio: an iterate whose max |u - v| falls below this fraction of the seed's is
@@ -322,38 +282,48 @@ def find_breather(params: ChainParams, omega: float, seed, *, formulation: str =
         ShootingResult (check ``.success``; ``require(result)`` raises on failure).
     """
     start = time.perf_counter()
+    omega = _check_number("omega", omega)
     if formulation not in ("reversible", "general"):
         raise ValueError(f"formulation must be 'reversible' or 'general', got {formulation!r}")
     if jacobian not in ("tangent", "finite-difference"):
         raise ValueError(f"jacobian must be 'tangent' or 'finite-difference', got {jacobian!r}")
-    seed = as_batch(seed, params.N, "seed")[0]
-    n_half, dt_used = time_grid(omega, dt, steps_per_period)
-    pmap = _PeriodMap(params, omega, formulation, method, n_half, dt_used, jacobian, fd_step, device, seed)
-    unknowns = pmap.from_state(seed)
+    seed = as_batch(seed, params.N, "seed")
+    if seed.shape[0] != 1:
+        raise ValueError(f"seed must be one state of shape (4, {params.N}), got a batch of {seed.shape[0]}")
+    seed = seed[0]
+    flow = make_flow(flow, method=method, steps_per_period=steps_per_period, dt=dt, omega=omega, device=device)
+    settings = NewtonSettings(tol=_check_number("tol", tol), max_iterations=max_iterations)
+    pmap = PeriodMap(params, omega, flow, formulation, jacobian, _check_number("fd_step", fd_step), seed)
     seed_amplitude = float(np.max(np.abs(seed[0] - seed[1])))
 
     def amplitude(unknowns):
         x = pmap.to_state(unknowns)
         return float(np.max(np.abs(x[0] - x[1])))
 
-    outcome = newton(unknowns, lambda y: pmap.residual_and_jacobian(y)[:2], pmap.residual, tol=tol,
-                     max_iterations=max_iterations, amplitude=amplitude,
+    outcome = newton(pmap.from_state(seed), pmap.evaluate, settings, amplitude=amplitude,
                      collapse_below=collapse_ratio * seed_amplitude, log=log)
-    unknowns, history, iterations = outcome.unknowns, outcome.history, outcome.iterations
-    status, message, used_lstsq = outcome.status, outcome.message, outcome.used_lstsq
-    state = pmap.to_state(unknowns)
+    return shooting_result(pmap, outcome, start)
+
+
+def shooting_result(pmap: PeriodMap, outcome: NewtonOutcome, start: float) -> ShootingResult:
+    """Package a Newton outcome on ``pmap`` as a ShootingResult (message with advice on failure)."""
+    params, omega = pmap.params, pmap.omega
+    status, history, iterations = outcome.status, outcome.history, outcome.iterations
+    state = pmap.to_state(outcome.unknowns)
     if status is ShootingStatus.CONVERGED:
         message = (f"converged in {iterations} iterations to residual {history[-1]:.3g} "
-                   f"(omega = {omega:.6g}, {formulation} formulation, {jacobian} Jacobian)")
+                   f"(omega = {omega:.6g}, {pmap.formulation} formulation, {pmap.jacobian} Jacobian)")
     else:
         report = frequency_report(params, omega)
-        message = (f"Newton failed for omega = {omega:.6g} ({report['location']}): {message}. What to do: {status.advice}.")
-    half = simulate(params, state, n_half * dt_used, dt_used, method=method, device=device, max_energy_error=None,
-                    chunks=1) if status is not ShootingStatus.INTEGRATION_ERROR else None
-    contact = float(min(min_contact(state)[0], min_contact(half.x)[0])) if half is not None else float("nan")
+        message = (f"Newton failed for omega = {omega:.6g} ({report['location']}): {outcome.message}. "
+                   f"What to do: {status.advice}.")
+    ev = outcome.evaluation
+    lin = ev.linearization if ev is not None and status is not ShootingStatus.INTEGRATION_ERROR else None
+    stats = dict(outcome.stats, tangent_columns=outcome.stats["jacobians"] * pmap.n_unknowns)
     return ShootingResult(
         state=state, omega=float(omega), period=2 * math.pi / omega, energy=float(energy(params, state)[0]),
         residual=history[-1] if history else float("nan"), residual_history=history, iterations=iterations,
-        status=status, message=message, min_contact=contact, method=method, dt=dt_used,
-        nsteps=pmap.nsteps, formulation=formulation, jacobian=jacobian, used_lstsq=used_lstsq,
-        wall_seconds=time.perf_counter() - start, params=params)
+        status=status, message=message, min_contact=lin.min_contact if lin is not None else float("nan"),
+        method=pmap.flow.method, dt=pmap.dt, nsteps=pmap.nsteps, formulation=pmap.formulation,
+        jacobian=pmap.jacobian, used_lstsq=outcome.used_lstsq, wall_seconds=time.perf_counter() - start,
+        params=params, flow=pmap.flow, stats=stats, _linearization=lin if pmap.jacobian == "tangent" else None)

@@ -18,6 +18,10 @@ def main(argv=None) -> int:
     common.add_argument("--out", default="results", type=Path, help="output root (default: results/)")
     common.add_argument("--device", default=None, help="cpu or cuda (default: cuda when Warp sees a GPU)")
     common.add_argument("--quick", action="store_true", help="reduced variant for smoke tests")
+    common.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="override a scene parameter (repeatable), e.g. --set N=401")
+    common.add_argument("--resume", action="store_true",
+                        help="continue a stored branch (continuation-k, continuation-omega)")
     run = sub.add_parser("run", parents=[common], help="run one scene")
     run.add_argument("name", help="scene name (see 'list')")
     sub.add_parser("paper", parents=[common], help="run every paper scene in order")
@@ -34,9 +38,18 @@ def main(argv=None) -> int:
     names = [args.name] if args.command == "run" else PAPER_SCENES
     if args.command == "run" and args.name not in SCENES:
         parser.error(f"unknown scene {args.name!r}; known scenes: {', '.join(SCENES)}")
+    overrides = {}
+    for item in args.set:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            parser.error(f"--set takes KEY=VALUE, got {item!r}")
+        overrides[key.strip()] = value.strip()
+    if args.command == "paper" and (overrides or args.resume):
+        parser.error("--set and --resume apply to one scene: use 'run NAME'")
+    command_line = " ".join(["python -m scenarios", *(argv if argv is not None else sys.argv[1:])])
     try:
         for name in names:
-            run_scene(name, args.out, args.device, args.quick)
+            run_scene(name, args.out, args.device, args.quick, overrides, args.resume, command_line)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

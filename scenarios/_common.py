@@ -39,12 +39,19 @@ class Context:
         out: the scene's own output folder (OUT/NAME), created.
         device: resolved Warp device (``cpu`` or ``cuda:0``).
         quick: a reduced, fast variant (CI smoke tests).
+        params: the scene's parameter block (its ``Parameters`` dataclass, quick variant and
+            ``--set`` overrides applied), or None for a scene without one.
+        resume: continue a stored result (scenes that support it).
+        command_line: the command as typed.
     """
 
     name: str
     out: Path
     device: str
     quick: bool = False
+    params: object = None
+    resume: bool = False
+    command_line: str = ""
 
     def log(self, message: str, *args) -> None:
         log.info(f"[{self.name}] " + message, *args)
@@ -88,18 +95,75 @@ def pyplot():
     return plt
 
 
-def run_scene(name: str, out_root: Path, device: str | None, quick: bool) -> dict:
+def _convert(value: str, kind, key: str):
+    """A --set value as the field's type (int, float, bool, str, tuples of numbers)."""
+    kind = kind if isinstance(kind, str) else getattr(kind, "__name__", str(kind))
+    kind = kind.replace(" ", "")
+    try:
+        if kind in ("int",):
+            return int(value)
+        if kind in ("float",):
+            return float(value)
+        if kind in ("bool",):
+            if value.lower() in ("1", "true", "yes", "on"):
+                return True
+            if value.lower() in ("0", "false", "no", "off"):
+                return False
+            raise ValueError
+        if kind.startswith("tuple"):
+            return tuple(float(v) for v in value.split(",") if v.strip())
+        if kind in ("float|None", "None|float"):
+            return None if value.lower() == "none" else float(value)
+        if kind in ("int|None", "None|int"):
+            return None if value.lower() == "none" else int(value)
+    except ValueError:
+        raise ValueError(f"--set {key}={value}: expected {kind}") from None
+    return value
+
+
+def scene_parameters(module, quick: bool, overrides: dict | None = None):
+    """The scene's ``Parameters`` (quick variant from its ``QUICK`` dict, then ``--set`` overrides)."""
+    cls = getattr(module, "Parameters", None)
+    overrides = dict(overrides or {})
+    if cls is None:
+        if overrides:
+            raise ValueError(f"this scene has no parameter block; --set {', '.join(overrides)} is not accepted")
+        return None
+    params = cls()
+    if quick:
+        params = dataclasses.replace(params, **getattr(module, "QUICK", {}))
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    changes = {}
+    for key, value in overrides.items():
+        if key not in fields:
+            raise ValueError(f"unknown parameter {key!r} for this scene; known: {', '.join(fields)}")
+        changes[key] = _convert(value, fields[key].type, key) if isinstance(value, str) else value
+    return dataclasses.replace(params, **changes)
+
+
+def run_scene(name: str, out_root: Path, device: str | None, quick: bool, overrides: dict | None = None,
+              resume: bool = False, command_line: str = "") -> dict:
     """Run one scene (compute, store, summary) and then its plots (which read the stored data)."""
     from warpchain import resolve_device
 
     module = load_scene(name)
+    params = scene_parameters(module, quick, overrides)
+    if resume and not getattr(module, "RESUMABLE", False):
+        raise ValueError(f"scene {name!r} cannot be resumed (resumable: continuation-k, continuation-omega)")
     out = Path(out_root) / name
     out.mkdir(parents=True, exist_ok=True)
-    ctx = Context(name=name, out=out, device=resolve_device(device), quick=quick)
+    ctx = Context(name=name, out=out, device=resolve_device(device), quick=quick, params=params, resume=resume,
+                  command_line=command_line)
     start = time.perf_counter()
     ctx.log("start (device %s%s) -> %s", ctx.device, ", quick" if quick else "", out)
+    if params is not None:
+        ctx.log("parameters: %s", ", ".join(f"{k}={v}" for k, v in dataclasses.asdict(params).items()))
     summary = module.run(ctx)
     summary.setdefault("wall_seconds", time.perf_counter() - start)
+    if params is not None:
+        summary.setdefault("parameters", dataclasses.asdict(params))
+    if command_line:
+        summary.setdefault("command_line", command_line)
     write_summary(out, summary)
     module.plot(out)
     ctx.log("done in %.1f s", time.perf_counter() - start)

@@ -56,8 +56,15 @@ def run(ctx: Context) -> dict:
     b = paper_breather(ctx.device, log=ctx.log)
     ctx.log(b.message)
     fl = floquet(b, device=ctx.device)
-    ctx.log("Floquet: max nontrivial |l| = %.8f, pairing error %.2e, tolerance %.2e -> %s (%.1f s)", fl.max_modulus,
-            fl.pairing_error, fl.tolerance, "stable" if fl.stable else "unstable", fl.wall_seconds)
+    ctx.log("Floquet (reduced, 2N = %d): max nontrivial |l| = %.8f, tolerance %.2e in mu (trivial mu off by %.1e, "
+            "symplecticity %.1e) -> %s (%.2f s); instabilities: %s", 2 * params.N, fl.max_modulus, fl.tolerance,
+            fl.accuracy["trivial_deviation"], fl.accuracy["symplecticity"], "stable" if fl.stable else "unstable",
+            fl.wall_seconds, ", ".join(f"{i.kind} |l| = {i.modulus:.8f} ({'localized' if i.localized else 'extended'}, "
+                                        f"participation {i.participation:.1f})" for i in fl.instabilities) or "none")
+    full = floquet(b, device=ctx.device, reduced=False)
+    reduced_vs_full = abs(fl.max_modulus - full.max_modulus)
+    ctx.log("Floquet (full 4N monodromy, cross-check): max |l| = %.10f (differs by %.1e), pairing error %.2e (%.2f s)",
+            full.max_modulus, reduced_vs_full, full.pairing_error, full.wall_seconds)
 
     # cross-check: the general formulation from the same seed
     seed = nls_seed(params, PAPER_OMEGA)
@@ -99,7 +106,8 @@ def run(ctx: Context) -> dict:
                 attrs={"omega": b.omega, "energy": b.energy, "method": b.method, "dt": b.dt})
     write_table(root, "multipliers", {"real": fl.multipliers.real, "imag": fl.multipliers.imag,
                                       "trivial": np.isin(np.arange(len(fl.multipliers)), fl.trivial)},
-                dim="multiplier", attrs={"pairing_error": fl.pairing_error, "tolerance": fl.tolerance})
+                dim="multiplier", attrs={"pairing_error": full.pairing_error, "tolerance": fl.tolerance,
+                                         "path": fl.path})
     write_table(root, "newton", {"residual": np.array(b.residual_history)}, dim="iteration")
     write_fields(root, ctx.out / "data.zarr", "direct", direct.t, {"u": direct.u[:, 0], "v": direct.v[:, 0]},
                  ("t", "site"), chunk_t=64, attrs={"method": direct.method, "dt": direct.dt, "sampled": "once per period"})
@@ -117,8 +125,12 @@ def run(ctx: Context) -> dict:
         "M": params.M, "K": params.K, "N": params.N, "omega": b.omega, "energy": b.energy, "residual": b.residual,
         "newton_iterations": b.iterations, "residual_history": list(b.residual_history),
         "u_center": float(b.state[0, c]), "v_center": float(b.state[1, c]),
-        "max_floquet_modulus": fl.max_modulus, "floquet_pairing_error": fl.pairing_error,
-        "floquet_tolerance": fl.tolerance, "stable": fl.stable, "symplecticity_error": fl.symplecticity_error,
+        "max_floquet_modulus": fl.max_modulus, "floquet_pairing_error": full.pairing_error,
+        "floquet_tolerance": fl.tolerance, "floquet_accuracy": fl.accuracy, "stable": fl.stable,
+        "symplecticity_error": fl.symplecticity_error,
+        "instabilities": [i.as_dict() for i in fl.instabilities],
+        "floquet_full": {"max_modulus": full.max_modulus, "pairing_error": full.pairing_error,
+                         "seconds": full.wall_seconds, "max_modulus_difference_to_reduced": reduced_vs_full},
         "method": b.method, "dt": b.dt, "steps_per_period": 2 * b.nsteps,
         "newton_seconds": b.wall_seconds, "floquet_seconds": fl.wall_seconds,
         "general_formulation": {"iterations": general.iterations, "residual": general.residual,

@@ -155,7 +155,7 @@ def _ratios(batches, results, gpu):
 
 def _monodromy(ctx):
     """Monodromy and Newton-iteration timings on the paper breather."""
-    from continuation.shooting import _PeriodMap, _solve
+    from continuation.shooting import PeriodMap, solve_linear
 
     breather = paper_breather(ctx.device, log=ctx.log)
     params = breather.params
@@ -168,17 +168,17 @@ def _monodromy(ctx):
     wall = min(r.wall_seconds for r in runs)
     ctx.log("monodromy (%d columns, %d steps of %s): kernel %.3g ms, wall %.3g ms", n, period_steps,
             breather.method, 1e3 * kernel, 1e3 * wall)
-    pmap = _PeriodMap(params, breather.omega, "reversible", breather.method, breather.nsteps, breather.dt, "tangent",
-                      None, ctx.device, None)
+    pmap = PeriodMap(params, breather.omega, breather.flow)
     unknowns = pmap.from_state(breather.state)
     iteration = []
     for _ in range(1 if ctx.quick else REPEATS):
         t0 = time.perf_counter()
-        r, J, _ = pmap.residual_and_jacobian(unknowns)
-        step, _ = _solve(J, r)
+        point = pmap.evaluate(unknowns)
+        r, J = point.residual, point.jacobian()
+        step, _ = solve_linear(J, r)
         iteration.append(time.perf_counter() - t0)
     t0 = time.perf_counter()
-    _solve(J, r)
+    solve_linear(J, r)
     solve = time.perf_counter() - t0
     ctx.log("Newton iteration (%d columns, half period): %.3g ms end to end, of which linear solve %.3g ms",
             J.shape[1], 1e3 * min(iteration), 1e3 * solve)

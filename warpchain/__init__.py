@@ -15,6 +15,7 @@ from .ensemble import (
     simulate,
     stability_limit,
 )
+from .flow import Flow, Linearization, ReferenceFlow, Trajectory
 from .integrators import METHODS, Method, get_method
 from .model import (
     BOUNDARIES,
@@ -36,7 +37,7 @@ from .model import (
 __version__ = "0.1.0"
 
 __all__ = [
-    "BOUNDARIES", "ChainParams", "IntegrationError", "METHODS", "Method", "SimulationResult", "StepSizeError",
+    "BOUNDARIES", "ChainParams", "Flow", "IntegrationError", "Linearization", "ReferenceFlow", "Trajectory", "METHODS", "Method", "SimulationResult", "StepSizeError",
     "TangentResult", "accelerations", "available_devices", "band_edges", "contact_force", "contact_stiffness",
     "dispersion", "dispersion_long_wave", "energy", "get_method", "linear_modes", "long_wave_speed",
     "lowest_optical_mode", "min_contact", "propagate_tangent", "resolve_device", "simulate", "stability_limit",

@@ -266,6 +266,12 @@ class _Runner:
         else:
             self.hist = wp.zeros((1, 1, 1), dtype=f64, device=device)
 
+    def load(self, x0: np.ndarray, M, K) -> None:
+        """Copy a new batch (same shape) and its parameters into the existing device buffers."""
+        self.x.assign(np.ascontiguousarray(x0, dtype=np.float64))
+        self.mass.assign(np.ascontiguousarray(M, dtype=np.float64))
+        self.coupling.assign(np.ascontiguousarray(K, dtype=np.float64))
+
     def history_length(self, nsteps: int) -> int:
         s = self.method.stages
         return nsteps * s + 1 if self.method.family == "splitting" else nsteps * s

@@ -1,0 +1,431 @@
+"""One continuation driver with pluggable predictor/corrector.
+
+``continuation(problem, settings, ...)`` walks a branch. The ``problem`` (``continuation.branch``:
+``NaturalParameter`` in K, ``PseudoArclength`` in the frequency) knows the unknowns, the predictor
+and the corrector; the driver owns the loop, the step control, the events, the stop reasons and
+the hook through which a caller records points (``on_point``: continuation itself writes nothing).
+
+**Step control that cannot skip a stability change.**
+
+1. After every accepted point the multipliers' motion over the last step is measured (the mu's of
+   each Krein-signature and parity class matched in sorted order). The next step is limited so that
+   no mu is predicted to move by more than ``settings.multiplier_fraction`` of its distance to the
+   nearest critical place (+1, -1, or the nearest elliptic mu of opposite signature that it can
+   interact with), with a floor of ``settings.multiplier_floor`` in mu so that near-collisions do
+   not stall the branch.
+2. A step across which the verdict (stable/unstable) or the kinds of unstable multipliers change is
+   bisected (``settings.bisect_counts`` adds steps where only the number of one kind changed, which
+   inside the acoustic band happens at nearly every step): the point in the middle of the step is solved and analysed, and both halves are examined
+   again, until the bracket is below ``settings.resolution`` (in the continuation coordinate). Every
+   trial point is a solved, analysed branch point and is kept.
+3. A step across which elliptic multipliers of opposite Krein signature passed each other (the Krein
+   order of ``events`` changed) with no instability at either end is where a bubble could hide. When
+   a localized mode (participation below ``floquet.LOCALIZED_FRACTION`` N: an internal mode of the
+   breather) took part, the step is bisected like a stability change (``settings.bisect_krein =
+   "localized"``, the default); passes among extended phonon multipliers only are recorded as
+   ``krein_crossing`` events. Those cannot all be bisected: the finite chain's phonon multipliers
+   crowd near +-1 at the band edges, where they pass each other every step (measured on the paper
+   chain: 35 passes in the first 7e-4 of the frequency branch), and the bubbles they can make
+   shrink with the chain length (finite-size resonances). ``"all"`` bisects them too. The stated
+   limit: a bubble narrower than the local step between two phonon multipliers can go unseen;
+   ``benchmarks/branch_check.py`` compares a branch with a dense fixed-step scan.
+4. Branches stop on physics by default (end parameter, contact lost) or on a stated number of
+   points; a time budget is opt-in (``settings.max_seconds``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from typing import Callable
+
+import numpy as np
+
+from warpchain import ChainParams, energy
+
+from . import events as ev
+from .events import StopReason
+from .floquet import FloquetResult, Instability, reduced_floquet
+from .shooting import frequency_report
+
+
+@dataclasses.dataclass(frozen=True)
+class ContinuationSettings:
+    """Everything a branch's walk is controlled by (the problem holds what is solved).
+
+    Attributes:
+        ds, ds_min, ds_max: initial, smallest and largest step in the continuation coordinate.
+        grow: step growth after an easy Newton solve (<= 3 iterations).
+        max_points: stop after this many points (None: no limit).
+        newton_tol, max_newton: corrector tolerance and iterations.
+        multiplier_fraction, multiplier_floor: the spectral step bound (module docstring).
+        resolution: smallest bracket of a located change, in the continuation coordinate.
+        bisect_krein: which passes of elliptic multipliers of opposite Krein signature (with no
+            instability at either end) are bisected: ``"localized"`` (default: those where a localized
+            mode took part), ``"all"`` (thorough, costly next to the phonon clusters at the band
+            edges) or ``"none"``. The others are recorded as ``krein_crossing`` events.
+        bisect_counts: also bisect steps across which only the number of unstable multipliers of
+            a kind changed (inside an unstable stretch; recorded as ``instability_count`` events).
+        floquet: compute multipliers at every point (False: energies only, no stability).
+        max_seconds: opt-in time budget (None: stop only on physics or max_points).
+    """
+
+    ds: float = 0.05
+    ds_min: float = 1e-4
+    ds_max: float = 0.5
+    grow: float = 1.5
+    max_points: int | None = None
+    newton_tol: float = 1e-10
+    max_newton: int = 8
+    multiplier_fraction: float = 0.5
+    multiplier_floor: float = 0.05
+    resolution: float = 1e-3
+    bisect_krein: str = "localized"
+    bisect_counts: bool = False
+    floquet: bool = True
+    max_seconds: float | None = None
+
+    def __post_init__(self):
+        for name in ("ds", "ds_min", "ds_max", "grow", "newton_tol", "multiplier_fraction", "multiplier_floor",
+                     "resolution"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
+                    or not math.isfinite(value) or value <= 0:
+                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+        if not self.ds_min <= self.ds <= self.ds_max:
+            raise ValueError(f"need ds_min <= ds <= ds_max, got {self.ds_min}, {self.ds}, {self.ds_max}")
+        if self.grow < 1:
+            raise ValueError(f"grow must be >= 1, got {self.grow}")
+        for name in ("max_points", "max_newton"):
+            value = getattr(self, name)
+            if value is None and name == "max_points":
+                continue
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        if self.max_seconds is not None and not (self.max_seconds >= 0):
+            raise ValueError(f"max_seconds must be >= 0 or None, got {self.max_seconds!r}")
+
+    def replace(self, **changes) -> "ContinuationSettings":
+        return dataclasses.replace(self, **changes)
+
+
+@dataclasses.dataclass(frozen=True)
+class BranchPoint:
+    """One solution on a branch, with its multipliers (all that is needed to restart from it).
+
+    Attributes:
+        K, omega: the chain's coupling and the breather's frequency.
+        state: the orbit's start (4, N) (at rest).
+        energy, min_contact: Hamiltonian; min over the orbit of 1 + u - v.
+        iterations, residual_history: the corrector's Newton iterations and residual norms.
+        multipliers: all 4N Floquet multipliers; mu: (l + 1/l)/2 of each pair (2N), or NaN
+            without Floquet; signature, parity: per mu (events module).
+        max_modulus, tolerance, stable, instabilities: the Floquet verdict (``floquet`` module).
+        harmonics_in_bands: harmonics n of omega inside a phonon band.
+        s: the continuation coordinate (log10 K or arclength).
+    """
+
+    K: float
+    omega: float
+    state: np.ndarray
+    energy: float
+    iterations: int
+    residual_history: tuple
+    multipliers: np.ndarray
+    mu: np.ndarray | None
+    signature: np.ndarray | None
+    parity: np.ndarray | None
+    participation: np.ndarray | None
+    max_modulus: float
+    tolerance: float
+    stable: bool
+    instabilities: tuple
+    min_contact: float
+    harmonics_in_bands: tuple
+    s: float = float("nan")
+
+    @property
+    def pairing_error(self) -> float:  # the reduced path's spectrum is paired by construction
+        return 0.0
+
+    def summary(self) -> dict:
+        lead = self.instabilities[0] if self.instabilities else None
+        return {"K": self.K, "omega": self.omega, "energy": self.energy, "max_floquet_modulus": self.max_modulus,
+                "stable": self.stable, "kinds": sorted({i.kind for i in self.instabilities}),
+                "leading_localized": None if lead is None else lead.localized,
+                "min_contact": self.min_contact, "newton_iterations": self.iterations}
+
+
+@dataclasses.dataclass(frozen=True)
+class Solution:
+    """What a corrector returns: the converged orbit and the linearization it ended on."""
+
+    params: ChainParams
+    omega: float
+    state: np.ndarray
+    iterations: int
+    residual_history: tuple
+    linearization: object
+    s: float
+
+
+@dataclasses.dataclass(frozen=True)
+class Failure:
+    """A corrector that did not converge, and why."""
+
+    message: str
+
+
+@dataclasses.dataclass(frozen=True)
+class Branch:
+    """A computed branch: its points, events and why it stopped.
+
+    Attributes:
+        points: the branch points in order (tuple of BranchPoint).
+        stop_reason: a StopReason; message: what happened, with the parameter where it happened.
+        events: dicts (``type``: stability_change, krein_crossing, contact_lost, harmonic_in_band, ...).
+        parameter: ``"K"`` or ``"omega"``.
+        stats: counters (points, solves, failed solves, bisection solves, wall_seconds, per point).
+    """
+
+    points: tuple
+    stop_reason: StopReason
+    message: str
+    events: tuple
+    parameter: str
+    stats: dict
+
+    @property
+    def wall_seconds(self) -> float:
+        return self.stats.get("wall_seconds", float("nan"))
+
+    def column(self, name: str) -> np.ndarray:
+        return np.array([getattr(p, name) for p in self.points])
+
+    def unstable_intervals(self) -> list:
+        return ev.unstable_intervals(list(self.points), self.parameter)
+
+    def stability_changes(self) -> list:
+        return [{"bracket": e["bracket"], "from_stable": e["from_stable"], "kinds": e["kinds"],
+                 "localized": e["localized"]}
+                for e in self.events if e["type"] == "stability_change" and e["from_stable"] != e["to_stable"]]
+
+
+def analyse(solution: Solution, with_floquet: bool = True) -> BranchPoint:
+    """Energy, multipliers (reduced Floquet on the solution's own linearization), harmonics."""
+    params, lin = solution.params, solution.linearization
+    if with_floquet:
+        A = np.hstack([lin.unit_columns("positions"), lin.unit_columns("velocities")])
+        fl: FloquetResult = reduced_floquet(A, params.M, solution.state)
+        fields = dict(multipliers=fl.multipliers, mu=fl.mu, signature=fl.signature, parity=fl.parity,
+                      participation=fl.participation,
+                      max_modulus=fl.max_modulus, tolerance=fl.tolerance, stable=fl.stable,
+                      instabilities=fl.instabilities)
+    else:
+        n = 2 * params.N
+        fields = dict(multipliers=np.full(2 * n, np.nan + 0j), mu=None, signature=None, parity=None, participation=None,
+                      max_modulus=float("nan"), tolerance=float("nan"), stable=False, instabilities=())
+    return BranchPoint(K=float(params.K), omega=float(solution.omega), state=np.array(solution.state),
+                       energy=float(energy(params, solution.state)[0]), iterations=int(solution.iterations),
+                       residual_history=tuple(solution.residual_history), min_contact=float(lin.min_contact),
+                       harmonics_in_bands=tuple(frequency_report(params, solution.omega)["harmonics_in_bands"]),
+                       s=float(solution.s), **fields)
+
+
+# ----------------------------------------------------------------------------- spectral step bound
+
+
+def _classes(point):
+    """Elliptic nontrivial mu grouped by (signature, parity), each sorted."""
+    mu, sig = np.real(point.mu), point.signature
+    par = point.parity if point.parity is not None else np.zeros(len(mu), int)
+    out = {}
+    for key in {(int(s), int(p)) for s, p in zip(sig, par) if s != 0}:
+        sel = (sig == key[0]) & (par == key[1])
+        out[key] = np.sort(mu[sel])
+    return out
+
+
+def spectral_step_factor(prev: BranchPoint, point: BranchPoint, fraction: float, floor: float) -> float:
+    """How much longer (or shorter) than the last step the next one may be so that no elliptic mu
+    moves by more than ``fraction`` of its distance to +-1 or to the nearest interacting mu of
+    opposite signature (at least ``floor``); inf when the motion cannot be measured."""
+    if prev.mu is None or point.mu is None:
+        return math.inf
+    a, b = _classes(prev), _classes(point)
+    factor = math.inf
+    for key, mu_b in b.items():
+        mu_a = a.get(key)
+        if mu_a is None or len(mu_a) != len(mu_b):
+            continue
+        moved = np.abs(mu_b - mu_a)
+        dist = np.minimum(1.0 - mu_b, mu_b + 1.0)
+        for other, mu_o in b.items():  # opposite signature, same or unknown parity
+            if other[0] != key[0] and (other[1] == key[1] or 0 in (other[1], key[1])) and len(mu_o):
+                idx = np.clip(np.searchsorted(mu_o, mu_b), 1, len(mu_o)) - 1
+                near = np.minimum(np.abs(mu_o[idx] - mu_b), np.abs(mu_o[np.minimum(idx + 1, len(mu_o) - 1)] - mu_b))
+                dist = np.minimum(dist, near)
+        allowed = np.maximum(fraction * dist, floor)
+        with np.errstate(divide="ignore"):
+            ratio = np.where(moved > 0, allowed / moved, np.inf)
+        factor = min(factor, float(np.min(ratio)) if ratio.size else math.inf)
+    return factor
+
+
+# ----------------------------------------------------------------------------- the driver
+
+
+def continuation(problem, settings: ContinuationSettings = ContinuationSettings(), *,
+                 resume: list | None = None, on_point: Callable[[BranchPoint], None] | None = None,
+                 on_event: Callable[[dict], None] | None = None, log: Callable[[str], None] | None = None,
+                 progress: bool = False) -> Branch:
+    """Walk a branch of ``problem`` (``NaturalParameter`` or ``PseudoArclength``).
+
+    Args:
+        problem: predictor/corrector and the branch's end (``continuation.branch``).
+        settings: ContinuationSettings.
+        resume: points of a stored branch to continue from (the last two set the predictor).
+        on_point: called with every accepted point, in order (e.g. a store's ``append``).
+        on_event: called with every event as it is found.
+        log: one line per point and per event.
+        progress: a tqdm bar over the problem's progress measure.
+
+    Returns:
+        Branch (its ``stop_reason`` says why it stopped; see StopReason.explanation).
+    """
+    start = time.perf_counter()
+    stats = {"solves": 0, "failed_solves": 0, "bisection_solves": 0, "rejected_backwards": 0}
+    events: list = []
+    par = problem.parameter
+
+    def note(event):
+        if event is None:
+            return
+        events.append(event)
+        if on_event:
+            on_event(event)
+        if log and event.get("message"):
+            log(event["message"])
+
+    def accept(point):
+        points.append(point)
+        if on_point:
+            on_point(point)
+
+    def solve(fn, *args):
+        stats["solves"] += 1
+        out = fn(*args)
+        if isinstance(out, Failure):
+            stats["failed_solves"] += 1
+            return out
+        return analyse(out, settings.floquet)
+
+    points: list = []
+    problem.prepare(settings)
+    if resume:
+        if len(resume) < 2 and problem.parameter == "omega":
+            raise ValueError("resuming a frequency branch needs at least two stored points (they set the tangent)")
+        points.extend(resume)
+    else:
+        for sol in problem.start():
+            if isinstance(sol, Failure):
+                return Branch((), StopReason.NEWTON_FAILED, f"{StopReason.NEWTON_FAILED.explanation}: {sol.message}",
+                              tuple(events), par, dict(stats, wall_seconds=time.perf_counter() - start))
+            stats["solves"] += 1
+            accept(analyse(sol, settings.floquet))
+
+    def refine(a, b, h, depth=0):
+        """Points strictly after a up to b, bisecting while a change sits in a bracket > resolution."""
+        what = ev.changed(a, b) if settings.floquet else None
+        if what is None:
+            return [b]
+        if what == "count" and not settings.bisect_counts:
+            note(ev.stability_change_event(a, b, par))
+            return [b]
+        if what == "krein" and not (settings.bisect_krein == "all" or (
+                settings.bisect_krein == "localized" and ev.localized_krein_crossings(a, b))):
+            note(ev.krein_event(a, b, par, bisected=False))
+            return [b]
+        if h <= settings.resolution or depth > 40:
+            note(ev.krein_event(a, b, par) if what == "krein" else ev.stability_change_event(a, b, par))
+            return [b]
+        stats["bisection_solves"] += 1
+        m = solve(problem.between, a, b)
+        if isinstance(m, Failure) or not problem.is_between(a, m, b):
+            e = ev.krein_event(a, b, par) if what == "krein" else ev.stability_change_event(a, b, par)
+            e["message"] += " (not bisected further: the midpoint " + (
+                "did not converge)" if isinstance(m, Failure) else "fell outside the bracket)")
+            note(e)
+            return [b]
+        return refine(a, m, 0.5 * h, depth + 1) + refine(m, b, 0.5 * h, depth + 1)
+
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=1.0, desc=problem.description, leave=False, dynamic_ncols=True,
+                   bar_format="{desc}: {percentage:3.0f}%|{bar}| [{elapsed}] {postfix}")
+    h = settings.ds
+    reason, message = StopReason.END_REACHED, ""
+    try:
+        while True:
+            last = points[-1]
+            if log:
+                log(problem.describe(last) + f", {'stable' if last.stable else 'unstable'}, "
+                    f"newton {last.iterations}, step {h:.3g}")
+            if bar is not None:
+                bar.n = min(max(problem.progress(points[0], last), 0.0), 1.0)
+                bar.set_postfix_str(f"{par} = {getattr(last, par):.6g}, {len(points)} points", refresh=True)
+            if last.min_contact <= 0:
+                reason = StopReason.CONTACT_LOST
+                if len(points) > 1:
+                    e = ev.contact_event(points[-2], last, par)
+                    note(e)
+                    message = e["message"]
+                break
+            done, why = problem.finished(last)
+            if done:
+                reason, message = StopReason.END_REACHED, why
+                break
+            if settings.max_points is not None and len(points) >= settings.max_points:
+                reason = StopReason.MAX_POINTS
+                message = f"{len(points)} points, at {par} = {getattr(last, par):.8g}"
+                break
+            if settings.max_seconds is not None and time.perf_counter() - start > settings.max_seconds:
+                reason = StopReason.TIME_BUDGET
+                message = f"after {settings.max_seconds:g} s at {par} = {getattr(last, par):.8g}"
+                break
+            h_try = problem.clip_step(last, h)
+            new = solve(problem.step, points, h_try)
+            if isinstance(new, Failure) or not problem.is_forward(points, new):
+                if not isinstance(new, Failure):
+                    stats["rejected_backwards"] += 1
+                h *= 0.5
+                why = new.message if isinstance(new, Failure) else "the corrector turned back along the branch"
+                if log:
+                    log(f"step failed ({why}); step halved to {h:.3g}")
+                if h < settings.ds_min:
+                    reason = StopReason.STEP_UNDERFLOW
+                    message = f"{why} near {par} = {getattr(last, par):.8g}"
+                    break
+                continue
+            for p in refine(last, new, h_try):
+                note(ev.harmonic_event(points[-1], p, par))
+                accept(p)
+            # next step: grow after an easy solve, bounded by the multipliers' motion and ds_max
+            h_next = h_try * (settings.grow if new.iterations <= 3 else 1.0)
+            if settings.floquet:
+                h_next = min(h_next, h_try * spectral_step_factor(last, new, settings.multiplier_fraction,
+                                                                    settings.multiplier_floor))
+            h = float(min(max(h_next, settings.ds_min), settings.ds_max))
+    except KeyboardInterrupt:
+        if bar is not None:
+            bar.close()
+        raise
+    if bar is not None:
+        bar.close()
+    wall = time.perf_counter() - start
+    stats.update(points=len(points), wall_seconds=wall, seconds_per_point=wall / max(len(points), 1))
+    text = reason.explanation + (f": {message}" if message else "")
+    return Branch(tuple(points), reason, text, tuple(events), par, stats)

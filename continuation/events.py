@@ -1,0 +1,207 @@
+"""Events along a branch: why it stopped, where stability changed, where multipliers crossed.
+
+Detectors compare two consecutive points of a branch; the driver (``continuation.driver``) bisects
+any step across which one fires, with the multipliers recomputed at every trial point, until the
+bracket is below the settings' resolution.
+
+* **Stability signature**: the number of unstable multipliers of each kind (real pair through +1,
+  pair through -1, Krein quadruplet). A change between two points is a stability change.
+* **Krein order**: the sequence of Krein signatures of the elliptic multipliers (mu in (-1, 1)),
+  sorted by mu, within each parity class. Two elliptic multipliers of opposite signature (and equal
+  or unknown parity) that pass each other change this sequence; only such pairs can collide and
+  leave the unit circle (Krein's theorem), so a step across which the sequence changes may hide an
+  instability bubble and is bisected like a stability change. Same-signature crossings cannot.
+* **Contact**: min over the orbit of 1 + u - v <= 0 stops a branch.
+* **Harmonics**: n w_b entering a phonon band (flagged; resonances of the breather with phonons).
+"""
+
+from __future__ import annotations
+
+import enum
+
+import numpy as np
+
+from .floquet import KINDS
+
+
+class StopReason(enum.Enum):
+    """Why a branch stopped; ``.explanation`` says what it means and what to do."""
+
+    END_REACHED = "end_reached"
+    CONTACT_LOST = "contact_lost"
+    NEWTON_FAILED = "newton_failed"
+    STEP_UNDERFLOW = "step_underflow"
+    MAX_POINTS = "max_points"
+    TIME_BUDGET = "time_budget"
+
+    @property
+    def explanation(self) -> str:
+        return {
+            "end_reached": "the branch reached its end parameter",
+            "contact_lost": "a resonator lost contact (min over the orbit of 1 + u - v <= 0): the model's smooth "
+                            "branch ends here",
+            "newton_failed": "Newton failed at the first point: check the seed and that the frequency lies in a gap",
+            "step_underflow": "Newton kept failing and the step fell below its minimum: lower ds_min, raise "
+                              "max_newton, or look for a fold or a bifurcation near the last point",
+            "max_points": "the requested number of points was reached: raise max_points or resume the branch",
+            "time_budget": "the opt-in time budget was spent: resume the branch from its store to go on",
+        }[self.value]
+
+    @property
+    def physical(self) -> bool:
+        """Whether the branch ended on physics (end parameter or contact loss)."""
+        return self in (StopReason.END_REACHED, StopReason.CONTACT_LOST)
+
+
+def stability_signature(point) -> tuple:
+    """(real pairs, period doublings, quadruplets) unstable at a point."""
+    counts = {k: 0 for k in KINDS}
+    for inst in point.instabilities:
+        counts[inst.kind] += 1
+    return tuple(counts[k] for k in KINDS)
+
+
+def krein_order(point) -> dict | None:
+    """Signatures of the elliptic, nontrivial mu sorted by mu, per parity class (None without mu)."""
+    if point.mu is None or point.signature is None:
+        return None
+    mu = np.real(point.mu)
+    keep = point.signature != 0
+    out = {}
+    parity = point.parity if point.parity is not None else np.zeros(len(mu), int)
+    if np.any(parity[keep] == 0):
+        parity = np.zeros(len(mu), int)  # parity not resolved for every mode: one class
+    for cls in np.unique(parity[keep]):
+        sel = keep & (parity == cls)
+        order = np.argsort(mu[sel])
+        out[int(cls)] = point.signature[sel][order]
+    return out
+
+
+def krein_crossings(a, b) -> int:
+    """How many opposite-signature passes the Krein order shows between a and b (0 when equal;
+    -1 when the orders cannot be compared, e.g. the number of elliptic multipliers changed)."""
+    oa, ob = krein_order(a), krein_order(b)
+    if oa is None or ob is None:
+        return 0
+    if set(oa) != set(ob) or any(len(oa[k]) != len(ob[k]) for k in oa):
+        return -1
+    total = 0
+    for k in oa:
+        # count inversions via the positions of the +1 signatures: each opposite pass moves one
+        pa, pb = np.flatnonzero(oa[k] > 0), np.flatnonzero(ob[k] > 0)
+        if len(pa) != len(pb):
+            return -1
+        total += int(np.sum(np.abs(pa - pb)))
+    return total
+
+
+def localized_krein_crossings(a, b) -> int:
+    """How many times a localized elliptic mode (participation < LOCALIZED_FRACTION N) passed an
+    elliptic multiplier of opposite signature (same or unknown parity) between a and b."""
+    from .floquet import LOCALIZED_FRACTION
+
+    if a.mu is None or b.mu is None or a.participation is None or b.participation is None:
+        return 0
+    total = 0
+    ca, cb = _elliptic_table(a), _elliptic_table(b)
+    N = len(a.mu) // 2
+    for sig in (1, -1):
+        for par in set(ca["parity"]) | set(cb["parity"]):
+            la = np.sort(ca["mu"][(ca["sig"] == sig) & (ca["parity"] == par) & (ca["pr"] < LOCALIZED_FRACTION * N)])
+            lb = np.sort(cb["mu"][(cb["sig"] == sig) & (cb["parity"] == par) & (cb["pr"] < LOCALIZED_FRACTION * N)])
+            if len(la) != len(lb) or not len(la):
+                continue
+            oa = np.sort(ca["mu"][(ca["sig"] == -sig) & ((ca["parity"] == par) | (ca["parity"] == 0) | (par == 0))])
+            ob = np.sort(cb["mu"][(cb["sig"] == -sig) & ((cb["parity"] == par) | (cb["parity"] == 0) | (par == 0))])
+            total += int(np.sum(np.abs(np.searchsorted(oa, la) - np.searchsorted(ob, lb))))
+    return total
+
+
+def _elliptic_table(point) -> dict:
+    keep = point.signature != 0
+    parity = point.parity if point.parity is not None else np.zeros(len(point.mu), int)
+    return {"mu": np.real(point.mu)[keep], "sig": point.signature[keep], "parity": parity[keep],
+            "pr": point.participation[keep]}
+
+
+def kinds_present(point) -> tuple:
+    return tuple(k for k, n in zip(KINDS, stability_signature(point)) if n)
+
+
+def changed(a, b) -> str | None:
+    """What changed between two consecutive points: ``"stability"`` (the verdict or the kinds of
+    unstable multipliers), ``"count"`` (only how many of a kind), ``"krein"`` or None."""
+    if a.stable != b.stable or kinds_present(a) != kinds_present(b):
+        return "stability"
+    if stability_signature(a) != stability_signature(b):
+        return "count"
+    if krein_crossings(a, b) != 0:
+        return "krein"
+    return None
+
+
+def stability_change_event(a, b, parameter: str) -> dict:
+    pa, pb = getattr(a, parameter), getattr(b, parameter)
+    unstable = b if not b.stable else a
+    lead = unstable.instabilities[0] if unstable.instabilities else None
+    return {"type": "stability_change" if (a.stable != b.stable or kinds_present(a) != kinds_present(b))
+            else "instability_count", "parameter": parameter, "bracket": [pa, pb], "from_stable": bool(a.stable),
+            "to_stable": bool(b.stable), "from": list(stability_signature(a)), "to": list(stability_signature(b)),
+            "kinds": sorted({i.kind for i in unstable.instabilities}),
+            "localized": None if lead is None else bool(lead.localized),
+            "message": f"stability {'lost' if a.stable and not b.stable else 'regained' if b.stable and not a.stable else 'changed'}"
+                       f" between {parameter} = {pa:.8g} and {pb:.8g}"}
+
+
+def krein_event(a, b, parameter: str, bisected: bool = True) -> dict:
+    pa, pb = getattr(a, parameter), getattr(b, parameter)
+    return {"type": "krein_crossing", "parameter": parameter, "bracket": [pa, pb], "bisected": bisected,
+            "crossings": krein_crossings(a, b),
+            "message": None if not bisected else
+            f"elliptic multipliers of opposite Krein signature passed each other between {parameter} = "
+            f"{pa:.8g} and {pb:.8g} with no instability seen at this resolution"}
+
+
+def contact_event(prev, point, parameter: str) -> dict:
+    a, b = getattr(prev, parameter), getattr(point, parameter)
+    ca, cb = prev.min_contact, point.min_contact
+    at = a + (b - a) * ca / (ca - cb) if ca != cb else b
+    return {"type": "contact_lost", "parameter": parameter, "bracket": [a, b], "estimate": at,
+            "message": f"contact lost between {parameter} = {a:.6g} and {b:.6g} (interpolated {at:.6g})"}
+
+
+def harmonic_event(prev, point, parameter: str) -> dict | None:
+    new = sorted(set(point.harmonics_in_bands) - set(prev.harmonics_in_bands))
+    if not new:
+        return None
+    at = getattr(point, parameter)
+    return {"type": "harmonic_in_band", "harmonics": new, "at": at,
+            "message": f"harmonic(s) {new} of w_b = {point.omega:.6g} entered a phonon band at {parameter} = {at:.6g}"}
+
+
+def unstable_intervals(points, parameter: str) -> list:
+    """Maximal runs of unstable points as ``{start, end, kinds, localized, max_modulus}``; an
+    interval's ends are the midpoints of the brackets where stability changed (or the branch's end)."""
+    out, run = [], []
+
+    def close(run, after):
+        first, last = run[0], run[-1]
+        i0 = points.index(first)
+        start = getattr(first, parameter) if i0 == 0 else 0.5 * (getattr(points[i0 - 1], parameter) + getattr(first, parameter))
+        end = getattr(last, parameter) if after is None else 0.5 * (getattr(last, parameter) + getattr(after, parameter))
+        worst = max(run, key=lambda p: p.max_modulus)
+        lead = worst.instabilities[0] if worst.instabilities else None
+        out.append({"start": start, "end": end, "kinds": sorted({i.kind for p in run for i in p.instabilities}),
+                    "localized": None if lead is None else bool(lead.localized),
+                    "max_modulus": float(worst.max_modulus), "points": len(run)})
+
+    for i, p in enumerate(points):
+        if not p.stable:
+            run.append(p)
+        elif run:
+            close(run, p)
+            run = []
+    if run:
+        close(run, None)
+    return out

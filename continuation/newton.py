@@ -1,0 +1,175 @@
+"""Damped Newton on any problem that can be evaluated at a point.
+
+A problem is a callable ``evaluate(y) -> Evaluation``; an ``Evaluation`` has ``residual`` (an
+array) and ``jacobian()`` (computed on first request, then cached). Newton evaluates each trial
+point once: when the damped step is accepted, the trial's own evaluation becomes the next iterate,
+so its Jacobian replays the trajectory already integrated for its residual (``Flow.linearize``)
+and nothing is integrated twice. The last evaluation is returned, so that Floquet can reuse the
+columns of its Jacobian.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import math
+import warnings
+from typing import Callable, Protocol
+
+import numpy as np
+import scipy.linalg
+
+from warpchain import IntegrationError
+
+
+class ShootingStatus(enum.Enum):
+    """Outcome of a Newton solve; ``.advice`` says what to do about it."""
+
+    CONVERGED = "converged"
+    MAX_ITERATIONS = "max_iterations"
+    STAGNATED = "stagnated"
+    TRIVIAL = "trivial"
+    INTEGRATION_ERROR = "integration_error"
+
+    @property
+    def advice(self) -> str:
+        return {
+            "converged": "",
+            "max_iterations": "Newton did not reach the tolerance: start closer (continuation with a smaller step), "
+                              "or check that the frequency lies in a gap (see frequency_report)",
+            "stagnated": "the damped Newton step could not reduce the residual: the seed is too far from a solution "
+                         "or none exists at this frequency (e.g. inside a phonon band); use continuation",
+            "trivial": "the iterate collapsed onto the rest state, which is not a breather: raise the seed amplitude or "
+                       "move the frequency further into the gap",
+            "integration_error": "the orbit blew up: reduce dt (steps_per_period) or the seed amplitude",
+        }[self.value]
+
+
+class Evaluation(Protocol):
+    residual: np.ndarray
+
+    def jacobian(self) -> np.ndarray: ...
+
+
+@dataclasses.dataclass(frozen=True)
+class NewtonSettings:
+    """Newton's options.
+
+    Attributes:
+        tol: stop when ||r||_2 <= tol.
+        max_iterations: at most this many Newton steps (>= 0).
+        max_halvings: damping: the step is halved at most this many times while the residual grows.
+    """
+
+    tol: float = 1e-10
+    max_iterations: int = 30
+    max_halvings: int = 8
+
+    def __post_init__(self):
+        if not (isinstance(self.tol, (int, float, np.floating)) and math.isfinite(self.tol) and self.tol > 0):
+            raise ValueError(f"tol must be a finite number > 0, got {self.tol!r}")
+        for name in ("max_iterations", "max_halvings"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
+                raise ValueError(f"{name} must be an integer >= 0, got {value!r}")
+
+
+@dataclasses.dataclass(frozen=True)
+class NewtonOutcome:
+    """What ``newton`` returns: the last iterate and its evaluation, residual norms, and why it stopped.
+
+    Attributes:
+        stats: ``evaluations`` (trial points included) and ``jacobians`` formed.
+    """
+
+    unknowns: np.ndarray
+    evaluation: object
+    history: tuple
+    iterations: int
+    status: ShootingStatus
+    message: str
+    used_lstsq: int
+    stats: dict
+
+    @property
+    def success(self) -> bool:
+        return self.status is ShootingStatus.CONVERGED
+
+
+def solve_linear(J, r):
+    """LU solve with a least-squares fallback for singular or ill-conditioned J; (step, used_lstsq)."""
+    if J.shape[0] == J.shape[1]:
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("error", scipy.linalg.LinAlgWarning)
+                return scipy.linalg.solve(J, r, check_finite=False), False
+        except (scipy.linalg.LinAlgError, scipy.linalg.LinAlgWarning, ValueError):
+            pass
+    return scipy.linalg.lstsq(J, r, check_finite=False)[0], True
+
+
+def newton(unknowns, evaluate: Callable[[np.ndarray], Evaluation], settings: NewtonSettings = NewtonSettings(), *,
+           amplitude: Callable[[np.ndarray], float] | None = None, collapse_below: float = 0.0,
+           log=None) -> NewtonOutcome:
+    """Damped Newton: LU solve (least squares when singular, ill-conditioned or not square), step
+    halved while the residual grows.
+
+    Args:
+        unknowns: initial iterate.
+        evaluate: y -> Evaluation (residual now, Jacobian on request).
+        settings: NewtonSettings.
+        amplitude, collapse_below: an iterate with amplitude(y) < collapse_below (or 0) is reported
+            as ``TRIVIAL`` (Newton fell onto the rest state).
+        log: optional callable receiving one line per iteration.
+    """
+    history, used_lstsq, iterations, message = [], 0, 0, ""
+    stats = {"evaluations": 0, "jacobians": 0}
+    status, ev = None, None
+    try:
+        ev = evaluate(unknowns)
+        stats["evaluations"] += 1
+        norm = float(np.linalg.norm(ev.residual))
+        history.append(norm)
+        while True:
+            if not math.isfinite(norm):
+                status, message = ShootingStatus.INTEGRATION_ERROR, "the residual is not finite"
+                break
+            if amplitude is not None:
+                amp = amplitude(unknowns)
+                if amp < collapse_below or amp == 0.0:
+                    status = ShootingStatus.TRIVIAL
+                    message = f"amplitude collapsed to {amp:.3g}: the rest state is not a breather"
+                    break
+            if norm <= settings.tol:
+                status = ShootingStatus.CONVERGED
+                break
+            if iterations >= settings.max_iterations:
+                status = ShootingStatus.MAX_ITERATIONS
+                message = f"residual {norm:.3g} > tol {settings.tol:g} after {iterations} iterations"
+                break
+            J = ev.jacobian()
+            stats["jacobians"] += 1
+            step, lstsq_used = solve_linear(J, ev.residual)
+            used_lstsq += int(lstsq_used)
+            lam, trial, trial_ev, trial_norm = 1.0, None, None, math.inf
+            for _ in range(settings.max_halvings + 1):
+                trial = unknowns - lam * step
+                trial_ev = evaluate(trial)
+                stats["evaluations"] += 1
+                trial_norm = float(np.linalg.norm(trial_ev.residual))
+                if math.isfinite(trial_norm) and trial_norm < norm:
+                    break
+                lam *= 0.5
+            iterations += 1
+            if not (math.isfinite(trial_norm) and trial_norm < norm):
+                status = ShootingStatus.STAGNATED
+                message = f"no damped step (down to 1/{2 ** settings.max_halvings}) reduced the residual {norm:.3g}"
+                break
+            unknowns, ev, norm = trial, trial_ev, trial_norm
+            history.append(norm)
+            if log is not None:
+                log(f"newton {iterations}: residual {norm:.3e} (damping {lam:g}{', lstsq' if lstsq_used else ''})")
+    except IntegrationError as exc:
+        status, message = ShootingStatus.INTEGRATION_ERROR, str(exc)
+    return NewtonOutcome(unknowns=unknowns, evaluation=ev, history=tuple(history), iterations=iterations,
+                         status=status, message=message, used_lstsq=used_lstsq, stats=stats)

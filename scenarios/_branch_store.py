@@ -1,0 +1,248 @@
+"""A branch in a zarr v3 group, written point by point through the driver's ``on_point`` hook.
+
+Layout (group ``branch`` of ``data.zarr``): one chunk per point along ``point``; scalars per point
+(K, omega, energy, max_modulus, tolerance, min_contact, iterations, s, stable), the state
+(point, component, site), the reduced multipliers mu (point, pair) with their Krein signature,
+parity and participation, the Newton residuals (point, newton_iteration), and the instabilities
+(point, instability; at most ``MAX_INSTABILITIES`` per point, largest first). Float arrays have a NaN
+fill value and integer arrays a -128 fill value, so a missing chunk can never read as a valid point.
+The group's attributes hold ``n_points`` (updated after every whole point), ``complete``,
+``stop_reason``, ``message`` and ``events``.
+
+``load_branch`` validates what it reads (every array has ``n_points`` rows; states, parameters and
+multipliers finite; frequencies and couplings positive; flags in range) and raises ``StoreError``
+naming the store, the array and the point; a damaged point is never returned, so it is never resumed
+from.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from continuation.driver import Branch, BranchPoint
+from continuation.floquet import KINDS, Instability, multipliers_from_mu, outer_modulus
+from continuation.shooting import frequency_report
+from warpchain import ChainParams
+from warpchain.store import consolidate, jsonable, open_store, provenance
+
+MAX_INSTABILITIES = 16
+INT_FILL = -128
+
+
+class StoreError(ValueError):
+    """A store that is missing, damaged or inconsistent; the message names store, array and point."""
+
+
+def _float(shape):
+    return shape, "f8", np.nan
+
+
+def _int(shape):
+    return shape, "i1", INT_FILL
+
+
+class BranchStore:
+    """Writes a branch to a zarr group, one whole point (one chunk of every array) at a time.
+
+    Args:
+        path: the store (``.../data.zarr``); group: the group's name.
+        params: the chain (root attribute ``params``).
+        attrs: the group's attributes (what was continued, how).
+        max_newton: Newton iterations stored per point.
+        resume: open an existing group and append to it (its points are checked first).
+        device: for provenance.
+    """
+
+    def __init__(self, path, group: str, params: ChainParams, attrs: dict, *, max_newton: int = 40,
+                 resume: bool = False, device=None, command_line: str | None = None):
+        self.path, self.group_name, self.params, self.max_newton = Path(path), group, params, int(max_newton)
+        N = params.N
+        extra = {"command_line": command_line} if command_line else {}
+        root = open_store(self.path, params=params.as_dict(), provenance_info=provenance(device, **extra),
+                          mode="a" if resume else "w")
+        g = root.require_group(group)
+        self.group = g
+        spec = {name: _float(()) for name in ("K", "omega", "energy", "max_modulus", "tolerance", "min_contact", "s")}
+        spec.update({"iterations": _int(()), "stable": _int(()), "state": _float((4, N)),
+                     "mu_real": _float((2 * N,)), "mu_imag": _float((2 * N,)), "signature": _int((2 * N,)),
+                     "parity": _int((2 * N,)), "participation": _float((2 * N,)),
+                     "newton_residuals": _float((self.max_newton + 1,)),
+                     "instability_kind": _int((MAX_INSTABILITIES,)),
+                     "instability_mu_real": _float((MAX_INSTABILITIES,)),
+                     "instability_mu_imag": _float((MAX_INSTABILITIES,)),
+                     "instability_participation": _float((MAX_INSTABILITIES,)),
+                     "instability_localized": _int((MAX_INSTABILITIES,)),
+                     "instability_parity": _int((MAX_INSTABILITIES,))})
+        dims = {"state": ("point", "component", "site"), "newton_residuals": ("point", "newton_iteration")}
+        for name in ("mu_real", "mu_imag", "signature", "parity", "participation"):
+            dims[name] = ("point", "pair")
+        for name in spec:
+            if name.startswith("instability_"):
+                dims[name] = ("point", "instability")
+        existing = set(g.array_keys()) if resume else set()
+        self.arrays = {}
+        for name, (shape, dtype, fill) in spec.items():
+            if name in existing:
+                self.arrays[name] = g[name]
+            else:
+                self.arrays[name] = g.create_array(name, shape=(0, *shape), chunks=(1, *shape), dtype=dtype,
+                                                   fill_value=fill, dimension_names=dims.get(name, ("point",)),
+                                                   overwrite=True)
+        if not resume:
+            g.attrs.update({**jsonable(attrs), "complete": False, "n_points": 0, "events": [], "stop_reason": None,
+                            "kinds": list(KINDS)})
+        else:
+            g.attrs.update({"complete": False, "stop_reason": None})
+        consolidate(self.path)
+
+    @property
+    def n_points(self) -> int:
+        return int(self.group.attrs.get("n_points", 0))
+
+    def append(self, point: BranchPoint) -> None:
+        """Write one point; ``n_points`` is raised only after every array holds it."""
+        n = self.n_points
+        N2 = 2 * self.params.N
+        inst = list(point.instabilities)[:MAX_INSTABILITIES]
+
+        def table(fn, fill):
+            out = np.full(MAX_INSTABILITIES, fill, dtype=float)
+            out[: len(inst)] = [fn(i) for i in inst]
+            return out
+
+        hist = np.full(self.max_newton + 1, np.nan)
+        h = np.asarray(point.residual_history, dtype=float)[: self.max_newton + 1]
+        hist[: len(h)] = h
+        mu = point.mu if point.mu is not None else np.full(N2, np.nan + 0j)
+        ints = (lambda a: np.full(N2, INT_FILL) if a is None else np.asarray(a))
+        values = {"K": point.K, "omega": point.omega, "energy": point.energy, "max_modulus": point.max_modulus,
+                  "tolerance": point.tolerance, "min_contact": point.min_contact, "s": point.s,
+                  "iterations": point.iterations, "stable": int(point.stable), "state": point.state,
+                  "mu_real": np.real(mu), "mu_imag": np.imag(mu), "signature": ints(point.signature),
+                  "parity": ints(point.parity),
+                  "participation": np.full(N2, np.nan) if point.participation is None else point.participation,
+                  "newton_residuals": hist,
+                  "instability_kind": table(lambda i: KINDS.index(i.kind), INT_FILL),
+                  "instability_mu_real": table(lambda i: i.mu.real, np.nan),
+                  "instability_mu_imag": table(lambda i: i.mu.imag, np.nan),
+                  "instability_participation": table(lambda i: i.participation, np.nan),
+                  "instability_localized": table(lambda i: int(i.localized), INT_FILL),
+                  "instability_parity": table(lambda i: i.parity, INT_FILL)}
+        for name, arr in self.arrays.items():
+            arr.resize((n + 1, *arr.shape[1:]))
+            arr[n] = values[name]
+        self.group.attrs.update({"n_points": n + 1})
+        consolidate(self.path)
+
+    def finish(self, branch: Branch) -> None:
+        self.group.attrs.update({"complete": True, "stop_reason": branch.stop_reason.value, "message": branch.message,
+                                 "events": jsonable(list(branch.events)), "stats": jsonable(branch.stats)})
+        consolidate(self.path)
+
+    def interrupted(self, why: str) -> None:
+        self.group.attrs.update({"complete": False, "stop_reason": "interrupted", "message": why})
+        consolidate(self.path)
+
+
+def _fail(path, group, name, i, what):
+    where = f"array '{name}'" + (f", point {i}" if i is not None else "")
+    raise StoreError(f"damaged branch store {path} (group '{group}', {where}): {what}. Recompute the branch "
+                     f"(run the scene without --resume), or resume from a copy whose damaged points were removed")
+
+
+def load_branch(path, group: str = "branch") -> tuple[ChainParams, list, dict]:
+    """Read and validate a stored branch: (params, points, group attributes).
+
+    Raises:
+        StoreError: the store or group is missing, unreadable or damaged (names the array and point).
+    """
+    import zarr
+
+    path = Path(path)
+    if not path.exists():
+        raise StoreError(f"no branch store at {path}: run the scene first (without --resume)")
+    try:
+        root = zarr.open_group(str(path), mode="r", zarr_format=3, use_consolidated=False)
+        params = ChainParams(**dict(root.attrs)["params"])
+        g = root[group]
+        attrs = dict(g.attrs)
+        names = list(g.array_keys())
+    except StoreError:
+        raise
+    except (KeyError, ValueError, TypeError, json.JSONDecodeError, OSError) as exc:
+        raise StoreError(f"cannot read branch store {path} (group '{group}'): {type(exc).__name__}: {exc}. "
+                         "Recompute the branch (run the scene without --resume)") from None
+    n = attrs.get("n_points")
+    if not isinstance(n, int) or n < 0:
+        _fail(path, group, "n_points (attribute)", None, f"not a point count: {n!r}")
+    required = ("K", "omega", "energy", "state", "mu_real", "mu_imag", "stable", "iterations", "max_modulus",
+                "min_contact", "newton_residuals")
+    a = {}
+    for name in names:
+        try:
+            arr = g[name]
+            if arr.shape[0] < n:
+                _fail(path, group, name, None, f"{arr.shape[0]} rows but the group says {n} points")
+            a[name] = arr[:n]
+        except StoreError:
+            raise
+        except Exception as exc:  # zarr raises many kinds on a corrupt chunk
+            _fail(path, group, name, None, f"unreadable ({type(exc).__name__}: {exc})")
+    for name in required:
+        if name not in a:
+            _fail(path, group, name, None, "missing")
+    N = params.N
+    for i in range(n):
+        for name in ("K", "omega", "energy", "max_modulus", "min_contact"):
+            if not np.isfinite(a[name][i]):
+                _fail(path, group, name, i, "not a finite number (a missing or damaged chunk)")
+        for name in ("K", "omega"):
+            if a[name][i] <= 0:
+                _fail(path, group, name, i, f"{a[name][i]} is not positive")
+        if not np.isfinite(a["state"][i]).all():
+            _fail(path, group, "state", i, "non-finite entries (a missing or damaged chunk)")
+        if a["stable"][i] not in (0, 1):
+            _fail(path, group, "stable", i, f"flag {a['stable'][i]} is not 0 or 1 (a missing or damaged chunk)")
+        if a["iterations"][i] < 0:
+            _fail(path, group, "iterations", i, "negative (a missing or damaged chunk)")
+        if not (np.isfinite(a["mu_real"][i]).all() and np.isfinite(a["mu_imag"][i]).all()) and int(a["stable"][i]) == 1 \
+                and np.isfinite(a["max_modulus"][i]):
+            _fail(path, group, "mu_real", i, "non-finite multipliers at a point marked analysed")
+    points = []
+    for i in range(n):
+        mu = a["mu_real"][i] + 1j * a["mu_imag"][i]
+        have_mu = bool(np.isfinite(mu).all())
+        insts = []
+        for k in range(MAX_INSTABILITIES):
+            code = int(a.get("instability_kind", np.full((n, 1), INT_FILL))[i][k]) if "instability_kind" in a else INT_FILL
+            if code == INT_FILL:
+                break
+            if not 0 <= code < len(KINDS):
+                _fail(path, group, "instability_kind", i, f"unknown kind code {code}")
+            imu = complex(a["instability_mu_real"][i][k], a["instability_mu_imag"][i][k])
+            insts.append(Instability(kind=KINDS[code], mu=imu, modulus=float(outer_modulus(np.array([imu]))[0]),
+                                     participation=float(a["instability_participation"][i][k]),
+                                     localized=bool(a["instability_localized"][i][k] == 1),
+                                     parity=int(a["instability_parity"][i][k])))
+        hist = a["newton_residuals"][i]
+        pr = params.replace(K=float(a["K"][i]))
+
+        def ints(name):
+            v = a.get(name)
+            return None if v is None or (v[i] == INT_FILL).all() else v[i].astype(int)
+
+        points.append(BranchPoint(
+            K=float(a["K"][i]), omega=float(a["omega"][i]), state=np.array(a["state"][i]), energy=float(a["energy"][i]),
+            iterations=int(a["iterations"][i]), residual_history=tuple(hist[np.isfinite(hist)]),
+            multipliers=multipliers_from_mu(mu) if have_mu else np.full(4 * N, np.nan + 0j),
+            mu=mu if have_mu else None, signature=ints("signature") if have_mu else None,
+            parity=ints("parity") if have_mu else None,
+            participation=a["participation"][i] if have_mu and "participation" in a else None,
+            max_modulus=float(a["max_modulus"][i]), tolerance=float(a.get("tolerance", np.full(n, np.nan))[i]),
+            stable=bool(a["stable"][i]), instabilities=tuple(insts), min_contact=float(a["min_contact"][i]),
+            harmonics_in_bands=tuple(frequency_report(pr, float(a["omega"][i]))["harmonics_in_bands"]),
+            s=float(a.get("s", np.full(n, np.nan))[i])))
+    return params, points, attrs

@@ -1,0 +1,80 @@
+"""What the two branch scenes share: running a branch into its store (fresh or resumed), the
+summary fields, and the stability strip of the figures."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from continuation.driver import Branch, continuation
+from continuation.floquet import KINDS
+
+from ._branch_store import BranchStore, StoreError, load_branch
+
+KIND_COLOURS = {"real_pair": "tab:red", "period_doubling": "tab:purple", "complex_quadruplet": "tab:orange"}
+KIND_LABELS = {"real_pair": "real pair (through +1)", "period_doubling": "period doubling (through -1)",
+               "complex_quadruplet": "Krein quadruplet"}
+
+
+def run_branch(ctx, problem, settings, params, attrs) -> Branch:
+    """Run (or with ``ctx.resume`` continue) the branch, streaming points into OUT/data.zarr."""
+    path = ctx.out / "data.zarr"
+    resume = None
+    if ctx.resume:
+        stored_params, resume, stored_attrs = load_branch(path, "branch")
+        if stored_params.N != params.N or stored_params.M != params.M:
+            raise StoreError(f"{path} holds a branch of N = {stored_params.N}, M = {stored_params.M}, not "
+                             f"N = {params.N}, M = {params.M}: use the same --set values as the stored run")
+        if len(resume) < 2:
+            raise StoreError(f"{path} holds {len(resume)} point(s); resuming needs two: run without --resume")
+        ctx.log("resuming from %d stored points (%s at %s)", len(resume), stored_attrs.get("stop_reason"),
+                problem.describe(resume[-1]))
+    store = BranchStore(path, "branch", params, attrs, max_newton=3 * settings.max_newton, resume=bool(resume),
+                        device=ctx.device, command_line=ctx.command_line)
+    from tqdm.contrib.logging import logging_redirect_tqdm
+
+    try:
+        with logging_redirect_tqdm():  # log lines above the progress bar, not glued onto it
+            branch = continuation(problem, settings, resume=resume, on_point=store.append, log=ctx.log, progress=True)
+    except KeyboardInterrupt:
+        store.interrupted("interrupted by the user (Ctrl-C); the stored points are complete: resume with --resume")
+        raise
+    store.finish(branch)
+    ctx.log("stop: %s (%d points, %.0f s, %.2f s per point)", branch.message, len(branch.points),
+            branch.wall_seconds, branch.stats["seconds_per_point"])
+    return branch
+
+
+def branch_summary(branch: Branch, parameter: str) -> dict:
+    """The summary fields both branch scenes write."""
+    events = list(branch.events)
+    return {
+        "points": [p.summary() for p in branch.points],
+        "stop_reason": branch.stop_reason.value, "message": branch.message,
+        "ended_on_physics": branch.stop_reason.physical,
+        "unstable_intervals": branch.unstable_intervals(),
+        "stability_changes": branch.stability_changes(),
+        "krein_crossings_recorded": sum(1 for e in events if e["type"] == "krein_crossing"),
+        "events": [e for e in events if e["type"] != "krein_crossing"],
+        "branch_stats": branch.stats, "branch_seconds": branch.wall_seconds,
+    }
+
+
+def stability_strip(ax, points, parameter: str, log: bool = False) -> None:
+    """max |l| - 1 along the branch on a log axis, coloured by the leading instability's kind."""
+    x = np.array([getattr(p, parameter) for p in points])
+    dev = np.array([p.max_modulus - 1.0 for p in points])
+    floor = 1e-9
+    ax.plot(x, np.maximum(dev, floor), "-", color="0.75", lw=0.8)
+    stable = np.array([p.stable for p in points])
+    ax.plot(x[stable], np.full(stable.sum(), floor), "|", color="tab:blue", ms=6, label="stable")
+    for kind in KINDS:
+        sel = np.array([bool(p.instabilities) and p.instabilities[0].kind == kind for p in points])
+        if sel.any():
+            ax.plot(x[sel], np.maximum(dev[sel], floor), "o", ms=3, color=KIND_COLOURS[kind], label=KIND_LABELS[kind])
+    if log:
+        ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_ylim(floor / 3, max(1e-2, np.nanmax(dev) * 3) if np.isfinite(dev).any() else 1e-2)
+    ax.set_ylabel(r"max $|\lambda|$ - 1")
+    ax.set_xlabel({"K": "K", "omega": r"$\omega_b$"}[parameter])
+    ax.legend(fontsize=7, ncol=4, loc="upper left")

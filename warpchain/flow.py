@@ -1,0 +1,241 @@
+"""The Flow: the discrete map of one integrator, the only thing continuation knows of it.
+
+A ``Flow`` carries the method, the steps per period, the device and the kernel layout, and offers
+two operations on one lattice:
+
+* ``run(params, x0, nsteps, dt)``: the end state and the minimum contact ``1 + u - v`` over the
+  step boundaries (batched over lattices);
+* ``linearize(params, x0, nsteps, dt)``: the same base trajectory, run once with its contact
+  stiffness recorded at every force evaluation, returned as a ``Linearization`` whose
+  ``columns(directions)`` replays that history for any set of tangent directions. Newton reads the
+  residual from it, asks for the Jacobian's columns only when it needs them, and Floquet asks the
+  same object for the remaining columns: no base trajectory is integrated twice.
+
+``Flow`` runs the float64 Warp kernels and keeps its device buffers between calls (allocated once
+per lattice size and step count, as the Warp examples do; a small pool so that Newton's trial point
+does not overwrite the history of the point it came from). ``ReferenceFlow`` is the same contract
+on the numpy reference (``warpchain.reference``): slow, Warp-free, and the arithmetic oracle, so
+continuation can be tested without Warp.
+
+Adding a flow: subclass ``Flow`` and implement ``run`` and ``linearize`` (returning a
+``Linearization`` whose ``_columns`` callable maps directions (ncols, 4, N) to the end-state
+derivatives (ncols, 4, N)).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Callable
+
+import numpy as np
+
+from .integrators import get_method
+from .model import ChainParams, as_batch, min_contact
+
+
+@dataclasses.dataclass(frozen=True)
+class Trajectory:
+    """End of a batched run.
+
+    Attributes:
+        x_end: end states, shape (batch, 4, N).
+        min_contact: min over sites and step boundaries (start and end included) of 1 + u - v,
+            shape (batch,).
+    """
+
+    x_end: np.ndarray
+    min_contact: np.ndarray
+
+
+class Linearization:
+    """One base trajectory with its recorded history: end state, min contact, and tangent columns
+    on demand.
+
+    Attributes:
+        x0, x_end: start and end state, shape (4, N).
+        min_contact: min over sites and step boundaries of 1 + u - v.
+        nsteps, dt: the time grid.
+        stats: counters (``tangent_columns`` propagated so far).
+    """
+
+    def __init__(self, x0, x_end, min_contact_value, nsteps, dt, columns: Callable[[np.ndarray], np.ndarray]):
+        self.x0, self.x_end, self.min_contact = x0, x_end, float(min_contact_value)
+        self.nsteps, self.dt = int(nsteps), float(dt)
+        self._columns = columns
+        self._cache: dict[str, np.ndarray] = {}
+        self.stats = {"tangent_columns": 0}
+
+    def columns(self, directions, key: str | None = None) -> np.ndarray:
+        """Derivative of the end state along each direction, shape (4N, ncols).
+
+        Args:
+            directions: shape (ncols, 4, N).
+            key: cache the result under this name (e.g. ``"positions"``) so that a second request
+                costs nothing.
+        """
+        if key is not None and key in self._cache:
+            return self._cache[key]
+        d = np.asarray(directions, dtype=np.float64)
+        cols = self._columns(d).reshape(len(d), -1).T
+        self.stats["tangent_columns"] += len(d)
+        if key is not None:
+            self._cache[key] = cols
+        return cols
+
+    def unit_columns(self, which: str) -> np.ndarray:
+        """Columns along the unit directions of the positions (``"positions"``: u then v, 2N) or the
+        velocities (``"velocities"``: u' then v', 2N) or of the whole state (``"all"``, 4N)."""
+        N = self.x0.shape[1]
+        eye = np.eye(4 * N).reshape(4 * N, 4, N)
+        sel = {"positions": eye[: 2 * N], "velocities": eye[2 * N:], "all": eye}[which]
+        if which == "all" and "positions" in self._cache and "velocities" in self._cache:
+            return np.hstack([self._cache["positions"], self._cache["velocities"]])
+        return self.columns(sel, key=which)
+
+
+@dataclasses.dataclass(frozen=True)
+class Flow:
+    """The discrete map of one integrator on the float64 Warp kernels.
+
+    Attributes:
+        method: a name in ``warpchain.METHODS``.
+        steps_per_period: steps in one period of the orbit (even: the half period is a whole
+            number of steps).
+        device: ``"cpu"``, ``"cuda"``, ``"cuda:N"`` or None (CUDA when Warp sees a GPU).
+        layout: kernel layout (``"auto"``, ``"block"``, ``"thread"``).
+    """
+
+    method: str = "kahan8"
+    steps_per_period: int = 32
+    device: str | None = None
+    layout: str = "auto"
+    _pool: dict = dataclasses.field(default_factory=dict, init=False, repr=False, compare=False, hash=False)
+
+    def __post_init__(self):
+        get_method(self.method)  # raises on an unknown name
+        spp = self.steps_per_period
+        if isinstance(spp, bool) or not isinstance(spp, (int, np.integer)) or spp < 2 or spp % 2:
+            raise ValueError(f"steps_per_period must be an even integer >= 2, got {spp!r}")
+        object.__setattr__(self, "steps_per_period", int(spp))
+
+    # ------------------------------------------------------------------ the time grid
+
+    def half_steps(self) -> int:
+        return self.steps_per_period // 2
+
+    def grid(self, omega: float) -> tuple[int, float]:
+        """Steps per half period and the step for frequency omega."""
+        omega = float(omega)
+        if not (math.isfinite(omega) and omega > 0):
+            raise ValueError(f"omega must be a finite number > 0, got {omega!r}")
+        n = self.half_steps()
+        return n, math.pi / omega / n
+
+    def replace(self, **changes) -> "Flow":
+        return dataclasses.replace(self, **changes)
+
+    def describe(self) -> dict:
+        return {"flow": type(self).__name__, "method": self.method, "steps_per_period": self.steps_per_period,
+                "device": self.device, "layout": self.layout}
+
+    # ------------------------------------------------------------------ Warp backend
+
+    def _runner(self, params: ChainParams, x0: np.ndarray, nsteps: int, record: bool):
+        """A runner with buffers for this (N, boundary, batch, nsteps), reused between calls; two per
+        key, handed out in turn, each tagged with a generation so a stale history is detected."""
+        from .ensemble import _Runner, resolve_device
+        from .model import per_lattice_parameters
+
+        device = resolve_device(self.device)
+        batch = x0.shape[0]
+        Mb, Kb = per_lattice_parameters(params, batch, None, None)
+        key = (params.N, params.boundary, batch, int(nsteps) if record else 0, device)
+        slot = self._pool.setdefault(key, {"runners": [], "turn": 0})
+        if len(slot["runners"]) < 2:
+            runner = _Runner(get_method(self.method), params, x0, Mb, Kb, device,
+                             record_stiffness_steps=max(int(nsteps), 1) if record else 0, layout=self.layout)
+            runner.generation = 0
+            slot["runners"].append(runner)
+        else:
+            runner = slot["runners"][slot["turn"] % 2]
+            runner.load(x0, Mb, Kb)
+        slot["turn"] += 1
+        runner.generation += 1
+        return runner
+
+    def run(self, params: ChainParams, x0, nsteps: int, dt: float) -> Trajectory:
+        """Advance a batch by ``nsteps`` steps of ``dt``; end states and min contact."""
+        x0 = as_batch(x0, params.N, "x0")
+        runner = self._runner(params, x0, nsteps, record=False)
+        contact = min_contact(x0)
+        if nsteps:
+            frames = runner.launch(int(nsteps), float(dt), save_every=1, n_rec=int(nsteps))
+            contact = np.minimum(contact, np.min(1.0 + frames[:, :, 0] - frames[:, :, 1], axis=(0, 2)))
+        return Trajectory(x_end=runner.x.numpy().copy(), min_contact=contact)  # CPU numpy() is a view
+
+    def linearize(self, params: ChainParams, x0, nsteps: int, dt: float) -> Linearization:
+        """Run one lattice once, recording its contact stiffness, and return its Linearization."""
+        x0 = as_batch(x0, params.N, "x0")
+        if x0.shape[0] != 1:
+            raise ValueError(f"linearize takes one lattice, got a batch of {x0.shape[0]}")
+        runner = self._runner(params, x0, nsteps, record=True)
+        frames = runner.launch(int(nsteps), float(dt), save_every=1, n_rec=int(nsteps), record_stiffness=True)
+        x_end = runner.x.numpy()[0].copy()  # on the CPU numpy() is a view of the reused buffer
+        contact = min(float(min_contact(x0)[0]), float(np.min(1.0 + frames[:, 0, 0] - frames[:, 0, 1])))
+        generation = runner.generation
+        wp = runner.wp
+
+        def columns(directions):
+            if runner.generation != generation:  # the buffers were handed to another run since
+                runner.load(x0, *_parameters(params))
+                runner.launch(int(nsteps), float(dt), record_stiffness=True)
+            dx = wp.array(directions, dtype=wp.float64, device=runner.device)
+            base = wp.zeros(len(directions), dtype=wp.int32, device=runner.device)
+            runner.launch_tangent(dx, base, int(nsteps), float(dt))
+            out = dx.numpy().copy()
+            if not np.isfinite(out).all():
+                from .ensemble import IntegrationError, stability_limit
+
+                limit = stability_limit(self.method, params)
+                raise IntegrationError(
+                    f"tangent propagation produced non-finite values with method '{self.method}', dt = {dt:g} "
+                    f"(linear stability limit {limit:.6g})", method=self.method, dt=dt, stability_limit=limit,
+                    failed=[0], t=nsteps * dt)
+            return out
+
+        return Linearization(x0[0], x_end, contact, nsteps, dt, columns)
+
+
+def _parameters(params: ChainParams):
+    from .model import per_lattice_parameters
+
+    return per_lattice_parameters(params, 1, None, None)
+
+
+@dataclasses.dataclass(frozen=True)
+class ReferenceFlow(Flow):
+    """The same contract on the numpy reference (``warpchain.reference``): no Warp, same arithmetic."""
+
+    device: str | None = "numpy"
+    layout: str = "reference"
+
+    def run(self, params: ChainParams, x0, nsteps: int, dt: float) -> Trajectory:
+        from . import reference
+
+        x0 = as_batch(x0, params.N, "x0")
+        out = reference.integrate(self.method, params, x0, float(dt), int(nsteps), save_every=1)
+        contact = np.min(1.0 + out["u"] - out["v"], axis=(0, 2))
+        return Trajectory(x_end=out["x"], min_contact=contact)
+
+    def linearize(self, params: ChainParams, x0, nsteps: int, dt: float) -> Linearization:
+        from . import reference
+
+        x0 = as_batch(x0, params.N, "x0")
+        traj = self.run(params, x0, nsteps, dt)
+
+        def columns(directions):
+            out = reference.integrate(self.method, params, x0, float(dt), int(nsteps), dx0=directions[None])
+            return out["dx"][0]
+
+        return Linearization(x0[0], traj.x_end[0], traj.min_contact[0], nsteps, dt, columns)
