@@ -125,6 +125,23 @@ def _elliptic_table(point) -> dict:
             "pr": point.participation[keep]}
 
 
+#: below this max |l| - 1 at both ends, a step whose unstable multipliers are not the same ones
+#: (each moved by more than IDENTITY_TOL in mu) is bisected: one weak instability may have closed
+#: and another opened, with a stable window between them
+WEAK_INSTABILITY = 1e-3
+IDENTITY_TOL = 0.02
+
+
+def _weak(point) -> bool:
+    return point.max_modulus - 1.0 < WEAK_INSTABILITY
+
+
+def _same_instabilities(a, b) -> bool:
+    mu_a = sorted((complex(i.mu.real, abs(i.mu.imag)) for i in a.instabilities), key=lambda z: (z.real, z.imag))
+    mu_b = sorted((complex(i.mu.real, abs(i.mu.imag)) for i in b.instabilities), key=lambda z: (z.real, z.imag))
+    return len(mu_a) == len(mu_b) and all(abs(x - y) <= IDENTITY_TOL for x, y in zip(mu_a, mu_b))
+
+
 def kinds_present(point) -> tuple:
     return tuple(k for k, n in zip(KINDS, stability_signature(point)) if n)
 
@@ -136,6 +153,8 @@ def changed(a, b) -> str | None:
         return "stability"
     if stability_signature(a) != stability_signature(b):
         return "count"
+    if not a.stable and _weak(a) and _weak(b) and not _same_instabilities(a, b):
+        return "stability"
     if krein_crossings(a, b) != 0:
         return "krein"
     return None

@@ -392,6 +392,10 @@ def floquet(breather, *, method: str | None = None, reduced: bool | None = None,
     flow = flow or breather.flow
     if device is not None:
         flow = flow.replace(device=device)
+    if reduced and not (breather.formulation == "reversible" and _is_reversible_method(method or flow.method)):
+        raise ValueError("the reduced Floquet problem needs a reversible orbit (reversible formulation) and a "
+                         f"symplectic palindromic method; got {breather.formulation!r} with {method or flow.method!r}: "
+                         "use reduced=False")
     if method is not None and method != breather.method:
         warnings.warn(f"floquet(method={method!r}) on an orbit converged with {breather.method!r}: the orbit is "
                       f"re-converged with {method!r} first (it is periodic only for the map it was solved with)",
@@ -403,10 +407,6 @@ def floquet(breather, *, method: str | None = None, reduced: bool | None = None,
                                          flow=flow))
     if reduced is None:
         reduced = breather.formulation == "reversible" and _is_reversible_method(flow.method)
-    if reduced and not (breather.formulation == "reversible" and _is_reversible_method(flow.method)):
-        raise ValueError("the reduced Floquet problem needs a reversible orbit (reversible formulation) and a "
-                         f"symplectic palindromic method; got {breather.formulation!r} with {flow.method!r}: "
-                         "use reduced=False")
     params = breather.params
     start = time.perf_counter()
     if reduced:

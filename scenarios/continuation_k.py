@@ -48,6 +48,7 @@ class Parameters:
     method: str = BREATHER_METHOD
     steps_per_period: int = BREATHER_STEPS_PER_PERIOD
     max_seconds: float | None = None  # opt-in time budget
+    bisect_krein: str = "localized"   # which opposite-signature passes are bisected: localized, all, none
 
 
 QUICK = {"N": 101, "ds": 0.5, "ds_max": 1.0, "resolution": 1e-2}
@@ -58,7 +59,8 @@ def run(ctx: Context) -> dict:
     params = ChainParams(P.M, P.K_start, P.N)
     flow = Flow(P.method, P.steps_per_period, ctx.device)
     settings = ContinuationSettings(ds=P.ds, ds_min=P.ds_min, ds_max=P.ds_max, resolution=P.resolution,
-                                    max_points=P.max_points, max_seconds=P.max_seconds)
+                                    max_points=P.max_points, max_seconds=P.max_seconds,
+                                    bisect_krein=P.bisect_krein)
     problem = NaturalParameter(params, P.omega, anticontinuum_seed(params, P.omega), P.K_end, flow,
                                targets=P.profile_K)
     attrs = {"omega": P.omega, "method": P.method, "steps_per_period": P.steps_per_period,

@@ -50,6 +50,7 @@ class Parameters:
     method: str = BREATHER_METHOD
     steps_per_period: int = BREATHER_STEPS_PER_PERIOD
     max_seconds: float | None = None  # opt-in time budget
+    bisect_krein: str = "localized"   # which opposite-signature passes are bisected: localized, all, none
 
 
 QUICK = {"N": 101, "omega_min": 1.005, "resolution": 1e-2}
@@ -60,7 +61,8 @@ def run(ctx: Context) -> dict:
     params = ChainParams(P.M, P.K, P.N)
     flow = Flow(P.method, P.steps_per_period, ctx.device)
     settings = ContinuationSettings(ds=P.ds, ds_min=P.ds_min, ds_max=P.ds_max, grow=1.3, resolution=P.resolution,
-                                    max_newton=P.max_newton, max_points=P.max_points, max_seconds=P.max_seconds)
+                                    max_newton=P.max_newton, max_points=P.max_points, max_seconds=P.max_seconds,
+                                    bisect_krein=P.bisect_krein)
     problem = PseudoArclength(params, flow, None, omega_min=P.omega_min)
     attrs = {"K": P.K, "method": P.method, "steps_per_period": P.steps_per_period,
              "continuation": "pseudo-arclength in (positions, omega)", "coordinate": "arclength",

@@ -1,62 +1,119 @@
+import json
+
 import numpy as np
 import pytest
 
 import continuation as ct
-from continuation.branch import (BranchStore, continue_in_coupling, continue_in_frequency, load_branch,
-                                 start_from_eigenmode)
-from warpchain import ChainParams, lowest_optical_mode
+from continuation.branch import continue_in_coupling, continue_in_frequency, start_from_eigenmode
+from continuation.driver import ContinuationSettings
+from continuation.events import StopReason
+from scenarios._branch_store import BranchStore, StoreError, load_branch
+from warpchain import ChainParams, Flow, ReferenceFlow, lowest_optical_mode
+
+K_SETTINGS = ContinuationSettings(ds=0.5, ds_min=1e-3, ds_max=0.8, resolution=1e-2)
 
 
 @pytest.fixture(scope="module")
 def k_branch(tmp_path_factory):
     path = tmp_path_factory.mktemp("k") / "branch.zarr"
     p = ChainParams(30.0, 0.01, 41)
-    store = BranchStore(path, "branch", p, {"omega": 1.01}, max_newton=24)
-    branch = continue_in_coupling(p, 1.01, ct.anticontinuum_seed(p, 1.01), 20.0, targets=(5.0,), step=0.5,
-                                  max_step=0.8, bisection_steps=1, store=store)
+    store = BranchStore(path, "branch", p, {"omega": 1.01})
+    branch = continue_in_coupling(p, 1.01, ct.anticontinuum_seed(p, 1.01), 20.0, targets=(5.0,), settings=K_SETTINGS,
+                                  on_point=store.append)
+    store.finish(branch)
     return path, branch
 
 
 def test_k_branch_lands_on_targets_with_multipliers_everywhere(k_branch):
     _, branch = k_branch
     K = branch.column("K")
-    assert branch.stop_reason == "reached_end"
+    assert branch.stop_reason is StopReason.END_REACHED and branch.stop_reason.physical
     assert K[0] == 0.01 and K[-1] == 20.0 and 5.0 in K
     assert np.all(np.diff(K) > 0)
     assert np.all(np.diff(branch.column("energy")) > 0)  # energy grows with the coupling (paper Fig. 6)
     for p in branch.points:
-        assert p.multipliers.shape == (4 * 41,) and np.isfinite(p.max_modulus) and p.pairing_error < 1e-8
+        assert p.multipliers.shape == (4 * 41,) and p.mu.shape == (2 * 41,) and np.isfinite(p.max_modulus)
         assert p.residual_history[-1] <= 1e-10 and p.min_contact > 0
+    assert branch.stats["points"] == len(branch.points) and branch.stats["seconds_per_point"] > 0
 
 
-def test_stored_branch_round_trips_and_resumes(k_branch, tmp_path):
+def test_stability_changes_are_bracketed_to_the_resolution_and_confirmed_directly(k_branch):
+    _, branch = k_branch
+    changes = [e for e in branch.events if e["type"] == "stability_change"]
+    assert changes, "the N = 41 K-branch to K = 20 has stability changes"
+    for e in changes:
+        a, b = e["bracket"]
+        assert abs(np.log10(b) - np.log10(a)) <= K_SETTINGS.resolution * 1.0001
+        # both ends are branch points whose verdicts differ, and a direct solve agrees with each
+        pa = next(p for p in branch.points if p.K == a)
+        pb = next(p for p in branch.points if p.K == b)
+        if e["from_stable"] != e["to_stable"]:
+            assert pa.stable != pb.stable
+        for p in (pa, pb):
+            direct = ct.floquet(ct.require(ct.find_breather(ChainParams(30.0, p.K, 41), 1.01, p.state)))
+            assert direct.stable == p.stable
+    intervals = branch.unstable_intervals()
+    assert all(iv["start"] <= iv["end"] and set(iv["kinds"]) <= set(ct.floquet.__globals__["KINDS"]) for iv in intervals)
+
+
+def test_stored_branch_round_trips_and_resumes(k_branch):
     path, branch = k_branch
     params, points, attrs = load_branch(path, "branch")
-    assert attrs["complete"] is True and attrs["stop_reason"] == "reached_end"
+    assert attrs["complete"] is True and attrs["stop_reason"] == "end_reached" and attrs["n_points"] == len(points)
     assert len(points) == len(branch.points)
     for a, b in zip(points, branch.points):
-        assert a.K == b.K and np.array_equal(a.state, b.state) and np.allclose(a.multipliers, b.multipliers)
-        assert a.residual_history == pytest.approx(b.residual_history)
-    # resume from the points up to K = 5 and finish the branch again: same end point
+        assert a.K == b.K and np.array_equal(a.state, b.state) and np.allclose(a.mu, b.mu)
+        assert a.stable == b.stable and [i.kind for i in a.instabilities] == [i.kind for i in b.instabilities]
     upto = [p for p in points if p.K <= 5.0]
-    resumed = continue_in_coupling(params.replace(K=upto[-1].K), 1.01, upto[-1].state, 20.0, step=0.5,
-                                   max_step=0.8, bisection_steps=0, resume=upto)
+    resumed = continue_in_coupling(params.replace(K=upto[-1].K), 1.01, upto[-1].state, 20.0, settings=K_SETTINGS,
+                                   resume=upto)
     assert resumed.points[-1].K == 20.0
     assert resumed.points[-1].energy == pytest.approx(branch.points[-1].energy, rel=1e-8)
 
 
+def _copy(src, dst):
+    import shutil
+
+    shutil.copytree(src, dst)
+    return dst
+
+
+def test_a_missing_chunk_is_an_error_not_zeros(k_branch, tmp_path):
+    path, _ = k_branch
+    bad = _copy(path, tmp_path / "bad.zarr")
+    chunk = next((bad / "branch" / "energy" / "c").iterdir())  # the first point's chunk
+    chunk.unlink()
+    with pytest.raises(StoreError, match=r"energy.*point \d+.*not a finite number"):
+        load_branch(bad, "branch")
+
+
+def test_a_corrupt_metadata_file_names_the_store(k_branch, tmp_path):
+    path, _ = k_branch
+    bad = _copy(path, tmp_path / "bad2.zarr")
+    (bad / "branch" / "state" / "zarr.json").write_text("{not json")
+    with pytest.raises(StoreError, match="bad2.zarr"):
+        load_branch(bad, "branch")
+    meta = json.loads((bad / "branch" / "zarr.json").read_text())
+    meta["attributes"]["n_points"] = 10 ** 6
+    (bad / "branch" / "zarr.json").write_text(json.dumps(meta))
+    with pytest.raises(StoreError):
+        load_branch(bad, "branch")
+
+
 def test_loss_of_contact_stops_the_branch_and_says_so():
     p = ChainParams(30.0, 1.0, 41)
-    branch = continue_in_coupling(p, 0.985, ct.nls_seed(p, 0.985), 40.0, max_newton=6, min_step=0.02,
-                                  bisection_steps=0)
-    assert branch.stop_reason == "contact_lost"
+    branch = continue_in_coupling(p, 0.985, ct.nls_seed(p, 0.985), 40.0,
+                                  settings=ContinuationSettings(ds=0.15, ds_min=0.02, ds_max=0.3, max_newton=6,
+                                                                floquet=False))
+    assert branch.stop_reason is StopReason.CONTACT_LOST
     assert "lost contact" in branch.message and branch.points[-1].min_contact <= 0 < branch.points[-2].min_contact
 
 
-def test_newton_failure_in_the_acoustic_band_is_the_stop_reason():
+def test_newton_failure_at_the_start_is_the_stop_reason():
     p = ChainParams(30.0, 40.0, 41)
-    branch = continue_in_coupling(p, 0.99, ct.nls_seed(p, 0.99), 80.0, max_newton=6)
-    assert branch.stop_reason == "start_failed" and "acoustic band" in branch.message and not branch.points
+    branch = continue_in_coupling(p, 0.99, ct.nls_seed(p, 0.99), 80.0,
+                                  settings=ContinuationSettings(ds=0.15, ds_max=0.3, max_newton=6))
+    assert branch.stop_reason is StopReason.NEWTON_FAILED and "acoustic band" in branch.message and not branch.points
 
 
 def test_frequency_branch_from_the_eigenmode(tmp_path):
@@ -64,18 +121,47 @@ def test_frequency_branch_from_the_eigenmode(tmp_path):
     start = start_from_eigenmode(p)
     w_lin = lowest_optical_mode(p)[0]
     assert w_lin - 1e-3 < start[1][1] < start[0][1] < w_lin
-    store = BranchStore(tmp_path / "w.zarr", "branch", p, {"K": 160.0}, max_newton=40)
-    branch = continue_in_frequency(p, start, max_points=7, bisection_steps=0, store=store)
-    w = branch.column("omega")
-    E = branch.column("energy")
-    assert branch.stop_reason == "max_points" and len(branch.points) == 7
+    store = BranchStore(tmp_path / "w.zarr", "branch", p, {"K": 160.0})
+    settings = ContinuationSettings(ds=0.05, ds_max=0.6, max_points=7, resolution=1e-2)
+    branch = continue_in_frequency(p, start, settings=settings, on_point=store.append)
+    store.finish(branch)
+    w, E = branch.column("omega"), branch.column("energy")
+    assert branch.stop_reason is StopReason.MAX_POINTS and len(branch.points) >= 7
     assert np.all(np.diff(w) < 0) and np.all(np.diff(E) > 0)  # into the gap, growing energy
-    assert w[-1] < w_lin
-    # every point is a breather at its own frequency: fixed-frequency Newton agrees
     last = branch.points[-1]
     check = ct.find_breather(p, last.omega, last.state)
-    assert check.success and check.iterations <= 1
+    assert check.success and check.iterations <= 1  # every point is a breather at its own frequency
     _, stored, attrs = load_branch(tmp_path / "w.zarr", "branch")
-    assert len(stored) == 7 and attrs["stop_reason"] == "max_points"
-    budget = continue_in_frequency(p, start, max_seconds=0.0, bisection_steps=0)
-    assert budget.stop_reason == "time_budget" and "stopped after" in budget.message
+    assert len(stored) == len(branch.points) and attrs["stop_reason"] == "max_points"
+    budget = continue_in_frequency(p, start, settings=settings.replace(max_seconds=0.0, max_points=None))
+    assert budget.stop_reason is StopReason.TIME_BUDGET
+
+
+def test_newton_integrates_each_point_once():
+    p = ChainParams(30.0, 160.0, 41)
+    res = ct.find_breather(p, 1.01, ct.nls_seed(p, 1.01))
+    assert res.success
+    # one trajectory per Newton point (trial points included), a Jacobian per iteration, none extra
+    assert res.stats["jacobians"] == res.iterations
+    assert res.stats["evaluations"] == res.iterations + 1  # no damping was needed here
+
+
+def test_continuation_runs_on_the_numpy_reference_flow():
+    p = ChainParams(30.0, 0.5, 11)
+    settings = ContinuationSettings(ds=0.3, ds_max=0.3, resolution=0.05)
+    ref = continue_in_coupling(p, 1.01, ct.anticontinuum_seed(p, 1.01), 2.0, settings=settings,
+                               flow=ReferenceFlow("kahan8", 32))
+    warp = continue_in_coupling(p, 1.01, ct.anticontinuum_seed(p, 1.01), 2.0, settings=settings,
+                                flow=Flow("kahan8", 32, "cpu"))
+    assert ref.stop_reason is StopReason.END_REACHED and len(ref.points) == len(warp.points)
+    for a, b in zip(ref.points, warp.points):
+        assert a.K == b.K and np.max(np.abs(a.state - b.state)) < 1e-13 and a.stable == b.stable
+
+
+def test_settings_are_validated():
+    with pytest.raises(ValueError, match="ds"):
+        ContinuationSettings(ds=-1.0)
+    with pytest.raises(ValueError, match="max_points"):
+        ContinuationSettings(max_points=0)
+    with pytest.raises(ValueError, match="bisect_krein"):
+        ContinuationSettings(bisect_krein="some")

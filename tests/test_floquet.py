@@ -1,0 +1,81 @@
+import warnings
+
+import numpy as np
+import pytest
+from scipy.optimize import linear_sum_assignment
+
+import continuation as ct
+from continuation.floquet import multipliers_from_mu, reduced_matrix
+from warpchain import ChainParams, Flow, ReferenceFlow
+
+
+@pytest.fixture(scope="module")
+def breather():
+    p = ChainParams(30.0, 160.0, 41)
+    return ct.require(ct.find_breather(p, 1.01, ct.nls_seed(p, 1.01)))
+
+
+def test_reduced_floquet_agrees_with_the_full_monodromy(breather):
+    red = ct.floquet(breather)
+    full = ct.floquet(breather, reduced=False)
+    assert red.path == "reduced" and full.path == "full"
+    assert abs(red.max_modulus - full.max_modulus) < 1e-10
+    # every multiplier matched (the full eig splits the trivial Jordan pair by ~sqrt(eps))
+    cost = np.abs(red.multipliers[:, None] - full.multipliers[None, :])
+    r, c = linear_sum_assignment(cost)
+    assert np.sort(cost[r, c])[-3] < 1e-9
+    assert red.stable == full.stable
+    # the trivial mu is 1 to the accuracy gauge, and the tolerance comes from the measured gauges
+    assert abs(red.mu[red.mu_trivial] - 1) == pytest.approx(red.accuracy["trivial_deviation"])
+    assert red.tolerance == pytest.approx(10 * max(red.accuracy["trivial_deviation"], red.accuracy["symplecticity"],
+                                                   1e-13))
+
+
+def test_reduced_matrix_of_a_harmonic_rotation():
+    # one site, no coupling, rotation by theta: mu = cos(2 theta); Krein signature sign(sin w T)
+    theta, w = 0.7, 1.3
+    A = np.array([[np.cos(theta), np.sin(theta) / w], [-w * np.sin(theta), np.cos(theta)]])
+    # embed as N = 1 with two masses (u: M, v: 1), identical decoupled rotations
+    A4 = np.zeros((4, 4))
+    A4[np.ix_([0, 2], [0, 2])] = A
+    A4[np.ix_([1, 3], [1, 3])] = A
+    mu = np.linalg.eigvals(reduced_matrix(A4, 2.0))
+    assert np.allclose(mu, np.cos(2 * theta))
+    lam = multipliers_from_mu(mu)
+    assert np.allclose(np.abs(lam), 1.0)
+
+
+def test_reduced_floquet_on_the_reference_flow_is_bit_for_bit_the_warp_one(breather):
+    ref = ct.floquet(breather, flow=ReferenceFlow("kahan8", 32))
+    warp = ct.floquet(breather, flow=Flow("kahan8", 32, "cpu"))
+    assert np.array_equal(np.sort_complex(ref.mu), np.sort_complex(warp.mu))
+
+
+def test_floquet_refuses_misuse(breather):
+    p = breather.params
+    failed = ct.find_breather(p, 1.01, np.zeros((4, p.N)) + 1e-12, max_iterations=1)
+    assert not failed.success
+    with pytest.raises(ValueError, match="failed solve"):
+        ct.floquet(failed)
+    with pytest.raises(TypeError, match="ShootingResult"):
+        ct.floquet("b")
+    with pytest.raises(ValueError, match="tolerance"):
+        ct.floquet(breather, tolerance=-1.0)
+    with pytest.raises(ValueError, match="reduced"):
+        ct.floquet(breather, method="rk4", reduced=True)
+
+
+def test_another_method_re_converges_the_orbit_with_a_warning(breather):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        fl = ct.floquet(breather, method="yoshida6")
+    assert any("re-converged" in str(w.message) for w in caught)
+    assert fl.max_modulus == pytest.approx(ct.floquet(breather).max_modulus, abs=1e-5)
+
+
+def test_instabilities_carry_kind_and_localization(breather):
+    fl = ct.floquet(breather)
+    for inst in fl.instabilities:
+        assert inst.kind in ("real_pair", "period_doubling", "complex_quadruplet")
+        assert inst.modulus > 1 and 1 <= inst.participation <= breather.params.N
+    assert fl.stable == (not fl.instabilities)
