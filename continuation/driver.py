@@ -93,6 +93,8 @@ class ContinuationSettings:
             if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
                     or not math.isfinite(value) or value <= 0:
                 raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+        if self.bisect_krein not in ("localized", "all", "none"):
+            raise ValueError(f"bisect_krein must be 'localized', 'all' or 'none', got {self.bisect_krein!r}")
         if not self.ds_min <= self.ds <= self.ds_max:
             raise ValueError(f"need ds_min <= ds <= ds_max, got {self.ds_min}, {self.ds}, {self.ds_max}")
         if self.grow < 1:
