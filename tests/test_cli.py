@@ -70,15 +70,40 @@ def test_breather_scenes_quick(paper_quick):
 
 def test_continuation_scenes_quick(paper_quick):
     k = json.loads((paper_quick / "continuation-k" / "summary.json").read_text())
-    assert {"omega", "M", "N", "points", "nls_energy_at_K160", "stop_reason"} <= set(k)
-    assert k["stop_reason"] == "reached_end" and k["points"][-1]["K"] == 160.0 and k["points"][0]["K"] == 0.01
-    assert all({"K", "energy", "max_floquet_modulus", "stable"} <= set(p) for p in k["points"])
+    assert {"omega", "M", "N", "points", "nls_energy_at_K_end", "stop_reason", "unstable_intervals",
+            "stability_changes", "parameters", "command_line"} <= set(k)
+    assert k["stop_reason"] == "end_reached" and k["points"][-1]["K"] == 160.0 and k["points"][0]["K"] == 0.01
+    assert k["parameters"]["N"] == 101 and k["ended_on_physics"]
+    assert all({"K", "energy", "max_floquet_modulus", "stable", "kinds"} <= set(p) for p in k["points"])
+    for iv in k["unstable_intervals"]:
+        assert iv["start"] <= iv["end"] and set(iv["kinds"]) <= {"real_pair", "period_doubling", "complex_quadruplet"}
+        assert isinstance(iv["localized"], bool)
+    for ch in k["stability_changes"]:
+        assert len(ch["bracket"]) == 2 and isinstance(ch["from_stable"], bool)
     w = json.loads((paper_quick / "continuation-omega" / "summary.json").read_text())
-    assert {"K", "M", "N", "points", "stop_reason"} <= set(w)
+    assert {"K", "M", "N", "points", "stop_reason", "unstable_intervals", "stability_changes"} <= set(w)
     assert all({"omega", "energy", "max_floquet_modulus", "min_contact"} <= set(p) for p in w["points"])
-    assert w["stop_reason"] in ("left_range", "time_budget", "contact_lost") and w["message"]
+    assert w["stop_reason"] in ("end_reached", "contact_lost") and w["message"]
     for name, figure in (("continuation-k", "continuation_k"), ("continuation-omega", "continuation_omega_energy")):
         assert (paper_quick / name / f"{figure}.png").exists()
+
+
+def test_set_overrides_and_resume(tmp_path):
+    out = _run("run", "continuation-omega", "--quick", "--set", "N=41", "--set", "max_points=4", "--out",
+               str(tmp_path), "--device", "cpu")
+    assert out.returncode == 0, out.stderr[-3000:]
+    s = json.loads((tmp_path / "continuation-omega" / "summary.json").read_text())
+    assert s["N"] == 41 and s["parameters"]["max_points"] == 4 and s["stop_reason"] == "max_points"
+    assert "--set N=41" in s["command_line"]
+    out = _run("run", "continuation-omega", "--quick", "--set", "N=41", "--set", "max_points=7", "--resume",
+               "--out", str(tmp_path), "--device", "cpu")
+    assert out.returncode == 0, out.stderr[-3000:]
+    s = json.loads((tmp_path / "continuation-omega" / "summary.json").read_text())
+    assert s["stop_reason"] == "max_points" and len(s["points"]) == 7
+    bad = _run("run", "continuation-omega", "--set", "nope=1", "--out", str(tmp_path), "--device", "cpu")
+    assert bad.returncode == 2 and "unknown parameter 'nope'" in bad.stderr
+    bad = _run("run", "dispersion", "--resume", "--out", str(tmp_path), "--device", "cpu")
+    assert bad.returncode == 2 and "cannot be resumed" in bad.stderr
 
 
 def test_direct_simulation_quick(paper_quick):

@@ -121,7 +121,8 @@ def consolidate(store) -> None:
 
 def open_store(path, *, params: dict | None = None, provenance_info: dict | None = None, mode: str = "w") -> zarr.Group:
     """Create (``mode="w"``) or open (``"a"``, ``"r"``) a zarr v3 store; sets root attributes."""
-    root = zarr.open_group(str(path), mode=mode, zarr_format=3)
+    # never from consolidated metadata: arrays opened from that snapshot do not persist a resize
+    root = zarr.open_group(str(path), mode=mode, zarr_format=3, use_consolidated=False if mode != "w" else None)
     if mode != "r":
         attrs = {}
         if params is not None:
