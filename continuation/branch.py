@@ -29,7 +29,7 @@ from warpchain.model import accelerations
 
 from .driver import Branch, BranchPoint, ContinuationSettings, Failure, Solution, continuation
 from .newton import NewtonSettings, newton
-from .shooting import PeriodMap, find_breather, make_flow
+from .shooting import PeriodMap, find_breather, is_mirror_symmetric, make_flow, mirror_projector
 
 __all__ = ["Branch", "BranchPoint", "ContinuationSettings", "NaturalParameter", "PseudoArclength",
            "continue_in_coupling", "continue_in_frequency", "start_from_eigenmode"]
@@ -78,7 +78,7 @@ class NaturalParameter:
             return Failure(res.message)
         return Solution(pr, self.omega, res.state, res.iterations, res.residual_history, res.linearization(), s)
 
-    def prepare(self, settings: ContinuationSettings) -> None:
+    def prepare(self, settings: ContinuationSettings, resume=None) -> None:
         self._settings = settings
 
     def start(self):
@@ -177,12 +177,13 @@ class _BadFrequency(ValueError):
 
 
 class _ArclengthCorrector:
-    def __init__(self, params: ChainParams, flow: Flow, W, settings: NewtonSettings):
+    def __init__(self, params: ChainParams, flow: Flow, W, settings: NewtonSettings, symmetric: bool = False):
         self.params, self.flow, self.W, self.settings = params, flow, W, settings
+        self.project = mirror_projector(params.N) if symmetric else None
 
     def correct(self, y_pred, tau):
         try:
-            return newton(y_pred, lambda y: _BorderedPoint(self, y, y_pred, tau), self.settings)
+            return newton(y_pred, lambda y: _BorderedPoint(self, y, y_pred, tau), self.settings, project=self.project)
         except _BadFrequency as exc:
             return Failure(f"the corrector left the positive frequencies (w = {exc.args[0]:.3g})")
 
@@ -203,8 +204,9 @@ class PseudoArclength:
     parameter = "omega"
 
     def __init__(self, params: ChainParams, flow: Flow, start_points=None, *, omega_min: float = 0.5,
-                 theta: float | None = None, eigenmode_amplitude: float = 0.03):
+                 theta: float | None = None, eigenmode_amplitude: float = 0.03, symmetric: bool | None = None):
         self.params, self.flow, self.start_points = params, flow, start_points
+        self.symmetric = symmetric
         self.omega_min, self.theta, self.eigenmode_amplitude = float(omega_min), theta, eigenmode_amplitude
         self.W = _weights(params, theta)
         self.edges = band_edges(params.M, params.K)
@@ -213,10 +215,14 @@ class PseudoArclength:
     def _norm(self, d) -> float:
         return math.sqrt(float(np.sum(self.W * d * d)))
 
-    def prepare(self, settings: ContinuationSettings) -> None:
+    def prepare(self, settings: ContinuationSettings, resume=None) -> None:
         self._settings = settings
+        if self.symmetric is None:  # the eigenmode start is symmetric; a resumed branch says itself
+            first = resume[-1].state if resume else (self.start_points[-1][0] if self.start_points else None)
+            self.symmetric = first is None or is_mirror_symmetric(first, 1e-9)
         self.corrector = _ArclengthCorrector(self.params, self.flow, self.W,
-                                             NewtonSettings(tol=settings.newton_tol, max_iterations=settings.max_newton))
+                                             NewtonSettings(tol=settings.newton_tol, max_iterations=settings.max_newton),
+                                             symmetric=self.symmetric)
 
     def start(self):
         settings = self._settings
@@ -308,7 +314,8 @@ def start_from_eigenmode(params: ChainParams, amplitude: float = 0.03, *, flow: 
     phi = z / np.max(np.abs(z))
     ratio = np.sum(phi ** 4) / np.sum(phi ** 2)
     W = _weights(params, theta)
-    corrector = _ArclengthCorrector(params, flow, W, NewtonSettings(tol=tol, max_iterations=30))
+    corrector = _ArclengthCorrector(params, flow, W, NewtonSettings(tol=tol, max_iterations=30),
+                                    symmetric=is_mirror_symmetric(shape, 1e-9))
     direction = np.concatenate([shape[:2].ravel(), [0.0]])
     tau = direction / math.sqrt(np.sum(W * direction * direction))
     out = []

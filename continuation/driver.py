@@ -324,7 +324,7 @@ def continuation(problem, settings: ContinuationSettings = ContinuationSettings(
         return analyse(out, settings.floquet)
 
     points: list = []
-    problem.prepare(settings)
+    problem.prepare(settings, resume)
     if resume:
         if len(resume) < 2 and problem.parameter == "omega":
             raise ValueError("resuming a frequency branch needs at least two stored points (they set the tangent)")

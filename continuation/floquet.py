@@ -244,8 +244,9 @@ def participation(vectors: np.ndarray, M: float) -> np.ndarray:
 
 def mirror_symmetric(state: np.ndarray, rtol: float = 1e-6) -> bool:
     """Whether positions equal their reflection j -> N + 1 - j (to rtol of their size)."""
-    q = np.asarray(state)[:2]
-    return bool(np.max(np.abs(q - q[:, ::-1])) <= rtol * max(np.max(np.abs(q)), 1e-300))
+    from .shooting import is_mirror_symmetric
+
+    return is_mirror_symmetric(state, rtol)
 
 
 def vector_parity(vectors: np.ndarray, threshold: float = 0.9) -> np.ndarray:

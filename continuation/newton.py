@@ -110,7 +110,7 @@ def solve_linear(J, r):
 
 def newton(unknowns, evaluate: Callable[[np.ndarray], Evaluation], settings: NewtonSettings = NewtonSettings(), *,
            amplitude: Callable[[np.ndarray], float] | None = None, collapse_below: float = 0.0,
-           log=None) -> NewtonOutcome:
+           project: Callable[[np.ndarray], np.ndarray] | None = None, log=None) -> NewtonOutcome:
     """Damped Newton: LU solve (least squares when singular, ill-conditioned or not square), step
     halved while the residual grows.
 
@@ -120,11 +120,15 @@ def newton(unknowns, evaluate: Callable[[np.ndarray], Evaluation], settings: New
         settings: NewtonSettings.
         amplitude, collapse_below: an iterate with amplitude(y) < collapse_below (or 0) is reported
             as ``TRIVIAL`` (Newton fell onto the rest state).
+        project: maps every iterate (the first included) onto an invariant subspace, e.g. mirror-
+            symmetric profiles, so that round-off cannot lead the iteration off a symmetric branch.
         log: optional callable receiving one line per iteration.
     """
     history, used_lstsq, iterations, message = [], 0, 0, ""
     stats = {"evaluations": 0, "jacobians": 0}
     status, ev = None, None
+    if project is not None:
+        unknowns = project(unknowns)
     try:
         ev = evaluate(unknowns)
         stats["evaluations"] += 1
@@ -153,7 +157,7 @@ def newton(unknowns, evaluate: Callable[[np.ndarray], Evaluation], settings: New
             used_lstsq += int(lstsq_used)
             lam, trial, trial_ev, trial_norm = 1.0, None, None, math.inf
             for _ in range(settings.max_halvings + 1):
-                trial = unknowns - lam * step
+                trial = unknowns - lam * step if project is None else project(unknowns - lam * step)
                 trial_ev = evaluate(trial)
                 stats["evaluations"] += 1
                 trial_norm = float(np.linalg.norm(trial_ev.residual))

@@ -144,6 +144,19 @@ def time_grid(omega: float, dt: float | None, steps_per_period: int | None) -> t
     return n_half, half / n_half
 
 
+def mirror_projector(N: int):
+    """Projection of positions (u then v, the first 2N entries; anything after them, such as a
+    frequency, is left alone) onto profiles that equal their reflection j -> N + 1 - j."""
+
+    def project(y):
+        out = np.array(y, dtype=float, copy=True)
+        q = out[: 2 * N].reshape(2, N)
+        q[:] = 0.5 * (q + q[:, ::-1])
+        return out
+
+    return project
+
+
 def _state(params, q):
     N = params.N
     x = np.zeros((4, N))
@@ -249,6 +262,12 @@ class ShootingPoint:
         return self._jacobian
 
 
+def is_mirror_symmetric(state, rtol: float) -> bool:
+    """Whether the positions equal their reflection j -> N + 1 - j to rtol of their size."""
+    q = np.asarray(state)[:2]
+    return bool(np.max(np.abs(q - q[:, ::-1])) <= rtol * max(float(np.max(np.abs(q))), 1e-300))
+
+
 def _check_number(name, value, *, positive=True):
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) or np.iscomplexobj(value):
         raise ValueError(f"{name} must be a real number, got {value!r}")
@@ -262,7 +281,7 @@ def find_breather(params: ChainParams, omega: float, seed, *, formulation: str =
                   flow: Flow | None = None, method: str | None = None, dt: float | None = None,
                   steps_per_period: int | None = None, tol: float = 1e-10, max_iterations: int = 30,
                   jacobian: str = "tangent", fd_step: float = 1e-7, collapse_ratio: float = 1e-3,
-                  device: str | None = None, log=None) -> ShootingResult:
+                  symmetric: bool | None = None, device: str | None = None, log=None) -> ShootingResult:
     """Newton shooting for a breather of frequency ``omega`` from ``seed``.
 
     Args:
@@ -276,6 +295,10 @@ def find_breather(params: ChainParams, omega: float, seed, *, formulation: str =
         jacobian: ``"tangent"`` (exact derivative of the discrete map) or ``"finite-difference"``.
         collapse_ratio: an iterate whose max |u - v| falls below this fraction of the seed's is
             reported as ``TRIVIAL`` (the rest state is not a breather).
+        symmetric: keep every iterate mirror-symmetric (j -> N + 1 - j). None (default): when the
+            seed is (to 1e-9 of its size) and the formulation is reversible. Newton then cannot drift
+            off a site-centred family through round-off amplified by a near-symmetry-breaking
+            direction; False solves without the constraint (e.g. for asymmetric breathers).
         log: optional callable receiving one line per iteration.
 
     Returns:
@@ -300,8 +323,13 @@ def find_breather(params: ChainParams, omega: float, seed, *, formulation: str =
         x = pmap.to_state(unknowns)
         return float(np.max(np.abs(x[0] - x[1])))
 
+    if symmetric is None:
+        symmetric = formulation == "reversible" and is_mirror_symmetric(seed, 1e-9)
+    if symmetric and formulation != "reversible":
+        raise ValueError("symmetric=True needs the reversible formulation")
     outcome = newton(pmap.from_state(seed), pmap.evaluate, settings, amplitude=amplitude,
-                     collapse_below=collapse_ratio * seed_amplitude, log=log)
+                     collapse_below=collapse_ratio * seed_amplitude,
+                     project=mirror_projector(params.N) if symmetric else None, log=log)
     return shooting_result(pmap, outcome, start)
 
 
