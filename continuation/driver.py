@@ -50,6 +50,14 @@ from .floquet import FloquetResult, Instability, reduced_floquet
 from .shooting import frequency_report
 
 
+#: ``bisect_krein="auto"`` bisects every opposite-signature pass up to this many sites. Measured on
+#: the paper's M = 30 chain, w_b = 1.01 / K = 160, 2-core CPU: at N = 41 "all" costs 12 s for the
+#: frequency branch to contact loss (517 points, 15 stability changes; "localized": 71 points, 1
+#: change) and 33 s for K = 0.01 .. 160 (1524 points, 152 changes; "localized": 464 points, 76); at
+#: N = 201 the passes number ~1000-1500 per branch (minutes on an H200), so "localized" is used there.
+AUTO_ALL_SITES = 64
+
+
 @dataclasses.dataclass(frozen=True)
 class ContinuationSettings:
     """Everything a branch's walk is controlled by (the problem holds what is solved).
@@ -62,9 +70,10 @@ class ContinuationSettings:
         multiplier_fraction, multiplier_floor: the spectral step bound (module docstring).
         resolution: smallest bracket of a located change, in the continuation coordinate.
         bisect_krein: which passes of elliptic multipliers of opposite Krein signature (with no
-            instability at either end) are bisected: ``"localized"`` (default: those where a localized
-            mode took part), ``"all"`` (thorough, costly next to the phonon clusters at the band
-            edges) or ``"none"``. The others are recorded as ``krein_crossing`` events.
+            instability at either end) are bisected: ``"all"``, ``"localized"`` (those where a
+            localized mode took part), ``"none"``, or ``"auto"`` (default: ``"all"`` for chains of at
+            most AUTO_ALL_SITES sites, where it is affordable, ``"localized"`` above). The others are
+            recorded as ``krein_crossing`` events.
         bisect_counts: also bisect steps across which only the number of unstable multipliers of
             a kind changed (inside an unstable stretch; recorded as ``instability_count`` events).
         floquet: compute multipliers at every point (False: energies only, no stability).
@@ -81,7 +90,7 @@ class ContinuationSettings:
     multiplier_fraction: float = 0.5
     multiplier_floor: float = 0.05
     resolution: float = 1e-3
-    bisect_krein: str = "localized"
+    bisect_krein: str = "auto"
     bisect_counts: bool = False
     floquet: bool = True
     max_seconds: float | None = None
@@ -93,8 +102,8 @@ class ContinuationSettings:
             if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
                     or not math.isfinite(value) or value <= 0:
                 raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
-        if self.bisect_krein not in ("localized", "all", "none"):
-            raise ValueError(f"bisect_krein must be 'localized', 'all' or 'none', got {self.bisect_krein!r}")
+        if self.bisect_krein not in ("auto", "localized", "all", "none"):
+            raise ValueError(f"bisect_krein must be 'auto', 'localized', 'all' or 'none', got {self.bisect_krein!r}")
         if not self.ds_min <= self.ds <= self.ds_max:
             raise ValueError(f"need ds_min <= ds <= ds_max, got {self.ds_min}, {self.ds}, {self.ds_max}")
         if self.grow < 1:
@@ -325,6 +334,8 @@ def continuation(problem, settings: ContinuationSettings = ContinuationSettings(
 
     points: list = []
     problem.prepare(settings, resume)
+    if settings.bisect_krein == "auto":
+        settings = settings.replace(bisect_krein="all" if problem.params.N <= AUTO_ALL_SITES else "localized")
     if resume:
         if len(resume) < 2 and problem.parameter == "omega":
             raise ValueError("resuming a frequency branch needs at least two stored points (they set the tangent)")

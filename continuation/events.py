@@ -200,8 +200,11 @@ def harmonic_event(prev, point, parameter: str) -> dict | None:
 
 
 def unstable_intervals(points, parameter: str) -> list:
-    """Maximal runs of unstable points as ``{start, end, kinds, localized, max_modulus}``; an
-    interval's ends are the midpoints of the brackets where stability changed (or the branch's end)."""
+    """Maximal runs of unstable points as ``{start, end, kinds, localized, localized_kinds,
+    max_modulus, points}``. An interval's ends are the midpoints of the brackets where stability
+    changed (or the branch's end); ``localized`` is the leading unstable Floquet vector's at the most
+    unstable point (participation below ``floquet.LOCALIZED_FRACTION`` N), ``localized_kinds`` the
+    kinds that are localized at any point of the interval."""
     out, run = [], []
 
     def close(run, after):
@@ -213,6 +216,7 @@ def unstable_intervals(points, parameter: str) -> list:
         lead = worst.instabilities[0] if worst.instabilities else None
         out.append({"start": start, "end": end, "kinds": sorted({i.kind for p in run for i in p.instabilities}),
                     "localized": None if lead is None else bool(lead.localized),
+                    "localized_kinds": sorted({i.kind for p in run for i in p.instabilities if i.localized}),
                     "max_modulus": float(worst.max_modulus), "points": len(run)})
 
     for i, p in enumerate(points):

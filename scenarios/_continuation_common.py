@@ -77,4 +77,4 @@ def stability_strip(ax, points, parameter: str, log: bool = False) -> None:
     ax.set_ylim(floor / 3, max(1e-2, np.nanmax(dev) * 3) if np.isfinite(dev).any() else 1e-2)
     ax.set_ylabel(r"max $|\lambda|$ - 1")
     ax.set_xlabel({"K": "K", "omega": r"$\omega_b$"}[parameter])
-    ax.legend(fontsize=7, ncol=4, loc="upper left")
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.005, 1.0), borderaxespad=0.0)  # outside: no data hidden

@@ -1,6 +1,7 @@
 """Anti-continuum limit (paper Fig. 5a): the single-site orbit at w_b = 1.01 and the frequency-amplitude curve.
 
 Command: ``python -m scenarios run anticontinuum`` (about 5 s on a 2-core CPU).
+Options: ``--set KEY=VALUE`` (fields of ``Parameters``).
 
 At K = 0 each site is the oscillator z'' = -w0^2 f(z), w0^2 = (M + 1)/M; it softens, so the orbit of
 frequency w_b < w0 is found by root finding on its period (a one-degree-of-freedom problem). The
@@ -8,6 +9,8 @@ seed puts it on the centre site with M u + v = 0 and the rest of the chain at re
 """
 
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 
@@ -17,18 +20,32 @@ from warpchain.store import open_store, provenance, read_group, write_table
 
 from ._common import PAPER_M, PAPER_N, PAPER_OMEGA, Context, pyplot, read_summary, save_figure
 
-# parameters
-M, N, OMEGA, K_SEED = PAPER_M, PAPER_N, PAPER_OMEGA, 0.01
-AMPLITUDES = np.geomspace(1e-3, 3.0, 60)  # upper turning points z_max
+
+@dataclasses.dataclass(frozen=True)
+class Parameters:
+    """The scene's parameters (``--set KEY=VALUE`` overrides any of them)."""
+
+    M: float = PAPER_M
+    N: int = PAPER_N
+    omega: float = PAPER_OMEGA
+    K_seed: float = 0.01             # coupling stored with the seed (the K = 0 orbit does not depend on it)
+    amplitude_min: float = 1e-3      # frequency-amplitude curve: upper turning points z_max, log-spaced
+    amplitude_max: float = 3.0
+    amplitude_points: int = 60
+    amplitude_stride: int = 1        # use every n-th point of that grid
+
+
+QUICK = {"amplitude_stride": 4}
 
 
 def run(ctx: Context) -> dict:
-    params = ChainParams(M, K_SEED, N)
-    orbit = anticontinuum_orbit(OMEGA, M)
-    ctx.log("orbit at w_b = %.4f: z in [%.6f, %.6f], period %.6f", OMEGA, orbit.z_min, orbit.z_max, orbit.period)
-    amplitudes = AMPLITUDES[::4] if ctx.quick else AMPLITUDES
-    freqs = np.array([oscillator_frequency(a, M) for a in amplitudes])
-    seed = anticontinuum_seed(params, OMEGA)
+    P: Parameters = ctx.params
+    params = ChainParams(P.M, P.K_seed, P.N)
+    orbit = anticontinuum_orbit(P.omega, P.M)
+    ctx.log("orbit at w_b = %.4f: z in [%.6f, %.6f], period %.6f", P.omega, orbit.z_min, orbit.z_max, orbit.period)
+    amplitudes = np.geomspace(P.amplitude_min, P.amplitude_max, P.amplitude_points)[::P.amplitude_stride]
+    freqs = np.array([oscillator_frequency(a, P.M) for a in amplitudes])
+    seed = anticontinuum_seed(params, P.omega)
     omega0 = params.omega0
     small = amplitudes < 0.05
     # Lindstedt: w = w0 (1 - a^2 / 24) for z = a cos(w t) + O(a^2); the largest relative deviation
@@ -36,13 +53,13 @@ def run(ctx: Context) -> dict:
     lindstedt = omega0 * (1 - amplitudes ** 2 / 24)
     root = open_store(ctx.out / "data.zarr", params=params.as_dict(), provenance_info=provenance(ctx.device))
     write_table(root, "orbit", {"t": orbit.t, "z": orbit.z}, dim="t",
-                attrs={"omega": OMEGA, "z_max": orbit.z_max, "z_min": orbit.z_min})
+                attrs={"omega": P.omega, "z_max": orbit.z_max, "z_min": orbit.z_min})
     write_table(root, "frequency_amplitude", {"z_max": amplitudes, "omega": freqs, "lindstedt": lindstedt},
                 dim="point", attrs={"omega0": omega0})
-    write_table(root, "seed", {"u": seed[0], "v": seed[1], "site": np.arange(1, N + 1)}, dim="site")
+    write_table(root, "seed", {"u": seed[0], "v": seed[1], "site": np.arange(1, P.N + 1)}, dim="site")
     return {
-        "M": M, "omega": OMEGA, "omega0": omega0, "z_max": orbit.z_max, "z_min": orbit.z_min,
-        "period": orbit.period, "seed_u_center": seed[0, N // 2], "seed_v_center": seed[1, N // 2],
+        "M": P.M, "omega": P.omega, "omega0": omega0, "z_max": orbit.z_max, "z_min": orbit.z_min,
+        "period": orbit.period, "seed_u_center": seed[0, P.N // 2], "seed_v_center": seed[1, P.N // 2],
         "lindstedt_max_relative_deviation_small_amplitude": float(np.max(np.abs(freqs[small] / lindstedt[small] - 1))),
     }
 

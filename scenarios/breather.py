@@ -2,6 +2,7 @@
 by direct simulation over 100 periods; tangent vs finite-difference Jacobians charted.
 
 Command: ``python -m scenarios run breather --device cpu`` (about 40 s on a 2-core CPU; ``--quick`` ~15 s).
+Options: ``--set KEY=VALUE`` (fields of ``Parameters``).
 
 Steps: the NLS seed -> Newton on the time-reversible half-period map (tangent Jacobian, kahan8,
 32 steps per period) -> the full 804 x 804 monodromy and its multipliers -> the general
@@ -11,6 +12,7 @@ formulation (full state, x(T) - x0 plus a phase condition) from the same seed as
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
@@ -23,14 +25,22 @@ from warpchain.store import open_store, provenance, read_group, write_fields, wr
 from ._common import (BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD, PAPER_K, PAPER_M, PAPER_N, PAPER_OMEGA, Context,
                       paper_breather, pyplot, read_summary, save_figure)
 
-# parameters
-PERIODS = 100                 # direct-simulation check
-DOP853_PERIODS = 100          # independent scipy check
-FD_STEPS = (1e-3, 1e-5, 1e-7, 1e-9)
-CONTACT_LOSS_SCALE = 3.0      # the breather profile scaled up until resonators lose contact
+
+@dataclasses.dataclass(frozen=True)
+class Parameters:
+    """The scene's parameters (``--set KEY=VALUE`` overrides any of them)."""
+
+    periods: int = 100                          # direct-simulation check with the breather's own integrator
+    dop853_periods: int = 100                   # independent scipy check
+    fd_steps: tuple = (1e-3, 1e-5, 1e-7, 1e-9)  # finite-difference steps h of the Jacobian comparison
+    contact_loss_scale: float = 3.0             # the breather profile scaled up until resonators lose contact
+    general_seed_near_solution: bool = False    # seed the general formulation next to the solution, not from NLS
 
 
-def _jacobian_comparison(params, state, n_half, dt, device, label):
+QUICK = {"dop853_periods": 10, "general_seed_near_solution": True}
+
+
+def _jacobian_comparison(params, state, n_half, dt, device, label, fd_steps):
     """Half-period Jacobian (2N position columns): tangent vs central finite differences."""
     N = params.N
     directions = np.eye(4 * N)[: 2 * N].reshape(2 * N, 4, N)
@@ -39,7 +49,7 @@ def _jacobian_comparison(params, state, n_half, dt, device, label):
     t_tan = time.perf_counter() - t0
     J = tan.columns.reshape(2 * N, -1)
     rows = [{"case": label, "jacobian": "tangent", "h": None, "seconds": t_tan, "relative_difference": 0.0}]
-    for h in FD_STEPS:
+    for h in fd_steps:
         t0 = time.perf_counter()
         batch = np.concatenate([state[None] + h * directions, state[None] - h * directions])
         run = simulate(params, batch, n_half * dt, dt, method=BREATHER_METHOD, device=device, max_energy_error=None,
@@ -51,6 +61,7 @@ def _jacobian_comparison(params, state, n_half, dt, device, label):
 
 
 def run(ctx: Context) -> dict:
+    P: Parameters = ctx.params
     start = time.perf_counter()
     params = ChainParams(PAPER_M, PAPER_K, PAPER_N)
     b = paper_breather(ctx.device, log=ctx.log)
@@ -67,9 +78,10 @@ def run(ctx: Context) -> dict:
             full.max_modulus, reduced_vs_full, full.pairing_error, full.wall_seconds)
 
     # cross-check: the general formulation from the same seed
-    seed = nls_seed(params, PAPER_OMEGA)
-    if ctx.quick:  # start next to the solution: a few cheap iterations
+    if P.general_seed_near_solution:  # a few cheap iterations
         seed = b.state + 1e-4 * np.exp(-((np.arange(params.N) - params.N // 2) / 3.0) ** 2)
+    else:
+        seed = nls_seed(params, PAPER_OMEGA)
     general = require(find_breather(params, PAPER_OMEGA, seed, formulation="general", method=BREATHER_METHOD,
                                     steps_per_period=BREATHER_STEPS_PER_PERIOD, device=ctx.device))
     general_diff = float(np.max(np.abs(general.state - b.state)))
@@ -77,24 +89,23 @@ def run(ctx: Context) -> dict:
 
     # direct simulation over many periods with the same integrator, sampled once per period
     n_period = 2 * b.nsteps
-    direct = simulate(params, b.state, PERIODS * n_period * b.dt, b.dt, method=b.method, device=ctx.device,
+    direct = simulate(params, b.state, P.periods * n_period * b.dt, b.dt, method=b.method, device=ctx.device,
                       save_every=n_period, progress=False)
     amp = np.max(np.abs(b.state[:2]))
     deviation = np.maximum(np.max(np.abs(direct.u[:, 0] - b.state[0]), axis=-1),
                            np.max(np.abs(direct.v[:, 0] - b.state[1]), axis=-1)) / amp
     ctx.log("direct simulation: %d periods, max relative deviation from the initial profile %.2e, energy error %.1e",
-            PERIODS, deviation.max(), direct.energy_error[0])
+            P.periods, deviation.max(), direct.energy_error[0])
     t0 = time.perf_counter()
-    dop_periods = 10 if ctx.quick else DOP853_PERIODS
-    dop_end, sol = solve_ivp_reference(params, b.state, dop_periods * b.period, rtol=1e-11, atol=1e-13)
+    dop_end, sol = solve_ivp_reference(params, b.state, P.dop853_periods * b.period, rtol=1e-11, atol=1e-13)
     dop_dev = float(np.max(np.abs(dop_end[:2] - b.state[:2])) / amp)
-    ctx.log("scipy DOP853 (rtol 1e-11): %d periods in %.1f s, relative deviation %.2e", dop_periods,
+    ctx.log("scipy DOP853 (rtol 1e-11): %d periods in %.1f s, relative deviation %.2e", P.dop853_periods,
             time.perf_counter() - t0, dop_dev)
 
     # tangent vs finite-difference Jacobians: smooth orbit and an orbit that loses contact
-    rows = _jacobian_comparison(params, b.state, b.nsteps, b.dt, ctx.device, "breather (smooth)")
-    loss_state = CONTACT_LOSS_SCALE * b.state
-    rows_loss = _jacobian_comparison(params, loss_state, b.nsteps, b.dt, ctx.device, "contact loss")
+    rows = _jacobian_comparison(params, b.state, b.nsteps, b.dt, ctx.device, "breather (smooth)", P.fd_steps)
+    loss_state = P.contact_loss_scale * b.state
+    rows_loss = _jacobian_comparison(params, loss_state, b.nsteps, b.dt, ctx.device, "contact loss", P.fd_steps)
     loss_contact = float(simulate(params, loss_state, b.nsteps * b.dt, b.dt, method=b.method, device=ctx.device,
                                   save_every=1, max_energy_error=None).min_contact[0])
     ctx.log("contact-loss orbit: min(1 + u - v) = %.3f over the half period", loss_contact)
@@ -110,8 +121,10 @@ def run(ctx: Context) -> dict:
                                          "path": fl.path})
     write_table(root, "newton", {"residual": np.array(b.residual_history)}, dim="iteration")
     write_fields(root, ctx.out / "data.zarr", "direct", direct.t, {"u": direct.u[:, 0], "v": direct.v[:, 0]},
-                 ("t", "site"), chunk_t=64, attrs={"method": direct.method, "dt": direct.dt, "sampled": "once per period"})
-    write_table(root, "periodicity", {"period": np.arange(PERIODS + 1), "relative_deviation": deviation}, dim="period")
+                 ("t", "site"), chunk_t=64,
+                 attrs={"method": direct.method, "dt": direct.dt, "sampled": "once per period"})
+    write_table(root, "periodicity", {"period": np.arange(P.periods + 1), "relative_deviation": deviation},
+                dim="period")
     cases = sorted({r["case"] for r in rows})
     write_table(root, "jacobian_comparison", {
         "case": np.array([cases.index(r["case"]) for r in rows]),
@@ -135,9 +148,9 @@ def run(ctx: Context) -> dict:
         "newton_seconds": b.wall_seconds, "floquet_seconds": fl.wall_seconds,
         "general_formulation": {"iterations": general.iterations, "residual": general.residual,
                                 "max_state_difference": general_diff, "seconds": general.wall_seconds},
-        "direct_simulation": {"periods": PERIODS, "max_relative_deviation": float(deviation.max()),
+        "direct_simulation": {"periods": P.periods, "max_relative_deviation": float(deviation.max()),
                               "energy_error": float(direct.energy_error[0]), "seconds": direct.wall_seconds},
-        "dop853_check": {"periods": dop_periods, "rtol": 1e-11, "relative_deviation": dop_dev},
+        "dop853_check": {"periods": P.dop853_periods, "rtol": 1e-11, "relative_deviation": dop_dev},
         "jacobian_comparison": rows, "contact_loss_min_contact": loss_contact,
         "wall_seconds": time.perf_counter() - start,
     }

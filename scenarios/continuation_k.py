@@ -48,7 +48,7 @@ class Parameters:
     method: str = BREATHER_METHOD
     steps_per_period: int = BREATHER_STEPS_PER_PERIOD
     max_seconds: float | None = None  # opt-in time budget
-    bisect_krein: str = "localized"   # which opposite-signature passes are bisected: localized, all, none
+    bisect_krein: str = "auto"        # opposite-signature passes bisected: auto (all for N <= 64), localized, all, none
 
 
 QUICK = {"N": 101, "ds": 0.5, "ds_max": 1.0, "resolution": 1e-2}
@@ -94,7 +94,7 @@ def plot(out) -> None:
     for lab, k in zip(("I", "II", "III"), profile_K):
         i = np.argmin(np.abs(K - k))
         if abs(K[i] - k) < 1e-9 * k:
-            ax.annotate(lab, (K[i], E[i]), textcoords="offset points", xytext=(-4, 8))
+            ax.annotate(lab, (K[i], E[i]), textcoords="offset points", xytext=(-14, 2), ha="right")
     ax.set_ylabel("energy H")
     stop = s["stop_reason"].replace("_", " ")
     ax.set_title(f"continuation in K: M = {s['M']:g}, $\\omega_b$ = {s['omega']}, N = {s['N']} (stopped: {stop})")

@@ -50,7 +50,7 @@ class Parameters:
     method: str = BREATHER_METHOD
     steps_per_period: int = BREATHER_STEPS_PER_PERIOD
     max_seconds: float | None = None  # opt-in time budget
-    bisect_krein: str = "localized"   # which opposite-signature passes are bisected: localized, all, none
+    bisect_krein: str = "auto"        # opposite-signature passes bisected: auto (all for N <= 64), localized, all, none
 
 
 QUICK = {"N": 101, "omega_min": 1.005, "resolution": 1e-2}

@@ -2,6 +2,7 @@
 ensemble for 200 periods (T = 2 pi / 1.01) on 201 sites.
 
 Command: ``python -m scenarios run direct-simulation`` (about 30 s on a 2-core CPU; ``--quick`` 20 periods).
+Options: ``--set KEY=VALUE`` (fields of ``Parameters``).
 
 Cases (DESIGN.md section 3): ``breather-high`` the exact w_b = 1.01 breather computed by the project;
 ``breather-low`` that profile scaled so v_101 is 1/100 of the exact one; ``eigenmode-low`` the lowest
@@ -17,6 +18,7 @@ sampling aliasing the mode's own frequency (1.01655 against 1.01), not a physica
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
@@ -28,10 +30,18 @@ from warpchain.store import FieldWriter, open_store, provenance, read_group
 from ._common import (PAPER_K, PAPER_M, PAPER_N, Context, paper_breather,
                       pyplot, read_summary, save_figure)
 
-# parameters
-PERIODS, PERIODS_QUICK = 200, 20
-FRAMES_PER_PERIOD = 4                       # what the space-time maps need
 CASES = ("eigenmode-low", "breather-low", "eigenmode-high", "breather-high")   # Fig. 9 (a)-(d)
+
+
+@dataclasses.dataclass(frozen=True)
+class Parameters:
+    """The scene's parameters (``--set KEY=VALUE`` overrides any of them)."""
+
+    periods: int = 200               # breather periods T = 2 pi / w_b simulated
+    frames_per_period: int = 4       # stored frames per period: what the space-time maps need
+
+
+QUICK = {"periods": 20}
 
 
 def initial_conditions(params, breather_state):
@@ -49,17 +59,18 @@ def initial_conditions(params, breather_state):
 
 
 def run(ctx: Context) -> dict:
+    P: Parameters = ctx.params
     start = time.perf_counter()
     params = ChainParams(PAPER_M, PAPER_K, PAPER_N)
     b = paper_breather(ctx.device, log=ctx.log)
     ics = initial_conditions(params, b.state)
     x0 = np.stack([ics[name] for name in CASES])
-    periods = PERIODS_QUICK if ctx.quick else PERIODS
+    periods = P.periods
     steps_per_period = 2 * b.nsteps
-    save_every = steps_per_period // FRAMES_PER_PERIOD
+    save_every = steps_per_period // P.frames_per_period
     root = open_store(ctx.out / "data.zarr", params=params.as_dict(), provenance_info=provenance(ctx.device))
     writers = {name: FieldWriter(root, ctx.out / "data.zarr", name, {"u": (params.N,), "v": (params.N,)},
-                                 ("t", "site"), chunk_t=128, expected_frames=periods * FRAMES_PER_PERIOD + 1,
+                                 ("t", "site"), chunk_t=128, expected_frames=periods * P.frames_per_period + 1,
                                  attrs={"case": name, "v101_initial": float(ics[name][1, params.N // 2])})
                for name in CASES}
 
@@ -93,7 +104,7 @@ def run(ctx: Context) -> dict:
                 run_.energy_error[k], run_.min_contact[k], " (contact lost)" if run_.min_contact[k] <= 0 else "",
                 diff.max())
     return {"periods": periods, "period": b.period, "method": run_.method, "dt": run_.dt,
-            "steps_per_period": steps_per_period, "frames_per_period": FRAMES_PER_PERIOD,
+            "steps_per_period": steps_per_period, "frames_per_period": P.frames_per_period,
             "wall_seconds": time.perf_counter() - start, "simulation_seconds": run_.wall_seconds, "cases": cases}
 
 

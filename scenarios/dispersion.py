@@ -1,6 +1,7 @@
 """Dispersion and the parameter fit (paper section "Parameter Fitting", Fig. 2, Appendices A and B).
 
 Command: ``python -m scenarios run dispersion`` (about 5 s on a 2-core CPU; no integration).
+Options: ``--set KEY=VALUE`` (fields of ``Parameters``).
 
 * The discrete chain for M = 30, K = 160: acoustic and optical branches over the Brillouin zone,
   their long-wave limits, the band edges, the N = 201 fixed-end chain's mode frequencies.
@@ -16,6 +17,7 @@ Command: ``python -m scenarios run dispersion`` (about 5 s on a 2-core CPU; no i
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -24,21 +26,31 @@ from warpchain import ChainParams, band_edges, dispersion, dispersion_long_wave,
 from warpchain import physical
 from warpchain.store import open_store, provenance, write_table
 
-from ._common import Context, pyplot, read_summary, save_figure
+from ._common import PAPER_K, PAPER_M, PAPER_N, Context, pyplot, read_summary, save_figure
 
-# parameters
-M, K, N = 30.0, 160.0, 201
-N_Q = 801
 MATERIALS = physical.SILICA_SPHERES_ON_GLASS
-SENSITIVITY_STEP = 0.05          # relative change of each assumed value
 SENSITIVITY_PARAMETERS = ("diameter", "rho_sphere", "rho_substrate", "E_substrate", "nu_substrate",
                           "contact_frequency_hz")
-K_MAX_OVER_KT = 2.0              # Fig. 2 wavenumber range, in units of the c_T crossing
-N_K = 400
 
 
-def _fit_section(ctx):
-    """The continuous model, the fit, its sensitivity; returns (summary dict, curves dict)."""
+@dataclasses.dataclass(frozen=True)
+class Parameters:
+    """The scene's parameters (``--set KEY=VALUE`` overrides any of them)."""
+
+    M: float = PAPER_M
+    K: float = PAPER_K
+    N: int = PAPER_N                 # sites of the fixed-end chain whose mode frequencies are listed
+    bloch_points: int = 801          # Bloch numbers q over [0, pi]
+    sensitivity_step: float = 0.05   # relative change of each assumed value
+    k_max_over_k_T: float = 2.0      # Fig. 2 wavenumber range, in units of the c_T crossing
+    wavenumber_points: int = 400     # Fig. 2 wavenumbers
+
+
+QUICK: dict = {}                     # the full scene already takes seconds
+
+
+def _fit_section(ctx, P: Parameters):
+    """The continuous model, the fit, its sensitivity; returns (summary dict, curves dict, fit)."""
     mat = MATERIALS
     fit = physical.fit_to_substrate(mat, convention="exact")
     paper = physical.fit_to_substrate(mat, convention="paper")
@@ -47,17 +59,18 @@ def _fit_section(ctx):
     sensitivity = {}
     for name in SENSITIVITY_PARAMETERS:
         base = getattr(mat, name)
-        up = physical.fit_to_substrate(mat.replace(**{name: base * (1 + SENSITIVITY_STEP)}))
-        down = physical.fit_to_substrate(mat.replace(**{name: base * (1 - SENSITIVITY_STEP)}))
-        span = math.log((1 + SENSITIVITY_STEP) / (1 - SENSITIVITY_STEP))
+        up = physical.fit_to_substrate(mat.replace(**{name: base * (1 + P.sensitivity_step)}))
+        down = physical.fit_to_substrate(mat.replace(**{name: base * (1 - P.sensitivity_step)}))
+        span = math.log((1 + P.sensitivity_step) / (1 - P.sensitivity_step))
         sensitivity[name] = {"dlnM_dlnp": math.log(up["M"] / down["M"]) / span,
                              "dlnK_dlnp": math.log(up["K"] / down["K"]) / span}
         ctx.log("sensitivity to %-20s d ln M / d ln p = %+.2f, d ln K / d ln p = %+.2f", name,
                 sensitivity[name]["dlnM_dlnp"], sensitivity[name]["dlnK_dlnp"])
     model = mat.surface_model()
-    k = np.linspace(fit["k_T"] * K_MAX_OVER_KT / N_K, fit["k_T"] * K_MAX_OVER_KT, N_K)
+    k_max = fit["k_T"] * P.k_max_over_k_T
+    k = np.linspace(k_max / P.wavenumber_points, k_max, P.wavenumber_points)
     disc_ac, disc_op = dispersion(k * mat.diameter, fit["M"], fit["K"])
-    pap_ac, pap_op = dispersion(k * mat.diameter, M, K)
+    pap_ac, pap_op = dispersion(k * mat.diameter, P.M, P.K)
     curves = {"k": k, "continuous_lower": model.branch(k, "lower"), "continuous_upper": model.branch(k, "upper"),
               "discrete_acoustic": disc_ac * fit["omega0"], "discrete_optical": disc_op * fit["omega0"],
               "paper_acoustic": pap_ac * fit["omega0"], "paper_optical": pap_op * fit["omega0"]}
@@ -71,7 +84,7 @@ def _fit_section(ctx):
                                            "as D w0 sqrt(K/M) (paper) instead of D w0 sqrt(K/(M+1)) (exact)"},
         "material_set": mat.as_dict(),
         "material_note": "assumed handbook values; f0 = 215 MHz is the measured contact resonance the paper quotes",
-        "sensitivity": sensitivity, "sensitivity_step": SENSITIVITY_STEP,
+        "sensitivity": sensitivity, "sensitivity_step": P.sensitivity_step,
         "hertz_dmt": {"f0_hz": hertz_w0 / (2 * math.pi), "work_of_adhesion": mat.work_of_adhesion,
                       "work_of_adhesion_for_measured_f0": mat.work_of_adhesion * (fit["omega0"] / hertz_w0) ** 6,
                       "note": "w0 from the linearised Hertz-DMT contact scales as w^(1/6)"},
@@ -80,11 +93,12 @@ def _fit_section(ctx):
 
 
 def run(ctx: Context) -> dict:
-    params = ChainParams(M, K, N)
-    q = np.linspace(0.0, np.pi, N_Q)
-    w_ac, w_op = dispersion(q, M, K)
-    lw_ac, lw_op = dispersion_long_wave(q, M, K)
-    edges = band_edges(M, K)
+    P: Parameters = ctx.params
+    params = ChainParams(P.M, P.K, P.N)
+    q = np.linspace(0.0, np.pi, P.bloch_points)
+    w_ac, w_op = dispersion(q, P.M, P.K)
+    lw_ac, lw_op = dispersion_long_wave(q, P.M, P.K)
+    edges = band_edges(P.M, P.K)
     freqs, _ = linear_modes(params)
     ctx.log("band edges: acoustic top %.6f, optical %.6f .. %.6f, gap %.6f", edges["acoustic_top"],
             edges["optical_bottom"], edges["optical_top"], edges["gap_width"])
@@ -98,20 +112,20 @@ def run(ctx: Context) -> dict:
                                      mat["nu_sphere"], mat["work_of_adhesion"])
     ctx.log("Appendix estimates for the assumed material set: M ~ %.1f, K ~ %.1f", est_M, est_K)
 
-    fit_summary, physical_curves, fit = _fit_section(ctx)
+    fit_summary, physical_curves, fit = _fit_section(ctx, P)
 
     root = open_store(ctx.out / "data.zarr", params=params.as_dict(), provenance_info=provenance(ctx.device))
     write_table(root, "physical_curves", physical_curves, dim="k",
                 attrs={"units": "k in 1/m, frequencies in rad/s", **{key: fit[key] for key in (
-                    "M", "K", "omega0", "c_L", "c_T", "c_R", "k_T", "omega_T")}, "paper_M": M, "paper_K": K})
+                    "M", "K", "omega0", "c_L", "c_T", "c_R", "k_T", "omega_T")}, "paper_M": P.M, "paper_K": P.K})
     write_table(root, "curves", {"q": q, "acoustic": w_ac, "optical": w_op, "acoustic_long_wave": lw_ac,
                                  "optical_long_wave": lw_op}, dim="q", attrs=edges)
-    write_table(root, "finite_chain", {"frequency": freqs}, dim="mode", attrs={"N": N, "boundary": "fixed"})
+    write_table(root, "finite_chain", {"frequency": freqs}, dim="mode", attrs={"N": P.N, "boundary": "fixed"})
     return {
-        "M": M, "K": K, "N": N,
+        "M": P.M, "K": P.K, "N": P.N,
         **edges,
-        "lowest_optical_mode": float(freqs[N]),
-        "long_wave_speed": long_wave_speed(M, K),
+        "lowest_optical_mode": float(freqs[P.N]),
+        "long_wave_speed": long_wave_speed(P.M, P.K),
         "verlet_stability_limit": 2.0 / edges["optical_top"],
         "appendix_estimates": {"material": mat, "M": est_M, "K": est_K, "hertz": contact,
                                "note": "order-of-magnitude estimates (Appendices A, B) for an assumed material set"},

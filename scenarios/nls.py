@@ -1,6 +1,7 @@
 """NLS approximation vs the numerical breather (paper Fig. 5b) at M = 30, K = 160, w_b = 1.01.
 
 Command: ``python -m scenarios run nls`` (about 30 s on a 2-core CPU; ``--quick`` about 10 s).
+Options: ``--set KEY=VALUE`` (fields of ``Parameters``).
 
 The NLS profile (coefficients derived again in ``continuation.seeds``) is compared with the
 breather Newton finds from it; a sweep of w_b towards the band edge shows the difference shrinking,
@@ -8,6 +9,8 @@ which is what an asymptotic approximation must do.
 """
 
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 
@@ -18,12 +21,19 @@ from warpchain.store import open_store, provenance, read_group, write_table
 from ._common import (BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD, PAPER_K, PAPER_M, PAPER_N, PAPER_OMEGA, Context,
                       paper_breather, pyplot, read_summary, save_figure)
 
-# parameters
-SWEEP = (1.016, 1.015, 1.0125, 1.01, 1.0075, 1.005)  # w_b towards the optical band edge w0 = 1.01653
-SWEEP_QUICK = (1.014, 1.01)
+
+@dataclasses.dataclass(frozen=True)
+class Parameters:
+    """The scene's parameters (``--set KEY=VALUE`` overrides any of them)."""
+
+    sweep: tuple = (1.016, 1.015, 1.0125, 1.01, 1.0075, 1.005)  # w_b towards the optical band edge w0 = 1.01653
+
+
+QUICK = {"sweep": (1.014, 1.01)}
 
 
 def run(ctx: Context) -> dict:
+    P: Parameters = ctx.params
     params = ChainParams(PAPER_M, PAPER_K, PAPER_N)
     numerical = paper_breather(ctx.device, log=lambda m: ctx.log(m))
     nls_state = nls_seed(params, PAPER_OMEGA)
@@ -34,7 +44,7 @@ def run(ctx: Context) -> dict:
             numerical.energy, diff)
 
     sweep = []
-    for omega in (SWEEP_QUICK if ctx.quick else SWEEP):
+    for omega in P.sweep:
         if omega == PAPER_OMEGA:
             b = numerical
         else:

@@ -3,6 +3,7 @@ with contact loss, where fixed-frequency Newton stops converging as w_b enters t
 float32 against float64.
 
 Command: ``python -m scenarios run stability-limits`` (about 1-2 minutes on a 2-core CPU; ``--quick`` ~30 s).
+Options: ``--set KEY=VALUE`` (fields of ``Parameters``).
 
 * Measured limit: the largest step at which a small-amplitude eigenmode state (plus 1e-6 noise on every
   site, to seed the highest modes) survives 3000 steps, found by bisection around the linear limit
@@ -17,6 +18,7 @@ Command: ``python -m scenarios run stability-limits`` (about 1-2 minutes on a 2-
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 
 import numpy as np
@@ -28,35 +30,49 @@ from warpchain import METHODS, ChainParams, IntegrationError, band_edges, refere
 from ._common import (BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD, PAPER_K, PAPER_M, PAPER_N, Context, paper_breather,
                       pyplot, read_summary, save_figure)
 
-# parameters
-LIMIT_STEPS, BISECTIONS = 3000, 12
+#: steps per period of the observed-order fits, per method (not a ``Parameters`` field: one tuple per method)
 ORDER_STEPS_PER_PERIOD = {"verlet": (256, 512, 1024), "yoshida4": (64, 128, 256), "yoshida6": (32, 64, 128),
                           "kahan6": (32, 48, 64), "kahan8": (16, 24, 32), "rk4": (64, 128, 256)}
-SMOOTH_PERIODS, ROUGH_PERIODS, ROUGH_SCALE = 5, 2, 2.5
-NEWTON_STEP, NEWTON_FLOOR = 0.002, 0.95
 
 
-def _survives(params, x0, dt, method, device):
+@dataclasses.dataclass(frozen=True)
+class Parameters:
+    """The scene's parameters (``--set KEY=VALUE`` overrides any of them)."""
+
+    limit_steps: int = 3000              # steps a run must survive at a measured stability limit
+    bisections: int = 12                 # bisection steps of each measured limit
+    smooth_periods: int = 5              # observed orders and float32: the exact breather over this many periods
+    rough_periods: int = 2               # observed orders with contact loss: the large eigenmode over these
+    rough_scale: float = 2.5             # that eigenmode's amplitude, in units of the exact breather's v_101
+    newton_step: float = 0.002           # fixed-frequency Newton: decrement of w_b
+    newton_floor: float = 0.95           # lowest w_b tried
+    float32_newton_iterations: int = 6
+
+
+QUICK = {"bisections": 6, "newton_floor": 0.99, "float32_newton_iterations": 3}
+
+
+def _survives(params, x0, dt, method, device, limit_steps):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         try:
-            simulate(params, x0, LIMIT_STEPS * dt, dt, method=method, device=device, allow_unstable_step=True,
+            simulate(params, x0, limit_steps * dt, dt, method=method, device=device, allow_unstable_step=True,
                      max_energy_error=0.5, chunks=10)
             return True
         except IntegrationError:
             return False
 
 
-def measured_limit(params, x0, method, device, bisections):
+def measured_limit(params, x0, method, device, bisections, limit_steps):
     linear = stability_limit(method, params)
     lo, hi = 0.5 * linear, 1.5 * linear
-    if not _survives(params, x0, lo, method, device):
+    if not _survives(params, x0, lo, method, device, limit_steps):
         return None
-    while _survives(params, x0, hi, method, device):
+    while _survives(params, x0, hi, method, device, limit_steps):
         hi *= 1.5
     for _ in range(bisections):
         mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if _survives(params, x0, mid, method, device) else (lo, mid)
+        lo, hi = (mid, hi) if _survives(params, x0, mid, method, device, limit_steps) else (lo, mid)
     return lo
 
 
@@ -88,25 +104,27 @@ def float32_newton(params, state, omega, method, steps_per_period, iterations=6)
 
 
 def run(ctx: Context) -> dict:
+    P: Parameters = ctx.params
     params = ChainParams(PAPER_M, PAPER_K, PAPER_N)
     b = paper_breather(ctx.device, log=ctx.log)
     c = params.N // 2
     mode = eigenmode_seed(params, 0.01)
     noisy = mode + 1e-6 * np.random.default_rng(0).standard_normal(mode.shape) * np.array([1, 1, 0, 0])[:, None]
-    mode_big = ROUGH_SCALE * eigenmode_seed(params, abs(b.state[1, c]))
+    mode_big = P.rough_scale * eigenmode_seed(params, abs(b.state[1, c]))
     mode_big *= np.sign(mode_big[1, c] * b.state[1, c])
-    ref_smooth, _ = reference.solve_ivp_reference(params, b.state, SMOOTH_PERIODS * b.period, rtol=1e-13, atol=1e-16)
-    ref_rough, _ = reference.solve_ivp_reference(params, mode_big, ROUGH_PERIODS * b.period, rtol=1e-13, atol=1e-16)
-    rough_contact = float(simulate(params, mode_big, ROUGH_PERIODS * b.period, b.period / 256, method="yoshida6",
+    ref_smooth, _ = reference.solve_ivp_reference(params, b.state, P.smooth_periods * b.period, rtol=1e-13,
+                                                  atol=1e-16)
+    ref_rough, _ = reference.solve_ivp_reference(params, mode_big, P.rough_periods * b.period, rtol=1e-13,
+                                                 atol=1e-16)
+    rough_contact = float(simulate(params, mode_big, P.rough_periods * b.period, b.period / 256, method="yoshida6",
                                    device=ctx.device, save_every=1, max_energy_error=None).min_contact[0])
-    bis = 6 if ctx.quick else BISECTIONS
     methods = {}
     for name in METHODS:
         linear = stability_limit(name, params)
-        lin_measured = measured_limit(params, noisy, name, ctx.device, bis)
-        breather_measured = measured_limit(params, b.state, name, ctx.device, bis)
-        o_s, e_s, d_s = observed_order(params, b.state, SMOOTH_PERIODS, b.period, name, ctx.device, ref_smooth)
-        o_r, e_r, d_r = observed_order(params, mode_big, ROUGH_PERIODS, b.period, name, ctx.device, ref_rough)
+        lin_measured = measured_limit(params, noisy, name, ctx.device, P.bisections, P.limit_steps)
+        breather_measured = measured_limit(params, b.state, name, ctx.device, P.bisections, P.limit_steps)
+        o_s, e_s, d_s = observed_order(params, b.state, P.smooth_periods, b.period, name, ctx.device, ref_smooth)
+        o_r, e_r, d_r = observed_order(params, mode_big, P.rough_periods, b.period, name, ctx.device, ref_rough)
         methods[name] = {"order": METHODS[name].order, "linear_limit": linear, "measured_limit": lin_measured,
                          "measured_limit_breather": breather_measured, "order_smooth": o_s,
                          "order_contact_loss": o_r, "errors_smooth": e_s, "errors_contact_loss": e_r,
@@ -120,9 +138,8 @@ def run(ctx: Context) -> dict:
     # fixed-frequency Newton going down in frequency
     edges = band_edges(PAPER_M, PAPER_K)
     omega, state, last_ok, failure, trail = b.omega, b.state, b.omega, None, []
-    floor = 0.99 if ctx.quick else NEWTON_FLOOR
-    while omega - NEWTON_STEP >= floor:
-        omega -= NEWTON_STEP
+    while omega - P.newton_step >= P.newton_floor:
+        omega -= P.newton_step
         res = find_breather(params, omega, state, method=BREATHER_METHOD, steps_per_period=BREATHER_STEPS_PER_PERIOD,
                             max_iterations=15, device=ctx.device)
         trail.append({"omega": omega, "converged": res.success, "iterations": res.iterations,
@@ -138,14 +155,14 @@ def run(ctx: Context) -> dict:
     f32 = {}
     for name in ("verlet", "kahan8"):
         dt = b.period / (256 if name == "verlet" else 32)
-        n = int(round(SMOOTH_PERIODS * b.period / dt))
+        n = int(round(P.smooth_periods * b.period / dt))
         x32 = reference.integrate(name, params, b.state[None], dt, n, dtype=np.float32)["x"][0].astype(np.float64)
         x64 = simulate(params, b.state, n * dt, dt, method=name, device=ctx.device, chunks=1).x[0]
         scale = np.max(np.abs(ref_smooth))
         f32[name] = {"dt": dt, "error_float32": float(np.max(np.abs(x32 - ref_smooth)) / scale),
                      "error_float64": float(np.max(np.abs(x64 - ref_smooth)) / scale)}
     newton32 = float32_newton(params, b.state + 1e-4 * (b.state != 0), b.omega, BREATHER_METHOD,
-                              BREATHER_STEPS_PER_PERIOD, iterations=3 if ctx.quick else 6)
+                              BREATHER_STEPS_PER_PERIOD, iterations=P.float32_newton_iterations)
     f32["newton_residual_history"] = newton32
     f32["newton_best_residual"] = min(newton32)
     f32["newton_reaches_1e-10"] = bool(min(newton32) <= 1e-10)

@@ -14,15 +14,17 @@ Three parts:
 * **kernels** (GPU): registers per thread, local memory and theoretical occupancy of each kernel.
 
 Timings are kernel time (device synchronised before and after, transfers excluded; best of 3), with
-the step count sized so that a measurement takes about ``SECONDS`` s.
+the step count sized so that a measurement takes about ``seconds`` s.
 
 Command: ``python -m scenarios run throughput [--device cuda]`` (about 2 minutes on a 2-core CPU,
 about 1 minute on an H200; ``--quick`` ~20 s). Device, CPU/GPU model and package versions are
 recorded in summary.json.
+Options: ``--set KEY=VALUE`` (fields of ``Parameters``).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
@@ -34,30 +36,41 @@ from warpchain.store import device_description, open_store, provenance, read_gro
 from ._baselines import cupy_verlet_runner, jax_verlet_runner
 from ._common import PAPER_K, PAPER_M, PAPER_N, Context, paper_breather, pyplot, read_summary, save_figure
 
-# parameters
-BATCHES_CPU = (1, 16, 64, 256, 805, 4096)
-BATCHES_GPU = (1, 16, 64, 256, 805, 4096, 32768)
-BATCHES_QUICK = (1, 64, 805)
-ALL_METHODS_AT = (805, 32768)        # batches where every method is timed (those present)
-THREAD_LAYOUT_MAX_BATCH_GPU = 4096   # the thread-per-lattice layout is slow on a GPU; enough to show it
-NUMPY_MAX_BATCH = 805
-DT = 0.1
-SECONDS = 0.4                        # target duration of one timed run
-MAX_STEPS = 2_000_000
-REPEATS = 3
+#: an H100/H200-class SM: registers, resident threads, resident blocks (for the theoretical occupancy)
 CUDA_SM_REGISTERS, CUDA_SM_THREADS, CUDA_SM_BLOCKS = 65536, 2048, 32
 
 
-def _measure(run_steps, seconds):
+@dataclasses.dataclass(frozen=True)
+class Parameters:
+    """The scene's parameters (``--set KEY=VALUE`` overrides any of them)."""
+
+    batches_cpu: tuple = (1, 16, 64, 256, 805, 4096)         # lattices per batch, on a CPU
+    batches_gpu: tuple = (1, 16, 64, 256, 805, 4096, 32768)  # and on a GPU
+    all_methods_at: tuple = (805, 32768)   # batches where every method is timed (those present)
+    thread_layout_max_batch_gpu: int = 4096  # the thread-per-lattice layout is slow on a GPU; enough to show it
+    numpy_max_batch: int = 805
+    dt: float = 0.1
+    seconds: float = 0.4                   # target duration of one timed run
+    max_steps: int = 2_000_000
+    repeats: int = 3                       # best of, for the ensemble timings
+    monodromy: bool = True                 # time the monodromy and a Newton iteration (needs the paper breather)
+    monodromy_repeats: int = 3             # best of, for those
+
+
+QUICK = {"batches_cpu": (1, 64, 805), "batches_gpu": (1, 64, 805), "seconds": 0.12, "monodromy": False,
+         "monodromy_repeats": 1}
+
+
+def _measure(run_steps, seconds, max_steps):
     """(steps, seconds) of run_steps(steps) -> seconds, with steps grown until a run takes about
     ``seconds`` (short runs are dominated by launch latency and clock ramp-up)."""
     steps = 8
     while True:
         took = run_steps(steps)
-        if took >= seconds / 4 or steps >= MAX_STEPS:
+        if took >= seconds / 4 or steps >= max_steps:
             break
-        steps = int(min(MAX_STEPS, steps * min(64.0, max(2.0, seconds / 4 / max(took, 1e-7)))))
-    final = int(np.clip(steps * seconds / max(took, 1e-9), 1, MAX_STEPS))
+        steps = int(min(max_steps, steps * min(64.0, max(2.0, seconds / 4 / max(took, 1e-7)))))
+    final = int(np.clip(steps * seconds / max(took, 1e-9), 1, max_steps))
     return final, run_steps(final)
 
 
@@ -72,9 +85,10 @@ def _occupancy(registers: int, block: int, shared_bytes: int = 0) -> float:
     return blocks * warps * 32 / CUDA_SM_THREADS
 
 
-def _ensemble(ctx, params, one, gpu):
-    batches = BATCHES_QUICK if ctx.quick else (BATCHES_GPU if gpu else BATCHES_CPU)
-    seconds = SECONDS * (0.3 if ctx.quick else 1.0)
+def _ensemble(ctx, P: Parameters, params, one, gpu):
+    batches = tuple(int(batch) for batch in (P.batches_gpu if gpu else P.batches_cpu))
+    all_methods_at = tuple(int(batch) for batch in P.all_methods_at)
+    seconds = P.seconds
     results = []
 
     def record(impl, method, batch, steps, sec, evals=1):
@@ -90,30 +104,31 @@ def _ensemble(ctx, params, one, gpu):
     for batch in batches:
         x0 = np.repeat(one[None], batch, axis=0)
         for layout in layouts:
-            if gpu and layout == "thread" and batch > THREAD_LAYOUT_MAX_BATCH_GPU:
+            if gpu and layout == "thread" and batch > P.thread_layout_max_batch_gpu:
                 continue
             if not gpu and layout == "block" and batch > 64:
                 continue  # CPU fibers: a correctness path, not a fast one; one point shows it
             main = layout == ("block" if gpu else "thread")
-            names = sorted(METHODS) if main and (batch in ALL_METHODS_AT or batch == batches[-1]) else ["verlet"]
+            names = sorted(METHODS) if main and (batch in all_methods_at or batch == batches[-1]) else ["verlet"]
             for name in names:
                 def warp_run(n, name=name, layout=layout):
-                    return time_steps(params, x0, n, DT, method=name, device=ctx.device, layout=layout,
-                                      repeats=REPEATS)
+                    return time_steps(params, x0, n, P.dt, method=name, device=ctx.device, layout=layout,
+                                      repeats=P.repeats)
 
-                steps, sec = _measure(warp_run, seconds)
+                steps, sec = _measure(warp_run, seconds, P.max_steps)
                 record(f"warp-{layout}", name, batch, steps, sec, METHODS[name].force_evaluations)
-        if batch <= NUMPY_MAX_BATCH:
+        if batch <= P.numpy_max_batch:
             def numpy_run(n):
                 t0 = time.perf_counter()
-                reference.integrate("verlet", params, x0, DT, n)
+                reference.integrate("verlet", params, x0, P.dt, n)
                 return time.perf_counter() - t0
 
-            steps, sec = _measure(numpy_run, seconds)
+            steps, sec = _measure(numpy_run, seconds, P.max_steps)
             record("numpy", "verlet", batch, steps, sec)
         for impl, runner in (("jax", jax_run), ("cupy", cupy_run)):
             if runner is not None:
-                steps, sec = _measure(lambda n: min(runner(x0, n, DT)[1] for _ in range(REPEATS)), seconds)
+                steps, sec = _measure(lambda n: min(runner(x0, n, P.dt)[1] for _ in range(P.repeats)), seconds,
+                                      P.max_steps)
                 record(impl, "verlet", batch, steps, sec)
     for batch in batches:
         same = [r for r in results if r["batch"] == batch and r["method"] == "verlet"]
@@ -153,8 +168,8 @@ def _ratios(batches, results, gpu):
     return out
 
 
-def _monodromy(ctx):
-    """Monodromy and Newton-iteration timings on the paper breather."""
+def _monodromy(ctx, repeats):
+    """Monodromy and Newton-iteration timings on the paper breather (best of ``repeats``)."""
     from continuation.shooting import PeriodMap, solve_linear
 
     breather = paper_breather(ctx.device, log=ctx.log)
@@ -163,7 +178,7 @@ def _monodromy(ctx):
     eye = np.eye(n).reshape(n, 4, params.N)
     period_steps = 2 * breather.nsteps
     runs = [propagate_tangent(params, breather.state, eye, period_steps, breather.dt, method=breather.method,
-                              device=ctx.device) for _ in range(1 if ctx.quick else REPEATS)]
+                              device=ctx.device) for _ in range(repeats)]
     kernel = min(r.kernel_seconds for r in runs)
     wall = min(r.wall_seconds for r in runs)
     ctx.log("monodromy (%d columns, %d steps of %s): kernel %.3g ms, wall %.3g ms", n, period_steps,
@@ -171,7 +186,7 @@ def _monodromy(ctx):
     pmap = PeriodMap(params, breather.omega, breather.flow)
     unknowns = pmap.from_state(breather.state)
     iteration = []
-    for _ in range(1 if ctx.quick else REPEATS):
+    for _ in range(repeats):
         t0 = time.perf_counter()
         point = pmap.evaluate(unknowns)
         r, J = point.residual, point.jacobian()
@@ -225,15 +240,16 @@ def _kernel_properties(ctx, params):
 
 
 def run(ctx: Context) -> dict:
+    P: Parameters = ctx.params
     params = ChainParams(PAPER_M, PAPER_K, PAPER_N)
     _, shape = lowest_optical_mode(params)
     one = np.zeros((4, params.N))
     one[:2] = 0.3 * shape / np.max(np.abs(shape))
     gpu = ctx.device.startswith("cuda")
-    batches, results = _ensemble(ctx, params, one, gpu)
+    batches, results = _ensemble(ctx, P, params, one, gpu)
     ratios = _ratios(batches, results, gpu)
     # the monodromy part needs the paper breather (Newton, ~10 s on a CPU): skipped by --quick
-    monodromy = None if ctx.quick else _monodromy(ctx)
+    monodromy = _monodromy(ctx, P.monodromy_repeats) if P.monodromy else None
     props = _kernel_properties(ctx, params) if gpu else []
 
     root = open_store(ctx.out / "data.zarr", params=params.as_dict(), provenance_info=provenance(ctx.device))
@@ -247,8 +263,8 @@ def run(ctx: Context) -> dict:
         attrs={"implementation_names": impls, "method_names": methods})
     prov = provenance(ctx.device)
     return {"device": device_description(ctx.device), "cpu": prov["cpu"], "packages": prov["packages"],
-            "cpu_threads": cpu_threads() if not gpu else None, "N": params.N, "dt": DT,
-            "timing": f"kernel time, best of {REPEATS}, runs sized to ~{SECONDS} s",
+            "cpu_threads": cpu_threads() if not gpu else None, "N": params.N, "dt": P.dt,
+            "timing": f"kernel time, best of {P.repeats}, runs sized to ~{P.seconds:g} s",
             "results": results, "ratios": ratios, "monodromy": monodromy, "kernel_properties": props}
 
 

@@ -4,6 +4,7 @@ the current device - for a smooth run and a rough one; and the energy error vs t
 methods.
 
 Command: ``python -m scenarios run work-precision`` (about 2 minutes on a 2-core CPU; ``--quick`` ~30 s).
+Options: ``--set KEY=VALUE`` (fields of ``Parameters``).
 
 Cases: ``smooth``, the exact w_b = 1.01 breather over 20 periods; ``contact-loss``, the lowest optical
 eigenmode at 2.5 times the exact breather's v_101, which loses contact within the first period, over 5
@@ -12,6 +13,7 @@ periods. Reference: DOP853 at rtol 1e-13. Error: max |x - x_ref| / max |x_ref| o
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
@@ -22,18 +24,27 @@ from warpchain.store import open_store, provenance, read_group, write_table
 
 from ._common import PAPER_K, PAPER_M, PAPER_N, Context, paper_breather, pyplot, read_summary, save_figure
 
-# parameters
-CASES = {"smooth": {"periods": 20}, "contact-loss": {"periods": 5, "scale": 2.5}}
-STEPS_PER_PERIOD = (24, 32, 48, 64, 96, 128, 192, 256, 384, 512, 768, 1024)
-NUMPY_STEPS_PER_PERIOD = (64, 256)
-DOP853_RTOL = (1e-5, 1e-7, 1e-9, 1e-11)
-TARGETS = (1e-4, 1e-6, 1e-8, 1e-9, 1e-10)
-REPEATS = 2   # best of, for the timings
+
+@dataclasses.dataclass(frozen=True)
+class Parameters:
+    """The scene's parameters (``--set KEY=VALUE`` overrides any of them)."""
+
+    smooth_periods: int = 20                   # the exact breather, over this many periods
+    contact_loss_periods: int = 5
+    contact_loss_scale: float = 2.5            # eigenmode amplitude, in units of the exact breather's v_101
+    steps_per_period: tuple = (24, 32, 48, 64, 96, 128, 192, 256, 384, 512, 768, 1024)   # Warp methods
+    numpy_steps_per_period: tuple = (64, 256)  # numpy reference
+    dop853_rtol: tuple = (1e-5, 1e-7, 1e-9, 1e-11)
+    targets: tuple = (1e-4, 1e-6, 1e-8, 1e-9, 1e-10)  # errors at which the cheapest implementation is reported
+    repeats: int = 2                           # best of, for the timings
 
 
-def _timed(fn):
+QUICK = {"steps_per_period": (24, 64, 192, 512), "numpy_steps_per_period": (), "dop853_rtol": (1e-5, 1e-9)}
+
+
+def _timed(fn, repeats):
     best, out = np.inf, None
-    for _ in range(REPEATS):
+    for _ in range(repeats):
         t0 = time.perf_counter()
         out = fn()
         best = min(best, time.perf_counter() - t0)
@@ -58,41 +69,42 @@ def time_to_reach(points, target):
 
 
 def run(ctx: Context) -> dict:
+    P: Parameters = ctx.params
+    case_specs = {"smooth": {"periods": P.smooth_periods},
+                  "contact-loss": {"periods": P.contact_loss_periods, "scale": P.contact_loss_scale}}
     params = ChainParams(PAPER_M, PAPER_K, PAPER_N)
     b = paper_breather(ctx.device, log=ctx.log)
     c = params.N // 2
     states = {"smooth": b.state}
     mode = eigenmode_seed(params, abs(b.state[1, c]))
-    states["contact-loss"] = CASES["contact-loss"]["scale"] * mode * np.sign(mode[1, c] * b.state[1, c])
-    steps = STEPS_PER_PERIOD[::3] if ctx.quick else STEPS_PER_PERIOD
-    rtols = DOP853_RTOL[::2] if ctx.quick else DOP853_RTOL
+    states["contact-loss"] = case_specs["contact-loss"]["scale"] * mode * np.sign(mode[1, c] * b.state[1, c])
     points, energy_traces = [], {}
-    for case, spec in CASES.items():
+    for case, spec in case_specs.items():
         x0 = states[case]
         t_end = spec["periods"] * b.period
         ref, sol = reference.solve_ivp_reference(params, x0, t_end, rtol=1e-13, atol=1e-16)
         ctx.log("%s: reference DOP853 rtol 1e-13 (%d right-hand sides)", case, sol.nfev)
         for name, m in METHODS.items():
             limit = stability_limit(name, params)
-            for spp in steps:
+            for spp in P.steps_per_period:
                 dt = b.period / spp
                 if dt >= limit:
                     continue
                 run, sec = _timed(lambda: simulate(params, x0, t_end, dt, method=name, device=ctx.device, chunks=1,
-                                                   max_energy_error=None))
+                                                   max_energy_error=None), P.repeats)
                 points.append({"case": case, "implementation": "warp", "method": name, "dt": dt, "rtol": None,
                                "error": _error(run.x[0], ref), "seconds": sec,
                                "force_evaluations": m.force_evaluations * run.nsteps})
-            for spp in ([] if ctx.quick else NUMPY_STEPS_PER_PERIOD):
+            for spp in P.numpy_steps_per_period:
                 dt = b.period / spp
-                nsteps = spp * spec["periods"]
-                out, sec = _timed(lambda: reference.integrate(name, params, x0[None], dt, nsteps))
+                nsteps = int(spp) * spec["periods"]
+                out, sec = _timed(lambda: reference.integrate(name, params, x0[None], dt, nsteps), P.repeats)
                 points.append({"case": case, "implementation": "numpy", "method": name, "dt": dt, "rtol": None,
                                "error": _error(out["x"][0], ref), "seconds": sec,
                                "force_evaluations": m.force_evaluations * nsteps})
-        for rtol in rtols:
+        for rtol in P.dop853_rtol:
             (end, sol), sec = _timed(lambda: reference.solve_ivp_reference(params, x0, t_end, rtol=rtol,
-                                                                           atol=rtol * 1e-3))
+                                                                           atol=rtol * 1e-3), P.repeats)
             points.append({"case": case, "implementation": "scipy", "method": "DOP853", "dt": None, "rtol": rtol,
                            "error": _error(end, ref), "seconds": sec, "force_evaluations": int(sol.nfev)})
         # energy error vs time for the symplectic methods (128 steps per period), and RK4 for contrast
@@ -104,9 +116,9 @@ def run(ctx: Context) -> dict:
         ctx.log("%s: %d points", case, sum(p["case"] == case for p in points))
 
     cheapest, speedups = {}, {}
-    for case in CASES:
+    for case in case_specs:
         cheapest[case] = {}
-        for target in TARGETS:
+        for target in P.targets:
             best = None
             for impl, method in sorted({(p["implementation"], p["method"]) for p in points if p["case"] == case}):
                 sec = time_to_reach([p for p in points if p["case"] == case and p["implementation"] == impl
@@ -114,7 +126,7 @@ def run(ctx: Context) -> dict:
                 if sec is not None and (best is None or sec < best["seconds"]):
                     best = {"implementation": impl, "method": method, "seconds": sec}
             cheapest[case][f"{target:g}"] = best
-        warp_best = cheapest[case]["1e-09"]
+        warp_best = cheapest[case].get("1e-09")
         dop = time_to_reach([p for p in points if p["case"] == case and p["implementation"] == "scipy"], 1e-9)
         if warp_best and dop:
             warp_only = min((time_to_reach([p for p in points if p["case"] == case and p["implementation"] == "warp"
@@ -133,9 +145,10 @@ def run(ctx: Context) -> dict:
     root = open_store(ctx.out / "data.zarr", params=params.as_dict(), provenance_info=provenance(ctx.device))
     impls = sorted({p["implementation"] for p in points})
     methods = sorted({p["method"] for p in points})
-    cases = list(CASES)
+    cases = list(case_specs)
     write_table(root, "points", {
-        "case": [cases.index(p["case"]) for p in points], "implementation": [impls.index(p["implementation"]) for p in points],
+        "case": [cases.index(p["case"]) for p in points],
+        "implementation": [impls.index(p["implementation"]) for p in points],
         "method": [methods.index(p["method"]) for p in points],
         "dt": [np.nan if p["dt"] is None else p["dt"] for p in points],
         "rtol": [np.nan if p["rtol"] is None else p["rtol"] for p in points],
@@ -143,7 +156,7 @@ def run(ctx: Context) -> dict:
         attrs={"case_names": cases, "implementation_names": impls, "method_names": methods})
     for (case, name), (t, err) in energy_traces.items():
         write_table(root, f"energy/{case}/{name}", {"t": t, "relative_energy_error": err}, dim="t")
-    return {"device": ctx.device, "cases": {k: {**v, "period": b.period} for k, v in CASES.items()},
+    return {"device": ctx.device, "cases": {k: {**v, "period": b.period} for k, v in case_specs.items()},
             "points": points, "cheapest": cheapest, "speedup_at_1e-9": speedups,
             "reference": "scipy DOP853 rtol 1e-13, atol 1e-16"}
 
@@ -171,8 +184,8 @@ def plot(out) -> None:
         ax.set_xlabel("final-state error (relative)")
         ax.set_ylabel("seconds")
         sp = s["speedup_at_1e-9"].get(case)
-        ax.set_title(f"{case}" + (f": best Warp {sp['speedup_vs_dop853']:.1f}x faster than DOP853 at 1e-9" if sp else ""),
-                     fontsize=9)
+        headline = f": best Warp {sp['speedup_vs_dop853']:.1f}x faster than DOP853 at 1e-9" if sp else ""
+        ax.set_title(f"{case}{headline}", fontsize=9)
         ax.legend(fontsize=6, ncol=2)
     ax = axes[2]
     for case, ls in zip(attrs["case_names"], ("-", ":")):
