@@ -212,6 +212,20 @@ def nls_breather(M: float, K: float, omega: float) -> NLSBreather:
 
 
 def nls_seed(params: ChainParams, omega: float, order: int = 2, centre: int | None = None) -> np.ndarray:
-    """NLS seed state (4, N) at t = 0 for the chain's M, K."""
+    """NLS seed state (4, N) at t = 0 for the chain's M, K.
+
+    Warns (RuntimeWarning) when omega lies in the acoustic band: the NLS profile exists there but no
+    breather is expected to (a phonon resonance), so Newton from it will most likely fail.
+    """
+    from warpchain import band_edges
+
+    edges = band_edges(params.M, params.K)
+    if omega <= edges["acoustic_top"]:
+        import warnings
+
+        warnings.warn(f"omega = {omega:g} lies in the acoustic band (top {edges['acoustic_top']:.6f}): the NLS seed "
+                      "is built, but band-gap breathers live in ({:.6f}, {:.6f})".format(edges["acoustic_top"],
+                                                                                        edges["optical_bottom"]),
+                      RuntimeWarning, stacklevel=2)
     u, v = nls_breather(params.M, params.K, omega).positions(params.N, centre, order)
     return state_from_positions(u, v)

@@ -1,9 +1,12 @@
-"""Command line: ``python -m scenarios list | run NAME [...] | paper [...]``."""
+"""Command line: python -m scenarios list | run NAME [...] | paper [...]."""
 
 from __future__ import annotations
 
 import argparse
 import logging
+import os
+import re
+import shlex
 import sys
 from pathlib import Path
 
@@ -30,8 +33,7 @@ def main(argv=None) -> int:
 
     if args.command == "list":
         for name in SCENES:
-            doc = (load_scene(name).__doc__ or "").strip().splitlines()
-            print(f"{name:20s} {doc[0] if doc else ''}")
+            print(f"{name:20s} {first_sentence(load_scene(name).__doc__)}")
         return 0
     if args.device is not None and args.device.lower() not in ("cpu", "cuda") and not args.device.startswith("cuda:"):
         parser.error(f"--device must be cpu or cuda, got {args.device!r}")
@@ -46,14 +48,41 @@ def main(argv=None) -> int:
         overrides[key.strip()] = value.strip()
     if args.command == "paper" and (overrides or args.resume):
         parser.error("--set and --resume apply to one scene: use 'run NAME'")
-    command_line = " ".join(["python -m scenarios", *(argv if argv is not None else sys.argv[1:])])
+    command_line = " ".join(["python -m scenarios", *(shlex.quote(a) for a in (argv if argv is not None
+                                                                               else sys.argv[1:]))])
     try:
+        check_output_root(args.out)
         for name in names:
             run_scene(name, args.out, args.device, args.quick, overrides, args.resume, command_line)
-    except ValueError as exc:
+    except (ValueError, OSError) as exc:  # bad input, damaged store, unusable --out: one line, exit 2
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print("interrupted: what was stored so far is complete and marked so; branch scenes continue with "
+              "--resume", file=sys.stderr)
+        return 130
     return 0
+
+
+def first_sentence(doc: str | None) -> str:
+    """The first sentence of a docstring, on one line, without reST markup."""
+    text = " ".join((doc or "").strip().split("\n\n")[0].split())
+    # a sentence ends at ". " before a capital, not after an abbreviation such as "Fig." or "e.g."
+    match = re.search(r"(?<!\bFig)(?<!\bFigs)(?<!\be\.g)(?<!\bi\.e)(?<!\bvs)\.\s+(?=[A-Z(])", text)
+    text = text if match is None else text[: match.start() + 1]
+    return text.replace("``", "")
+
+
+def check_output_root(out: Path) -> None:
+    """Refuse an --out that is a file or cannot be written, before anything is computed."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out} is a file, not a folder")
+    probe = out
+    while not probe.exists():
+        probe = probe.parent
+    if not os.access(probe, os.W_OK | os.X_OK):
+        raise ValueError(f"--out {out}: cannot write in {probe}")
 
 
 if __name__ == "__main__":

@@ -26,14 +26,14 @@ from continuation.driver import Branch, BranchPoint
 from continuation.floquet import KINDS, Instability, multipliers_from_mu, outer_modulus
 from continuation.shooting import frequency_report
 from warpchain import ChainParams
+from warpchain import store
 from warpchain.store import consolidate, jsonable, open_store, provenance
 
 MAX_INSTABILITIES = 16
 INT_FILL = -128
 
 
-class StoreError(ValueError):
-    """A store that is missing, damaged or inconsistent; the message names store, array and point."""
+StoreError = store.StoreError  # one error type for every damaged store (names store, array and point)
 
 
 def _float(shape):

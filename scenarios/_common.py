@@ -150,12 +150,24 @@ def run_scene(name: str, out_root: Path, device: str | None, quick: bool, overri
     params = scene_parameters(module, quick, overrides)
     if resume and not getattr(module, "RESUMABLE", False):
         raise ValueError(f"scene {name!r} cannot be resumed (resumable: continuation-k, continuation-omega)")
+    resolved = resolve_device(device)  # before any folder is made: a bad device leaves nothing behind
     out = Path(out_root) / name
+    created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
-    ctx = Context(name=name, out=out, device=resolve_device(device), quick=quick, params=params, resume=resume,
+    ctx = Context(name=name, out=out, device=resolved, quick=quick, params=params, resume=resume,
                   command_line=command_line)
+    try:
+        return _run_in(module, ctx, params, command_line)
+    except BaseException:
+        if created and not any(out.iterdir()):  # nothing was written: leave no empty folder
+            out.rmdir()
+        raise
+
+
+def _run_in(module, ctx: Context, params, command_line: str) -> dict:
+    out = ctx.out
     start = time.perf_counter()
-    ctx.log("start (device %s%s) -> %s", ctx.device, ", quick" if quick else "", out)
+    ctx.log("start (device %s%s) -> %s", ctx.device, ", quick" if ctx.quick else "", out)
     if params is not None:
         ctx.log("parameters: %s", ", ".join(f"{k}={v}" for k, v in dataclasses.asdict(params).items()))
     summary = module.run(ctx)

@@ -57,7 +57,7 @@ def test_streamed_run_half_way_is_readable_and_says_how_far(tmp_path):
     with pytest.raises(Stop):
         simulate(p, x0, 4.0, 0.1, device="cpu", save_every=2, chunks=4, on_chunk=on_chunk)
     frames_seen = sum(calls)
-    arrays, attrs = read_group(path, "ensemble")
+    arrays, attrs = read_group(path, "ensemble", require_complete=False)  # the default refuses a half-written group
     assert attrs["complete"] is False
     # only whole chunks were written; what is there is consistent and says how far it got
     assert attrs["n_written"] == (frames_seen // 5) * 5 == arrays["u"].shape[0] == arrays["t"].shape[0]
@@ -73,3 +73,30 @@ def test_writer_rejects_bad_frames(tmp_path):
         w.append([0.0], u=np.zeros((1, 4)))
     with pytest.raises(ValueError, match="fields"):
         w.append([0.0], v=np.zeros((1, 3)))
+
+
+def _field_store(path):
+    root = open_store(path, params={"N": 3})
+    writer = FieldWriter(root, path, "case", {"u": (3,)}, ("t", "site"), chunk_t=2)
+    writer.append(np.arange(6.0), u=np.ones((6, 3)))
+    return writer
+
+
+def test_a_missing_field_chunk_or_a_half_written_group_is_refused(tmp_path):
+    from warpchain.store import StoreError
+
+    path = tmp_path / "f.zarr"
+    writer = _field_store(path)
+    with pytest.raises(StoreError, match="half-written"):
+        read_group(path, "case")  # not closed yet
+    writer.close()
+    arrays, _ = read_group(path, "case")
+    assert np.all(arrays["u"] == 1.0)
+    chunk = path / "case" / "u" / "c" / "1" / "0"
+    assert chunk.exists()
+    chunk.unlink()  # frames 2 and 3 lost: they read as NaN (the fill value), never as zeros
+    with pytest.raises(StoreError, match=r"array 'u': frame 2"):
+        read_group(path, "case")
+    (path / "case" / "zarr.json").write_text("{broken")
+    with pytest.raises(StoreError, match="f.zarr"):
+        read_group(path, "case")

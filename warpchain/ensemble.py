@@ -20,7 +20,8 @@ from typing import Callable
 import numpy as np
 
 from .integrators import Method, get_method, steps_for
-from .model import BOUNDARY_CODES, ChainParams, as_batch, band_edges, energy, min_contact, per_lattice_parameters
+from .model import (BOUNDARY_CODES, ChainParams, as_batch, band_edges, energy, min_contact, per_lattice_parameters,
+                    real_number, whole_number)
 
 
 class IntegrationError(RuntimeError):
@@ -97,9 +98,46 @@ def _warp():
         if not getattr(_warp, "_initialised", False):
             from . import kernels  # noqa: F401  (sets Warp's log level before init)
 
-            wp.init()
+            _quiet_init(wp)
             _warp._initialised = True
     return wp
+
+
+_NO_DRIVER = "Could not find or load the NVIDIA CUDA driver"
+
+
+def _quiet_init(wp) -> None:
+    """wp.init() with the native library's stderr captured: on a machine without a CUDA driver its
+    warning becomes one info line in the log (CPU runs are the expected case there); anything else
+    it printed is passed on unchanged."""
+    import logging
+    import sys
+    import tempfile
+
+    fd = 2  # the native library writes to file descriptor 2, whatever sys.stderr is (pytest, notebooks)
+    try:
+        os.fstat(fd)
+    except OSError:  # no stderr at all: nothing to filter
+        wp.init()
+        return
+    sys.stderr.flush()
+    saved = os.dup(fd)
+    with tempfile.TemporaryFile(mode="w+b") as tmp:
+        os.dup2(tmp.fileno(), fd)
+        try:
+            wp.init()
+        finally:
+            sys.stderr.flush()
+            os.dup2(saved, fd)
+            os.close(saved)
+        tmp.seek(0)
+        text = tmp.read().decode(errors="replace")
+    lines = [line for line in text.splitlines() if line.strip()]
+    if any(_NO_DRIVER in line for line in lines):
+        logging.getLogger("warpchain").info("Warp: no CUDA driver on this machine; running on the CPU")
+    rest = [line for line in lines if _NO_DRIVER not in line]
+    if rest:
+        print("\n".join(rest), file=sys.stderr)
 
 
 def available_devices() -> list[str]:
@@ -138,8 +176,7 @@ def stability_limit(method: Method | str, params: ChainParams, M=None, K=None) -
 
 
 def _check_step(method: Method, params, dt, M, K, allow_unstable_step: bool) -> float:
-    if not (isinstance(dt, (int, float, np.floating)) and math.isfinite(dt)) or dt <= 0:
-        raise ValueError(f"dt must be a finite number > 0, got {dt!r}")
+    dt = real_number("dt", dt, positive=True)
     limit = stability_limit(method, params, M, K)
     if dt >= limit:
         message = (
@@ -379,13 +416,20 @@ def simulate(params: ChainParams, x0, t_final: float, dt: float, *, method: str 
     x0 = as_batch(x0, params.N, "x0")
     batch = x0.shape[0]
     Mb, Kb = per_lattice_parameters(params, batch, M, K)
-    if not (isinstance(t_final, (int, float, np.floating)) and math.isfinite(t_final)) or t_final < 0:
-        raise ValueError(f"t_final must be a finite number >= 0, got {t_final!r}")
+    t_final = real_number("t_final", t_final, nonnegative=True)
     limit = _check_step(meth, params, dt, Mb, Kb, allow_unstable_step)
-    if save_every is not None and (not isinstance(save_every, (int, np.integer)) or save_every < 1):
-        raise ValueError(f"save_every must be a positive integer or None, got {save_every!r}")
+    dt = real_number("dt", dt, positive=True)
+    if save_every is not None:
+        save_every = whole_number("save_every", save_every, minimum=1)
+    if max_energy_error is not None:
+        max_energy_error = real_number("max_energy_error", max_energy_error, positive=True)
+    if chunks is not None:
+        chunks = whole_number("chunks", chunks, minimum=1)
     device = resolve_device(device)
-    nsteps, dt_used = steps_for(float(t_final), float(dt))
+    nsteps, dt_used = steps_for(t_final, dt)
+    if save_every is not None and save_every > max(nsteps, 1):
+        raise ValueError(f"save_every = {save_every} is larger than the run ({nsteps} steps of {dt_used:.6g}): "
+                         f"no frame after t = 0 would be saved; use save_every <= {max(nsteps, 1)}")
 
     runner = _Runner(meth, params, x0, Mb, Kb, device, layout=layout)
     E0 = energy(params, x0, Mb, Kb)

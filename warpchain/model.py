@@ -43,19 +43,12 @@ class ChainParams:
 
     def __post_init__(self):
         for name in ("M", "K"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-                raise ValueError(f"ChainParams.{name} must be a real number, got {value!r}")
-            if not math.isfinite(float(value)):
-                raise ValueError(f"ChainParams.{name} must be finite, got {value!r}")
-            object.__setattr__(self, name, float(value))
+            object.__setattr__(self, name, real_number(f"ChainParams.{name}", getattr(self, name)))
         if self.M <= 0:
             raise ValueError(f"ChainParams.M must be > 0 (mass ratio), got {self.M}")
         if self.K < 0:
             raise ValueError(f"ChainParams.K must be >= 0 (coupling), got {self.K}")
-        if isinstance(self.N, bool) or not isinstance(self.N, (int, np.integer)) or self.N < 1:
-            raise ValueError(f"ChainParams.N must be an integer >= 1, got {self.N!r}")
-        object.__setattr__(self, "N", int(self.N))
+        object.__setattr__(self, "N", whole_number("ChainParams.N", self.N, minimum=1))
         if self.boundary not in BOUNDARIES:
             raise ValueError(
                 f"ChainParams.boundary must be one of {BOUNDARIES}, got {self.boundary!r}"
@@ -103,6 +96,36 @@ def contact_potential(z):
     return (2.0 / 3.0) * (0.4 * s * s * np.sqrt(s) - z) - 4.0 / 15.0
 
 
+def real_number(name: str, value, *, positive: bool = False, nonnegative: bool = False) -> float:
+    """Validate a real scalar at the public boundary: Python and numpy numbers and 0-d arrays are
+    accepted; bools, complex numbers, strings, arrays with more than one value and non-finite values
+    are refused with a message naming the argument."""
+    if isinstance(value, (bool, np.bool_)) or isinstance(value, (str, bytes)):
+        raise ValueError(f"{name} must be a real number, got {value!r}")
+    arr = np.asarray(value)
+    if arr.ndim != 0 or not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)):
+        raise ValueError(f"{name} must be a real number, got {value!r}")
+    out = float(arr)
+    if not np.isfinite(out):
+        raise ValueError(f"{name} must be finite, got {value!r}")
+    if positive and out <= 0:
+        raise ValueError(f"{name} must be > 0, got {value!r}")
+    if nonnegative and out < 0:
+        raise ValueError(f"{name} must be >= 0, got {value!r}")
+    return out
+
+
+def whole_number(name: str, value, *, minimum: int | None = None) -> int:
+    """Validate an integer (Python or numpy integer, or a 0-d integer array) at least ``minimum``."""
+    arr = np.asarray(value) if not isinstance(value, (bool, np.bool_)) else np.asarray(1.5)
+    if arr.ndim != 0 or not np.issubdtype(arr.dtype, np.integer):
+        raise ValueError(f"{name} must be an integer, got {value!r}")
+    out = int(arr)
+    if minimum is not None and out < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    return out
+
+
 def _per_lattice(value, batch: int) -> np.ndarray:
     """Broadcast a scalar or per-lattice parameter to shape (batch, 1)."""
     arr = np.broadcast_to(np.asarray(value, dtype=np.float64), (batch,))
@@ -136,7 +159,13 @@ def as_batch(x, N: int | None = None, name: str = "x") -> np.ndarray:
         x: a state of shape (4, N) (a batch of one) or (batch, 4, N).
         N: expected number of sites, if known.
     """
-    arr = np.asarray(x, dtype=np.float64)
+    if np.iscomplexobj(x):
+        raise ValueError(f"{name} must be real; got a complex array (its imaginary part would be dropped)")
+    try:
+        arr = np.asarray(x, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a real array of shape (4, N) or (batch, 4, N), got {type(x).__name__}") \
+            from None
     if arr.ndim == 2:
         arr = arr[None]
     if arr.ndim != 3 or arr.shape[1] != 4:
@@ -185,9 +214,15 @@ def energy(params: ChainParams, x, M=None, K=None) -> np.ndarray:
     Returns:
         energies, shape (batch,).
     """
+    if np.iscomplexobj(x):
+        raise ValueError("x must be real; got a complex array")
+    shape = np.shape(x)
     x = np.asarray(x, dtype=np.float64)
     if x.ndim == 2:
         x = x[None]
+    if x.ndim != 3 or x.shape[1] != 4 or x.shape[2] != params.N:
+        raise ValueError(f"x must have shape (4, {params.N}) or (batch, 4, {params.N}) ordered (u, v, u', v') "
+                         f"for this chain (N = {params.N}); got {shape}")
     batch = x.shape[0]
     Mb = _per_lattice(params.M if M is None else M, batch)[:, 0]
     Kb = _per_lattice(params.K if K is None else K, batch)[:, 0]
@@ -249,6 +284,7 @@ def band_edges(M: float, K: float) -> dict:
     Returns:
         dict with ``acoustic_top``, ``optical_bottom``, ``optical_top``, ``gap_width``.
     """
+    M, K = real_number("M", M, positive=True), real_number("K", K, nonnegative=True)
     a = 4.0 * K + M + 1.0
     root = math.sqrt(a * a - 16.0 * K * M)
     acoustic_top = math.sqrt(8.0 * K / (a + root))  # = sqrt((a - root) / (2M)) without cancellation

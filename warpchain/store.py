@@ -164,10 +164,10 @@ class FieldWriter:
                 raise ValueError(f"field {name}: frame shape {frame_shape} does not match dims {dims}")
             self.arrays[name] = self.group.create_array(
                 name, shape=(0, *frame_shape), chunks=(self.chunk_t, *frame_shape), dtype="f8",
-                dimension_names=self.dims, overwrite=True)
+                fill_value=np.nan, dimension_names=self.dims, overwrite=True)  # a missing chunk reads as NaN
         t_chunk = max(int(expected_frames or 0), 1 << 16)
         self.t = self.group.create_array("t", shape=(0,), chunks=(t_chunk,), dtype="f8", dimension_names=("t",),
-                                         overwrite=True)
+                                         fill_value=np.nan, overwrite=True)
         coords = dict(coords or {})
         first = next(iter(fields.values())) if fields else ()
         if "site" in dims and "site" not in coords:
@@ -251,7 +251,8 @@ def write_table(root: zarr.Group, group: str, columns: dict, dim: str = "point",
             raise TypeError(f"column {name!r} has dtype {values.dtype}; store labels in attrs instead")
         dims = (dim,) + tuple(f"{name}_{k}" for k in range(1, values.ndim))
         arr = g.create_array(name, shape=values.shape, chunks=values.shape if values.size else (1,) * values.ndim,
-                             dtype=values.dtype, dimension_names=dims, overwrite=True)
+                             dtype=values.dtype, dimension_names=dims, overwrite=True,
+                             fill_value=np.nan if values.dtype.kind in "fc" else 0)
         arr[...] = values
     if attrs:
         g.attrs.update(jsonable(attrs))
@@ -259,12 +260,43 @@ def write_table(root: zarr.Group, group: str, columns: dict, dim: str = "point",
     return g
 
 
-def read_group(path, group: str) -> tuple[dict, dict]:
-    """Read every array of a group into numpy; returns (arrays, attributes)."""
-    root = zarr.open_group(str(path), mode="r", zarr_format=3, use_consolidated=False)
-    g = root[group]
-    arrays = {name: arr[...] for name, arr in g.arrays()}
-    return arrays, dict(g.attrs)
+class StoreError(ValueError):
+    """A store that is missing, half-written or damaged; the message names the store, group and array."""
+
+
+def read_group(path, group: str, *, require_complete: bool = True) -> tuple[dict, dict]:
+    """Read every array of a group into numpy; returns (arrays, attributes).
+
+    A field group (written by ``FieldWriter``) is checked: it must be marked complete (unless
+    ``require_complete=False``), and its fields and ``t`` must be finite in every written frame (a
+    missing chunk reads as NaN, the fill value), so a damaged or half-written group is never read as
+    valid.
+
+    Raises:
+        StoreError: naming the store, the group, the array and the first bad frame.
+    """
+    where = f"store {path}, group '{group}'"
+    try:
+        root = zarr.open_group(str(path), mode="r", zarr_format=3, use_consolidated=False)
+        g = root[group]
+        attrs = dict(g.attrs)
+        arrays = {name: arr[...] for name, arr in g.arrays()}
+    except (KeyError, FileNotFoundError) as exc:
+        raise StoreError(f"{where}: not found ({exc}); run the scene that writes it first") from None
+    except Exception as exc:  # zarr raises many kinds on damaged metadata or chunks
+        raise StoreError(f"{where}: unreadable ({type(exc).__name__}: {exc}); rerun the scene that wrote it") from None
+    if "n_written" in attrs:  # a field group
+        if require_complete and not attrs.get("complete", False):
+            raise StoreError(f"{where}: half-written (not marked complete; {attrs.get('n_written')} frames): the run "
+                             "that wrote it did not finish")
+        n = int(attrs["n_written"])
+        for name, values in arrays.items():
+            if values.dtype.kind == "f" and values.ndim and values.shape[0] == n and name != "site":
+                bad = ~np.isfinite(values.reshape(n, -1)).all(axis=1)
+                if bad.any():
+                    raise StoreError(f"{where}, array '{name}': frame {int(np.flatnonzero(bad)[0])} is missing or "
+                                     "not finite (a lost or damaged chunk); rerun the scene that wrote it")
+    return arrays, attrs
 
 
 def read_attrs(path) -> dict:

@@ -1,0 +1,74 @@
+"""Bad input at the public boundary: a clear ValueError (or a documented result), never a silent answer."""
+
+import warnings
+
+import numpy as np
+import pytest
+
+import continuation as ct
+import warpchain as wc
+
+P = wc.ChainParams(3.0, 4.0, 11)
+X = np.zeros((4, 11))
+X[1, 5] = -0.3
+
+
+def test_numpy_scalars_and_0d_arrays_are_numbers():
+    for t_final, dt in ((np.int64(1), np.int64(1) / 10), (np.array(1.0), np.float32(0.1)), (1, 0.1)):
+        assert wc.simulate(P, X, t_final, dt, device="cpu").nsteps == 10
+    assert wc.ChainParams(np.float64(3.0), np.array(4.0), np.int32(11)).N == 11
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(max_energy_error=-1), "max_energy_error"),
+    (dict(chunks=-3), "chunks"),
+    (dict(chunks=2.5), "chunks"),
+    (dict(save_every=1000), "larger than the run"),
+    (dict(save_every=0), "save_every"),
+])
+def test_simulate_options_are_range_checked(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        wc.simulate(P, X, 1.0, 0.1, device="cpu", **kwargs)
+
+
+@pytest.mark.parametrize("t_final, dt, match", [(1j, 0.1, "t_final"), (-1.0, 0.1, "t_final"), (1.0, 0.0, "dt"),
+                                                (1.0, np.nan, "dt"), (True, 0.1, "t_final"), ("1", 0.1, "t_final")])
+def test_bad_times_are_refused(t_final, dt, match):
+    with pytest.raises(ValueError, match=match):
+        wc.simulate(P, X, t_final, dt, device="cpu")
+
+
+def test_states_are_checked_wherever_they_enter():
+    with pytest.raises(ValueError, match="complex"):
+        wc.simulate(P, X + 1j, 1.0, 0.1, device="cpu")
+    with pytest.raises(ValueError, match=r"shape \(4, 11\)"):
+        wc.energy(P, np.zeros((4, 12)))
+    with pytest.raises(ValueError, match="shape"):
+        wc.energy(P, np.zeros(7))
+    with pytest.raises(ValueError, match="batch of 2"):
+        ct.find_breather(P, 1.01, np.stack([X, X]))
+
+
+def test_model_functions_refuse_unphysical_parameters():
+    with pytest.raises(ValueError, match="M must be > 0"):
+        wc.band_edges(-1, 160)
+    with pytest.raises(ValueError, match="K must be >= 0"):
+        wc.band_edges(30, -1)
+
+
+def test_newton_and_floquet_options():
+    q = wc.ChainParams(30.0, 160.0, 21)
+    with pytest.raises(ValueError, match="max_iterations"):
+        ct.find_breather(q, 1.01, ct.nls_seed(q, 1.01), max_iterations=-1)
+    with pytest.raises(ValueError, match="tol"):
+        ct.find_breather(q, 1.01, ct.nls_seed(q, 1.01), tol=-1.0)
+    with pytest.raises(TypeError, match="ShootingResult"):
+        ct.floquet("b")
+
+
+def test_an_nls_seed_in_the_acoustic_band_warns():
+    q = wc.ChainParams(30.0, 40.0, 41)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        ct.nls_seed(q, 0.99)
+    assert any("acoustic band" in str(w.message) for w in caught)
