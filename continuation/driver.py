@@ -46,7 +46,7 @@ from warpchain import ChainParams, energy
 
 from . import events as ev
 from .events import StopReason
-from .floquet import FloquetResult, Instability, reduced_floquet
+from .floquet import FloquetResult, reduced_floquet
 from .shooting import frequency_report
 
 

@@ -57,7 +57,6 @@ tol = max(10 * pairing error, 1e-12) on ||l| - 1|.
 from __future__ import annotations
 
 import dataclasses
-import math
 import time
 import warnings
 
@@ -337,13 +336,13 @@ def full_floquet(V: np.ndarray, M: float, tolerance: float | None = None, *, kee
     mask[info["trivial"]] = False
     instabilities = []
     tol = info["tolerance"]
-    for l in lam[mask]:
-        if abs(l) <= 1.0 + tol or (l.imag < -tol):
+    for lam_i in lam[mask]:
+        if abs(lam_i) <= 1.0 + tol or (lam_i.imag < -tol):
             continue
-        mu = 0.5 * (l + 1.0 / l)
+        mu = 0.5 * (lam_i + 1.0 / lam_i)
         kind = str(mu_kind(np.array([mu]), 0.0)[0])
-        kind = "real_pair" if kind == "elliptic" and l.real > 0 else ("period_doubling" if kind == "elliptic" else kind)
-        instabilities.append(Instability(kind=kind, mu=complex(mu), modulus=float(abs(l)), participation=float("nan"),
+        kind = "real_pair" if kind == "elliptic" and lam_i.real > 0 else ("period_doubling" if kind == "elliptic" else kind)
+        instabilities.append(Instability(kind=kind, mu=complex(mu), modulus=float(abs(lam_i)), participation=float("nan"),
                                          localized=False, parity=0))
     instabilities.sort(key=lambda s: -s.modulus)
     return FloquetResult(

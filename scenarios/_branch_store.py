@@ -117,7 +117,10 @@ class BranchStore:
         h = np.asarray(point.residual_history, dtype=float)[: self.max_newton + 1]
         hist[: len(h)] = h
         mu = point.mu if point.mu is not None else np.full(N2, np.nan + 0j)
-        ints = (lambda a: np.full(N2, INT_FILL) if a is None else np.asarray(a))
+
+        def ints(a):
+            return np.full(N2, INT_FILL) if a is None else np.asarray(a)
+
         values = {"K": point.K, "omega": point.omega, "energy": point.energy, "max_modulus": point.max_modulus,
                   "tolerance": point.tolerance, "min_contact": point.min_contact, "s": point.s,
                   "iterations": point.iterations, "stable": int(point.stable), "state": point.state,

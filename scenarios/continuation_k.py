@@ -1,4 +1,5 @@
-"""Continuation in the coupling K (paper Fig. 6): M = 30, w_b = 1.01, N = 201, from the single-site anti-continuum seed at K = 0.01 to K = 160, with multipliers and their kinds at every point.
+"""Continuation in the coupling K (paper Fig. 6): M = 30, w_b = 1.01, N = 201, from the single-site
+anti-continuum seed at K = 0.01 to K = 160, with multipliers and their kinds at every point.
 
 Command: ``python -m scenarios run continuation-k`` (CPU: a few minutes; ``--quick``: N = 101,
 coarser steps, under a minute). Options: ``--set KEY=VALUE`` (fields of ``Parameters``), ``--resume``.
@@ -19,10 +20,10 @@ import numpy as np
 
 from continuation import anticontinuum_seed, nls_seed
 from continuation.branch import NaturalParameter
-from continuation.driver import ContinuationSettings, continuation
+from continuation.driver import ContinuationSettings
 from warpchain import ChainParams, Flow, energy
 
-from ._branch_store import BranchStore, load_branch
+from ._branch_store import load_branch
 from ._common import (BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD, PAPER_K, PAPER_M, PAPER_N, PAPER_OMEGA, Context,
                       pyplot, read_summary, save_figure)
 from ._continuation_common import branch_summary, run_branch, stability_strip

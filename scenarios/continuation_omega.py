@@ -1,4 +1,6 @@
-"""Continuation in frequency (paper Figs. 7 and 8): M = 30, K = 160, N = 201, pseudo-arclength in (state, w_b) from the lowest optical eigenmode through the gap into the acoustic band, until a resonator loses contact.
+"""Continuation in frequency (paper Figs. 7 and 8): M = 30, K = 160, N = 201, pseudo-arclength in
+(state, w_b) from the lowest optical eigenmode through the gap into the acoustic band, until a
+resonator loses contact.
 
 Command: ``python -m scenarios run continuation-omega`` (CPU: a few minutes; ``--quick``: N = 101
 and a short branch). Options: ``--set KEY=VALUE`` (fields of ``Parameters``, e.g. ``--set N=401

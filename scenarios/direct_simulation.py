@@ -4,7 +4,7 @@ ensemble for 200 periods (T = 2 pi / 1.01) on 201 sites.
 Command: ``python -m scenarios run direct-simulation`` (about 30 s on a 2-core CPU; ``--quick`` 20 periods).
 Options: ``--set KEY=VALUE`` (fields of ``Parameters``).
 
-Cases (DESIGN.md section 3): ``breather-high`` the exact w_b = 1.01 breather computed by the project;
+Cases (the paper's Fig. 9): ``breather-high`` the exact w_b = 1.01 breather computed by the project;
 ``breather-low`` that profile scaled so v_101 is 1/100 of the exact one; ``eigenmode-low`` the lowest
 optical eigenmode with the same v_101 as breather-low; ``eigenmode-high`` the eigenmode with the exact
 breather's v_101. Accuracy it needs: the space-time maps (1e-3 of the amplitude is invisible); the

@@ -19,7 +19,7 @@ def test_params_validated(kwargs, word):
 
 def test_band_edges_closed_forms_and_design_numbers():
     e = band_edges(30.0, 160.0)
-    # DESIGN.md section 1
+    # closed forms of warpchain.model.band_edges
     assert e["acoustic_top"] == pytest.approx(0.999181, abs=1e-6)
     assert e["optical_bottom"] == pytest.approx(1.016530, abs=1e-6)
     assert e["optical_top"] == pytest.approx(4.6226, abs=1e-4)

@@ -59,8 +59,12 @@ class Method:
         """The one-step map of x'' = -x with step h, as a 2x2 matrix on (x, x')."""
         if self.family == "splitting":
             mat = np.eye(2)
-            kick = lambda d: np.array([[1.0, 0.0], [-d * h, 1.0]])
-            drift = lambda c: np.array([[1.0, c * h], [0.0, 1.0]])
+            def kick(d):
+                return np.array([[1.0, 0.0], [-d * h, 1.0]])
+
+            def drift(c):
+                return np.array([[1.0, c * h], [0.0, 1.0]])
+
             mat = kick(self.kicks[0]) @ mat
             for c, d in zip(self.drifts, self.kicks[1:]):
                 mat = kick(d) @ drift(c) @ mat

@@ -1,6 +1,6 @@
 """The dimensionless mass-in-mass chain with Hertzian local resonators.
 
-Notation (DESIGN.md section 1): sites j = 1..N, chain displacement u_j, resonator displacement v_j,
+Notation: sites j = 1..N, chain displacement u_j, resonator displacement v_j,
 relative displacement z_j = u_j - v_j (the contact overlap is 1 + z_j)::
 
     M u_j'' + K (2 u_j - u_{j-1} - u_{j+1}) + f(z_j) = 0
@@ -279,7 +279,7 @@ def _two_branches(s, M):
 
 
 def band_edges(M: float, K: float) -> dict:
-    """Band edges of the infinite chain (closed forms of DESIGN.md section 1).
+    """Band edges of the infinite chain (closed forms of the dispersion relation in the module docstring).
 
     Returns:
         dict with ``acoustic_top``, ``optical_bottom``, ``optical_top``, ``gap_width``.

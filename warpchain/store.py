@@ -1,7 +1,7 @@
 """zarr v3 output: fields chunked along time and written in whole chunks, with parameters and
 provenance in attributes, readable by ``xarray.open_zarr(path, group=...)``.
 
-Layout of a store (DESIGN.md section 5)::
+Layout of a store::
 
     data.zarr/                      root attrs: params, provenance
       <group>/                      attrs: complete, n_written, t_written (+ scene attributes)
