@@ -64,12 +64,14 @@ def main(argv=None):
     if args.parameter == "K":
         p = ChainParams(30.0, 0.01, args.N)
         settings = ct.driver.ContinuationSettings(ds=0.15, ds_min=1e-4, ds_max=0.3, resolution=args.resolution or 1e-3)
-        br = continue_in_coupling(p, 1.01, ct.anticontinuum_seed(p, 1.01), 160.0, targets=(5.0, 20.0), flow=flow,
-                                  settings=settings, log=log)
+        br = continue_in_coupling(
+            p, 1.01, ct.anticontinuum_seed(p, 1.01), 160.0, targets=(5.0, 20.0), flow=flow, settings=settings, log=log
+        )
     else:
         p = ChainParams(30.0, 160.0, args.N)
-        settings = ct.driver.ContinuationSettings(ds=0.05, ds_min=1e-4, ds_max=0.6, grow=1.3,
-                                                  resolution=args.resolution or 1e-3)
+        settings = ct.driver.ContinuationSettings(
+            ds=0.05, ds_min=1e-4, ds_max=0.6, grow=1.3, resolution=args.resolution or 1e-3
+        )
         br = continue_in_frequency(p, None, omega_min=0.8, flow=flow, settings=settings, log=log)
     branch_seconds = time.perf_counter() - t0
     log(f"branch: {br.message}; {br.stats}")
@@ -91,15 +93,32 @@ def main(argv=None):
             fl = ct.floquet(res)
             scanned += 1
             if fl.stable != verdict:
-                disagreements.append({"value": float(value), "scan_stable": fl.stable, "branch_stable": verdict,
-                                      "scan_max_modulus": fl.max_modulus})
+                disagreements.append(
+                    {
+                        "value": float(value),
+                        "scan_stable": fl.stable,
+                        "branch_stable": verdict,
+                        "scan_max_modulus": fl.max_modulus,
+                    }
+                )
                 log(f"DISAGREE at {par} = {value:.6f}: scan {fl.stable}, branch {verdict}")
-    out = {"parameter": par, "N": args.N, "device": str(args.device), "branch_seconds": branch_seconds,
-           "stop_reason": br.stop_reason.value, "message": br.message, "stats": br.stats,
-           "stability_changes": br.stability_changes(), "unstable_intervals": br.unstable_intervals(),
-           "krein_crossings": sum(1 for e in br.events if e["type"] == "krein_crossing"),
-           "scan_step": args.step, "windows": args.window, "scanned": scanned, "disagreements": disagreements,
-           "scan_seconds": time.perf_counter() - t0 - branch_seconds}
+    out = {
+        "parameter": par,
+        "N": args.N,
+        "device": str(args.device),
+        "branch_seconds": branch_seconds,
+        "stop_reason": br.stop_reason.value,
+        "message": br.message,
+        "stats": br.stats,
+        "stability_changes": br.stability_changes(),
+        "unstable_intervals": br.unstable_intervals(),
+        "krein_crossings": sum(1 for e in br.events if e["type"] == "krein_crossing"),
+        "scan_step": args.step,
+        "windows": args.window,
+        "scanned": scanned,
+        "disagreements": disagreements,
+        "scan_seconds": time.perf_counter() - t0 - branch_seconds,
+    }
     (args.out / f"check-{par}.json").write_text(json.dumps(jsonable(out), indent=1))
     log(f"scan: {scanned} points, {len(disagreements)} disagreements")
 

@@ -21,8 +21,10 @@ def _load(root: Path, name: str, flat: bool) -> dict:
 
 def _interval(iv: dict, fmt: str) -> str:
     loc = ", ".join(iv.get("localized_kinds", [])) or "none"
-    return (f"[{iv['start']:{fmt}}, {iv['end']:{fmt}}] ({'/'.join(k.replace('_', ' ') for k in iv['kinds'])}; "
-            f"max |l| - 1 = {iv['max_modulus'] - 1:.1e}; localized: {loc})")
+    return (
+        f"[{iv['start']:{fmt}}, {iv['end']:{fmt}}] ({'/'.join(k.replace('_', ' ') for k in iv['kinds'])}; "
+        f"max |l| - 1 = {iv['max_modulus'] - 1:.1e}; localized: {loc})"
+    )
 
 
 def report(root: Path, flat: bool = False) -> str:
@@ -34,14 +36,17 @@ def report(root: Path, flat: bool = False) -> str:
     long_ = [iv for iv in ivs if iv["max_modulus"] - 1 >= 1e-4]
     lines.append(
         f"- **Continuation in K** (`continuation-k`, N = {k['N']}): {len(k['points'])} points from K = "
-        f"{k['points'][0]['K']:g} to K = {k['end_K']:g} (stop: `{k['stop_reason']}`), E = {k['end_energy']:.8f} at the end; "
+        f"{k['points'][0]['K']:g} to K = {k['end_K']:g} (stop: `{k['stop_reason']}`), "
+        f"E = {k['end_energy']:.8f} at the end; "
         f"{len(k['stability_changes'])} stability changes, each bracketed to the resolution "
         f"({k['parameters']['resolution']:g} in log10 K). Stable up to K = {ivs[0]['start']:.4g} if any interval, "
         f"then {len(short)} narrow bubbles of weak extended quadruplets (max |l| - 1 <= "
         f"{max((iv['max_modulus'] - 1 for iv in short), default=0):.0e}) between K = "
         f"{min((iv['start'] for iv in short), default=float('nan')):.4g} and "
         f"{max((iv['end'] for iv in short), default=float('nan')):.4g}, and unstable "
-        + "; ".join(_interval(iv, ".4g") for iv in long_) + ".")
+        + "; ".join(_interval(iv, ".4g") for iv in long_)
+        + "."
+    )
     wivs = w["unstable_intervals"]
     lines.append(
         f"- **Continuation in frequency** (`continuation-omega`, N = {w['N']}): {len(w['points'])} points from "
@@ -49,15 +54,22 @@ def report(root: Path, flat: bool = False) -> str:
         f"{w['message'].split(': ')[-1]}); energy monotonic in w_b across the gap: "
         f"{w['energy_monotonic_in_frequency_in_gap']}; E(w_b = 1.01) = {w['energy_at_omega_1_01']:.10f}. "
         f"Stability changes at w_b in "
-        + ", ".join(f"[{c['bracket'][1]:.6f}, {c['bracket'][0]:.6f}] ({'lost' if c['from_stable'] else 'regained'})"
-                    for c in w["stability_changes"])
-        + "; unstable " + "; ".join(_interval(iv, ".6f") for iv in wivs) + ".")
+        + ", ".join(
+            f"[{c['bracket'][1]:.6f}, {c['bracket'][0]:.6f}] ({'lost' if c['from_stable'] else 'regained'})"
+            for c in w["stability_changes"]
+        )
+        + "; unstable "
+        + "; ".join(_interval(iv, ".6f") for iv in wivs)
+        + "."
+    )
     for s, name in ((k, "K"), (w, "frequency")):
         st = s["branch_stats"]
-        lines.append(f"  - {name} branch: {st['points']} points, {st['solves']} solves ({st['bisection_solves']} in "
-                     f"bisections, {st['failed_solves']} failed), {st['wall_seconds']:.1f} s "
-                     f"({st['seconds_per_point']:.2f} s per point); {s['krein_crossings_recorded']} steps with "
-                     f"unbisected Krein passes of phonon multipliers.")
+        lines.append(
+            f"  - {name} branch: {st['points']} points, {st['solves']} solves ({st['bisection_solves']} in "
+            f"bisections, {st['failed_solves']} failed), {st['wall_seconds']:.1f} s "
+            f"({st['seconds_per_point']:.2f} s per point); {s['krein_crossings_recorded']} steps with "
+            f"unbisected Krein passes of phonon multipliers."
+        )
     return "\n".join(lines)
 
 

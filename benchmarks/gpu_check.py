@@ -58,8 +58,9 @@ def main(argv=None):
     for method in sorted(METHODS):
         ref = reference.integrate(method, q, xt, 0.05, 40, dx0=dx0.reshape(2, n, 4, q.N))["dx"].reshape(2 * n, 4, q.N)
         for layout in ("block", "thread"):
-            tan = propagate_tangent(q, xt, dx0, 40, 0.05, method=method, column_base=base, device=args.device,
-                                    layout=layout)
+            tan = propagate_tangent(
+                q, xt, dx0, 40, 0.05, method=method, column_base=base, device=args.device, layout=layout
+            )
             err = float(np.max(np.abs(tan.columns - ref)) / np.max(np.abs(ref)))
             out["tangent"][f"{method}/{layout}"] = err
             print(f"tangent  {method:9s} {layout:6s} rel diff {err:.2e}", flush=True)

@@ -18,8 +18,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from warpchain import ChainParams, lowest_optical_mode  # noqa: E402
 from warpchain import block_kernels as bk  # noqa: E402
-from warpchain.block_kernels import (load_site, neighbour_or_wall, site_acceleration,  # noqa: E402
-                                     site_neighbours, store_site)
+from warpchain.block_kernels import (
+    load_site,
+    neighbour_or_wall,
+    site_acceleration,  # noqa: E402
+    site_neighbours,
+    store_site,
+)
 
 BLOCK = bk.block_size(201)
 HALVES = 2 * BLOCK
@@ -29,13 +34,22 @@ HALVES = 2 * BLOCK
 def exchange(buf: wp.tile[wp.float64, HALVES], u: wp.float64, parity: int, nbr: wp.vec4i, boundary: int) -> wp.vec2d:
     offset = parity * BLOCK
     wp.tile_assign(buf, wp.tile(u), offset=(offset,))
-    return wp.vec2d(neighbour_or_wall(buf[offset + nbr[0]], u, nbr[2], boundary),
-                    neighbour_or_wall(buf[offset + nbr[1]], u, nbr[3], boundary))
+    return wp.vec2d(
+        neighbour_or_wall(buf[offset + nbr[0]], u, nbr[2], boundary),
+        neighbour_or_wall(buf[offset + nbr[1]], u, nbr[3], boundary),
+    )
 
 
 @wp.kernel(enable_backward=False, module="unique", grid_stride=False, launch_bounds=BLOCK)
-def verlet_only(x: wp.array3d(dtype=wp.float64), mass: wp.array(dtype=wp.float64),
-                coupling: wp.array(dtype=wp.float64), boundary: int, half: wp.float64, dt: wp.float64, nsteps: int):
+def verlet_only(
+    x: wp.array3d(dtype=wp.float64),
+    mass: wp.array(dtype=wp.float64),
+    coupling: wp.array(dtype=wp.float64),
+    boundary: int,
+    half: wp.float64,
+    dt: wp.float64,
+    nsteps: int,
+):
     b, j = wp.tid()
     n = x.shape[2]
     active = j < n
@@ -80,7 +94,7 @@ def main():
         for name in ("verlet", "yoshida4", "kahan8"):
             m = get_method(name)
             variants[f"{name} min_blocks={min_blocks}"] = (kernels.splitting(m.stages), m)
-    for batch in ((1,) if profile else (1, 805, 32768)):
+    for batch in (1,) if profile else (1, 805, 32768):
         x = wp.array(np.repeat(one[None], batch, 0), dtype=f64, device="cuda")
         mass = wp.array(np.full(batch, 30.0), dtype=f64, device="cuda")
         cpl = wp.array(np.full(batch, 160.0), dtype=f64, device="cuda")
@@ -89,13 +103,22 @@ def main():
 
         def runner(kernel, m):
             dr, ki = bk.pack_coefficients(m.drifts), bk.pack_coefficients(m.kicks)
-            return lambda n: wp.launch(kernel, dim=(batch, BLOCK), block_dim=BLOCK, device="cuda",
-                                       inputs=[x, mass, cpl, dr, ki, 0, f64(0.1 if m.stages == 1 else 0.5), n, 0,
-                                               rec, 0, hist])
+            return lambda n: wp.launch(
+                kernel,
+                dim=(batch, BLOCK),
+                block_dim=BLOCK,
+                device="cuda",
+                inputs=[x, mass, cpl, dr, ki, 0, f64(0.1 if m.stages == 1 else 0.5), n, 0, rec, 0, hist],
+            )
 
         def run_verlet(n):
-            wp.launch(verlet_only, dim=(batch, BLOCK), block_dim=BLOCK, device="cuda",
-                      inputs=[x, mass, cpl, 0, f64(0.05), f64(0.1), n])
+            wp.launch(
+                verlet_only,
+                dim=(batch, BLOCK),
+                block_dim=BLOCK,
+                device="cuda",
+                inputs=[x, mass, cpl, 0, f64(0.05), f64(0.1), n],
+            )
 
         runs = [("verlet-only", run_verlet, 1)] + [(k, runner(kern, m), m.stages) for k, (kern, m) in variants.items()]
         for name, fn, evals in runs:
@@ -112,12 +135,16 @@ def main():
                 fn(steps)
                 wp.synchronize()
                 best = min(best, time.perf_counter() - t0)
-            print(f"{name:24s} batch {batch:6d}: {1e9 * best / steps / evals:8.1f} ns per force evaluation, "
-                  f"{batch * p.N * steps / best:.3g} site-steps/s", flush=True)
+            print(
+                f"{name:24s} batch {batch:6d}: {1e9 * best / steps / evals:8.1f} ns per force evaluation, "
+                f"{batch * p.N * steps / best:.3g} site-steps/s",
+                flush=True,
+            )
     if not profile:
         for min_blocks in (0, 5, 7):
             for key, kern in bk.block_kernels(BLOCK, min_blocks).built().items():
                 print(min_blocks, key, wp.get_cuda_kernel_properties(kern, "cuda", block_dim=BLOCK))
+
 
 if __name__ == "__main__":
     main()

@@ -5,8 +5,17 @@ Knows nothing of Warp: the integrator is seen only through a ``warpchain.Flow`` 
 """
 
 from . import branch, driver, events
-from .floquet import (FloquetResult, Instability, analyse_multipliers, floquet, full_floquet, monodromy,
-                      pairing_error, reduced_floquet, reduced_matrix)
+from .floquet import (
+    FloquetResult,
+    Instability,
+    analyse_multipliers,
+    floquet,
+    full_floquet,
+    monodromy,
+    pairing_error,
+    reduced_floquet,
+    reduced_matrix,
+)
 from .newton import NewtonOutcome, NewtonSettings, ShootingStatus, newton
 from .seeds import (
     NLSBreather,
@@ -31,9 +40,37 @@ from .shooting import (
 )
 
 __all__ = [
-    "FloquetResult", "Instability", "NLSBreather", "NewtonOutcome", "NewtonSettings", "OscillatorOrbit", "PeriodMap",
-    "ShootingError", "ShootingResult", "ShootingStatus", "analyse_multipliers", "anticontinuum_orbit",
-    "anticontinuum_seed", "branch", "driver", "eigenmode_seed", "events", "find_breather", "floquet", "frequency_report",
-    "full_floquet", "make_flow", "monodromy", "newton", "nls_breather", "nls_coefficients", "nls_seed",
-    "oscillator_frequency", "pairing_error", "reduced_floquet", "reduced_matrix", "require", "time_grid",
+    "FloquetResult",
+    "Instability",
+    "NLSBreather",
+    "NewtonOutcome",
+    "NewtonSettings",
+    "OscillatorOrbit",
+    "PeriodMap",
+    "ShootingError",
+    "ShootingResult",
+    "ShootingStatus",
+    "analyse_multipliers",
+    "anticontinuum_orbit",
+    "anticontinuum_seed",
+    "branch",
+    "driver",
+    "eigenmode_seed",
+    "events",
+    "find_breather",
+    "floquet",
+    "frequency_report",
+    "full_floquet",
+    "make_flow",
+    "monodromy",
+    "newton",
+    "nls_breather",
+    "nls_coefficients",
+    "nls_seed",
+    "oscillator_frequency",
+    "pairing_error",
+    "reduced_floquet",
+    "reduced_matrix",
+    "require",
+    "time_grid",
 ]

@@ -31,8 +31,16 @@ from .driver import Branch, BranchPoint, ContinuationSettings, Failure, Solution
 from .newton import NewtonSettings, newton
 from .shooting import PeriodMap, find_breather, is_mirror_symmetric, make_flow, mirror_projector
 
-__all__ = ["Branch", "BranchPoint", "ContinuationSettings", "NaturalParameter", "PseudoArclength",
-           "continue_in_coupling", "continue_in_frequency", "start_from_eigenmode"]
+__all__ = [
+    "Branch",
+    "BranchPoint",
+    "ContinuationSettings",
+    "NaturalParameter",
+    "PseudoArclength",
+    "continue_in_coupling",
+    "continue_in_frequency",
+    "start_from_eigenmode",
+]
 
 
 # ----------------------------------------------------------------------------- continuation in K
@@ -53,23 +61,26 @@ class NaturalParameter:
 
     parameter = "K"
 
-    def __init__(self, params: ChainParams, omega: float, seed, K_end: float, flow: Flow, *, targets=(),
-                 log_spacing: bool = True):
+    def __init__(
+        self, params: ChainParams, omega: float, seed, K_end: float, flow: Flow, *, targets=(), log_spacing: bool = True
+    ):
         if not (isinstance(K_end, (int, float, np.integer, np.floating)) and math.isfinite(K_end) and K_end > 0):
             raise ValueError(f"K_end must be a finite number > 0, got {K_end!r}")
         self.params, self.omega, self.seed, self.K_end, self.flow = params, float(omega), seed, float(K_end), flow
         self.log_spacing = log_spacing
         self.direction = 1.0 if K_end >= params.K else -1.0
-        self.targets = sorted({float(t) for t in targets
-                               if (t - params.K) * self.direction > 0 and (K_end - t) * self.direction > 0}
-                              | {float(K_end)}, reverse=self.direction < 0)
+        self.targets = sorted(
+            {float(t) for t in targets if (t - params.K) * self.direction > 0 and (K_end - t) * self.direction > 0}
+            | {float(K_end)},
+            reverse=self.direction < 0,
+        )
         self.description = f"K-continuation, w_b = {omega:g}"
 
     def coord(self, K: float) -> float:
         return math.log10(K) if self.log_spacing else K
 
     def inverse(self, s: float) -> float:
-        return 10.0 ** s if self.log_spacing else s
+        return 10.0**s if self.log_spacing else s
 
     def _solve(self, K: float, guess, s: float, max_newton: int, tol: float):
         pr = self.params.replace(K=K)
@@ -83,8 +94,11 @@ class NaturalParameter:
 
     def start(self):
         settings = self._settings
-        return [self._solve(self.params.K, self.seed, self.coord(self.params.K), 3 * settings.max_newton,
-                            settings.newton_tol)]
+        return [
+            self._solve(
+                self.params.K, self.seed, self.coord(self.params.K), 3 * settings.max_newton, settings.newton_tol
+            )
+        ]
 
     def _next_target(self, K: float) -> float:
         return next(t for t in self.targets if (t - K) * self.direction > 1e-12 * max(1.0, abs(t)))
@@ -107,8 +121,9 @@ class NaturalParameter:
 
     def between(self, a: BranchPoint, b: BranchPoint):
         s = 0.5 * (self.coord(a.K) + self.coord(b.K))
-        return self._solve(self.inverse(s), 0.5 * (a.state + b.state), s, self._settings.max_newton,
-                           self._settings.newton_tol)
+        return self._solve(
+            self.inverse(s), 0.5 * (a.state + b.state), s, self._settings.max_newton, self._settings.newton_tol
+        )
 
     def is_between(self, a, m, b) -> bool:
         return (m.K - a.K) * (b.K - m.K) > 0
@@ -135,7 +150,7 @@ class NaturalParameter:
 def _weights(params: ChainParams, theta):
     edges = band_edges(params.M, params.K)
     theta = (1.0 / edges["gap_width"]) if theta is None else theta
-    return np.concatenate([np.ones(2 * params.N), [theta ** 2]])
+    return np.concatenate([np.ones(2 * params.N), [theta**2]])
 
 
 def _pack(state, omega) -> np.ndarray:
@@ -167,7 +182,7 @@ class _BorderedPoint:
         J = np.zeros((n2 + 1, n2 + 1))
         J[:n2, :n2] = self.point.jacobian()
         x_end = self.linearization.x_end
-        J[:n2, -1] = -(math.pi / self.omega ** 2) * accelerations(params, x_end[None])[0].ravel()
+        J[:n2, -1] = -(math.pi / self.omega**2) * accelerations(params, x_end[None])[0].ravel()
         J[-1] = self.row
         return J
 
@@ -203,8 +218,17 @@ class PseudoArclength:
 
     parameter = "omega"
 
-    def __init__(self, params: ChainParams, flow: Flow, start_points=None, *, omega_min: float = 0.5,
-                 theta: float | None = None, eigenmode_amplitude: float = 0.03, symmetric: bool | None = None):
+    def __init__(
+        self,
+        params: ChainParams,
+        flow: Flow,
+        start_points=None,
+        *,
+        omega_min: float = 0.5,
+        theta: float | None = None,
+        eigenmode_amplitude: float = 0.03,
+        symmetric: bool | None = None,
+    ):
         self.params, self.flow, self.start_points = params, flow, start_points
         self.symmetric = symmetric
         self.omega_min, self.theta, self.eigenmode_amplitude = float(omega_min), theta, eigenmode_amplitude
@@ -220,16 +244,21 @@ class PseudoArclength:
         if self.symmetric is None:  # the eigenmode start is symmetric; a resumed branch says itself
             first = resume[-1].state if resume else (self.start_points[-1][0] if self.start_points else None)
             self.symmetric = first is None or is_mirror_symmetric(first, 1e-9)
-        self.corrector = _ArclengthCorrector(self.params, self.flow, self.W,
-                                             NewtonSettings(tol=settings.newton_tol, max_iterations=settings.max_newton),
-                                             symmetric=self.symmetric)
+        self.corrector = _ArclengthCorrector(
+            self.params,
+            self.flow,
+            self.W,
+            NewtonSettings(tol=settings.newton_tol, max_iterations=settings.max_newton),
+            symmetric=self.symmetric,
+        )
 
     def start(self):
         settings = self._settings
         if self.start_points is None:
             try:
-                self.start_points = start_from_eigenmode(self.params, self.eigenmode_amplitude, flow=self.flow,
-                                                         theta=self.theta, tol=settings.newton_tol)
+                self.start_points = start_from_eigenmode(
+                    self.params, self.eigenmode_amplitude, flow=self.flow, theta=self.theta, tol=settings.newton_tol
+                )
             except RuntimeError as exc:
                 return [Failure(str(exc))]
         out, s = [], 0.0
@@ -246,8 +275,15 @@ class PseudoArclength:
         if not outcome.success:
             return Failure(f"{outcome.status.value}: {outcome.message}")
         y = outcome.unknowns
-        return Solution(self.params, float(y[-1]), _state_of(self.params, y), outcome.iterations, outcome.history,
-                        outcome.evaluation.linearization, s)
+        return Solution(
+            self.params,
+            float(y[-1]),
+            _state_of(self.params, y),
+            outcome.iterations,
+            outcome.history,
+            outcome.evaluation.linearization,
+            s,
+        )
 
     def step(self, points, h: float):
         y1, y0 = _pack(points[-1].state, points[-1].omega), _pack(points[-2].state, points[-2].omega)
@@ -290,12 +326,21 @@ class PseudoArclength:
         return max(by_contact, by_omega)
 
     def describe(self, p: BranchPoint) -> str:
-        return (f"w = {p.omega:.8f}: E = {p.energy:.8f}, max|l| = {p.max_modulus:.8f}, "
-                f"min contact {p.min_contact:.4f}")
+        return f"w = {p.omega:.8f}: E = {p.energy:.8f}, max|l| = {p.max_modulus:.8f}, min contact {p.min_contact:.4f}"
 
 
-def start_from_eigenmode(params: ChainParams, amplitude: float = 0.03, *, flow: Flow | None = None, method=None,
-                         steps_per_period=None, theta=None, tol: float = 1e-10, device=None, log=None) -> tuple:
+def start_from_eigenmode(
+    params: ChainParams,
+    amplitude: float = 0.03,
+    *,
+    flow: Flow | None = None,
+    method=None,
+    steps_per_period=None,
+    theta=None,
+    tol: float = 1e-10,
+    device=None,
+    log=None,
+) -> tuple:
     """Two small-amplitude points of the breather branch that bifurcates from the lowest optical
     eigenmode, with max |u - v| = ``amplitude`` and 2 ``amplitude``.
 
@@ -312,10 +357,11 @@ def start_from_eigenmode(params: ChainParams, amplitude: float = 0.03, *, flow: 
     z = shape[0] - shape[1]
     shape = shape / np.max(np.abs(z))
     phi = z / np.max(np.abs(z))
-    ratio = np.sum(phi ** 4) / np.sum(phi ** 2)
+    ratio = np.sum(phi**4) / np.sum(phi**2)
     W = _weights(params, theta)
-    corrector = _ArclengthCorrector(params, flow, W, NewtonSettings(tol=tol, max_iterations=30),
-                                    symmetric=is_mirror_symmetric(shape, 1e-9))
+    corrector = _ArclengthCorrector(
+        params, flow, W, NewtonSettings(tol=tol, max_iterations=30), symmetric=is_mirror_symmetric(shape, 1e-9)
+    )
     direction = np.concatenate([shape[:2].ravel(), [0.0]])
     tau = direction / math.sqrt(np.sum(W * direction * direction))
     out = []
@@ -326,21 +372,44 @@ def start_from_eigenmode(params: ChainParams, amplitude: float = 0.03, *, flow: 
             why = res.message if isinstance(res, Failure) else res.message
             raise RuntimeError(f"could not start the frequency branch from the eigenmode at amplitude {A}: {why}")
         if log:
-            log(f"start at mode amplitude {A:g}: w = {res.unknowns[-1]:.8f}, converged in {res.iterations} "
-                f"iterations (residual {res.history[-1]:.2e})")
-        out.append((_state_of(params, res.unknowns), float(res.unknowns[-1]), res.iterations, res.history,
-                    res.evaluation.linearization))
+            log(
+                f"start at mode amplitude {A:g}: w = {res.unknowns[-1]:.8f}, converged in {res.iterations} "
+                f"iterations (residual {res.history[-1]:.2e})"
+            )
+        out.append(
+            (
+                _state_of(params, res.unknowns),
+                float(res.unknowns[-1]),
+                res.iterations,
+                res.history,
+                res.evaluation.linearization,
+            )
+        )
     return tuple(out)
 
 
 # ----------------------------------------------------------------------------- entry points
 
 
-def continue_in_coupling(params: ChainParams, omega: float, seed, K_end: float, *, targets=(),
-                         log_spacing: bool = True, settings: ContinuationSettings | None = None,
-                         flow: Flow | None = None, method: str | None = None, steps_per_period: int | None = None,
-                         device: str | None = None, resume: list | None = None, on_point=None, on_event=None,
-                         progress: bool = False, log=None) -> Branch:
+def continue_in_coupling(
+    params: ChainParams,
+    omega: float,
+    seed,
+    K_end: float,
+    *,
+    targets=(),
+    log_spacing: bool = True,
+    settings: ContinuationSettings | None = None,
+    flow: Flow | None = None,
+    method: str | None = None,
+    steps_per_period: int | None = None,
+    device: str | None = None,
+    resume: list | None = None,
+    on_point=None,
+    on_event=None,
+    progress: bool = False,
+    log=None,
+) -> Branch:
     """Continuation in K at fixed omega from ``params.K`` to ``K_end`` (``NaturalParameter``).
 
     Default settings: steps of 0.15 in log10 K (at most 0.3), resolution 1e-4 in log10 K.
@@ -348,15 +417,28 @@ def continue_in_coupling(params: ChainParams, omega: float, seed, K_end: float, 
     settings = settings or ContinuationSettings(ds=0.15, ds_min=1e-4, ds_max=0.3, resolution=1e-4)
     flow = make_flow(flow, method=method, steps_per_period=steps_per_period, device=device)
     problem = NaturalParameter(params, omega, seed, K_end, flow, targets=targets, log_spacing=log_spacing)
-    return continuation(problem, settings, resume=resume, on_point=on_point, on_event=on_event, log=log,
-                        progress=progress)
+    return continuation(
+        problem, settings, resume=resume, on_point=on_point, on_event=on_event, log=log, progress=progress
+    )
 
 
-def continue_in_frequency(params: ChainParams, start_points=None, *, omega_min: float = 0.5,
-                          theta: float | None = None, settings: ContinuationSettings | None = None,
-                          flow: Flow | None = None, method: str | None = None, steps_per_period: int | None = None,
-                          device: str | None = None, resume: list | None = None, on_point=None, on_event=None,
-                          progress: bool = False, log=None) -> Branch:
+def continue_in_frequency(
+    params: ChainParams,
+    start_points=None,
+    *,
+    omega_min: float = 0.5,
+    theta: float | None = None,
+    settings: ContinuationSettings | None = None,
+    flow: Flow | None = None,
+    method: str | None = None,
+    steps_per_period: int | None = None,
+    device: str | None = None,
+    resume: list | None = None,
+    on_point=None,
+    on_event=None,
+    progress: bool = False,
+    log=None,
+) -> Branch:
     """Pseudo-arclength continuation in (q, w_b) at fixed K (``PseudoArclength``), from two points
     (``start_from_eigenmode`` when None) until contact is lost or w_b < omega_min.
 
@@ -366,5 +448,6 @@ def continue_in_frequency(params: ChainParams, start_points=None, *, omega_min: 
     settings = settings or ContinuationSettings(ds=0.05, ds_min=1e-4, ds_max=0.6, grow=1.3, resolution=1e-3)
     flow = make_flow(flow, method=method, steps_per_period=steps_per_period, device=device)
     problem = PseudoArclength(params, flow, start_points, omega_min=omega_min, theta=theta)
-    return continuation(problem, settings, resume=resume, on_point=on_point, on_event=on_event, log=log,
-                        progress=progress)
+    return continuation(
+        problem, settings, resume=resume, on_point=on_point, on_event=on_event, log=log, progress=progress
+    )

@@ -15,7 +15,8 @@ the hook through which a caller records points (``on_point``: continuation itsel
    not stall the branch.
 2. A step across which the verdict (stable/unstable) or the kinds of unstable multipliers change is
    bisected (``settings.bisect_counts`` adds steps where only the number of one kind changed, which
-   inside the acoustic band happens at nearly every step): the point in the middle of the step is solved and analysed, and both halves are examined
+   inside the acoustic band happens at nearly every step): the point in the middle of the step is
+   solved and analysed, and both halves are examined
    again, until the bracket is below ``settings.resolution`` (in the continuation coordinate). Every
    trial point is a solved, analysed branch point and is kept.
 3. A step across which elliptic multipliers of opposite Krein signature passed each other (the Krein
@@ -96,11 +97,23 @@ class ContinuationSettings:
     max_seconds: float | None = None
 
     def __post_init__(self):
-        for name in ("ds", "ds_min", "ds_max", "grow", "newton_tol", "multiplier_fraction", "multiplier_floor",
-                     "resolution"):
+        for name in (
+            "ds",
+            "ds_min",
+            "ds_max",
+            "grow",
+            "newton_tol",
+            "multiplier_fraction",
+            "multiplier_floor",
+            "resolution",
+        ):
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
-                    or not math.isfinite(value) or value <= 0:
+            if (
+                isinstance(value, bool)
+                or not isinstance(value, (int, float, np.integer, np.floating))
+                or not math.isfinite(value)
+                or value <= 0
+            ):
                 raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
         if self.bisect_krein not in ("auto", "localized", "all", "none"):
             raise ValueError(f"bisect_krein must be 'auto', 'localized', 'all' or 'none', got {self.bisect_krein!r}")
@@ -162,10 +175,17 @@ class BranchPoint:
 
     def summary(self) -> dict:
         lead = self.instabilities[0] if self.instabilities else None
-        return {"K": self.K, "omega": self.omega, "energy": self.energy, "max_floquet_modulus": self.max_modulus,
-                "stable": self.stable, "kinds": sorted({i.kind for i in self.instabilities}),
-                "leading_localized": None if lead is None else lead.localized,
-                "min_contact": self.min_contact, "newton_iterations": self.iterations}
+        return {
+            "K": self.K,
+            "omega": self.omega,
+            "energy": self.energy,
+            "max_floquet_modulus": self.max_modulus,
+            "stable": self.stable,
+            "kinds": sorted({i.kind for i in self.instabilities}),
+            "leading_localized": None if lead is None else lead.localized,
+            "min_contact": self.min_contact,
+            "newton_iterations": self.iterations,
+        }
 
 
 @dataclasses.dataclass(frozen=True)
@@ -218,9 +238,11 @@ class Branch:
         return ev.unstable_intervals(list(self.points), self.parameter)
 
     def stability_changes(self) -> list:
-        return [{"bracket": e["bracket"], "from_stable": e["from_stable"], "kinds": e["kinds"],
-                 "localized": e["localized"]}
-                for e in self.events if e["type"] == "stability_change" and e["from_stable"] != e["to_stable"]]
+        return [
+            {"bracket": e["bracket"], "from_stable": e["from_stable"], "kinds": e["kinds"], "localized": e["localized"]}
+            for e in self.events
+            if e["type"] == "stability_change" and e["from_stable"] != e["to_stable"]
+        ]
 
 
 def analyse(solution: Solution, with_floquet: bool = True) -> BranchPoint:
@@ -229,19 +251,42 @@ def analyse(solution: Solution, with_floquet: bool = True) -> BranchPoint:
     if with_floquet:
         A = np.hstack([lin.unit_columns("positions"), lin.unit_columns("velocities")])
         fl: FloquetResult = reduced_floquet(A, params.M, solution.state)
-        fields = dict(multipliers=fl.multipliers, mu=fl.mu, signature=fl.signature, parity=fl.parity,
-                      participation=fl.participation,
-                      max_modulus=fl.max_modulus, tolerance=fl.tolerance, stable=fl.stable,
-                      instabilities=fl.instabilities)
+        fields = dict(
+            multipliers=fl.multipliers,
+            mu=fl.mu,
+            signature=fl.signature,
+            parity=fl.parity,
+            participation=fl.participation,
+            max_modulus=fl.max_modulus,
+            tolerance=fl.tolerance,
+            stable=fl.stable,
+            instabilities=fl.instabilities,
+        )
     else:
         n = 2 * params.N
-        fields = dict(multipliers=np.full(2 * n, np.nan + 0j), mu=None, signature=None, parity=None, participation=None,
-                      max_modulus=float("nan"), tolerance=float("nan"), stable=False, instabilities=())
-    return BranchPoint(K=float(params.K), omega=float(solution.omega), state=np.array(solution.state),
-                       energy=float(energy(params, solution.state)[0]), iterations=int(solution.iterations),
-                       residual_history=tuple(solution.residual_history), min_contact=float(lin.min_contact),
-                       harmonics_in_bands=tuple(frequency_report(params, solution.omega)["harmonics_in_bands"]),
-                       s=float(solution.s), **fields)
+        fields = dict(
+            multipliers=np.full(2 * n, np.nan + 0j),
+            mu=None,
+            signature=None,
+            parity=None,
+            participation=None,
+            max_modulus=float("nan"),
+            tolerance=float("nan"),
+            stable=False,
+            instabilities=(),
+        )
+    return BranchPoint(
+        K=float(params.K),
+        omega=float(solution.omega),
+        state=np.array(solution.state),
+        energy=float(energy(params, solution.state)[0]),
+        iterations=int(solution.iterations),
+        residual_history=tuple(solution.residual_history),
+        min_contact=float(lin.min_contact),
+        harmonics_in_bands=tuple(frequency_report(params, solution.omega)["harmonics_in_bands"]),
+        s=float(solution.s),
+        **fields,
+    )
 
 
 # ----------------------------------------------------------------------------- spectral step bound
@@ -287,10 +332,16 @@ def spectral_step_factor(prev: BranchPoint, point: BranchPoint, fraction: float,
 # ----------------------------------------------------------------------------- the driver
 
 
-def continuation(problem, settings: ContinuationSettings = ContinuationSettings(), *,
-                 resume: list | None = None, on_point: Callable[[BranchPoint], None] | None = None,
-                 on_event: Callable[[dict], None] | None = None, log: Callable[[str], None] | None = None,
-                 progress: bool = False) -> Branch:
+def continuation(
+    problem,
+    settings: ContinuationSettings = ContinuationSettings(),
+    *,
+    resume: list | None = None,
+    on_point: Callable[[BranchPoint], None] | None = None,
+    on_event: Callable[[dict], None] | None = None,
+    log: Callable[[str], None] | None = None,
+    progress: bool = False,
+) -> Branch:
     """Walk a branch of ``problem`` (``NaturalParameter`` or ``PseudoArclength``).
 
     Args:
@@ -343,8 +394,14 @@ def continuation(problem, settings: ContinuationSettings = ContinuationSettings(
     else:
         for sol in problem.start():
             if isinstance(sol, Failure):
-                return Branch((), StopReason.NEWTON_FAILED, f"{StopReason.NEWTON_FAILED.explanation}: {sol.message}",
-                              tuple(events), par, dict(stats, wall_seconds=time.perf_counter() - start))
+                return Branch(
+                    (),
+                    StopReason.NEWTON_FAILED,
+                    f"{StopReason.NEWTON_FAILED.explanation}: {sol.message}",
+                    tuple(events),
+                    par,
+                    dict(stats, wall_seconds=time.perf_counter() - start),
+                )
             stats["solves"] += 1
             accept(analyse(sol, settings.floquet))
 
@@ -356,8 +413,10 @@ def continuation(problem, settings: ContinuationSettings = ContinuationSettings(
         if what == "count" and not settings.bisect_counts:
             note(ev.stability_change_event(a, b, par))
             return [b]
-        if what == "krein" and not (settings.bisect_krein == "all" or (
-                settings.bisect_krein == "localized" and ev.localized_krein_crossings(a, b))):
+        if what == "krein" and not (
+            settings.bisect_krein == "all"
+            or (settings.bisect_krein == "localized" and ev.localized_krein_crossings(a, b))
+        ):
             note(ev.krein_event(a, b, par, bisected=False))
             return [b]
         if h <= settings.resolution or depth > 40:
@@ -368,7 +427,8 @@ def continuation(problem, settings: ContinuationSettings = ContinuationSettings(
         if isinstance(m, Failure) or not problem.is_between(a, m, b):
             e = ev.krein_event(a, b, par) if what == "krein" else ev.stability_change_event(a, b, par)
             e["message"] += " (not bisected further: the midpoint " + (
-                "did not converge)" if isinstance(m, Failure) else "fell outside the bracket)")
+                "did not converge)" if isinstance(m, Failure) else "fell outside the bracket)"
+            )
             note(e)
             return [b]
         return refine(a, m, 0.5 * h, depth + 1) + refine(m, b, 0.5 * h, depth + 1)
@@ -377,16 +437,23 @@ def continuation(problem, settings: ContinuationSettings = ContinuationSettings(
     if progress:
         from tqdm.auto import tqdm
 
-        bar = tqdm(total=1.0, desc=problem.description, leave=False, dynamic_ncols=True,
-                   bar_format="{desc}: {percentage:3.0f}%|{bar}| [{elapsed}] {postfix}")
+        bar = tqdm(
+            total=1.0,
+            desc=problem.description,
+            leave=False,
+            dynamic_ncols=True,
+            bar_format="{desc}: {percentage:3.0f}%|{bar}| [{elapsed}] {postfix}",
+        )
     h = settings.ds
     reason, message = StopReason.END_REACHED, ""
     try:
         while True:
             last = points[-1]
             if log:
-                log(problem.describe(last) + f", {'stable' if last.stable else 'unstable'}, "
-                    f"newton {last.iterations}, step {h:.3g}")
+                log(
+                    problem.describe(last) + f", {'stable' if last.stable else 'unstable'}, "
+                    f"newton {last.iterations}, step {h:.3g}"
+                )
             if bar is not None:
                 bar.n = min(max(problem.progress(points[0], last), 0.0), 1.0)
                 bar.set_postfix_str(f"{par} = {getattr(last, par):.6g}, {len(points)} points", refresh=True)
@@ -429,8 +496,10 @@ def continuation(problem, settings: ContinuationSettings = ContinuationSettings(
             # next step: grow after an easy solve, bounded by the multipliers' motion and ds_max
             h_next = h_try * (settings.grow if new.iterations <= 3 else 1.0)
             if settings.floquet:
-                h_next = min(h_next, h_try * spectral_step_factor(last, new, settings.multiplier_fraction,
-                                                                    settings.multiplier_floor))
+                h_next = min(
+                    h_next,
+                    h_try * spectral_step_factor(last, new, settings.multiplier_fraction, settings.multiplier_floor),
+                )
             h = float(min(max(h_next, settings.ds_min), settings.ds_max))
     except KeyboardInterrupt:
         if bar is not None:

@@ -39,10 +39,10 @@ class StopReason(enum.Enum):
         return {
             "end_reached": "the branch reached its end parameter",
             "contact_lost": "a resonator lost contact (min over the orbit of 1 + u - v <= 0): the model's smooth "
-                            "branch ends here",
+            "branch ends here",
             "newton_failed": "Newton failed at the first point: check the seed and that the frequency lies in a gap",
             "step_underflow": "Newton kept failing and the step fell below its minimum: lower ds_min, raise "
-                              "max_newton, or look for a fold or a bifurcation near the last point",
+            "max_newton, or look for a fold or a bifurcation near the last point",
             "max_points": "the requested number of points was reached: raise max_points or resume the branch",
             "time_budget": "the opt-in time budget was spent: resume the branch from its store to go on",
         }[self.value]
@@ -121,8 +121,12 @@ def localized_krein_crossings(a, b) -> int:
 def _elliptic_table(point) -> dict:
     keep = point.signature != 0
     parity = point.parity if point.parity is not None else np.zeros(len(point.mu), int)
-    return {"mu": np.real(point.mu)[keep], "sig": point.signature[keep], "parity": parity[keep],
-            "pr": point.participation[keep]}
+    return {
+        "mu": np.real(point.mu)[keep],
+        "sig": point.signature[keep],
+        "parity": parity[keep],
+        "pr": point.participation[keep],
+    }
 
 
 #: below this max |l| - 1 at both ends, a step whose unstable multipliers are not the same ones
@@ -160,34 +164,58 @@ def changed(a, b) -> str | None:
     return None
 
 
+def _change_word(a, b) -> str:
+    if a.stable and not b.stable:
+        return "lost"
+    return "regained" if b.stable and not a.stable else "changed"
+
+
 def stability_change_event(a, b, parameter: str) -> dict:
     pa, pb = getattr(a, parameter), getattr(b, parameter)
     unstable = b if not b.stable else a
     lead = unstable.instabilities[0] if unstable.instabilities else None
-    return {"type": "stability_change" if (a.stable != b.stable or kinds_present(a) != kinds_present(b))
-            else "instability_count", "parameter": parameter, "bracket": [pa, pb], "from_stable": bool(a.stable),
-            "to_stable": bool(b.stable), "from": list(stability_signature(a)), "to": list(stability_signature(b)),
-            "kinds": sorted({i.kind for i in unstable.instabilities}),
-            "localized": None if lead is None else bool(lead.localized),
-            "message": f"stability {'lost' if a.stable and not b.stable else 'regained' if b.stable and not a.stable else 'changed'}"
-                       f" between {parameter} = {pa:.8g} and {pb:.8g}"}
+    return {
+        "type": "stability_change"
+        if (a.stable != b.stable or kinds_present(a) != kinds_present(b))
+        else "instability_count",
+        "parameter": parameter,
+        "bracket": [pa, pb],
+        "from_stable": bool(a.stable),
+        "to_stable": bool(b.stable),
+        "from": list(stability_signature(a)),
+        "to": list(stability_signature(b)),
+        "kinds": sorted({i.kind for i in unstable.instabilities}),
+        "localized": None if lead is None else bool(lead.localized),
+        "message": f"stability {_change_word(a, b)} between {parameter} = {pa:.8g} and {pb:.8g}",
+    }
 
 
 def krein_event(a, b, parameter: str, bisected: bool = True) -> dict:
     pa, pb = getattr(a, parameter), getattr(b, parameter)
-    return {"type": "krein_crossing", "parameter": parameter, "bracket": [pa, pb], "bisected": bisected,
-            "crossings": krein_crossings(a, b),
-            "message": None if not bisected else
-            f"elliptic multipliers of opposite Krein signature passed each other between {parameter} = "
-            f"{pa:.8g} and {pb:.8g} with no instability seen at this resolution"}
+    return {
+        "type": "krein_crossing",
+        "parameter": parameter,
+        "bracket": [pa, pb],
+        "bisected": bisected,
+        "crossings": krein_crossings(a, b),
+        "message": None
+        if not bisected
+        else f"elliptic multipliers of opposite Krein signature passed each other between {parameter} = "
+        f"{pa:.8g} and {pb:.8g} with no instability seen at this resolution",
+    }
 
 
 def contact_event(prev, point, parameter: str) -> dict:
     a, b = getattr(prev, parameter), getattr(point, parameter)
     ca, cb = prev.min_contact, point.min_contact
     at = a + (b - a) * ca / (ca - cb) if ca != cb else b
-    return {"type": "contact_lost", "parameter": parameter, "bracket": [a, b], "estimate": at,
-            "message": f"contact lost between {parameter} = {a:.6g} and {b:.6g} (interpolated {at:.6g})"}
+    return {
+        "type": "contact_lost",
+        "parameter": parameter,
+        "bracket": [a, b],
+        "estimate": at,
+        "message": f"contact lost between {parameter} = {a:.6g} and {b:.6g} (interpolated {at:.6g})",
+    }
 
 
 def harmonic_event(prev, point, parameter: str) -> dict | None:
@@ -195,8 +223,12 @@ def harmonic_event(prev, point, parameter: str) -> dict | None:
     if not new:
         return None
     at = getattr(point, parameter)
-    return {"type": "harmonic_in_band", "harmonics": new, "at": at,
-            "message": f"harmonic(s) {new} of w_b = {point.omega:.6g} entered a phonon band at {parameter} = {at:.6g}"}
+    return {
+        "type": "harmonic_in_band",
+        "harmonics": new,
+        "at": at,
+        "message": f"harmonic(s) {new} of w_b = {point.omega:.6g} entered a phonon band at {parameter} = {at:.6g}",
+    }
 
 
 def unstable_intervals(points, parameter: str) -> list:
@@ -210,14 +242,27 @@ def unstable_intervals(points, parameter: str) -> list:
     def close(run, after):
         first, last = run[0], run[-1]
         i0 = points.index(first)
-        start = getattr(first, parameter) if i0 == 0 else 0.5 * (getattr(points[i0 - 1], parameter) + getattr(first, parameter))
-        end = getattr(last, parameter) if after is None else 0.5 * (getattr(last, parameter) + getattr(after, parameter))
+        start = (
+            getattr(first, parameter)
+            if i0 == 0
+            else 0.5 * (getattr(points[i0 - 1], parameter) + getattr(first, parameter))
+        )
+        end = (
+            getattr(last, parameter) if after is None else 0.5 * (getattr(last, parameter) + getattr(after, parameter))
+        )
         worst = max(run, key=lambda p: p.max_modulus)
         lead = worst.instabilities[0] if worst.instabilities else None
-        out.append({"start": start, "end": end, "kinds": sorted({i.kind for p in run for i in p.instabilities}),
-                    "localized": None if lead is None else bool(lead.localized),
-                    "localized_kinds": sorted({i.kind for p in run for i in p.instabilities if i.localized}),
-                    "max_modulus": float(worst.max_modulus), "points": len(run)})
+        out.append(
+            {
+                "start": start,
+                "end": end,
+                "kinds": sorted({i.kind for p in run for i in p.instabilities}),
+                "localized": None if lead is None else bool(lead.localized),
+                "localized_kinds": sorted({i.kind for p in run for i in p.instabilities if i.localized}),
+                "max_modulus": float(worst.max_modulus),
+                "points": len(run),
+            }
+        )
 
     for i, p in enumerate(points):
         if not p.stable:

@@ -92,9 +92,15 @@ class Instability:
     parity: int
 
     def as_dict(self) -> dict:
-        return {"kind": self.kind, "mu_real": float(self.mu.real), "mu_imag": float(self.mu.imag),
-                "modulus": self.modulus, "participation": self.participation, "localized": self.localized,
-                "parity": self.parity}
+        return {
+            "kind": self.kind,
+            "mu_real": float(self.mu.real),
+            "mu_imag": float(self.mu.imag),
+            "modulus": self.modulus,
+            "participation": self.participation,
+            "localized": self.localized,
+            "parity": self.parity,
+        }
 
 
 @dataclasses.dataclass(frozen=True)
@@ -162,8 +168,9 @@ class FloquetResult:
 def monodromy(params: ChainParams, state, period_steps: int, dt: float, *, method: str, device=None) -> np.ndarray:
     """V with V[:, i] the end-of-period derivative along the i-th state coordinate (4N x 4N)."""
     n = 4 * params.N
-    tan = propagate_tangent(params, state, np.eye(n).reshape(n, 4, params.N), period_steps, dt, method=method,
-                            device=device)
+    tan = propagate_tangent(
+        params, state, np.eye(n).reshape(n, 4, params.N), period_steps, dt, method=method, device=device
+    )
     return tan.columns.reshape(n, n).T
 
 
@@ -191,7 +198,12 @@ def half_map_symplecticity(A: np.ndarray, M: float) -> float:
     """max |W^T J W - J| (absolute) of the half-period map A in (q, p) coordinates."""
     n2 = A.shape[0] // 2
     m = _masses(M, n2 // 2)
-    W11, W12, W21, W22 = A[:n2, :n2], A[:n2, n2:] / m[None, :], m[:, None] * A[n2:, :n2], m[:, None] * A[n2:, n2:] / m[None, :]
+    W11, W12, W21, W22 = (
+        A[:n2, :n2],
+        A[:n2, n2:] / m[None, :],
+        m[:, None] * A[n2:, :n2],
+        m[:, None] * A[n2:, n2:] / m[None, :],
+    )
     # W^T J W - J with J = [[0, I], [-I, 0]]: blocks S11 = W11^T W21 - W21^T W11, S12 = W11^T W22 - W21^T W12 - I,
     # S22 = W12^T W22 - W22^T W12
     S11 = W11.T @ W21 - W21.T @ W11
@@ -259,8 +271,15 @@ def vector_parity(vectors: np.ndarray, threshold: float = 0.9) -> np.ndarray:
 # ----------------------------------------------------------------------------- the two paths
 
 
-def reduced_floquet(A: np.ndarray, M: float, state: np.ndarray | None = None, tolerance: float | None = None,
-                    *, wall_seconds: float = 0.0, stats: dict | None = None) -> FloquetResult:
+def reduced_floquet(
+    A: np.ndarray,
+    M: float,
+    state: np.ndarray | None = None,
+    tolerance: float | None = None,
+    *,
+    wall_seconds: float = 0.0,
+    stats: dict | None = None,
+) -> FloquetResult:
     """Floquet analysis of a time-reversible orbit from its half-period map A (module docstring).
 
     Args:
@@ -296,18 +315,38 @@ def reduced_floquet(A: np.ndarray, M: float, state: np.ndarray | None = None, to
     for i in np.flatnonzero(mask & (kinds != "elliptic")):
         if kinds[i] == "complex_quadruplet" and mu[i].imag < 0:
             continue  # the conjugate mu belongs to the same quadruplet
-        instabilities.append(Instability(kind=str(kinds[i]), mu=complex(mu[i]), modulus=float(modulus[i]),
-                                         participation=float(pr[i]), localized=bool(pr[i] < LOCALIZED_FRACTION * N),
-                                         parity=int(parity[i])))
+        instabilities.append(
+            Instability(
+                kind=str(kinds[i]),
+                mu=complex(mu[i]),
+                modulus=float(modulus[i]),
+                participation=float(pr[i]),
+                localized=bool(pr[i] < LOCALIZED_FRACTION * N),
+                parity=int(parity[i]),
+            )
+        )
     instabilities.sort(key=lambda s: -s.modulus)
     lam = multipliers_from_mu(mu)
     return FloquetResult(
-        multipliers=lam, trivial=np.array([trivial, trivial + len(mu)]),
-        max_modulus=float(np.max(modulus[mask])) if mask.any() else 1.0, tolerance=tol,
-        stable=not instabilities, instabilities=tuple(instabilities), mu=mu, mu_trivial=trivial,
-        signature=signature, parity=parity, participation=pr, accuracy=accuracy, path="reduced", pairing_error=0.0,
-        symplecticity_error=sympl, monodromy=None, wall_seconds=wall_seconds + time.perf_counter() - start,
-        stats=dict(stats or {}))
+        multipliers=lam,
+        trivial=np.array([trivial, trivial + len(mu)]),
+        max_modulus=float(np.max(modulus[mask])) if mask.any() else 1.0,
+        tolerance=tol,
+        stable=not instabilities,
+        instabilities=tuple(instabilities),
+        mu=mu,
+        mu_trivial=trivial,
+        signature=signature,
+        parity=parity,
+        participation=pr,
+        accuracy=accuracy,
+        path="reduced",
+        pairing_error=0.0,
+        symplecticity_error=sympl,
+        monodromy=None,
+        wall_seconds=wall_seconds + time.perf_counter() - start,
+        stats=dict(stats or {}),
+    )
 
 
 def analyse_multipliers(multipliers: np.ndarray, tolerance: float | None = None) -> dict:
@@ -326,8 +365,15 @@ def analyse_multipliers(multipliers: np.ndarray, tolerance: float | None = None)
     return {"trivial": trivial, "pairing_error": err, "tolerance": tol, "max_modulus": max_mod, "stable": stable}
 
 
-def full_floquet(V: np.ndarray, M: float, tolerance: float | None = None, *, keep_monodromy: bool = False,
-                 wall_seconds: float = 0.0, stats: dict | None = None) -> FloquetResult:
+def full_floquet(
+    V: np.ndarray,
+    M: float,
+    tolerance: float | None = None,
+    *,
+    keep_monodromy: bool = False,
+    wall_seconds: float = 0.0,
+    stats: dict | None = None,
+) -> FloquetResult:
     """Floquet analysis from the full monodromy V (4N x 4N): any periodic orbit, any method."""
     start = time.perf_counter()
     lam = np.linalg.eigvals(V)
@@ -341,17 +387,42 @@ def full_floquet(V: np.ndarray, M: float, tolerance: float | None = None, *, kee
             continue
         mu = 0.5 * (lam_i + 1.0 / lam_i)
         kind = str(mu_kind(np.array([mu]), 0.0)[0])
-        kind = "real_pair" if kind == "elliptic" and lam_i.real > 0 else ("period_doubling" if kind == "elliptic" else kind)
-        instabilities.append(Instability(kind=kind, mu=complex(mu), modulus=float(abs(lam_i)), participation=float("nan"),
-                                         localized=False, parity=0))
+        kind = (
+            "real_pair"
+            if kind == "elliptic" and lam_i.real > 0
+            else ("period_doubling" if kind == "elliptic" else kind)
+        )
+        instabilities.append(
+            Instability(
+                kind=kind,
+                mu=complex(mu),
+                modulus=float(abs(lam_i)),
+                participation=float("nan"),
+                localized=False,
+                parity=0,
+            )
+        )
     instabilities.sort(key=lambda s: -s.modulus)
     return FloquetResult(
-        multipliers=lam, trivial=info["trivial"], max_modulus=info["max_modulus"], tolerance=tol,
-        stable=info["stable"], instabilities=tuple(instabilities), mu=None, mu_trivial=None, signature=None,
-        parity=None, participation=None, accuracy={"pairing_error": info["pairing_error"]}, path="full",
-        pairing_error=info["pairing_error"], symplecticity_error=symplecticity_error(V, M),
-        monodromy=V if keep_monodromy else None, wall_seconds=wall_seconds + time.perf_counter() - start,
-        stats=dict(stats or {}))
+        multipliers=lam,
+        trivial=info["trivial"],
+        max_modulus=info["max_modulus"],
+        tolerance=tol,
+        stable=info["stable"],
+        instabilities=tuple(instabilities),
+        mu=None,
+        mu_trivial=None,
+        signature=None,
+        parity=None,
+        participation=None,
+        accuracy={"pairing_error": info["pairing_error"]},
+        path="full",
+        pairing_error=info["pairing_error"],
+        symplecticity_error=symplecticity_error(V, M),
+        monodromy=V if keep_monodromy else None,
+        wall_seconds=wall_seconds + time.perf_counter() - start,
+        stats=dict(stats or {}),
+    )
 
 
 # ----------------------------------------------------------------------------- public entry point
@@ -362,8 +433,16 @@ def _is_reversible_method(method: str) -> bool:
     return m.symplectic and m.family == "splitting"
 
 
-def floquet(breather, *, method: str | None = None, reduced: bool | None = None, device=None,
-            keep_monodromy: bool = False, tolerance: float | None = None, flow: Flow | None = None) -> FloquetResult:
+def floquet(
+    breather,
+    *,
+    method: str | None = None,
+    reduced: bool | None = None,
+    device=None,
+    keep_monodromy: bool = False,
+    tolerance: float | None = None,
+    flow: Flow | None = None,
+) -> FloquetResult:
     """Floquet multipliers of a converged breather, with the integrator and step of its shooting.
 
     Args:
@@ -385,26 +464,34 @@ def floquet(breather, *, method: str | None = None, reduced: bool | None = None,
     if not isinstance(breather, ShootingResult):
         raise TypeError(f"floquet() takes a ShootingResult from find_breather, got {type(breather).__name__}")
     if not breather.success:
-        raise ValueError(f"floquet() of a failed solve: there is no periodic orbit to analyse "
-                         f"({breather.status.value}: {breather.message})")
+        raise ValueError(
+            f"floquet() of a failed solve: there is no periodic orbit to analyse "
+            f"({breather.status.value}: {breather.message})"
+        )
     if tolerance is not None and not (isinstance(tolerance, (int, float, np.floating)) and tolerance >= 0):
         raise ValueError(f"tolerance must be a number >= 0, got {tolerance!r}")
     flow = flow or breather.flow
     if device is not None:
         flow = flow.replace(device=device)
     if reduced and not (breather.formulation == "reversible" and _is_reversible_method(method or flow.method)):
-        raise ValueError("the reduced Floquet problem needs a reversible orbit (reversible formulation) and a "
-                         f"symplectic palindromic method; got {breather.formulation!r} with {method or flow.method!r}: "
-                         "use reduced=False")
+        raise ValueError(
+            "the reduced Floquet problem needs a reversible orbit (reversible formulation) and a "
+            f"symplectic palindromic method; got {breather.formulation!r} with {method or flow.method!r}: "
+            "use reduced=False"
+        )
     if method is not None and method != breather.method:
-        warnings.warn(f"floquet(method={method!r}) on an orbit converged with {breather.method!r}: the orbit is "
-                      f"re-converged with {method!r} first (it is periodic only for the map it was solved with)",
-                      RuntimeWarning, stacklevel=2)
+        warnings.warn(
+            f"floquet(method={method!r}) on an orbit converged with {breather.method!r}: the orbit is "
+            f"re-converged with {method!r} first (it is periodic only for the map it was solved with)",
+            RuntimeWarning,
+            stacklevel=2,
+        )
         flow = flow.replace(method=method)
         from .shooting import require
 
-        breather = require(find_breather(breather.params, breather.omega, breather.state, formulation=breather.formulation,
-                                         flow=flow))
+        breather = require(
+            find_breather(breather.params, breather.omega, breather.state, formulation=breather.formulation, flow=flow)
+        )
     if reduced is None:
         reduced = breather.formulation == "reversible" and _is_reversible_method(flow.method)
     params = breather.params
@@ -413,9 +500,21 @@ def floquet(breather, *, method: str | None = None, reduced: bool | None = None,
         lin = breather.linearization(flow)
         cols = lin.stats["tangent_columns"]
         A = np.hstack([lin.unit_columns("positions"), lin.unit_columns("velocities")])
-        return reduced_floquet(A, params.M, breather.state, tolerance, wall_seconds=time.perf_counter() - start,
-                               stats={"tangent_columns": lin.stats["tangent_columns"] - cols})
+        return reduced_floquet(
+            A,
+            params.M,
+            breather.state,
+            tolerance,
+            wall_seconds=time.perf_counter() - start,
+            stats={"tangent_columns": lin.stats["tangent_columns"] - cols},
+        )
     half = breather.nsteps if breather.formulation == "reversible" else breather.nsteps // 2
     V = monodromy(params, breather.state, 2 * half, breather.dt, method=flow.method, device=flow.device)
-    return full_floquet(V, params.M, tolerance, keep_monodromy=keep_monodromy,
-                        wall_seconds=time.perf_counter() - start, stats={"tangent_columns": 4 * params.N})
+    return full_floquet(
+        V,
+        params.M,
+        tolerance,
+        keep_monodromy=keep_monodromy,
+        wall_seconds=time.perf_counter() - start,
+        stats={"tangent_columns": 4 * params.N},
+    )

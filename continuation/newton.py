@@ -36,11 +36,11 @@ class ShootingStatus(enum.Enum):
         return {
             "converged": "",
             "max_iterations": "Newton did not reach the tolerance: start closer (continuation with a smaller step), "
-                              "or check that the frequency lies in a gap (see frequency_report)",
+            "or check that the frequency lies in a gap (see frequency_report)",
             "stagnated": "the damped Newton step could not reduce the residual: the seed is too far from a solution "
-                         "or none exists at this frequency (e.g. inside a phonon band); use continuation",
-            "trivial": "the iterate collapsed onto the rest state, which is not a breather: raise the seed amplitude or "
-                       "move the frequency further into the gap",
+            "or none exists at this frequency (e.g. inside a phonon band); use continuation",
+            "trivial": "the iterate collapsed onto the rest state, which is not a breather: raise the seed "
+            "amplitude or move the frequency further into the gap",
             "integration_error": "the orbit blew up: reduce dt (steps_per_period) or the seed amplitude",
         }[self.value]
 
@@ -108,9 +108,16 @@ def solve_linear(J, r):
     return scipy.linalg.lstsq(J, r, check_finite=False)[0], True
 
 
-def newton(unknowns, evaluate: Callable[[np.ndarray], Evaluation], settings: NewtonSettings = NewtonSettings(), *,
-           amplitude: Callable[[np.ndarray], float] | None = None, collapse_below: float = 0.0,
-           project: Callable[[np.ndarray], np.ndarray] | None = None, log=None) -> NewtonOutcome:
+def newton(
+    unknowns,
+    evaluate: Callable[[np.ndarray], Evaluation],
+    settings: NewtonSettings = NewtonSettings(),
+    *,
+    amplitude: Callable[[np.ndarray], float] | None = None,
+    collapse_below: float = 0.0,
+    project: Callable[[np.ndarray], np.ndarray] | None = None,
+    log=None,
+) -> NewtonOutcome:
     """Damped Newton: LU solve (least squares when singular, ill-conditioned or not square), step
     halved while the residual grows.
 
@@ -167,7 +174,7 @@ def newton(unknowns, evaluate: Callable[[np.ndarray], Evaluation], settings: New
             iterations += 1
             if not (math.isfinite(trial_norm) and trial_norm < norm):
                 status = ShootingStatus.STAGNATED
-                message = f"no damped step (down to 1/{2 ** settings.max_halvings}) reduced the residual {norm:.3g}"
+                message = f"no damped step (down to 1/{2**settings.max_halvings}) reduced the residual {norm:.3g}"
                 break
             unknowns, ev, norm = trial, trial_ev, trial_norm
             history.append(norm)
@@ -175,5 +182,13 @@ def newton(unknowns, evaluate: Callable[[np.ndarray], Evaluation], settings: New
                 log(f"newton {iterations}: residual {norm:.3e} (damping {lam:g}{', lstsq' if lstsq_used else ''})")
     except IntegrationError as exc:
         status, message = ShootingStatus.INTEGRATION_ERROR, str(exc)
-    return NewtonOutcome(unknowns=unknowns, evaluation=ev, history=tuple(history), iterations=iterations,
-                         status=status, message=message, used_lstsq=used_lstsq, stats=stats)
+    return NewtonOutcome(
+        unknowns=unknowns,
+        evaluation=ev,
+        history=tuple(history),
+        iterations=iterations,
+        status=status,
+        message=message,
+        used_lstsq=used_lstsq,
+        stats=stats,
+    )

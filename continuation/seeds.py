@@ -64,15 +64,23 @@ def _half_period(z0: float, omega0: float, dense: bool = False):
     """Time from the turning point z0 > 0 (at rest) to the next turning point."""
 
     def rhs(t, y):
-        return [y[1], -omega0 ** 2 * float(contact_force(y[0]))]
+        return [y[1], -(omega0**2) * float(contact_force(y[0]))]
 
     def turning(t, y):
         return y[1]
 
     turning.direction = 1.0  # z' goes from negative to zero at the lower turning point
     turning.terminal = True
-    sol = solve_ivp(rhs, (0.0, 100.0 / omega0), [z0, 0.0], method="DOP853", rtol=1e-12, atol=1e-14,
-                    events=turning, dense_output=dense)
+    sol = solve_ivp(
+        rhs,
+        (0.0, 100.0 / omega0),
+        [z0, 0.0],
+        method="DOP853",
+        rtol=1e-12,
+        atol=1e-14,
+        events=turning,
+        dense_output=dense,
+    )
     if not sol.t_events[0].size:
         raise RuntimeError(f"no turning point found from z0 = {z0}")
     return sol.t_events[0][0], sol.y_events[0][0][0], sol
@@ -95,8 +103,10 @@ def anticontinuum_orbit(omega: float, M: float, samples: int = 256) -> Oscillato
     """
     omega0 = math.sqrt((M + 1.0) / M)
     if not 0.0 < omega < omega0:
-        raise ValueError(f"the anti-continuum orbit needs 0 < omega < w0 = {omega0:.6f} (the oscillator softens); "
-                         f"got omega = {omega}")
+        raise ValueError(
+            f"the anti-continuum orbit needs 0 < omega < w0 = {omega0:.6f} (the oscillator softens); "
+            f"got omega = {omega}"
+        )
     target = lambda z0: oscillator_frequency(z0, M) - omega  # noqa: E731
     lo, hi = 1e-6, 0.5
     while target(hi) > 0:
@@ -207,8 +217,9 @@ def nls_breather(M: float, K: float, omega: float) -> NLSBreather:
     delta = omega0 - omega
     amplitude = 2.0 * math.sqrt(12.0 * delta / omega0)
     kappa = math.sqrt(2.0 * omega0 * delta / D / K)
-    return NLSBreather(M=M, K=K, omega=omega, delta=delta, dispersion=D, nonlinearity=G, amplitude=amplitude,
-                       kappa=kappa)
+    return NLSBreather(
+        M=M, K=K, omega=omega, delta=delta, dispersion=D, nonlinearity=G, amplitude=amplitude, kappa=kappa
+    )
 
 
 def nls_seed(params: ChainParams, omega: float, order: int = 2, centre: int | None = None) -> np.ndarray:
@@ -223,9 +234,13 @@ def nls_seed(params: ChainParams, omega: float, order: int = 2, centre: int | No
     if omega <= edges["acoustic_top"]:
         import warnings
 
-        warnings.warn(f"omega = {omega:g} lies in the acoustic band (top {edges['acoustic_top']:.6f}): the NLS seed "
-                      "is built, but band-gap breathers live in ({:.6f}, {:.6f})".format(edges["acoustic_top"],
-                                                                                        edges["optical_bottom"]),
-                      RuntimeWarning, stacklevel=2)
+        warnings.warn(
+            f"omega = {omega:g} lies in the acoustic band (top {edges['acoustic_top']:.6f}): the NLS seed "
+            "is built, but band-gap breathers live in ({:.6f}, {:.6f})".format(
+                edges["acoustic_top"], edges["optical_bottom"]
+            ),
+            RuntimeWarning,
+            stacklevel=2,
+        )
     u, v = nls_breather(params.M, params.K, omega).positions(params.N, centre, order)
     return state_from_positions(u, v)

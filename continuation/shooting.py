@@ -37,9 +37,22 @@ from .newton import NewtonOutcome, NewtonSettings, ShootingStatus, newton, solve
 DEFAULT_METHOD = "kahan8"
 DEFAULT_STEPS_PER_PERIOD = 32
 
-__all__ = ["DEFAULT_METHOD", "DEFAULT_STEPS_PER_PERIOD", "NewtonOutcome", "NewtonSettings", "PeriodMap",
-           "ShootingError", "ShootingResult", "ShootingStatus", "find_breather", "frequency_report", "make_flow",
-           "require", "solve_linear", "time_grid"]
+__all__ = [
+    "DEFAULT_METHOD",
+    "DEFAULT_STEPS_PER_PERIOD",
+    "NewtonOutcome",
+    "NewtonSettings",
+    "PeriodMap",
+    "ShootingError",
+    "ShootingResult",
+    "ShootingStatus",
+    "find_breather",
+    "frequency_report",
+    "make_flow",
+    "require",
+    "solve_linear",
+    "time_grid",
+]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -123,8 +136,12 @@ def frequency_report(params: ChainParams, omega: float, harmonics: int = 5) -> d
             return "optical band"
         return "above the bands"
 
-    return {"omega": omega, "location": where(omega), **e,
-            "harmonics_in_bands": [n for n in range(2, harmonics + 1) if where(n * omega).endswith("band")]}
+    return {
+        "omega": omega,
+        "location": where(omega),
+        **e,
+        "harmonics_in_bands": [n for n in range(2, harmonics + 1) if where(n * omega).endswith("band")],
+    }
 
 
 def time_grid(omega: float, dt: float | None, steps_per_period: int | None) -> tuple[int, float]:
@@ -167,8 +184,15 @@ def _state(params, q):
 _solve = solve_linear  # older name, kept for scripts
 
 
-def make_flow(flow: Flow | None = None, *, method: str | None = None, steps_per_period: int | None = None,
-              dt: float | None = None, omega: float | None = None, device: str | None = None) -> Flow:
+def make_flow(
+    flow: Flow | None = None,
+    *,
+    method: str | None = None,
+    steps_per_period: int | None = None,
+    dt: float | None = None,
+    omega: float | None = None,
+    device: str | None = None,
+) -> Flow:
     """The Flow to solve with: ``flow`` as given, or one built from method / steps per period (or a
     step ``dt`` at frequency ``omega``, rounded so the half period is a whole number of steps) / device."""
     if flow is not None:
@@ -182,8 +206,9 @@ def make_flow(flow: Flow | None = None, *, method: str | None = None, steps_per_
             raise ValueError("give dt or steps_per_period, not both")
         n_half, _ = time_grid(omega, dt, None)
         steps_per_period = 2 * n_half
-    return Flow(method or DEFAULT_METHOD, DEFAULT_STEPS_PER_PERIOD if steps_per_period is None else steps_per_period,
-                device)
+    return Flow(
+        method or DEFAULT_METHOD, DEFAULT_STEPS_PER_PERIOD if steps_per_period is None else steps_per_period, device
+    )
 
 
 class PeriodMap:
@@ -193,8 +218,16 @@ class PeriodMap:
     propagates the tangent columns on that trajectory's recorded history.
     """
 
-    def __init__(self, params: ChainParams, omega: float, flow: Flow, formulation: str = "reversible",
-                 jacobian: str = "tangent", fd_step: float = 1e-7, x_ref=None):
+    def __init__(
+        self,
+        params: ChainParams,
+        omega: float,
+        flow: Flow,
+        formulation: str = "reversible",
+        jacobian: str = "tangent",
+        fd_step: float = 1e-7,
+        x_ref=None,
+    ):
         self.params, self.omega, self.flow, self.formulation = params, float(omega), flow, formulation
         self.jacobian, self.fd_step = jacobian, fd_step
         n_half, self.dt = flow.grid(omega)
@@ -206,7 +239,9 @@ class PeriodMap:
             self.nsteps = 2 * n_half
             self.n_unknowns = 4 * N
             self.x_ref = np.array(x_ref, dtype=float)
-            self.phase_row = np.concatenate([self.x_ref[2:].ravel(), accelerations(params, self.x_ref[None])[0].ravel()])
+            self.phase_row = np.concatenate(
+                [self.x_ref[2:].ravel(), accelerations(params, self.x_ref[None])[0].ravel()]
+            )
 
     def to_state(self, unknowns):
         return _state(self.params, unknowns) if self.formulation == "reversible" else unknowns.reshape(4, self.params.N)
@@ -256,7 +291,7 @@ class ShootingPoint:
         if self._jacobian is None:
             cols = self.columns()
             if self.pmap.formulation == "reversible":
-                self._jacobian = cols[2 * self.pmap.params.N:, :]  # velocity rows
+                self._jacobian = cols[2 * self.pmap.params.N :, :]  # velocity rows
             else:
                 self._jacobian = np.vstack([cols - np.eye(cols.shape[0]), self.pmap.phase_row[None]])
         return self._jacobian
@@ -269,7 +304,11 @@ def is_mirror_symmetric(state, rtol: float) -> bool:
 
 
 def _check_number(name, value, *, positive=True):
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) or np.iscomplexobj(value):
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, (int, float, np.integer, np.floating))
+        or np.iscomplexobj(value)
+    ):
         raise ValueError(f"{name} must be a real number, got {value!r}")
     value = float(value)
     if not math.isfinite(value) or (positive and value <= 0):
@@ -277,11 +316,25 @@ def _check_number(name, value, *, positive=True):
     return value
 
 
-def find_breather(params: ChainParams, omega: float, seed, *, formulation: str = "reversible",
-                  flow: Flow | None = None, method: str | None = None, dt: float | None = None,
-                  steps_per_period: int | None = None, tol: float = 1e-10, max_iterations: int = 30,
-                  jacobian: str = "tangent", fd_step: float = 1e-7, collapse_ratio: float = 1e-3,
-                  symmetric: bool | None = None, device: str | None = None, log=None) -> ShootingResult:
+def find_breather(
+    params: ChainParams,
+    omega: float,
+    seed,
+    *,
+    formulation: str = "reversible",
+    flow: Flow | None = None,
+    method: str | None = None,
+    dt: float | None = None,
+    steps_per_period: int | None = None,
+    tol: float = 1e-10,
+    max_iterations: int = 30,
+    jacobian: str = "tangent",
+    fd_step: float = 1e-7,
+    collapse_ratio: float = 1e-3,
+    symmetric: bool | None = None,
+    device: str | None = None,
+    log=None,
+) -> ShootingResult:
     """Newton shooting for a breather of frequency ``omega`` from ``seed``.
 
     Args:
@@ -327,9 +380,15 @@ def find_breather(params: ChainParams, omega: float, seed, *, formulation: str =
         symmetric = formulation == "reversible" and is_mirror_symmetric(seed, 1e-9)
     if symmetric and formulation != "reversible":
         raise ValueError("symmetric=True needs the reversible formulation")
-    outcome = newton(pmap.from_state(seed), pmap.evaluate, settings, amplitude=amplitude,
-                     collapse_below=collapse_ratio * seed_amplitude,
-                     project=mirror_projector(params.N) if symmetric else None, log=log)
+    outcome = newton(
+        pmap.from_state(seed),
+        pmap.evaluate,
+        settings,
+        amplitude=amplitude,
+        collapse_below=collapse_ratio * seed_amplitude,
+        project=mirror_projector(params.N) if symmetric else None,
+        log=log,
+    )
     return shooting_result(pmap, outcome, start)
 
 
@@ -339,19 +398,39 @@ def shooting_result(pmap: PeriodMap, outcome: NewtonOutcome, start: float) -> Sh
     status, history, iterations = outcome.status, outcome.history, outcome.iterations
     state = pmap.to_state(outcome.unknowns)
     if status is ShootingStatus.CONVERGED:
-        message = (f"converged in {iterations} iterations to residual {history[-1]:.3g} "
-                   f"(omega = {omega:.6g}, {pmap.formulation} formulation, {pmap.jacobian} Jacobian)")
+        message = (
+            f"converged in {iterations} iterations to residual {history[-1]:.3g} "
+            f"(omega = {omega:.6g}, {pmap.formulation} formulation, {pmap.jacobian} Jacobian)"
+        )
     else:
         report = frequency_report(params, omega)
-        message = (f"Newton failed for omega = {omega:.6g} ({report['location']}): {outcome.message}. "
-                   f"What to do: {status.advice}.")
+        message = (
+            f"Newton failed for omega = {omega:.6g} ({report['location']}): {outcome.message}. "
+            f"What to do: {status.advice}."
+        )
     ev = outcome.evaluation
     lin = ev.linearization if ev is not None and status is not ShootingStatus.INTEGRATION_ERROR else None
     stats = dict(outcome.stats, tangent_columns=outcome.stats["jacobians"] * pmap.n_unknowns)
     return ShootingResult(
-        state=state, omega=float(omega), period=2 * math.pi / omega, energy=float(energy(params, state)[0]),
-        residual=history[-1] if history else float("nan"), residual_history=history, iterations=iterations,
-        status=status, message=message, min_contact=lin.min_contact if lin is not None else float("nan"),
-        method=pmap.flow.method, dt=pmap.dt, nsteps=pmap.nsteps, formulation=pmap.formulation,
-        jacobian=pmap.jacobian, used_lstsq=outcome.used_lstsq, wall_seconds=time.perf_counter() - start,
-        params=params, flow=pmap.flow, stats=stats, _linearization=lin if pmap.jacobian == "tangent" else None)
+        state=state,
+        omega=float(omega),
+        period=2 * math.pi / omega,
+        energy=float(energy(params, state)[0]),
+        residual=history[-1] if history else float("nan"),
+        residual_history=history,
+        iterations=iterations,
+        status=status,
+        message=message,
+        min_contact=lin.min_contact if lin is not None else float("nan"),
+        method=pmap.flow.method,
+        dt=pmap.dt,
+        nsteps=pmap.nsteps,
+        formulation=pmap.formulation,
+        jacobian=pmap.jacobian,
+        used_lstsq=outcome.used_lstsq,
+        wall_seconds=time.perf_counter() - start,
+        params=params,
+        flow=pmap.flow,
+        stats=stats,
+        _linearization=lin if pmap.jacobian == "tangent" else None,
+    )

@@ -21,10 +21,16 @@ def main(argv=None) -> int:
     common.add_argument("--out", default="results", type=Path, help="output root (default: results/)")
     common.add_argument("--device", default=None, help="cpu or cuda (default: cuda when Warp sees a GPU)")
     common.add_argument("--quick", action="store_true", help="reduced variant for smoke tests")
-    common.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                        help="override a scene parameter (repeatable), e.g. --set N=401")
-    common.add_argument("--resume", action="store_true",
-                        help="continue a stored branch (continuation-k, continuation-omega)")
+    common.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a scene parameter (repeatable), e.g. --set N=401",
+    )
+    common.add_argument(
+        "--resume", action="store_true", help="continue a stored branch (continuation-k, continuation-omega)"
+    )
     run = sub.add_parser("run", parents=[common], help="run one scene")
     run.add_argument("name", help="scene name (see 'list')")
     sub.add_parser("paper", parents=[common], help="run every paper scene in order")
@@ -48,8 +54,9 @@ def main(argv=None) -> int:
         overrides[key.strip()] = value.strip()
     if args.command == "paper" and (overrides or args.resume):
         parser.error("--set and --resume apply to one scene: use 'run NAME'")
-    command_line = " ".join(["python -m scenarios", *(shlex.quote(a) for a in (argv if argv is not None
-                                                                               else sys.argv[1:]))])
+    command_line = " ".join(
+        ["python -m scenarios", *(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))]
+    )
     try:
         check_output_root(args.out)
         for name in names:
@@ -58,8 +65,10 @@ def main(argv=None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("interrupted: what was stored so far is complete and marked so; branch scenes continue with "
-              "--resume", file=sys.stderr)
+        print(
+            "interrupted: what was stored so far is complete and marked so; branch scenes continue with --resume",
+            file=sys.stderr,
+        )
         return 130
     return 0
 

@@ -56,26 +56,46 @@ class BranchStore:
         device: for provenance.
     """
 
-    def __init__(self, path, group: str, params: ChainParams, attrs: dict, *, max_newton: int = 40,
-                 resume: bool = False, device=None, command_line: str | None = None):
+    def __init__(
+        self,
+        path,
+        group: str,
+        params: ChainParams,
+        attrs: dict,
+        *,
+        max_newton: int = 40,
+        resume: bool = False,
+        device=None,
+        command_line: str | None = None,
+    ):
         self.path, self.group_name, self.params, self.max_newton = Path(path), group, params, int(max_newton)
         N = params.N
         extra = {"command_line": command_line} if command_line else {}
-        root = open_store(self.path, params=params.as_dict(), provenance_info=provenance(device, **extra),
-                          mode="a" if resume else "w")
+        root = open_store(
+            self.path, params=params.as_dict(), provenance_info=provenance(device, **extra), mode="a" if resume else "w"
+        )
         g = root.require_group(group)
         self.group = g
         spec = {name: _float(()) for name in ("K", "omega", "energy", "max_modulus", "tolerance", "min_contact", "s")}
-        spec.update({"iterations": _int(()), "stable": _int(()), "state": _float((4, N)),
-                     "mu_real": _float((2 * N,)), "mu_imag": _float((2 * N,)), "signature": _int((2 * N,)),
-                     "parity": _int((2 * N,)), "participation": _float((2 * N,)),
-                     "newton_residuals": _float((self.max_newton + 1,)),
-                     "instability_kind": _int((MAX_INSTABILITIES,)),
-                     "instability_mu_real": _float((MAX_INSTABILITIES,)),
-                     "instability_mu_imag": _float((MAX_INSTABILITIES,)),
-                     "instability_participation": _float((MAX_INSTABILITIES,)),
-                     "instability_localized": _int((MAX_INSTABILITIES,)),
-                     "instability_parity": _int((MAX_INSTABILITIES,))})
+        spec.update(
+            {
+                "iterations": _int(()),
+                "stable": _int(()),
+                "state": _float((4, N)),
+                "mu_real": _float((2 * N,)),
+                "mu_imag": _float((2 * N,)),
+                "signature": _int((2 * N,)),
+                "parity": _int((2 * N,)),
+                "participation": _float((2 * N,)),
+                "newton_residuals": _float((self.max_newton + 1,)),
+                "instability_kind": _int((MAX_INSTABILITIES,)),
+                "instability_mu_real": _float((MAX_INSTABILITIES,)),
+                "instability_mu_imag": _float((MAX_INSTABILITIES,)),
+                "instability_participation": _float((MAX_INSTABILITIES,)),
+                "instability_localized": _int((MAX_INSTABILITIES,)),
+                "instability_parity": _int((MAX_INSTABILITIES,)),
+            }
+        )
         dims = {"state": ("point", "component", "site"), "newton_residuals": ("point", "newton_iteration")}
         for name in ("mu_real", "mu_imag", "signature", "parity", "participation"):
             dims[name] = ("point", "pair")
@@ -88,12 +108,26 @@ class BranchStore:
             if name in existing:
                 self.arrays[name] = g[name]
             else:
-                self.arrays[name] = g.create_array(name, shape=(0, *shape), chunks=(1, *shape), dtype=dtype,
-                                                   fill_value=fill, dimension_names=dims.get(name, ("point",)),
-                                                   overwrite=True)
+                self.arrays[name] = g.create_array(
+                    name,
+                    shape=(0, *shape),
+                    chunks=(1, *shape),
+                    dtype=dtype,
+                    fill_value=fill,
+                    dimension_names=dims.get(name, ("point",)),
+                    overwrite=True,
+                )
         if not resume:
-            g.attrs.update({**jsonable(attrs), "complete": False, "n_points": 0, "events": [], "stop_reason": None,
-                            "kinds": list(KINDS)})
+            g.attrs.update(
+                {
+                    **jsonable(attrs),
+                    "complete": False,
+                    "n_points": 0,
+                    "events": [],
+                    "stop_reason": None,
+                    "kinds": list(KINDS),
+                }
+            )
         else:
             g.attrs.update({"complete": False, "stop_reason": None})
         consolidate(self.path)
@@ -121,19 +155,30 @@ class BranchStore:
         def ints(a):
             return np.full(N2, INT_FILL) if a is None else np.asarray(a)
 
-        values = {"K": point.K, "omega": point.omega, "energy": point.energy, "max_modulus": point.max_modulus,
-                  "tolerance": point.tolerance, "min_contact": point.min_contact, "s": point.s,
-                  "iterations": point.iterations, "stable": int(point.stable), "state": point.state,
-                  "mu_real": np.real(mu), "mu_imag": np.imag(mu), "signature": ints(point.signature),
-                  "parity": ints(point.parity),
-                  "participation": np.full(N2, np.nan) if point.participation is None else point.participation,
-                  "newton_residuals": hist,
-                  "instability_kind": table(lambda i: KINDS.index(i.kind), INT_FILL),
-                  "instability_mu_real": table(lambda i: i.mu.real, np.nan),
-                  "instability_mu_imag": table(lambda i: i.mu.imag, np.nan),
-                  "instability_participation": table(lambda i: i.participation, np.nan),
-                  "instability_localized": table(lambda i: int(i.localized), INT_FILL),
-                  "instability_parity": table(lambda i: i.parity, INT_FILL)}
+        values = {
+            "K": point.K,
+            "omega": point.omega,
+            "energy": point.energy,
+            "max_modulus": point.max_modulus,
+            "tolerance": point.tolerance,
+            "min_contact": point.min_contact,
+            "s": point.s,
+            "iterations": point.iterations,
+            "stable": int(point.stable),
+            "state": point.state,
+            "mu_real": np.real(mu),
+            "mu_imag": np.imag(mu),
+            "signature": ints(point.signature),
+            "parity": ints(point.parity),
+            "participation": np.full(N2, np.nan) if point.participation is None else point.participation,
+            "newton_residuals": hist,
+            "instability_kind": table(lambda i: KINDS.index(i.kind), INT_FILL),
+            "instability_mu_real": table(lambda i: i.mu.real, np.nan),
+            "instability_mu_imag": table(lambda i: i.mu.imag, np.nan),
+            "instability_participation": table(lambda i: i.participation, np.nan),
+            "instability_localized": table(lambda i: int(i.localized), INT_FILL),
+            "instability_parity": table(lambda i: i.parity, INT_FILL),
+        }
         for name, arr in self.arrays.items():
             arr.resize((n + 1, *arr.shape[1:]))
             arr[n] = values[name]
@@ -141,8 +186,15 @@ class BranchStore:
         consolidate(self.path)
 
     def finish(self, branch: Branch) -> None:
-        self.group.attrs.update({"complete": True, "stop_reason": branch.stop_reason.value, "message": branch.message,
-                                 "events": jsonable(list(branch.events)), "stats": jsonable(branch.stats)})
+        self.group.attrs.update(
+            {
+                "complete": True,
+                "stop_reason": branch.stop_reason.value,
+                "message": branch.message,
+                "events": jsonable(list(branch.events)),
+                "stats": jsonable(branch.stats),
+            }
+        )
         consolidate(self.path)
 
     def interrupted(self, why: str) -> None:
@@ -152,8 +204,10 @@ class BranchStore:
 
 def _fail(path, group, name, i, what):
     where = f"array '{name}'" + (f", point {i}" if i is not None else "")
-    raise StoreError(f"damaged branch store {path} (group '{group}', {where}): {what}. Recompute the branch "
-                     f"(run the scene without --resume), or resume from a copy whose damaged points were removed")
+    raise StoreError(
+        f"damaged branch store {path} (group '{group}', {where}): {what}. Recompute the branch "
+        f"(run the scene without --resume), or resume from a copy whose damaged points were removed"
+    )
 
 
 def load_branch(path, group: str = "branch") -> tuple[ChainParams, list, dict]:
@@ -176,13 +230,26 @@ def load_branch(path, group: str = "branch") -> tuple[ChainParams, list, dict]:
     except StoreError:
         raise
     except (KeyError, ValueError, TypeError, json.JSONDecodeError, OSError) as exc:
-        raise StoreError(f"cannot read branch store {path} (group '{group}'): {type(exc).__name__}: {exc}. "
-                         "Recompute the branch (run the scene without --resume)") from None
+        raise StoreError(
+            f"cannot read branch store {path} (group '{group}'): {type(exc).__name__}: {exc}. "
+            "Recompute the branch (run the scene without --resume)"
+        ) from None
     n = attrs.get("n_points")
     if not isinstance(n, int) or n < 0:
         _fail(path, group, "n_points (attribute)", None, f"not a point count: {n!r}")
-    required = ("K", "omega", "energy", "state", "mu_real", "mu_imag", "stable", "iterations", "max_modulus",
-                "min_contact", "newton_residuals")
+    required = (
+        "K",
+        "omega",
+        "energy",
+        "state",
+        "mu_real",
+        "mu_imag",
+        "stable",
+        "iterations",
+        "max_modulus",
+        "min_contact",
+        "newton_residuals",
+    )
     a = {}
     for name in names:
         try:
@@ -211,8 +278,11 @@ def load_branch(path, group: str = "branch") -> tuple[ChainParams, list, dict]:
             _fail(path, group, "stable", i, f"flag {a['stable'][i]} is not 0 or 1 (a missing or damaged chunk)")
         if a["iterations"][i] < 0:
             _fail(path, group, "iterations", i, "negative (a missing or damaged chunk)")
-        if not (np.isfinite(a["mu_real"][i]).all() and np.isfinite(a["mu_imag"][i]).all()) and int(a["stable"][i]) == 1 \
-                and np.isfinite(a["max_modulus"][i]):
+        if (
+            not (np.isfinite(a["mu_real"][i]).all() and np.isfinite(a["mu_imag"][i]).all())
+            and int(a["stable"][i]) == 1
+            and np.isfinite(a["max_modulus"][i])
+        ):
             _fail(path, group, "mu_real", i, "non-finite multipliers at a point marked analysed")
     points = []
     for i in range(n):
@@ -220,16 +290,24 @@ def load_branch(path, group: str = "branch") -> tuple[ChainParams, list, dict]:
         have_mu = bool(np.isfinite(mu).all())
         insts = []
         for k in range(MAX_INSTABILITIES):
-            code = int(a.get("instability_kind", np.full((n, 1), INT_FILL))[i][k]) if "instability_kind" in a else INT_FILL
+            code = (
+                int(a.get("instability_kind", np.full((n, 1), INT_FILL))[i][k]) if "instability_kind" in a else INT_FILL
+            )
             if code == INT_FILL:
                 break
             if not 0 <= code < len(KINDS):
                 _fail(path, group, "instability_kind", i, f"unknown kind code {code}")
             imu = complex(a["instability_mu_real"][i][k], a["instability_mu_imag"][i][k])
-            insts.append(Instability(kind=KINDS[code], mu=imu, modulus=float(outer_modulus(np.array([imu]))[0]),
-                                     participation=float(a["instability_participation"][i][k]),
-                                     localized=bool(a["instability_localized"][i][k] == 1),
-                                     parity=int(a["instability_parity"][i][k])))
+            insts.append(
+                Instability(
+                    kind=KINDS[code],
+                    mu=imu,
+                    modulus=float(outer_modulus(np.array([imu]))[0]),
+                    participation=float(a["instability_participation"][i][k]),
+                    localized=bool(a["instability_localized"][i][k] == 1),
+                    parity=int(a["instability_parity"][i][k]),
+                )
+            )
         hist = a["newton_residuals"][i]
         pr = params.replace(K=float(a["K"][i]))
 
@@ -237,15 +315,26 @@ def load_branch(path, group: str = "branch") -> tuple[ChainParams, list, dict]:
             v = a.get(name)
             return None if v is None or (v[i] == INT_FILL).all() else v[i].astype(int)
 
-        points.append(BranchPoint(
-            K=float(a["K"][i]), omega=float(a["omega"][i]), state=np.array(a["state"][i]), energy=float(a["energy"][i]),
-            iterations=int(a["iterations"][i]), residual_history=tuple(hist[np.isfinite(hist)]),
-            multipliers=multipliers_from_mu(mu) if have_mu else np.full(4 * N, np.nan + 0j),
-            mu=mu if have_mu else None, signature=ints("signature") if have_mu else None,
-            parity=ints("parity") if have_mu else None,
-            participation=a["participation"][i] if have_mu and "participation" in a else None,
-            max_modulus=float(a["max_modulus"][i]), tolerance=float(a.get("tolerance", np.full(n, np.nan))[i]),
-            stable=bool(a["stable"][i]), instabilities=tuple(insts), min_contact=float(a["min_contact"][i]),
-            harmonics_in_bands=tuple(frequency_report(pr, float(a["omega"][i]))["harmonics_in_bands"]),
-            s=float(a.get("s", np.full(n, np.nan))[i])))
+        points.append(
+            BranchPoint(
+                K=float(a["K"][i]),
+                omega=float(a["omega"][i]),
+                state=np.array(a["state"][i]),
+                energy=float(a["energy"][i]),
+                iterations=int(a["iterations"][i]),
+                residual_history=tuple(hist[np.isfinite(hist)]),
+                multipliers=multipliers_from_mu(mu) if have_mu else np.full(4 * N, np.nan + 0j),
+                mu=mu if have_mu else None,
+                signature=ints("signature") if have_mu else None,
+                parity=ints("parity") if have_mu else None,
+                participation=a["participation"][i] if have_mu and "participation" in a else None,
+                max_modulus=float(a["max_modulus"][i]),
+                tolerance=float(a.get("tolerance", np.full(n, np.nan))[i]),
+                stable=bool(a["stable"][i]),
+                instabilities=tuple(insts),
+                min_contact=float(a["min_contact"][i]),
+                harmonics_in_bands=tuple(frequency_report(pr, float(a["omega"][i]))["harmonics_in_bands"]),
+                s=float(a.get("s", np.full(n, np.nan))[i]),
+            )
+        )
     return params, points, attrs

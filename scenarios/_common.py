@@ -25,8 +25,15 @@ SCENES = {
     "throughput": "scenarios.throughput",
 }
 #: scenes that reproduce the paper (``python -m scenarios paper``); the rest chart speed and accuracy
-PAPER_SCENES = ["dispersion", "anticontinuum", "nls", "breather", "continuation-k", "continuation-omega",
-                "direct-simulation"]
+PAPER_SCENES = [
+    "dispersion",
+    "anticontinuum",
+    "nls",
+    "breather",
+    "continuation-k",
+    "continuation-omega",
+    "direct-simulation",
+]
 
 log = logging.getLogger("scenarios")
 
@@ -141,8 +148,15 @@ def scene_parameters(module, quick: bool, overrides: dict | None = None):
     return dataclasses.replace(params, **changes)
 
 
-def run_scene(name: str, out_root: Path, device: str | None, quick: bool, overrides: dict | None = None,
-              resume: bool = False, command_line: str = "") -> dict:
+def run_scene(
+    name: str,
+    out_root: Path,
+    device: str | None,
+    quick: bool,
+    overrides: dict | None = None,
+    resume: bool = False,
+    command_line: str = "",
+) -> dict:
     """Run one scene (compute, store, summary) and then its plots (which read the stored data)."""
     from warpchain import resolve_device
 
@@ -154,8 +168,9 @@ def run_scene(name: str, out_root: Path, device: str | None, quick: bool, overri
     out = Path(out_root) / name
     created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
-    ctx = Context(name=name, out=out, device=resolved, quick=quick, params=params, resume=resume,
-                  command_line=command_line)
+    ctx = Context(
+        name=name, out=out, device=resolved, quick=quick, params=params, resume=resume, command_line=command_line
+    )
     try:
         return _run_in(module, ctx, params, command_line)
     except BaseException:
@@ -201,7 +216,14 @@ def paper_breather(device: str, log=None):
 
     if device not in _BREATHER_CACHE:
         params = ChainParams(PAPER_M, PAPER_K, PAPER_N)
-        result = find_breather(params, PAPER_OMEGA, nls_seed(params, PAPER_OMEGA), method=BREATHER_METHOD,
-                               steps_per_period=BREATHER_STEPS_PER_PERIOD, device=device, log=log)
+        result = find_breather(
+            params,
+            PAPER_OMEGA,
+            nls_seed(params, PAPER_OMEGA),
+            method=BREATHER_METHOD,
+            steps_per_period=BREATHER_STEPS_PER_PERIOD,
+            device=device,
+            log=log,
+        )
         _BREATHER_CACHE[device] = require(result)
     return _BREATHER_CACHE[device]

@@ -11,8 +11,11 @@ from continuation.floquet import KINDS
 from ._branch_store import BranchStore, StoreError, load_branch
 
 KIND_COLOURS = {"real_pair": "tab:red", "period_doubling": "tab:purple", "complex_quadruplet": "tab:orange"}
-KIND_LABELS = {"real_pair": "real pair (through +1)", "period_doubling": "period doubling (through -1)",
-               "complex_quadruplet": "Krein quadruplet"}
+KIND_LABELS = {
+    "real_pair": "real pair (through +1)",
+    "period_doubling": "period doubling (through -1)",
+    "complex_quadruplet": "Krein quadruplet",
+}
 
 
 def run_branch(ctx, problem, settings, params, attrs) -> Branch:
@@ -22,14 +25,28 @@ def run_branch(ctx, problem, settings, params, attrs) -> Branch:
     if ctx.resume:
         stored_params, resume, stored_attrs = load_branch(path, "branch")
         if stored_params.N != params.N or stored_params.M != params.M:
-            raise StoreError(f"{path} holds a branch of N = {stored_params.N}, M = {stored_params.M}, not "
-                             f"N = {params.N}, M = {params.M}: use the same --set values as the stored run")
+            raise StoreError(
+                f"{path} holds a branch of N = {stored_params.N}, M = {stored_params.M}, not "
+                f"N = {params.N}, M = {params.M}: use the same --set values as the stored run"
+            )
         if len(resume) < 2:
             raise StoreError(f"{path} holds {len(resume)} point(s); resuming needs two: run without --resume")
-        ctx.log("resuming from %d stored points (%s at %s)", len(resume), stored_attrs.get("stop_reason"),
-                problem.describe(resume[-1]))
-    store = BranchStore(path, "branch", params, attrs, max_newton=3 * settings.max_newton, resume=bool(resume),
-                        device=ctx.device, command_line=ctx.command_line)
+        ctx.log(
+            "resuming from %d stored points (%s at %s)",
+            len(resume),
+            stored_attrs.get("stop_reason"),
+            problem.describe(resume[-1]),
+        )
+    store = BranchStore(
+        path,
+        "branch",
+        params,
+        attrs,
+        max_newton=3 * settings.max_newton,
+        resume=bool(resume),
+        device=ctx.device,
+        command_line=ctx.command_line,
+    )
     from tqdm.contrib.logging import logging_redirect_tqdm
 
     try:
@@ -39,8 +56,13 @@ def run_branch(ctx, problem, settings, params, attrs) -> Branch:
         store.interrupted("interrupted by the user (Ctrl-C); the stored points are complete: resume with --resume")
         raise
     store.finish(branch)
-    ctx.log("stop: %s (%d points, %.0f s, %.2f s per point)", branch.message, len(branch.points),
-            branch.wall_seconds, branch.stats["seconds_per_point"])
+    ctx.log(
+        "stop: %s (%d points, %.0f s, %.2f s per point)",
+        branch.message,
+        len(branch.points),
+        branch.wall_seconds,
+        branch.stats["seconds_per_point"],
+    )
     return branch
 
 
@@ -49,13 +71,15 @@ def branch_summary(branch: Branch, parameter: str) -> dict:
     events = list(branch.events)
     return {
         "points": [p.summary() for p in branch.points],
-        "stop_reason": branch.stop_reason.value, "message": branch.message,
+        "stop_reason": branch.stop_reason.value,
+        "message": branch.message,
         "ended_on_physics": branch.stop_reason.physical,
         "unstable_intervals": branch.unstable_intervals(),
         "stability_changes": branch.stability_changes(),
         "krein_crossings_recorded": sum(1 for e in events if e["type"] == "krein_crossing"),
         "events": [e for e in events if e["type"] != "krein_crossing"],
-        "branch_stats": branch.stats, "branch_seconds": branch.wall_seconds,
+        "branch_stats": branch.stats,
+        "branch_seconds": branch.wall_seconds,
     }
 
 

@@ -28,11 +28,11 @@ class Parameters:
     M: float = PAPER_M
     N: int = PAPER_N
     omega: float = PAPER_OMEGA
-    K_seed: float = 0.01             # coupling stored with the seed (the K = 0 orbit does not depend on it)
-    amplitude_min: float = 1e-3      # frequency-amplitude curve: upper turning points z_max, log-spaced
+    K_seed: float = 0.01  # coupling stored with the seed (the K = 0 orbit does not depend on it)
+    amplitude_min: float = 1e-3  # frequency-amplitude curve: upper turning points z_max, log-spaced
     amplitude_max: float = 3.0
     amplitude_points: int = 60
-    amplitude_stride: int = 1        # use every n-th point of that grid
+    amplitude_stride: int = 1  # use every n-th point of that grid
 
 
 QUICK = {"amplitude_stride": 4}
@@ -43,23 +43,39 @@ def run(ctx: Context) -> dict:
     params = ChainParams(P.M, P.K_seed, P.N)
     orbit = anticontinuum_orbit(P.omega, P.M)
     ctx.log("orbit at w_b = %.4f: z in [%.6f, %.6f], period %.6f", P.omega, orbit.z_min, orbit.z_max, orbit.period)
-    amplitudes = np.geomspace(P.amplitude_min, P.amplitude_max, P.amplitude_points)[::P.amplitude_stride]
+    amplitudes = np.geomspace(P.amplitude_min, P.amplitude_max, P.amplitude_points)[:: P.amplitude_stride]
     freqs = np.array([oscillator_frequency(a, P.M) for a in amplitudes])
     seed = anticontinuum_seed(params, P.omega)
     omega0 = params.omega0
     small = amplitudes < 0.05
     # Lindstedt: w = w0 (1 - a^2 / 24) for z = a cos(w t) + O(a^2); the largest relative deviation
     # among the small amplitudes checks the expansion (it should shrink like a^4)
-    lindstedt = omega0 * (1 - amplitudes ** 2 / 24)
+    lindstedt = omega0 * (1 - amplitudes**2 / 24)
     root = open_store(ctx.out / "data.zarr", params=params.as_dict(), provenance_info=provenance(ctx.device))
-    write_table(root, "orbit", {"t": orbit.t, "z": orbit.z}, dim="t",
-                attrs={"omega": P.omega, "z_max": orbit.z_max, "z_min": orbit.z_min})
-    write_table(root, "frequency_amplitude", {"z_max": amplitudes, "omega": freqs, "lindstedt": lindstedt},
-                dim="point", attrs={"omega0": omega0})
+    write_table(
+        root,
+        "orbit",
+        {"t": orbit.t, "z": orbit.z},
+        dim="t",
+        attrs={"omega": P.omega, "z_max": orbit.z_max, "z_min": orbit.z_min},
+    )
+    write_table(
+        root,
+        "frequency_amplitude",
+        {"z_max": amplitudes, "omega": freqs, "lindstedt": lindstedt},
+        dim="point",
+        attrs={"omega0": omega0},
+    )
     write_table(root, "seed", {"u": seed[0], "v": seed[1], "site": np.arange(1, P.N + 1)}, dim="site")
     return {
-        "M": P.M, "omega": P.omega, "omega0": omega0, "z_max": orbit.z_max, "z_min": orbit.z_min,
-        "period": orbit.period, "seed_u_center": seed[0, P.N // 2], "seed_v_center": seed[1, P.N // 2],
+        "M": P.M,
+        "omega": P.omega,
+        "omega0": omega0,
+        "z_max": orbit.z_max,
+        "z_min": orbit.z_min,
+        "period": orbit.period,
+        "seed_u_center": seed[0, P.N // 2],
+        "seed_v_center": seed[1, P.N // 2],
         "lindstedt_max_relative_deviation_small_amplitude": float(np.max(np.abs(freqs[small] / lindstedt[small] - 1))),
     }
 

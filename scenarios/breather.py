@@ -22,19 +22,30 @@ from warpchain import ChainParams, propagate_tangent, simulate
 from warpchain.reference import solve_ivp_reference
 from warpchain.store import open_store, provenance, read_group, write_fields, write_table
 
-from ._common import (BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD, PAPER_K, PAPER_M, PAPER_N, PAPER_OMEGA, Context,
-                      paper_breather, pyplot, read_summary, save_figure)
+from ._common import (
+    BREATHER_METHOD,
+    BREATHER_STEPS_PER_PERIOD,
+    PAPER_K,
+    PAPER_M,
+    PAPER_N,
+    PAPER_OMEGA,
+    Context,
+    paper_breather,
+    pyplot,
+    read_summary,
+    save_figure,
+)
 
 
 @dataclasses.dataclass(frozen=True)
 class Parameters:
     """The scene's parameters (``--set KEY=VALUE`` overrides any of them)."""
 
-    periods: int = 100                          # direct-simulation check with the breather's own integrator
-    dop853_periods: int = 100                   # independent scipy check
+    periods: int = 100  # direct-simulation check with the breather's own integrator
+    dop853_periods: int = 100  # independent scipy check
     fd_steps: tuple = (1e-3, 1e-5, 1e-7, 1e-9)  # finite-difference steps h of the Jacobian comparison
-    contact_loss_scale: float = 3.0             # the breather profile scaled up until resonators lose contact
-    general_seed_near_solution: bool = False    # seed the general formulation next to the solution, not from NLS
+    contact_loss_scale: float = 3.0  # the breather profile scaled up until resonators lose contact
+    general_seed_near_solution: bool = False  # seed the general formulation next to the solution, not from NLS
 
 
 QUICK = {"dop853_periods": 10, "general_seed_near_solution": True}
@@ -52,11 +63,19 @@ def _jacobian_comparison(params, state, n_half, dt, device, label, fd_steps):
     for h in fd_steps:
         t0 = time.perf_counter()
         batch = np.concatenate([state[None] + h * directions, state[None] - h * directions])
-        run = simulate(params, batch, n_half * dt, dt, method=BREATHER_METHOD, device=device, max_energy_error=None,
-                       chunks=1)
+        run = simulate(
+            params, batch, n_half * dt, dt, method=BREATHER_METHOD, device=device, max_energy_error=None, chunks=1
+        )
         fd = ((run.x[: 2 * N] - run.x[2 * N :]) / (2 * h)).reshape(2 * N, -1)
-        rows.append({"case": label, "jacobian": "finite-difference", "h": h, "seconds": time.perf_counter() - t0,
-                     "relative_difference": float(np.max(np.abs(fd - J)) / np.max(np.abs(J)))})
+        rows.append(
+            {
+                "case": label,
+                "jacobian": "finite-difference",
+                "h": h,
+                "seconds": time.perf_counter() - t0,
+                "relative_difference": float(np.max(np.abs(fd - J)) / np.max(np.abs(J))),
+            }
+        )
     return rows
 
 
@@ -67,91 +86,204 @@ def run(ctx: Context) -> dict:
     b = paper_breather(ctx.device, log=ctx.log)
     ctx.log(b.message)
     fl = floquet(b, device=ctx.device)
-    ctx.log("Floquet (reduced, 2N = %d): max nontrivial |l| = %.8f, tolerance %.2e in mu (trivial mu off by %.1e, "
-            "symplecticity %.1e) -> %s (%.2f s); instabilities: %s", 2 * params.N, fl.max_modulus, fl.tolerance,
-            fl.accuracy["trivial_deviation"], fl.accuracy["symplecticity"], "stable" if fl.stable else "unstable",
-            fl.wall_seconds, ", ".join(f"{i.kind} |l| = {i.modulus:.8f} ({'localized' if i.localized else 'extended'}, "
-                                        f"participation {i.participation:.1f})" for i in fl.instabilities) or "none")
+    ctx.log(
+        "Floquet (reduced, 2N = %d): max nontrivial |l| = %.8f, tolerance %.2e in mu (trivial mu off by %.1e, "
+        "symplecticity %.1e) -> %s (%.2f s); instabilities: %s",
+        2 * params.N,
+        fl.max_modulus,
+        fl.tolerance,
+        fl.accuracy["trivial_deviation"],
+        fl.accuracy["symplecticity"],
+        "stable" if fl.stable else "unstable",
+        fl.wall_seconds,
+        ", ".join(
+            f"{i.kind} |l| = {i.modulus:.8f} ({'localized' if i.localized else 'extended'}, "
+            f"participation {i.participation:.1f})"
+            for i in fl.instabilities
+        )
+        or "none",
+    )
     full = floquet(b, device=ctx.device, reduced=False)
     reduced_vs_full = abs(fl.max_modulus - full.max_modulus)
-    ctx.log("Floquet (full 4N monodromy, cross-check): max |l| = %.10f (differs by %.1e), pairing error %.2e (%.2f s)",
-            full.max_modulus, reduced_vs_full, full.pairing_error, full.wall_seconds)
+    ctx.log(
+        "Floquet (full 4N monodromy, cross-check): max |l| = %.10f (differs by %.1e), pairing error %.2e (%.2f s)",
+        full.max_modulus,
+        reduced_vs_full,
+        full.pairing_error,
+        full.wall_seconds,
+    )
 
     # cross-check: the general formulation from the same seed
     if P.general_seed_near_solution:  # a few cheap iterations
-        seed = b.state + 1e-4 * np.exp(-((np.arange(params.N) - params.N // 2) / 3.0) ** 2)
+        seed = b.state + 1e-4 * np.exp(-(((np.arange(params.N) - params.N // 2) / 3.0) ** 2))
     else:
         seed = nls_seed(params, PAPER_OMEGA)
-    general = require(find_breather(params, PAPER_OMEGA, seed, formulation="general", method=BREATHER_METHOD,
-                                    steps_per_period=BREATHER_STEPS_PER_PERIOD, device=ctx.device))
+    general = require(
+        find_breather(
+            params,
+            PAPER_OMEGA,
+            seed,
+            formulation="general",
+            method=BREATHER_METHOD,
+            steps_per_period=BREATHER_STEPS_PER_PERIOD,
+            device=ctx.device,
+        )
+    )
     general_diff = float(np.max(np.abs(general.state - b.state)))
     ctx.log("general formulation: %s; max state difference to the reversible one %.2e", general.message, general_diff)
 
     # direct simulation over many periods with the same integrator, sampled once per period
     n_period = 2 * b.nsteps
-    direct = simulate(params, b.state, P.periods * n_period * b.dt, b.dt, method=b.method, device=ctx.device,
-                      save_every=n_period, progress=False)
+    direct = simulate(
+        params,
+        b.state,
+        P.periods * n_period * b.dt,
+        b.dt,
+        method=b.method,
+        device=ctx.device,
+        save_every=n_period,
+        progress=False,
+    )
     amp = np.max(np.abs(b.state[:2]))
-    deviation = np.maximum(np.max(np.abs(direct.u[:, 0] - b.state[0]), axis=-1),
-                           np.max(np.abs(direct.v[:, 0] - b.state[1]), axis=-1)) / amp
-    ctx.log("direct simulation: %d periods, max relative deviation from the initial profile %.2e, energy error %.1e",
-            P.periods, deviation.max(), direct.energy_error[0])
+    deviation = (
+        np.maximum(
+            np.max(np.abs(direct.u[:, 0] - b.state[0]), axis=-1), np.max(np.abs(direct.v[:, 0] - b.state[1]), axis=-1)
+        )
+        / amp
+    )
+    ctx.log(
+        "direct simulation: %d periods, max relative deviation from the initial profile %.2e, energy error %.1e",
+        P.periods,
+        deviation.max(),
+        direct.energy_error[0],
+    )
     t0 = time.perf_counter()
     dop_end, sol = solve_ivp_reference(params, b.state, P.dop853_periods * b.period, rtol=1e-11, atol=1e-13)
     dop_dev = float(np.max(np.abs(dop_end[:2] - b.state[:2])) / amp)
-    ctx.log("scipy DOP853 (rtol 1e-11): %d periods in %.1f s, relative deviation %.2e", P.dop853_periods,
-            time.perf_counter() - t0, dop_dev)
+    ctx.log(
+        "scipy DOP853 (rtol 1e-11): %d periods in %.1f s, relative deviation %.2e",
+        P.dop853_periods,
+        time.perf_counter() - t0,
+        dop_dev,
+    )
 
     # tangent vs finite-difference Jacobians: smooth orbit and an orbit that loses contact
     rows = _jacobian_comparison(params, b.state, b.nsteps, b.dt, ctx.device, "breather (smooth)", P.fd_steps)
     loss_state = P.contact_loss_scale * b.state
     rows_loss = _jacobian_comparison(params, loss_state, b.nsteps, b.dt, ctx.device, "contact loss", P.fd_steps)
-    loss_contact = float(simulate(params, loss_state, b.nsteps * b.dt, b.dt, method=b.method, device=ctx.device,
-                                  save_every=1, max_energy_error=None).min_contact[0])
+    loss_contact = float(
+        simulate(
+            params,
+            loss_state,
+            b.nsteps * b.dt,
+            b.dt,
+            method=b.method,
+            device=ctx.device,
+            save_every=1,
+            max_energy_error=None,
+        ).min_contact[0]
+    )
     ctx.log("contact-loss orbit: min(1 + u - v) = %.3f over the half period", loss_contact)
     rows += rows_loss
 
     root = open_store(ctx.out / "data.zarr", params=params.as_dict(), provenance_info=provenance(ctx.device))
-    write_table(root, "breather", {"site": np.arange(1, params.N + 1), "u": b.state[0], "v": b.state[1],
-                                   "u_general": general.state[0], "v_general": general.state[1]}, dim="site",
-                attrs={"omega": b.omega, "energy": b.energy, "method": b.method, "dt": b.dt})
-    write_table(root, "multipliers", {"real": fl.multipliers.real, "imag": fl.multipliers.imag,
-                                      "trivial": np.isin(np.arange(len(fl.multipliers)), fl.trivial)},
-                dim="multiplier", attrs={"pairing_error": full.pairing_error, "tolerance": fl.tolerance,
-                                         "path": fl.path})
+    write_table(
+        root,
+        "breather",
+        {
+            "site": np.arange(1, params.N + 1),
+            "u": b.state[0],
+            "v": b.state[1],
+            "u_general": general.state[0],
+            "v_general": general.state[1],
+        },
+        dim="site",
+        attrs={"omega": b.omega, "energy": b.energy, "method": b.method, "dt": b.dt},
+    )
+    write_table(
+        root,
+        "multipliers",
+        {
+            "real": fl.multipliers.real,
+            "imag": fl.multipliers.imag,
+            "trivial": np.isin(np.arange(len(fl.multipliers)), fl.trivial),
+        },
+        dim="multiplier",
+        attrs={"pairing_error": full.pairing_error, "tolerance": fl.tolerance, "path": fl.path},
+    )
     write_table(root, "newton", {"residual": np.array(b.residual_history)}, dim="iteration")
-    write_fields(root, ctx.out / "data.zarr", "direct", direct.t, {"u": direct.u[:, 0], "v": direct.v[:, 0]},
-                 ("t", "site"), chunk_t=64,
-                 attrs={"method": direct.method, "dt": direct.dt, "sampled": "once per period"})
-    write_table(root, "periodicity", {"period": np.arange(P.periods + 1), "relative_deviation": deviation},
-                dim="period")
+    write_fields(
+        root,
+        ctx.out / "data.zarr",
+        "direct",
+        direct.t,
+        {"u": direct.u[:, 0], "v": direct.v[:, 0]},
+        ("t", "site"),
+        chunk_t=64,
+        attrs={"method": direct.method, "dt": direct.dt, "sampled": "once per period"},
+    )
+    write_table(
+        root, "periodicity", {"period": np.arange(P.periods + 1), "relative_deviation": deviation}, dim="period"
+    )
     cases = sorted({r["case"] for r in rows})
-    write_table(root, "jacobian_comparison", {
-        "case": np.array([cases.index(r["case"]) for r in rows]),
-        "finite_difference": np.array([r["jacobian"] == "finite-difference" for r in rows]),
-        "h": np.array([np.nan if r["h"] is None else r["h"] for r in rows]),
-        "seconds": np.array([r["seconds"] for r in rows]),
-        "relative_difference": np.array([r["relative_difference"] for r in rows])}, dim="row",
-        attrs={"case_names": cases, "half_period_columns": 2 * params.N})
+    write_table(
+        root,
+        "jacobian_comparison",
+        {
+            "case": np.array([cases.index(r["case"]) for r in rows]),
+            "finite_difference": np.array([r["jacobian"] == "finite-difference" for r in rows]),
+            "h": np.array([np.nan if r["h"] is None else r["h"] for r in rows]),
+            "seconds": np.array([r["seconds"] for r in rows]),
+            "relative_difference": np.array([r["relative_difference"] for r in rows]),
+        },
+        dim="row",
+        attrs={"case_names": cases, "half_period_columns": 2 * params.N},
+    )
     c = params.N // 2
     return {
-        "M": params.M, "K": params.K, "N": params.N, "omega": b.omega, "energy": b.energy, "residual": b.residual,
-        "newton_iterations": b.iterations, "residual_history": list(b.residual_history),
-        "u_center": float(b.state[0, c]), "v_center": float(b.state[1, c]),
-        "max_floquet_modulus": fl.max_modulus, "floquet_pairing_error": full.pairing_error,
-        "floquet_tolerance": fl.tolerance, "floquet_accuracy": fl.accuracy, "stable": fl.stable,
+        "M": params.M,
+        "K": params.K,
+        "N": params.N,
+        "omega": b.omega,
+        "energy": b.energy,
+        "residual": b.residual,
+        "newton_iterations": b.iterations,
+        "residual_history": list(b.residual_history),
+        "u_center": float(b.state[0, c]),
+        "v_center": float(b.state[1, c]),
+        "max_floquet_modulus": fl.max_modulus,
+        "floquet_pairing_error": full.pairing_error,
+        "floquet_tolerance": fl.tolerance,
+        "floquet_accuracy": fl.accuracy,
+        "stable": fl.stable,
         "symplecticity_error": fl.symplecticity_error,
         "instabilities": [i.as_dict() for i in fl.instabilities],
-        "floquet_full": {"max_modulus": full.max_modulus, "pairing_error": full.pairing_error,
-                         "seconds": full.wall_seconds, "max_modulus_difference_to_reduced": reduced_vs_full},
-        "method": b.method, "dt": b.dt, "steps_per_period": 2 * b.nsteps,
-        "newton_seconds": b.wall_seconds, "floquet_seconds": fl.wall_seconds,
-        "general_formulation": {"iterations": general.iterations, "residual": general.residual,
-                                "max_state_difference": general_diff, "seconds": general.wall_seconds},
-        "direct_simulation": {"periods": P.periods, "max_relative_deviation": float(deviation.max()),
-                              "energy_error": float(direct.energy_error[0]), "seconds": direct.wall_seconds},
+        "floquet_full": {
+            "max_modulus": full.max_modulus,
+            "pairing_error": full.pairing_error,
+            "seconds": full.wall_seconds,
+            "max_modulus_difference_to_reduced": reduced_vs_full,
+        },
+        "method": b.method,
+        "dt": b.dt,
+        "steps_per_period": 2 * b.nsteps,
+        "newton_seconds": b.wall_seconds,
+        "floquet_seconds": fl.wall_seconds,
+        "general_formulation": {
+            "iterations": general.iterations,
+            "residual": general.residual,
+            "max_state_difference": general_diff,
+            "seconds": general.wall_seconds,
+        },
+        "direct_simulation": {
+            "periods": P.periods,
+            "max_relative_deviation": float(deviation.max()),
+            "energy_error": float(direct.energy_error[0]),
+            "seconds": direct.wall_seconds,
+        },
         "dop853_check": {"periods": P.dop853_periods, "rtol": 1e-11, "relative_deviation": dop_dev},
-        "jacobian_comparison": rows, "contact_loss_min_contact": loss_contact,
+        "jacobian_comparison": rows,
+        "contact_loss_min_contact": loss_contact,
         "wall_seconds": time.perf_counter() - start,
     }
 
@@ -179,8 +311,9 @@ def plot(out) -> None:
     ax.plot(lam.real, lam.imag, ".", ms=4, label="multipliers")
     ax.plot(lam[mult["trivial"]].real, lam[mult["trivial"]].imag, "x", color="k", label="trivial pair")
     ax.set_aspect("equal")
-    ax.set_title(f"Floquet: max |l| = {s['max_floquet_modulus']:.6f}, pairing err {s['floquet_pairing_error']:.1e}",
-                 fontsize=9)
+    ax.set_title(
+        f"Floquet: max |l| = {s['max_floquet_modulus']:.6f}, pairing err {s['floquet_pairing_error']:.1e}", fontsize=9
+    )
     ax.legend(fontsize=8, loc="lower left")
     inset = ax.inset_axes([0.58, 0.58, 0.4, 0.4])
     inset.plot(np.abs(lam), np.angle(lam), ".", ms=3)
@@ -202,8 +335,12 @@ def plot(out) -> None:
         m = (jac["case"] == k) & jac["finite_difference"]
         ax.loglog(jac["h"][m], jac["relative_difference"][m], marker + "-", label=f"{case}: FD vs tangent")
         t = (jac["case"] == k) & ~jac["finite_difference"]
-        ax.annotate(f"{case}: tangent {jac['seconds'][t][0]:.2f} s, FD {np.mean(jac['seconds'][m]):.2f} s per h",
-                    xy=(0.02, 0.95 - 0.07 * k), xycoords="axes fraction", fontsize=7)
+        ax.annotate(
+            f"{case}: tangent {jac['seconds'][t][0]:.2f} s, FD {np.mean(jac['seconds'][m]):.2f} s per h",
+            xy=(0.02, 0.95 - 0.07 * k),
+            xycoords="axes fraction",
+            fontsize=7,
+        )
     ax.set_xlabel("finite-difference step h")
     ax.set_ylabel("max |J_FD - J_tangent| / max |J|")
     ax.set_title("half-period Jacobian: finite differences vs tangent", fontsize=10)

@@ -24,8 +24,18 @@ from continuation.driver import ContinuationSettings
 from warpchain import ChainParams, Flow, energy
 
 from ._branch_store import load_branch
-from ._common import (BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD, PAPER_K, PAPER_M, PAPER_N, PAPER_OMEGA, Context,
-                      pyplot, read_summary, save_figure)
+from ._common import (
+    BREATHER_METHOD,
+    BREATHER_STEPS_PER_PERIOD,
+    PAPER_K,
+    PAPER_M,
+    PAPER_N,
+    PAPER_OMEGA,
+    Context,
+    pyplot,
+    read_summary,
+    save_figure,
+)
 from ._continuation_common import branch_summary, run_branch, stability_strip
 
 RESUMABLE = True
@@ -41,15 +51,15 @@ class Parameters:
     K_start: float = 0.01
     K_end: float = PAPER_K
     profile_K: tuple = (5.0, 20.0, PAPER_K)
-    ds: float = 0.15                 # steps in log10 K
+    ds: float = 0.15  # steps in log10 K
     ds_max: float = 0.3
     ds_min: float = 1e-4
-    resolution: float = 1e-3         # smallest bracket of a stability change, in log10 K (0.23 % in K)
+    resolution: float = 1e-3  # smallest bracket of a stability change, in log10 K (0.23 % in K)
     max_points: int | None = None
     method: str = BREATHER_METHOD
     steps_per_period: int = BREATHER_STEPS_PER_PERIOD
     max_seconds: float | None = None  # opt-in time budget
-    bisect_krein: str = "auto"        # opposite-signature passes bisected: auto (all for N <= 64), localized, all, none
+    bisect_krein: str = "auto"  # opposite-signature passes bisected: auto (all for N <= 64), localized, all, none
 
 
 QUICK = {"N": 101, "ds": 0.5, "ds_max": 1.0, "resolution": 1e-2}
@@ -59,21 +69,38 @@ def run(ctx: Context) -> dict:
     P: Parameters = ctx.params
     params = ChainParams(P.M, P.K_start, P.N)
     flow = Flow(P.method, P.steps_per_period, ctx.device)
-    settings = ContinuationSettings(ds=P.ds, ds_min=P.ds_min, ds_max=P.ds_max, resolution=P.resolution,
-                                    max_points=P.max_points, max_seconds=P.max_seconds,
-                                    bisect_krein=P.bisect_krein)
-    problem = NaturalParameter(params, P.omega, anticontinuum_seed(params, P.omega), P.K_end, flow,
-                               targets=P.profile_K)
-    attrs = {"omega": P.omega, "method": P.method, "steps_per_period": P.steps_per_period,
-             "continuation": "natural parameter, secant predictor in log10 K", "coordinate": "log10 K",
-             "settings": dataclasses.asdict(settings)}
+    settings = ContinuationSettings(
+        ds=P.ds,
+        ds_min=P.ds_min,
+        ds_max=P.ds_max,
+        resolution=P.resolution,
+        max_points=P.max_points,
+        max_seconds=P.max_seconds,
+        bisect_krein=P.bisect_krein,
+    )
+    problem = NaturalParameter(params, P.omega, anticontinuum_seed(params, P.omega), P.K_end, flow, targets=P.profile_K)
+    attrs = {
+        "omega": P.omega,
+        "method": P.method,
+        "steps_per_period": P.steps_per_period,
+        "continuation": "natural parameter, secant predictor in log10 K",
+        "coordinate": "log10 K",
+        "settings": dataclasses.asdict(settings),
+    }
     branch = run_branch(ctx, problem, settings, params, attrs)
     nls_energy = float(energy(params.replace(K=P.K_end), nls_seed(params.replace(K=P.K_end), P.omega))[0])
     end = branch.points[-1]
     return {
-        "omega": P.omega, "M": P.M, "N": P.N, **branch_summary(branch, "K"),
-        "nls_energy_at_K_end": nls_energy, "end_K": end.K, "end_energy": end.energy,
-        "end_max_floquet_modulus": end.max_modulus, "method": P.method, "steps_per_period": P.steps_per_period,
+        "omega": P.omega,
+        "M": P.M,
+        "N": P.N,
+        **branch_summary(branch, "K"),
+        "nls_energy_at_K_end": nls_energy,
+        "end_K": end.K,
+        "end_energy": end.energy,
+        "end_max_floquet_modulus": end.max_modulus,
+        "method": P.method,
+        "steps_per_period": P.steps_per_period,
     }
 
 

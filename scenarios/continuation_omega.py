@@ -28,8 +28,18 @@ from continuation.driver import ContinuationSettings
 from warpchain import ChainParams, Flow, band_edges
 
 from ._branch_store import load_branch
-from ._common import (BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD, PAPER_K, PAPER_M, PAPER_N, PAPER_OMEGA, Context,
-                      pyplot, read_summary, save_figure)
+from ._common import (
+    BREATHER_METHOD,
+    BREATHER_STEPS_PER_PERIOD,
+    PAPER_K,
+    PAPER_M,
+    PAPER_N,
+    PAPER_OMEGA,
+    Context,
+    pyplot,
+    read_summary,
+    save_figure,
+)
 from ._continuation_common import KIND_COLOURS, branch_summary, run_branch, stability_strip
 
 RESUMABLE = True
@@ -42,17 +52,17 @@ class Parameters:
     N: int = PAPER_N
     M: float = PAPER_M
     K: float = PAPER_K
-    omega_min: float = 0.8            # a floor; the branch is expected to stop at contact loss first
-    ds: float = 0.05                  # arclength steps in the weighted norm (theta = 1 / gap width)
+    omega_min: float = 0.8  # a floor; the branch is expected to stop at contact loss first
+    ds: float = 0.05  # arclength steps in the weighted norm (theta = 1 / gap width)
     ds_max: float = 0.6
     ds_min: float = 1e-4
-    resolution: float = 1e-3          # smallest bracket of a stability change, in arclength
+    resolution: float = 1e-3  # smallest bracket of a stability change, in arclength
     max_newton: int = 8
     max_points: int | None = None
     method: str = BREATHER_METHOD
     steps_per_period: int = BREATHER_STEPS_PER_PERIOD
     max_seconds: float | None = None  # opt-in time budget
-    bisect_krein: str = "auto"        # opposite-signature passes bisected: auto (all for N <= 64), localized, all, none
+    bisect_krein: str = "auto"  # opposite-signature passes bisected: auto (all for N <= 64), localized, all, none
 
 
 QUICK = {"N": 101, "omega_min": 1.005, "resolution": 1e-2}
@@ -62,13 +72,26 @@ def run(ctx: Context) -> dict:
     P: Parameters = ctx.params
     params = ChainParams(P.M, P.K, P.N)
     flow = Flow(P.method, P.steps_per_period, ctx.device)
-    settings = ContinuationSettings(ds=P.ds, ds_min=P.ds_min, ds_max=P.ds_max, grow=1.3, resolution=P.resolution,
-                                    max_newton=P.max_newton, max_points=P.max_points, max_seconds=P.max_seconds,
-                                    bisect_krein=P.bisect_krein)
+    settings = ContinuationSettings(
+        ds=P.ds,
+        ds_min=P.ds_min,
+        ds_max=P.ds_max,
+        grow=1.3,
+        resolution=P.resolution,
+        max_newton=P.max_newton,
+        max_points=P.max_points,
+        max_seconds=P.max_seconds,
+        bisect_krein=P.bisect_krein,
+    )
     problem = PseudoArclength(params, flow, None, omega_min=P.omega_min)
-    attrs = {"K": P.K, "method": P.method, "steps_per_period": P.steps_per_period,
-             "continuation": "pseudo-arclength in (positions, omega)", "coordinate": "arclength",
-             "settings": dataclasses.asdict(settings)}
+    attrs = {
+        "K": P.K,
+        "method": P.method,
+        "steps_per_period": P.steps_per_period,
+        "continuation": "pseudo-arclength in (positions, omega)",
+        "coordinate": "arclength",
+        "settings": dataclasses.asdict(settings),
+    }
     branch = run_branch(ctx, problem, settings, params, attrs)
 
     omegas = branch.column("omega")
@@ -80,8 +103,9 @@ def run(ctx: Context) -> dict:
     in_gap = (omegas[:-1] > edges["acoustic_top"]) & (omegas[1:] > edges["acoustic_top"])
     monotonic_gap = bool(np.all(dE[in_gap] * dw[in_gap] < 0))
     folds = [float(omegas[i + 1]) for i in range(len(dw) - 1) if dw[i] * dw[i + 1] < 0]
-    ctx.log("energy vs frequency: monotonic in the gap: %s; %d folds in w_b along the branch", monotonic_gap,
-            len(folds))
+    ctx.log(
+        "energy vs frequency: monotonic in the gap: %s; %d folds in w_b along the branch", monotonic_gap, len(folds)
+    )
     at_101 = None
     if omegas.min() <= PAPER_OMEGA <= omegas.max():
         nearest = branch.points[int(np.argmin(np.abs(omegas - PAPER_OMEGA)))]
@@ -89,14 +113,21 @@ def run(ctx: Context) -> dict:
         ctx.log("w_b = 1.01 on this branch: E = %.12f", at_101.energy)
     in_band = [p.omega for p in branch.points if p.omega <= edges["acoustic_top"]]
     return {
-        "K": P.K, "M": P.M, "N": P.N, **branch_summary(branch, "omega"),
-        "energy_monotonic_in_frequency_in_gap": monotonic_gap, "frequency_folds_at": folds,
+        "K": P.K,
+        "M": P.M,
+        "N": P.N,
+        **branch_summary(branch, "omega"),
+        "energy_monotonic_in_frequency_in_gap": monotonic_gap,
+        "frequency_folds_at": folds,
         "energy_at_omega_1_01": None if at_101 is None else at_101.energy,
-        "omega_range": [float(omegas.min()), float(omegas.max())], "end_omega": float(omegas[-1]),
+        "omega_range": [float(omegas.min()), float(omegas.max())],
+        "end_omega": float(omegas[-1]),
         "end_min_contact": float(branch.points[-1].min_contact),
-        "entered_acoustic_band": bool(in_band), "lowest_omega": float(omegas.min()),
+        "entered_acoustic_band": bool(in_band),
+        "lowest_omega": float(omegas.min()),
         **{f"band_{k}": v for k, v in edges.items()},
-        "method": P.method, "steps_per_period": P.steps_per_period,
+        "method": P.method,
+        "steps_per_period": P.steps_per_period,
     }
 
 

@@ -27,18 +27,17 @@ from continuation import eigenmode_seed
 from warpchain import ChainParams, simulate
 from warpchain.store import FieldWriter, open_store, provenance, read_group
 
-from ._common import (PAPER_K, PAPER_M, PAPER_N, Context, paper_breather,
-                      pyplot, read_summary, save_figure)
+from ._common import PAPER_K, PAPER_M, PAPER_N, Context, paper_breather, pyplot, read_summary, save_figure
 
-CASES = ("eigenmode-low", "breather-low", "eigenmode-high", "breather-high")   # Fig. 9 (a)-(d)
+CASES = ("eigenmode-low", "breather-low", "eigenmode-high", "breather-high")  # Fig. 9 (a)-(d)
 
 
 @dataclasses.dataclass(frozen=True)
 class Parameters:
     """The scene's parameters (``--set KEY=VALUE`` overrides any of them)."""
 
-    periods: int = 200               # breather periods T = 2 pi / w_b simulated
-    frames_per_period: int = 4       # stored frames per period: what the space-time maps need
+    periods: int = 200  # breather periods T = 2 pi / w_b simulated
+    frames_per_period: int = 4  # stored frames per period: what the space-time maps need
 
 
 QUICK = {"periods": 20}
@@ -69,43 +68,89 @@ def run(ctx: Context) -> dict:
     steps_per_period = 2 * b.nsteps
     save_every = steps_per_period // P.frames_per_period
     root = open_store(ctx.out / "data.zarr", params=params.as_dict(), provenance_info=provenance(ctx.device))
-    writers = {name: FieldWriter(root, ctx.out / "data.zarr", name, {"u": (params.N,), "v": (params.N,)},
-                                 ("t", "site"), chunk_t=128, expected_frames=periods * P.frames_per_period + 1,
-                                 attrs={"case": name, "v101_initial": float(ics[name][1, params.N // 2])})
-               for name in CASES}
+    writers = {
+        name: FieldWriter(
+            root,
+            ctx.out / "data.zarr",
+            name,
+            {"u": (params.N,), "v": (params.N,)},
+            ("t", "site"),
+            chunk_t=128,
+            expected_frames=periods * P.frames_per_period + 1,
+            attrs={"case": name, "v101_initial": float(ics[name][1, params.N // 2])},
+        )
+        for name in CASES
+    }
 
     def stream(t, u, v):
         for k, name in enumerate(CASES):
             writers[name].append(t, u=u[:, k], v=v[:, k])
 
-    run_ = simulate(params, x0, periods * b.period, b.dt, method=b.method, device=ctx.device, save_every=save_every,
-                    progress=True, on_chunk=stream, chunks=max(10, periods // 4))
+    run_ = simulate(
+        params,
+        x0,
+        periods * b.period,
+        b.dt,
+        method=b.method,
+        device=ctx.device,
+        save_every=save_every,
+        progress=True,
+        on_chunk=stream,
+        chunks=max(10, periods // 4),
+    )
     for name in CASES:
         writers[name].close(method=run_.method, dt=run_.dt)
     ctx.log("%d periods x %d lattices in %.1f s", periods, len(CASES), run_.wall_seconds)
     # accuracy: the same run at half the step, compared frame by frame
-    half = simulate(params, x0, periods * b.period, b.dt / 2, method=b.method, device=ctx.device,
-                    save_every=2 * save_every, chunks=max(10, periods // 4))
+    half = simulate(
+        params,
+        x0,
+        periods * b.period,
+        b.dt / 2,
+        method=b.method,
+        device=ctx.device,
+        save_every=2 * save_every,
+        chunks=max(10, periods // 4),
+    )
     cases = {}
     for k, name in enumerate(CASES):
         scale = np.max(np.abs(x0[k, 1]))
-        diff = np.maximum(np.max(np.abs(run_.u[:, k] - half.u[:, k]), axis=-1),
-                          np.max(np.abs(run_.v[:, k] - half.v[:, k]), axis=-1)) / scale
+        diff = (
+            np.maximum(
+                np.max(np.abs(run_.u[:, k] - half.u[:, k]), axis=-1),
+                np.max(np.abs(run_.v[:, k] - half.v[:, k]), axis=-1),
+            )
+            / scale
+        )
         late = np.flatnonzero(diff > 1e-3)
         cases[name] = {
-            "energy_error": float(run_.energy_error[k]), "min_contact": float(run_.min_contact[k]),
+            "energy_error": float(run_.energy_error[k]),
+            "min_contact": float(run_.min_contact[k]),
             "lost_contact": bool(run_.min_contact[k] <= 0),
             "step_halving_difference_final": float(diff[-1]),
             "step_halving_difference_max": float(diff.max()),
             "periods_until_difference_1e-3": None if not late.size else float(run_.t[late[0]] / b.period),
             "v101_initial": float(x0[k, 1, params.N // 2]),
         }
-        ctx.log("%-15s energy error %.1e, min contact %.3f%s, step-halving difference %.1e", name,
-                run_.energy_error[k], run_.min_contact[k], " (contact lost)" if run_.min_contact[k] <= 0 else "",
-                diff.max())
-    return {"periods": periods, "period": b.period, "method": run_.method, "dt": run_.dt,
-            "steps_per_period": steps_per_period, "frames_per_period": P.frames_per_period,
-            "wall_seconds": time.perf_counter() - start, "simulation_seconds": run_.wall_seconds, "cases": cases}
+        ctx.log(
+            "%-15s energy error %.1e, min contact %.3f%s, step-halving difference %.1e",
+            name,
+            run_.energy_error[k],
+            run_.min_contact[k],
+            " (contact lost)" if run_.min_contact[k] <= 0 else "",
+            diff.max(),
+        )
+    return {
+        "periods": periods,
+        "period": b.period,
+        "method": run_.method,
+        "dt": run_.dt,
+        "steps_per_period": steps_per_period,
+        "frames_per_period": P.frames_per_period,
+        "wall_seconds": time.perf_counter() - start,
+        "simulation_seconds": run_.wall_seconds,
+        "cases": cases,
+    }
 
 
 def plot(out) -> None:
@@ -118,12 +163,22 @@ def plot(out) -> None:
         ax = axes[k // 2, 2 * (k % 2)]
         side = axes[k // 2, 2 * (k % 2) + 1]
         lim = np.max(np.abs(rel))
-        im = ax.imshow(rel.T, aspect="auto", origin="lower", cmap="RdBu_r", vmin=-lim, vmax=lim,
-                       extent=[0, data["t"][-1] / s["period"], data["site"][0], data["site"][-1]])
+        im = ax.imshow(
+            rel.T,
+            aspect="auto",
+            origin="lower",
+            cmap="RdBu_r",
+            vmin=-lim,
+            vmax=lim,
+            extent=[0, data["t"][-1] / s["period"], data["site"][0], data["site"][-1]],
+        )
         fig.colorbar(im, ax=ax, pad=0.01)
         case = s["cases"][name]
-        ax.set_title(f"({'abcd'[k]}) {name}: E err {case['energy_error']:.0e}"
-                     + (", contact lost" if case["lost_contact"] else ""), fontsize=9)
+        ax.set_title(
+            f"({'abcd'[k]}) {name}: E err {case['energy_error']:.0e}"
+            + (", contact lost" if case["lost_contact"] else ""),
+            fontsize=9,
+        )
         ax.set_xlabel("t / T")
         ax.set_ylabel("site j")
         final = rel[-1] / np.max(np.abs(rel[-1]))

@@ -18,8 +18,19 @@ from continuation import find_breather, nls_breather, nls_seed, require
 from warpchain import ChainParams, energy
 from warpchain.store import open_store, provenance, read_group, write_table
 
-from ._common import (BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD, PAPER_K, PAPER_M, PAPER_N, PAPER_OMEGA, Context,
-                      paper_breather, pyplot, read_summary, save_figure)
+from ._common import (
+    BREATHER_METHOD,
+    BREATHER_STEPS_PER_PERIOD,
+    PAPER_K,
+    PAPER_M,
+    PAPER_N,
+    PAPER_OMEGA,
+    Context,
+    paper_breather,
+    pyplot,
+    read_summary,
+    save_figure,
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -40,22 +51,42 @@ def run(ctx: Context) -> dict:
     nls_first = nls_seed(params, PAPER_OMEGA, order=1)
     diff = float(np.max(np.abs(nls_state[:2] - numerical.state[:2])))
     nls_energy = float(energy(params, nls_state)[0])
-    ctx.log("w_b = %.4f: NLS energy %.6f, numerical %.6f, max profile difference %.3e", PAPER_OMEGA, nls_energy,
-            numerical.energy, diff)
+    ctx.log(
+        "w_b = %.4f: NLS energy %.6f, numerical %.6f, max profile difference %.3e",
+        PAPER_OMEGA,
+        nls_energy,
+        numerical.energy,
+        diff,
+    )
 
     sweep = []
     for omega in P.sweep:
         if omega == PAPER_OMEGA:
             b = numerical
         else:
-            b = require(find_breather(params, omega, nls_seed(params, omega), method=BREATHER_METHOD,
-                                      steps_per_period=BREATHER_STEPS_PER_PERIOD, device=ctx.device))
+            b = require(
+                find_breather(
+                    params,
+                    omega,
+                    nls_seed(params, omega),
+                    method=BREATHER_METHOD,
+                    steps_per_period=BREATHER_STEPS_PER_PERIOD,
+                    device=ctx.device,
+                )
+            )
         approx = nls_seed(params, omega)
         peak = float(np.max(np.abs(b.state[1])))
         rel = float(np.max(np.abs(approx[:2] - b.state[:2])) / peak)
         delta = nls_breather(PAPER_M, PAPER_K, omega).delta
-        sweep.append({"omega": omega, "delta": delta, "relative_profile_difference": rel,
-                      "nls_energy": float(energy(params, approx)[0]), "numerical_energy": b.energy})
+        sweep.append(
+            {
+                "omega": omega,
+                "delta": delta,
+                "relative_profile_difference": rel,
+                "nls_energy": float(energy(params, approx)[0]),
+                "numerical_energy": b.energy,
+            }
+        )
         ctx.log("w_b = %.4f (w0 - w_b = %.4f): relative profile difference %.3e", omega, delta, rel)
 
     deltas = np.array([s["delta"] for s in sweep])
@@ -63,19 +94,40 @@ def run(ctx: Context) -> dict:
     slope = float(np.polyfit(np.log(deltas), np.log(rels), 1)[0]) if len(sweep) > 1 else None
 
     root = open_store(ctx.out / "data.zarr", params=params.as_dict(), provenance_info=provenance(ctx.device))
-    write_table(root, "profiles", {
-        "site": np.arange(1, params.N + 1), "u_numerical": numerical.state[0], "v_numerical": numerical.state[1],
-        "u_nls": nls_state[0], "v_nls": nls_state[1], "u_nls_first_order": nls_first[0],
-        "v_nls_first_order": nls_first[1]}, dim="site", attrs={"omega": PAPER_OMEGA})
+    write_table(
+        root,
+        "profiles",
+        {
+            "site": np.arange(1, params.N + 1),
+            "u_numerical": numerical.state[0],
+            "v_numerical": numerical.state[1],
+            "u_nls": nls_state[0],
+            "v_nls": nls_state[1],
+            "u_nls_first_order": nls_first[0],
+            "v_nls_first_order": nls_first[1],
+        },
+        dim="site",
+        attrs={"omega": PAPER_OMEGA},
+    )
     write_table(root, "sweep", {k: [s[k] for s in sweep] for k in sweep[0]}, dim="point")
     b = nls_breather(PAPER_M, PAPER_K, PAPER_OMEGA)
     return {
-        "M": PAPER_M, "K": PAPER_K, "N": PAPER_N, "omega": PAPER_OMEGA,
-        "nls_energy": nls_energy, "numerical_energy": numerical.energy, "profile_max_difference": diff,
+        "M": PAPER_M,
+        "K": PAPER_K,
+        "N": PAPER_N,
+        "omega": PAPER_OMEGA,
+        "nls_energy": nls_energy,
+        "numerical_energy": numerical.energy,
+        "profile_max_difference": diff,
         "nls_first_order_profile_max_difference": float(np.max(np.abs(nls_first[:2] - numerical.state[:2]))),
-        "nls_coefficients": {"dispersion_D": b.dispersion, "nonlinearity_G": b.nonlinearity,
-                             "z_amplitude": b.amplitude, "kappa": b.kappa},
-        "sweep": sweep, "relative_difference_vs_delta_slope": slope,
+        "nls_coefficients": {
+            "dispersion_D": b.dispersion,
+            "nonlinearity_G": b.nonlinearity,
+            "z_amplitude": b.amplitude,
+            "kappa": b.kappa,
+        },
+        "sweep": sweep,
+        "relative_difference_vs_delta_slope": slope,
     }
 
 
@@ -90,8 +142,15 @@ def plot(out) -> None:
     for ax, comp in zip(axes[:2], ("u", "v")):
         ax.plot(prof["site"][sl], prof[f"{comp}_nls"][sl], "k-", label="NLS (2nd order)")
         ax.plot(prof["site"][sl], prof[f"{comp}_nls_first_order"][sl], "k:", lw=0.8, label="NLS (1st order)")
-        ax.plot(prof["site"][sl], prof[f"{comp}_numerical"][sl], "o", mfc="none", color="tab:red", ms=4,
-                label="numerical breather")
+        ax.plot(
+            prof["site"][sl],
+            prof[f"{comp}_numerical"][sl],
+            "o",
+            mfc="none",
+            color="tab:red",
+            ms=4,
+            label="numerical breather",
+        )
         ax.set_xlabel("site j")
         ax.set_title(f"{comp}_j at t = 0, $\\omega_b$ = {s['omega']}, K = {s['K']:g}")
         ax.legend(fontsize=8)

@@ -27,25 +27,41 @@ from continuation import eigenmode_seed, find_breather
 from continuation.shooting import _solve
 from warpchain import METHODS, ChainParams, IntegrationError, band_edges, reference, simulate, stability_limit
 
-from ._common import (BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD, PAPER_K, PAPER_M, PAPER_N, Context, paper_breather,
-                      pyplot, read_summary, save_figure)
+from ._common import (
+    BREATHER_METHOD,
+    BREATHER_STEPS_PER_PERIOD,
+    PAPER_K,
+    PAPER_M,
+    PAPER_N,
+    Context,
+    paper_breather,
+    pyplot,
+    read_summary,
+    save_figure,
+)
 
 #: steps per period of the observed-order fits, per method (not a ``Parameters`` field: one tuple per method)
-ORDER_STEPS_PER_PERIOD = {"verlet": (256, 512, 1024), "yoshida4": (64, 128, 256), "yoshida6": (32, 64, 128),
-                          "kahan6": (32, 48, 64), "kahan8": (16, 24, 32), "rk4": (64, 128, 256)}
+ORDER_STEPS_PER_PERIOD = {
+    "verlet": (256, 512, 1024),
+    "yoshida4": (64, 128, 256),
+    "yoshida6": (32, 64, 128),
+    "kahan6": (32, 48, 64),
+    "kahan8": (16, 24, 32),
+    "rk4": (64, 128, 256),
+}
 
 
 @dataclasses.dataclass(frozen=True)
 class Parameters:
     """The scene's parameters (``--set KEY=VALUE`` overrides any of them)."""
 
-    limit_steps: int = 3000              # steps a run must survive at a measured stability limit
-    bisections: int = 12                 # bisection steps of each measured limit
-    smooth_periods: int = 5              # observed orders and float32: the exact breather over this many periods
-    rough_periods: int = 2               # observed orders with contact loss: the large eigenmode over these
-    rough_scale: float = 2.5             # that eigenmode's amplitude, in units of the exact breather's v_101
-    newton_step: float = 0.002           # fixed-frequency Newton: decrement of w_b
-    newton_floor: float = 0.95           # lowest w_b tried
+    limit_steps: int = 3000  # steps a run must survive at a measured stability limit
+    bisections: int = 12  # bisection steps of each measured limit
+    smooth_periods: int = 5  # observed orders and float32: the exact breather over this many periods
+    rough_periods: int = 2  # observed orders with contact loss: the large eigenmode over these
+    rough_scale: float = 2.5  # that eigenmode's amplitude, in units of the exact breather's v_101
+    newton_step: float = 0.002  # fixed-frequency Newton: decrement of w_b
+    newton_floor: float = 0.95  # lowest w_b tried
     float32_newton_iterations: int = 6
 
 
@@ -56,8 +72,17 @@ def _survives(params, x0, dt, method, device, limit_steps):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         try:
-            simulate(params, x0, limit_steps * dt, dt, method=method, device=device, allow_unstable_step=True,
-                     max_energy_error=0.5, chunks=10)
+            simulate(
+                params,
+                x0,
+                limit_steps * dt,
+                dt,
+                method=method,
+                device=device,
+                allow_unstable_step=True,
+                max_energy_error=0.5,
+                chunks=10,
+            )
             return True
         except IntegrationError:
             return False
@@ -78,8 +103,19 @@ def measured_limit(params, x0, method, device, bisections, limit_steps):
 
 def observed_order(params, x0, periods, period, method, device, ref):
     dts = np.array([period / spp for spp in ORDER_STEPS_PER_PERIOD[method]])
-    errs = np.array([np.max(np.abs(simulate(params, x0, periods * period, dt, method=method, device=device,
-                                            max_energy_error=None, chunks=1).x[0] - ref)) for dt in dts])
+    errs = np.array(
+        [
+            np.max(
+                np.abs(
+                    simulate(
+                        params, x0, periods * period, dt, method=method, device=device, max_energy_error=None, chunks=1
+                    ).x[0]
+                    - ref
+                )
+            )
+            for dt in dts
+        ]
+    )
     return float(np.polyfit(np.log(dts), np.log(errs), 1)[0]), errs.tolist(), dts.tolist()
 
 
@@ -112,12 +148,20 @@ def run(ctx: Context) -> dict:
     noisy = mode + 1e-6 * np.random.default_rng(0).standard_normal(mode.shape) * np.array([1, 1, 0, 0])[:, None]
     mode_big = P.rough_scale * eigenmode_seed(params, abs(b.state[1, c]))
     mode_big *= np.sign(mode_big[1, c] * b.state[1, c])
-    ref_smooth, _ = reference.solve_ivp_reference(params, b.state, P.smooth_periods * b.period, rtol=1e-13,
-                                                  atol=1e-16)
-    ref_rough, _ = reference.solve_ivp_reference(params, mode_big, P.rough_periods * b.period, rtol=1e-13,
-                                                 atol=1e-16)
-    rough_contact = float(simulate(params, mode_big, P.rough_periods * b.period, b.period / 256, method="yoshida6",
-                                   device=ctx.device, save_every=1, max_energy_error=None).min_contact[0])
+    ref_smooth, _ = reference.solve_ivp_reference(params, b.state, P.smooth_periods * b.period, rtol=1e-13, atol=1e-16)
+    ref_rough, _ = reference.solve_ivp_reference(params, mode_big, P.rough_periods * b.period, rtol=1e-13, atol=1e-16)
+    rough_contact = float(
+        simulate(
+            params,
+            mode_big,
+            P.rough_periods * b.period,
+            b.period / 256,
+            method="yoshida6",
+            device=ctx.device,
+            save_every=1,
+            max_energy_error=None,
+        ).min_contact[0]
+    )
     methods = {}
     for name in METHODS:
         linear = stability_limit(name, params)
@@ -125,31 +169,57 @@ def run(ctx: Context) -> dict:
         breather_measured = measured_limit(params, b.state, name, ctx.device, P.bisections, P.limit_steps)
         o_s, e_s, d_s = observed_order(params, b.state, P.smooth_periods, b.period, name, ctx.device, ref_smooth)
         o_r, e_r, d_r = observed_order(params, mode_big, P.rough_periods, b.period, name, ctx.device, ref_rough)
-        methods[name] = {"order": METHODS[name].order, "linear_limit": linear, "measured_limit": lin_measured,
-                         "measured_limit_breather": breather_measured, "order_smooth": o_s,
-                         "order_contact_loss": o_r, "errors_smooth": e_s, "errors_contact_loss": e_r,
-                         "dts_smooth": d_s, "dts_contact_loss": d_r}
+        methods[name] = {
+            "order": METHODS[name].order,
+            "linear_limit": linear,
+            "measured_limit": lin_measured,
+            "measured_limit_breather": breather_measured,
+            "order_smooth": o_s,
+            "order_contact_loss": o_r,
+            "errors_smooth": e_s,
+            "errors_contact_loss": e_r,
+            "dts_smooth": d_s,
+            "dts_contact_loss": d_r,
+        }
         if not METHODS[name].symplectic:
-            methods[name]["note"] = ("not symplectic: |R(i w dt)| < 1 damps the motion, so the run fails the 50 % "
-                                     "energy criterion (numerical damping) before its linear stability bound")
-        ctx.log("%-8s linear limit %.4f, measured %.4f (breather %.4f); order smooth %.2f, with contact loss %.2f",
-                name, linear, lin_measured or float("nan"), breather_measured or float("nan"), o_s, o_r)
+            methods[name]["note"] = (
+                "not symplectic: |R(i w dt)| < 1 damps the motion, so the run fails the 50 % "
+                "energy criterion (numerical damping) before its linear stability bound"
+            )
+        ctx.log(
+            "%-8s linear limit %.4f, measured %.4f (breather %.4f); order smooth %.2f, with contact loss %.2f",
+            name,
+            linear,
+            lin_measured or float("nan"),
+            breather_measured or float("nan"),
+            o_s,
+            o_r,
+        )
 
     # fixed-frequency Newton going down in frequency
     edges = band_edges(PAPER_M, PAPER_K)
     omega, state, last_ok, failure, trail = b.omega, b.state, b.omega, None, []
     while omega - P.newton_step >= P.newton_floor:
         omega -= P.newton_step
-        res = find_breather(params, omega, state, method=BREATHER_METHOD, steps_per_period=BREATHER_STEPS_PER_PERIOD,
-                            max_iterations=15, device=ctx.device)
-        trail.append({"omega": omega, "converged": res.success, "iterations": res.iterations,
-                      "residual": res.residual})
+        res = find_breather(
+            params,
+            omega,
+            state,
+            method=BREATHER_METHOD,
+            steps_per_period=BREATHER_STEPS_PER_PERIOD,
+            max_iterations=15,
+            device=ctx.device,
+        )
+        trail.append({"omega": omega, "converged": res.success, "iterations": res.iterations, "residual": res.residual})
         if not res.success:
             failure = {"omega": omega, "message": res.message}
             break
         state, last_ok = res.state, omega
-    ctx.log("fixed-frequency Newton: last converged at w_b = %.4f%s", last_ok,
-            f", failed at {failure['omega']:.4f}" if failure else " (no failure above the floor)")
+    ctx.log(
+        "fixed-frequency Newton: last converged at w_b = %.4f%s",
+        last_ok,
+        f", failed at {failure['omega']:.4f}" if failure else " (no failure above the floor)",
+    )
 
     # float32 vs float64
     f32 = {}
@@ -159,24 +229,43 @@ def run(ctx: Context) -> dict:
         x32 = reference.integrate(name, params, b.state[None], dt, n, dtype=np.float32)["x"][0].astype(np.float64)
         x64 = simulate(params, b.state, n * dt, dt, method=name, device=ctx.device, chunks=1).x[0]
         scale = np.max(np.abs(ref_smooth))
-        f32[name] = {"dt": dt, "error_float32": float(np.max(np.abs(x32 - ref_smooth)) / scale),
-                     "error_float64": float(np.max(np.abs(x64 - ref_smooth)) / scale)}
-    newton32 = float32_newton(params, b.state + 1e-4 * (b.state != 0), b.omega, BREATHER_METHOD,
-                              BREATHER_STEPS_PER_PERIOD, iterations=P.float32_newton_iterations)
+        f32[name] = {
+            "dt": dt,
+            "error_float32": float(np.max(np.abs(x32 - ref_smooth)) / scale),
+            "error_float64": float(np.max(np.abs(x64 - ref_smooth)) / scale),
+        }
+    newton32 = float32_newton(
+        params,
+        b.state + 1e-4 * (b.state != 0),
+        b.omega,
+        BREATHER_METHOD,
+        BREATHER_STEPS_PER_PERIOD,
+        iterations=P.float32_newton_iterations,
+    )
     f32["newton_residual_history"] = newton32
     f32["newton_best_residual"] = min(newton32)
     f32["newton_reaches_1e-10"] = bool(min(newton32) <= 1e-10)
-    f32["finding"] = ("float32 is enough where truncation error dominates (Verlet at 256 steps per period: the same "
-                      "error in both precisions), not for breather accuracy: kahan8 floors at the float32 roundoff "
-                      "level, and float32 Newton stalls near 1e-6, far from the 1e-10 tolerance")
-    ctx.log("float32: smooth-run error %s; Newton residuals %s", {k: f"{v['error_float32']:.1e}" for k, v in f32.items()
-                                                                   if isinstance(v, dict)},
-            ", ".join(f"{r:.1e}" for r in newton32))
-    return {"methods": methods, "linear_limit_basis": f"bound / optical band top {edges['optical_top']:.6f}",
-            "rough_case_min_contact": rough_contact,
-            "newton_fails_below_omega": failure["omega"] if failure else None,
-            "newton_last_converged_omega": last_ok, "newton_failure": failure, "newton_trail": trail,
-            "acoustic_top": edges["acoustic_top"], "float32": f32}
+    f32["finding"] = (
+        "float32 is enough where truncation error dominates (Verlet at 256 steps per period: the same "
+        "error in both precisions), not for breather accuracy: kahan8 floors at the float32 roundoff "
+        "level, and float32 Newton stalls near 1e-6, far from the 1e-10 tolerance"
+    )
+    ctx.log(
+        "float32: smooth-run error %s; Newton residuals %s",
+        {k: f"{v['error_float32']:.1e}" for k, v in f32.items() if isinstance(v, dict)},
+        ", ".join(f"{r:.1e}" for r in newton32),
+    )
+    return {
+        "methods": methods,
+        "linear_limit_basis": f"bound / optical band top {edges['optical_top']:.6f}",
+        "rough_case_min_contact": rough_contact,
+        "newton_fails_below_omega": failure["omega"] if failure else None,
+        "newton_last_converged_omega": last_ok,
+        "newton_failure": failure,
+        "newton_trail": trail,
+        "acoustic_top": edges["acoustic_top"],
+        "float32": f32,
+    }
 
 
 def plot(out) -> None:
@@ -188,17 +277,27 @@ def plot(out) -> None:
     ax = axes[0]
     ax.bar(x - 0.25, [s["methods"][n]["linear_limit"] for n in names], 0.25, label="linear (optical band top)")
     ax.bar(x, [s["methods"][n]["measured_limit"] or 0 for n in names], 0.25, label="measured, small amplitude")
-    ax.bar(x + 0.25, [s["methods"][n]["measured_limit_breather"] or 0 for n in names], 0.25,
-           label="measured, exact breather")
+    ax.bar(
+        x + 0.25,
+        [s["methods"][n]["measured_limit_breather"] or 0 for n in names],
+        0.25,
+        label="measured, exact breather",
+    )
     ax.set_xticks(x, names, fontsize=8)
     ax.set_ylabel("largest stable dt")
     ax.legend(fontsize=7)
     ax = axes[1]
     for n in names:
         m = s["methods"][n]
-        line, = ax.loglog(m["dts_smooth"], m["errors_smooth"], "o-", ms=3, label=f"{n} ({m['order_smooth']:.1f})")
-        ax.loglog(m["dts_contact_loss"], m["errors_contact_loss"], "s--", ms=3, color=line.get_color(),
-                  label=f"{n}, contact loss ({m['order_contact_loss']:.1f})")
+        (line,) = ax.loglog(m["dts_smooth"], m["errors_smooth"], "o-", ms=3, label=f"{n} ({m['order_smooth']:.1f})")
+        ax.loglog(
+            m["dts_contact_loss"],
+            m["errors_contact_loss"],
+            "s--",
+            ms=3,
+            color=line.get_color(),
+            label=f"{n}, contact loss ({m['order_contact_loss']:.1f})",
+        )
     ax.set_xlabel("dt")
     ax.set_ylabel("final-state error")
     ax.set_title("observed orders (slope): smooth solid, contact loss dashed", fontsize=9)

@@ -44,21 +44,26 @@ CUDA_SM_REGISTERS, CUDA_SM_THREADS, CUDA_SM_BLOCKS = 65536, 2048, 32
 class Parameters:
     """The scene's parameters (``--set KEY=VALUE`` overrides any of them)."""
 
-    batches_cpu: tuple = (1, 16, 64, 256, 805, 4096)         # lattices per batch, on a CPU
+    batches_cpu: tuple = (1, 16, 64, 256, 805, 4096)  # lattices per batch, on a CPU
     batches_gpu: tuple = (1, 16, 64, 256, 805, 4096, 32768)  # and on a GPU
-    all_methods_at: tuple = (805, 32768)   # batches where every method is timed (those present)
+    all_methods_at: tuple = (805, 32768)  # batches where every method is timed (those present)
     thread_layout_max_batch_gpu: int = 4096  # the thread-per-lattice layout is slow on a GPU; enough to show it
     numpy_max_batch: int = 805
     dt: float = 0.1
-    seconds: float = 0.4                   # target duration of one timed run
+    seconds: float = 0.4  # target duration of one timed run
     max_steps: int = 2_000_000
-    repeats: int = 3                       # best of, for the ensemble timings
-    monodromy: bool = True                 # time the monodromy and a Newton iteration (needs the paper breather)
-    monodromy_repeats: int = 3             # best of, for those
+    repeats: int = 3  # best of, for the ensemble timings
+    monodromy: bool = True  # time the monodromy and a Newton iteration (needs the paper breather)
+    monodromy_repeats: int = 3  # best of, for those
 
 
-QUICK = {"batches_cpu": (1, 64, 805), "batches_gpu": (1, 64, 805), "seconds": 0.12, "monodromy": False,
-         "monodromy_repeats": 1}
+QUICK = {
+    "batches_cpu": (1, 64, 805),
+    "batches_gpu": (1, 64, 805),
+    "seconds": 0.12,
+    "monodromy": False,
+    "monodromy_repeats": 1,
+}
 
 
 def _measure(run_steps, seconds, max_steps):
@@ -93,9 +98,18 @@ def _ensemble(ctx, P: Parameters, params, one, gpu):
 
     def record(impl, method, batch, steps, sec, evals=1):
         rate = batch * params.N * steps / sec
-        results.append({"implementation": impl, "method": method, "batch": batch, "steps": steps, "seconds": sec,
-                        "site_steps_per_second": rate, "force_evals_per_second": rate * evals,
-                        "ns_per_step": 1e9 * sec / steps})
+        results.append(
+            {
+                "implementation": impl,
+                "method": method,
+                "batch": batch,
+                "steps": steps,
+                "seconds": sec,
+                "site_steps_per_second": rate,
+                "force_evals_per_second": rate * evals,
+                "ns_per_step": 1e9 * sec / steps,
+            }
+        )
         ctx.log("%-11s %-8s batch %6d: %.3g site-steps/s (%.3g ns/step)", impl, method, batch, rate, 1e9 * sec / steps)
 
     jax_run = jax_verlet_runner(PAPER_M, PAPER_K) if gpu else None
@@ -111,13 +125,16 @@ def _ensemble(ctx, P: Parameters, params, one, gpu):
             main = layout == ("block" if gpu else "thread")
             names = sorted(METHODS) if main and (batch in all_methods_at or batch == batches[-1]) else ["verlet"]
             for name in names:
+
                 def warp_run(n, name=name, layout=layout):
-                    return time_steps(params, x0, n, P.dt, method=name, device=ctx.device, layout=layout,
-                                      repeats=P.repeats)
+                    return time_steps(
+                        params, x0, n, P.dt, method=name, device=ctx.device, layout=layout, repeats=P.repeats
+                    )
 
                 steps, sec = _measure(warp_run, seconds, P.max_steps)
                 record(f"warp-{layout}", name, batch, steps, sec, METHODS[name].force_evaluations)
         if batch <= P.numpy_max_batch:
+
             def numpy_run(n):
                 t0 = time.perf_counter()
                 reference.integrate("verlet", params, x0, P.dt, n)
@@ -127,8 +144,9 @@ def _ensemble(ctx, P: Parameters, params, one, gpu):
             record("numpy", "verlet", batch, steps, sec)
         for impl, runner in (("jax", jax_run), ("cupy", cupy_run)):
             if runner is not None:
-                steps, sec = _measure(lambda n: min(runner(x0, n, P.dt)[1] for _ in range(P.repeats)), seconds,
-                                      P.max_steps)
+                steps, sec = _measure(
+                    lambda n: min(runner(x0, n, P.dt)[1] for _ in range(P.repeats)), seconds, P.max_steps
+                )
                 record(impl, "verlet", batch, steps, sec)
     for batch in batches:
         same = [r for r in results if r["batch"] == batch and r["method"] == "verlet"]
@@ -140,13 +158,20 @@ def _ensemble(ctx, P: Parameters, params, one, gpu):
 
 def _ratios(batches, results, gpu):
     """Headline ratios, each from numbers of this one run."""
+
     def rate(impl, batch, method="verlet"):
         hit = [r for r in results if r["implementation"] == impl and r["batch"] == batch and r["method"] == method]
         return hit[0]["site_steps_per_second"] if hit else None
 
     main = "warp-block" if gpu else "warp-thread"
-    out = {"main_layout": main, "over_numpy": {}, "over_jax": {}, "over_cupy": {}, "over_thread_layout": {},
-           "force_eval_cost_over_verlet": {}}
+    out = {
+        "main_layout": main,
+        "over_numpy": {},
+        "over_jax": {},
+        "over_cupy": {},
+        "over_thread_layout": {},
+        "force_eval_cost_over_verlet": {},
+    }
     for batch in batches:
         w = rate(main, batch)
         for key, other in (("over_numpy", "numpy"), ("over_jax", "jax"), ("over_cupy", "cupy")):
@@ -177,12 +202,22 @@ def _monodromy(ctx, repeats):
     n = 4 * params.N
     eye = np.eye(n).reshape(n, 4, params.N)
     period_steps = 2 * breather.nsteps
-    runs = [propagate_tangent(params, breather.state, eye, period_steps, breather.dt, method=breather.method,
-                              device=ctx.device) for _ in range(repeats)]
+    runs = [
+        propagate_tangent(
+            params, breather.state, eye, period_steps, breather.dt, method=breather.method, device=ctx.device
+        )
+        for _ in range(repeats)
+    ]
     kernel = min(r.kernel_seconds for r in runs)
     wall = min(r.wall_seconds for r in runs)
-    ctx.log("monodromy (%d columns, %d steps of %s): kernel %.3g ms, wall %.3g ms", n, period_steps,
-            breather.method, 1e3 * kernel, 1e3 * wall)
+    ctx.log(
+        "monodromy (%d columns, %d steps of %s): kernel %.3g ms, wall %.3g ms",
+        n,
+        period_steps,
+        breather.method,
+        1e3 * kernel,
+        1e3 * wall,
+    )
     pmap = PeriodMap(params, breather.omega, breather.flow)
     unknowns = pmap.from_state(breather.state)
     iteration = []
@@ -195,13 +230,24 @@ def _monodromy(ctx, repeats):
     t0 = time.perf_counter()
     solve_linear(J, r)
     solve = time.perf_counter() - t0
-    ctx.log("Newton iteration (%d columns, half period): %.3g ms end to end, of which linear solve %.3g ms",
-            J.shape[1], 1e3 * min(iteration), 1e3 * solve)
-    return {"columns": n, "period_steps": period_steps, "method": breather.method,
-            "force_evaluations": period_steps * METHODS[breather.method].force_evaluations,
-            "monodromy_kernel_seconds": kernel, "monodromy_wall_seconds": wall,
-            "newton_columns": int(J.shape[1]), "newton_iteration_seconds": min(iteration),
-            "newton_linear_solve_seconds": solve, "layout": runs[0].layout}
+    ctx.log(
+        "Newton iteration (%d columns, half period): %.3g ms end to end, of which linear solve %.3g ms",
+        J.shape[1],
+        1e3 * min(iteration),
+        1e3 * solve,
+    )
+    return {
+        "columns": n,
+        "period_steps": period_steps,
+        "method": breather.method,
+        "force_evaluations": period_steps * METHODS[breather.method].force_evaluations,
+        "monodromy_kernel_seconds": kernel,
+        "monodromy_wall_seconds": wall,
+        "newton_columns": int(J.shape[1]),
+        "newton_iteration_seconds": min(iteration),
+        "newton_linear_solve_seconds": solve,
+        "layout": runs[0].layout,
+    }
 
 
 def _kernel_properties(ctx, params):
@@ -224,18 +270,36 @@ def _kernel_properties(ctx, params):
             ctx.log("kernel properties of %s unavailable: %s", name, exc)
             continue
         smem = 2 * block * 8
-        rows.append({"kernel": f"block/{name}", "block": block, **props, "shared_bytes": smem,
-                     "occupancy": _occupancy(props["register_count"], block, smem)})
+        rows.append(
+            {
+                "kernel": f"block/{name}",
+                "block": block,
+                **props,
+                "shared_bytes": smem,
+                "occupancy": _occupancy(props["register_count"], block, smem),
+            }
+        )
     for name in ("splitting_kernel", "rk4_kernel"):
         try:
             props = wp.get_cuda_kernel_properties(getattr(kernels, name), ctx.device)
-            rows.append({"kernel": f"thread/{name}", "block": 256, **props,
-                         "occupancy": _occupancy(props["register_count"], 256)})
+            rows.append(
+                {
+                    "kernel": f"thread/{name}",
+                    "block": 256,
+                    **props,
+                    "occupancy": _occupancy(props["register_count"], 256),
+                }
+            )
         except Exception as exc:
             ctx.log("kernel properties of %s unavailable: %s", name, exc)
     for row in rows:
-        ctx.log("%-44s %4d registers, %4d B local, occupancy %.2f", row["kernel"], row["register_count"],
-                row["local_memory_size"], row["occupancy"])
+        ctx.log(
+            "%-44s %4d registers, %4d B local, occupancy %.2f",
+            row["kernel"],
+            row["register_count"],
+            row["local_memory_size"],
+            row["occupancy"],
+        )
     return rows
 
 
@@ -255,17 +319,33 @@ def run(ctx: Context) -> dict:
     root = open_store(ctx.out / "data.zarr", params=params.as_dict(), provenance_info=provenance(ctx.device))
     impls = sorted({r["implementation"] for r in results})
     methods = sorted({r["method"] for r in results})
-    write_table(root, "results", {
-        "implementation": [impls.index(r["implementation"]) for r in results],
-        "method": [methods.index(r["method"]) for r in results], "batch": [r["batch"] for r in results],
-        "site_steps_per_second": [r["site_steps_per_second"] for r in results],
-        "force_evals_per_second": [r["force_evals_per_second"] for r in results]}, dim="result",
-        attrs={"implementation_names": impls, "method_names": methods})
+    write_table(
+        root,
+        "results",
+        {
+            "implementation": [impls.index(r["implementation"]) for r in results],
+            "method": [methods.index(r["method"]) for r in results],
+            "batch": [r["batch"] for r in results],
+            "site_steps_per_second": [r["site_steps_per_second"] for r in results],
+            "force_evals_per_second": [r["force_evals_per_second"] for r in results],
+        },
+        dim="result",
+        attrs={"implementation_names": impls, "method_names": methods},
+    )
     prov = provenance(ctx.device)
-    return {"device": device_description(ctx.device), "cpu": prov["cpu"], "packages": prov["packages"],
-            "cpu_threads": cpu_threads() if not gpu else None, "N": params.N, "dt": P.dt,
-            "timing": f"kernel time, best of {P.repeats}, runs sized to ~{P.seconds:g} s",
-            "results": results, "ratios": ratios, "monodromy": monodromy, "kernel_properties": props}
+    return {
+        "device": device_description(ctx.device),
+        "cpu": prov["cpu"],
+        "packages": prov["packages"],
+        "cpu_threads": cpu_threads() if not gpu else None,
+        "N": params.N,
+        "dt": P.dt,
+        "timing": f"kernel time, best of {P.repeats}, runs sized to ~{P.seconds:g} s",
+        "results": results,
+        "ratios": ratios,
+        "monodromy": monodromy,
+        "kernel_properties": props,
+    }
 
 
 def plot(out) -> None:
@@ -293,8 +373,10 @@ def plot(out) -> None:
     bx.set_ylabel("site force evaluations per second")
     title = f"{s['ratios']['main_layout']}, every method"
     if mono:
-        title += (f"; monodromy ({mono['columns']} columns) {1e3 * mono['monodromy_kernel_seconds']:.3g} ms,\n"
-                  f"Newton iteration {1e3 * mono['newton_iteration_seconds']:.3g} ms")
+        title += (
+            f"; monodromy ({mono['columns']} columns) {1e3 * mono['monodromy_kernel_seconds']:.3g} ms,\n"
+            f"Newton iteration {1e3 * mono['newton_iteration_seconds']:.3g} ms"
+        )
     bx.set_title(title, fontsize=9)
     bx.legend(fontsize=8)
     save_figure(fig, out, "throughput")

@@ -29,14 +29,14 @@ from ._common import PAPER_K, PAPER_M, PAPER_N, Context, paper_breather, pyplot,
 class Parameters:
     """The scene's parameters (``--set KEY=VALUE`` overrides any of them)."""
 
-    smooth_periods: int = 20                   # the exact breather, over this many periods
+    smooth_periods: int = 20  # the exact breather, over this many periods
     contact_loss_periods: int = 5
-    contact_loss_scale: float = 2.5            # eigenmode amplitude, in units of the exact breather's v_101
-    steps_per_period: tuple = (24, 32, 48, 64, 96, 128, 192, 256, 384, 512, 768, 1024)   # Warp methods
+    contact_loss_scale: float = 2.5  # eigenmode amplitude, in units of the exact breather's v_101
+    steps_per_period: tuple = (24, 32, 48, 64, 96, 128, 192, 256, 384, 512, 768, 1024)  # Warp methods
     numpy_steps_per_period: tuple = (64, 256)  # numpy reference
     dop853_rtol: tuple = (1e-5, 1e-7, 1e-9, 1e-11)
     targets: tuple = (1e-4, 1e-6, 1e-8, 1e-9, 1e-10)  # errors at which the cheapest implementation is reported
-    repeats: int = 2                           # best of, for the timings
+    repeats: int = 2  # best of, for the timings
 
 
 QUICK = {"steps_per_period": (24, 64, 192, 512), "numpy_steps_per_period": (), "dop853_rtol": (1e-5, 1e-9)}
@@ -70,8 +70,10 @@ def time_to_reach(points, target):
 
 def run(ctx: Context) -> dict:
     P: Parameters = ctx.params
-    case_specs = {"smooth": {"periods": P.smooth_periods},
-                  "contact-loss": {"periods": P.contact_loss_periods, "scale": P.contact_loss_scale}}
+    case_specs = {
+        "smooth": {"periods": P.smooth_periods},
+        "contact-loss": {"periods": P.contact_loss_periods, "scale": P.contact_loss_scale},
+    }
     params = ChainParams(PAPER_M, PAPER_K, PAPER_N)
     b = paper_breather(ctx.device, log=ctx.log)
     c = params.N // 2
@@ -90,27 +92,68 @@ def run(ctx: Context) -> dict:
                 dt = b.period / spp
                 if dt >= limit:
                     continue
-                run, sec = _timed(lambda: simulate(params, x0, t_end, dt, method=name, device=ctx.device, chunks=1,
-                                                   max_energy_error=None), P.repeats)
-                points.append({"case": case, "implementation": "warp", "method": name, "dt": dt, "rtol": None,
-                               "error": _error(run.x[0], ref), "seconds": sec,
-                               "force_evaluations": m.force_evaluations * run.nsteps})
+                run, sec = _timed(
+                    lambda: simulate(
+                        params, x0, t_end, dt, method=name, device=ctx.device, chunks=1, max_energy_error=None
+                    ),
+                    P.repeats,
+                )
+                points.append(
+                    {
+                        "case": case,
+                        "implementation": "warp",
+                        "method": name,
+                        "dt": dt,
+                        "rtol": None,
+                        "error": _error(run.x[0], ref),
+                        "seconds": sec,
+                        "force_evaluations": m.force_evaluations * run.nsteps,
+                    }
+                )
             for spp in P.numpy_steps_per_period:
                 dt = b.period / spp
                 nsteps = int(spp) * spec["periods"]
                 out, sec = _timed(lambda: reference.integrate(name, params, x0[None], dt, nsteps), P.repeats)
-                points.append({"case": case, "implementation": "numpy", "method": name, "dt": dt, "rtol": None,
-                               "error": _error(out["x"][0], ref), "seconds": sec,
-                               "force_evaluations": m.force_evaluations * nsteps})
+                points.append(
+                    {
+                        "case": case,
+                        "implementation": "numpy",
+                        "method": name,
+                        "dt": dt,
+                        "rtol": None,
+                        "error": _error(out["x"][0], ref),
+                        "seconds": sec,
+                        "force_evaluations": m.force_evaluations * nsteps,
+                    }
+                )
         for rtol in P.dop853_rtol:
-            (end, sol), sec = _timed(lambda: reference.solve_ivp_reference(params, x0, t_end, rtol=rtol,
-                                                                           atol=rtol * 1e-3), P.repeats)
-            points.append({"case": case, "implementation": "scipy", "method": "DOP853", "dt": None, "rtol": rtol,
-                           "error": _error(end, ref), "seconds": sec, "force_evaluations": int(sol.nfev)})
+            (end, sol), sec = _timed(
+                lambda: reference.solve_ivp_reference(params, x0, t_end, rtol=rtol, atol=rtol * 1e-3), P.repeats
+            )
+            points.append(
+                {
+                    "case": case,
+                    "implementation": "scipy",
+                    "method": "DOP853",
+                    "dt": None,
+                    "rtol": rtol,
+                    "error": _error(end, ref),
+                    "seconds": sec,
+                    "force_evaluations": int(sol.nfev),
+                }
+            )
         # energy error vs time for the symplectic methods (128 steps per period), and RK4 for contrast
         for name in METHODS:
-            run = simulate(params, x0, t_end, b.period / 128, method=name, device=ctx.device,
-                           chunks=spec["periods"] * 4, max_energy_error=None)
+            run = simulate(
+                params,
+                x0,
+                t_end,
+                b.period / 128,
+                method=name,
+                device=ctx.device,
+                chunks=spec["periods"] * 4,
+                max_energy_error=None,
+            )
             E0 = run.energy_trace[0, 0]
             energy_traces[(case, name)] = (run.energy_t, np.abs(run.energy_trace[:, 0] - E0) / abs(E0))
         ctx.log("%s: %d points", case, sum(p["case"] == case for p in points))
@@ -121,44 +164,80 @@ def run(ctx: Context) -> dict:
         for target in P.targets:
             best = None
             for impl, method in sorted({(p["implementation"], p["method"]) for p in points if p["case"] == case}):
-                sec = time_to_reach([p for p in points if p["case"] == case and p["implementation"] == impl
-                                     and p["method"] == method], target)
+                sec = time_to_reach(
+                    [p for p in points if p["case"] == case and p["implementation"] == impl and p["method"] == method],
+                    target,
+                )
                 if sec is not None and (best is None or sec < best["seconds"]):
                     best = {"implementation": impl, "method": method, "seconds": sec}
             cheapest[case][f"{target:g}"] = best
         warp_best = cheapest[case].get("1e-09")
         dop = time_to_reach([p for p in points if p["case"] == case and p["implementation"] == "scipy"], 1e-9)
         if warp_best and dop:
-            warp_only = min((time_to_reach([p for p in points if p["case"] == case and p["implementation"] == "warp"
-                                            and p["method"] == m], 1e-9) or np.inf) for m in METHODS)
-            speedups[case] = {"error": 1e-9, "best_warp_seconds": warp_only, "dop853_seconds": dop,
-                              "speedup_vs_dop853": dop / warp_only}
+            warp_only = min(
+                (
+                    time_to_reach(
+                        [p for p in points if p["case"] == case and p["implementation"] == "warp" and p["method"] == m],
+                        1e-9,
+                    )
+                    or np.inf
+                )
+                for m in METHODS
+            )
+            speedups[case] = {
+                "error": 1e-9,
+                "best_warp_seconds": warp_only,
+                "dop853_seconds": dop,
+                "speedup_vs_dop853": dop / warp_only,
+            }
         for target, best in cheapest[case].items():
             if best:
-                ctx.log("%s, error <= %s: cheapest is %s %s (%.3g s)", case, target, best["implementation"],
-                        best["method"], best["seconds"])
+                ctx.log(
+                    "%s, error <= %s: cheapest is %s %s (%.3g s)",
+                    case,
+                    target,
+                    best["implementation"],
+                    best["method"],
+                    best["seconds"],
+                )
         if case in speedups:
-            ctx.log("%s at error 1e-9: best Warp method %.3g s vs DOP853 %.3g s -> %.1fx", case,
-                    speedups[case]["best_warp_seconds"], speedups[case]["dop853_seconds"],
-                    speedups[case]["speedup_vs_dop853"])
+            ctx.log(
+                "%s at error 1e-9: best Warp method %.3g s vs DOP853 %.3g s -> %.1fx",
+                case,
+                speedups[case]["best_warp_seconds"],
+                speedups[case]["dop853_seconds"],
+                speedups[case]["speedup_vs_dop853"],
+            )
 
     root = open_store(ctx.out / "data.zarr", params=params.as_dict(), provenance_info=provenance(ctx.device))
     impls = sorted({p["implementation"] for p in points})
     methods = sorted({p["method"] for p in points})
     cases = list(case_specs)
-    write_table(root, "points", {
-        "case": [cases.index(p["case"]) for p in points],
-        "implementation": [impls.index(p["implementation"]) for p in points],
-        "method": [methods.index(p["method"]) for p in points],
-        "dt": [np.nan if p["dt"] is None else p["dt"] for p in points],
-        "rtol": [np.nan if p["rtol"] is None else p["rtol"] for p in points],
-        "error": [p["error"] for p in points], "seconds": [p["seconds"] for p in points]}, dim="point",
-        attrs={"case_names": cases, "implementation_names": impls, "method_names": methods})
+    write_table(
+        root,
+        "points",
+        {
+            "case": [cases.index(p["case"]) for p in points],
+            "implementation": [impls.index(p["implementation"]) for p in points],
+            "method": [methods.index(p["method"]) for p in points],
+            "dt": [np.nan if p["dt"] is None else p["dt"] for p in points],
+            "rtol": [np.nan if p["rtol"] is None else p["rtol"] for p in points],
+            "error": [p["error"] for p in points],
+            "seconds": [p["seconds"] for p in points],
+        },
+        dim="point",
+        attrs={"case_names": cases, "implementation_names": impls, "method_names": methods},
+    )
     for (case, name), (t, err) in energy_traces.items():
         write_table(root, f"energy/{case}/{name}", {"t": t, "relative_energy_error": err}, dim="t")
-    return {"device": ctx.device, "cases": {k: {**v, "period": b.period} for k, v in case_specs.items()},
-            "points": points, "cheapest": cheapest, "speedup_at_1e-9": speedups,
-            "reference": "scipy DOP853 rtol 1e-13, atol 1e-16"}
+    return {
+        "device": ctx.device,
+        "cases": {k: {**v, "period": b.period} for k, v in case_specs.items()},
+        "points": points,
+        "cheapest": cheapest,
+        "speedup_at_1e-9": speedups,
+        "reference": "scipy DOP853 rtol 1e-13, atol 1e-16",
+    }
 
 
 def plot(out) -> None:
@@ -166,8 +245,15 @@ def plot(out) -> None:
     data, attrs = read_group(out / "data.zarr", "points")
     plt = pyplot()
     fig, axes = plt.subplots(1, 3, figsize=(16, 4.8))
-    colors = {"verlet": "tab:blue", "yoshida4": "tab:orange", "yoshida6": "tab:green", "kahan6": "tab:purple",
-              "kahan8": "tab:brown", "rk4": "tab:red", "DOP853": "k"}
+    colors = {
+        "verlet": "tab:blue",
+        "yoshida4": "tab:orange",
+        "yoshida6": "tab:green",
+        "kahan6": "tab:purple",
+        "kahan8": "tab:brown",
+        "rk4": "tab:red",
+        "DOP853": "k",
+    }
     for k, case in enumerate(attrs["case_names"]):
         ax = axes[k]
         for i_impl, impl in enumerate(attrs["implementation_names"]):
@@ -177,9 +263,15 @@ def plot(out) -> None:
                     continue
                 order = np.argsort(data["seconds"][m])
                 style = {"warp": "o-", "numpy": "s--", "scipy": "^-"}[impl]
-                ax.loglog(data["error"][m][order], data["seconds"][m][order], style, ms=4,
-                          color=colors.get(method, "0.5"), label=f"{impl} {method}",
-                          mfc="none" if impl == "numpy" else None)
+                ax.loglog(
+                    data["error"][m][order],
+                    data["seconds"][m][order],
+                    style,
+                    ms=4,
+                    color=colors.get(method, "0.5"),
+                    label=f"{impl} {method}",
+                    mfc="none" if impl == "numpy" else None,
+                )
         ax.axvline(1e-9, color="0.7", lw=0.6, ls=":")
         ax.set_xlabel("final-state error (relative)")
         ax.set_ylabel("seconds")
@@ -193,8 +285,13 @@ def plot(out) -> None:
             if method == "DOP853":
                 continue
             d, _ = read_group(out / "data.zarr", f"energy/{case}/{method}")
-            ax.semilogy(d["t"] / s["cases"][case]["period"], np.maximum(d["relative_energy_error"], 1e-17), ls,
-                        color=colors[method], label=f"{case} {method}")
+            ax.semilogy(
+                d["t"] / s["cases"][case]["period"],
+                np.maximum(d["relative_energy_error"], 1e-17),
+                ls,
+                color=colors[method],
+                label=f"{case} {method}",
+            )
     ax.set_xlabel("t / T")
     ax.set_ylabel("|E(t) - E(0)| / E(0)")
     ax.set_title("energy error, 128 steps per period", fontsize=9)

@@ -51,11 +51,11 @@ def test_nls_coefficients_checked_against_dispersion_and_oscillator():
     # D: d(w^2)/d(k^2) of the optical band at k = 0, with k^2 = K q^2
     q = 1e-3
     _, w_op = dispersion(np.array([q]), M, K)
-    assert (w_op[0] ** 2 - w0 ** 2) / (K * q * q) == pytest.approx(D, rel=1e-5)
+    assert (w_op[0] ** 2 - w0**2) / (K * q * q) == pytest.approx(D, rel=1e-5)
     # G: a uniform oscillation of amplitude a = 2|A| shifts the frequency by nu = G a^2 / (8 w0)
     a = 0.01
     nu = w0 - ct.oscillator_frequency(a, M)
-    assert 8 * w0 * nu / a ** 2 == pytest.approx(G, rel=1e-2)
+    assert 8 * w0 * nu / a**2 == pytest.approx(G, rel=1e-2)
 
 
 def test_nls_profile_approaches_the_breather_near_the_band_edge():

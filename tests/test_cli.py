@@ -6,8 +6,9 @@ import pytest
 
 
 def _run(*args, cwd=None):
-    return subprocess.run([sys.executable, "-m", "scenarios", *args], capture_output=True, text=True, cwd=cwd,
-                          timeout=600)
+    return subprocess.run(
+        [sys.executable, "-m", "scenarios", *args], capture_output=True, text=True, cwd=cwd, timeout=600
+    )
 
 
 def test_list_names_scenes():
@@ -53,8 +54,23 @@ def paper_quick(tmp_path_factory):
 def test_breather_scenes_quick(paper_quick):
     tmp_path = paper_quick
     s = json.loads((tmp_path / "breather" / "summary.json").read_text())
-    for key in ("M", "K", "N", "omega", "energy", "residual", "newton_iterations", "u_center", "v_center",
-                "max_floquet_modulus", "floquet_pairing_error", "stable", "method", "dt", "wall_seconds"):
+    for key in (
+        "M",
+        "K",
+        "N",
+        "omega",
+        "energy",
+        "residual",
+        "newton_iterations",
+        "u_center",
+        "v_center",
+        "max_floquet_modulus",
+        "floquet_pairing_error",
+        "stable",
+        "method",
+        "dt",
+        "wall_seconds",
+    ):
         assert key in s, key
     assert s["residual"] <= 1e-10 and s["floquet_pairing_error"] <= 1e-8
     assert s["direct_simulation"]["max_relative_deviation"] < 1e-8
@@ -70,8 +86,18 @@ def test_breather_scenes_quick(paper_quick):
 
 def test_continuation_scenes_quick(paper_quick):
     k = json.loads((paper_quick / "continuation-k" / "summary.json").read_text())
-    assert {"omega", "M", "N", "points", "nls_energy_at_K_end", "stop_reason", "unstable_intervals",
-            "stability_changes", "parameters", "command_line"} <= set(k)
+    assert {
+        "omega",
+        "M",
+        "N",
+        "points",
+        "nls_energy_at_K_end",
+        "stop_reason",
+        "unstable_intervals",
+        "stability_changes",
+        "parameters",
+        "command_line",
+    } <= set(k)
     assert k["stop_reason"] == "end_reached" and k["points"][-1]["K"] == 160.0 and k["points"][0]["K"] == 0.01
     assert k["parameters"]["N"] == 101 and k["ended_on_physics"]
     assert all({"K", "energy", "max_floquet_modulus", "stable", "kinds"} <= set(p) for p in k["points"])
@@ -89,14 +115,37 @@ def test_continuation_scenes_quick(paper_quick):
 
 
 def test_set_overrides_and_resume(tmp_path):
-    out = _run("run", "continuation-omega", "--quick", "--set", "N=41", "--set", "max_points=4", "--out",
-               str(tmp_path), "--device", "cpu")
+    out = _run(
+        "run",
+        "continuation-omega",
+        "--quick",
+        "--set",
+        "N=41",
+        "--set",
+        "max_points=4",
+        "--out",
+        str(tmp_path),
+        "--device",
+        "cpu",
+    )
     assert out.returncode == 0, out.stderr[-3000:]
     s = json.loads((tmp_path / "continuation-omega" / "summary.json").read_text())
     assert s["N"] == 41 and s["parameters"]["max_points"] == 4 and s["stop_reason"] == "max_points"
     assert "--set N=41" in s["command_line"]
-    out = _run("run", "continuation-omega", "--quick", "--set", "N=41", "--set", "max_points=7", "--resume",
-               "--out", str(tmp_path), "--device", "cpu")
+    out = _run(
+        "run",
+        "continuation-omega",
+        "--quick",
+        "--set",
+        "N=41",
+        "--set",
+        "max_points=7",
+        "--resume",
+        "--out",
+        str(tmp_path),
+        "--device",
+        "cpu",
+    )
     assert out.returncode == 0, out.stderr[-3000:]
     s = json.loads((tmp_path / "continuation-omega" / "summary.json").read_text())
     assert s["stop_reason"] == "max_points" and len(s["points"]) == 7

@@ -18,8 +18,9 @@ def k_branch(tmp_path_factory):
     path = tmp_path_factory.mktemp("k") / "branch.zarr"
     p = ChainParams(30.0, 0.01, 41)
     store = BranchStore(path, "branch", p, {"omega": 1.01})
-    branch = continue_in_coupling(p, 1.01, ct.anticontinuum_seed(p, 1.01), 20.0, targets=(5.0,), settings=K_SETTINGS,
-                                  on_point=store.append)
+    branch = continue_in_coupling(
+        p, 1.01, ct.anticontinuum_seed(p, 1.01), 20.0, targets=(5.0,), settings=K_SETTINGS, on_point=store.append
+    )
     store.finish(branch)
     return path, branch
 
@@ -53,7 +54,9 @@ def test_stability_changes_are_bracketed_to_the_resolution_and_confirmed_directl
             direct = ct.floquet(ct.require(ct.find_breather(ChainParams(30.0, p.K, 41), 1.01, p.state)))
             assert direct.stable == p.stable
     intervals = branch.unstable_intervals()
-    assert all(iv["start"] <= iv["end"] and set(iv["kinds"]) <= set(ct.floquet.__globals__["KINDS"]) for iv in intervals)
+    assert all(
+        iv["start"] <= iv["end"] and set(iv["kinds"]) <= set(ct.floquet.__globals__["KINDS"]) for iv in intervals
+    )
 
 
 def test_stored_branch_round_trips_and_resumes(k_branch):
@@ -65,8 +68,9 @@ def test_stored_branch_round_trips_and_resumes(k_branch):
         assert a.K == b.K and np.array_equal(a.state, b.state) and np.allclose(a.mu, b.mu)
         assert a.stable == b.stable and [i.kind for i in a.instabilities] == [i.kind for i in b.instabilities]
     upto = [p for p in points if p.K <= 5.0]
-    resumed = continue_in_coupling(params.replace(K=upto[-1].K), 1.01, upto[-1].state, 20.0, settings=K_SETTINGS,
-                                   resume=upto)
+    resumed = continue_in_coupling(
+        params.replace(K=upto[-1].K), 1.01, upto[-1].state, 20.0, settings=K_SETTINGS, resume=upto
+    )
     assert resumed.points[-1].K == 20.0
     assert resumed.points[-1].energy == pytest.approx(branch.points[-1].energy, rel=1e-8)
 
@@ -94,7 +98,7 @@ def test_a_corrupt_metadata_file_names_the_store(k_branch, tmp_path):
     with pytest.raises(StoreError, match="bad2.zarr"):
         load_branch(bad, "branch")
     meta = json.loads((bad / "branch" / "zarr.json").read_text())
-    meta["attributes"]["n_points"] = 10 ** 6
+    meta["attributes"]["n_points"] = 10**6
     (bad / "branch" / "zarr.json").write_text(json.dumps(meta))
     with pytest.raises(StoreError):
         load_branch(bad, "branch")
@@ -102,17 +106,22 @@ def test_a_corrupt_metadata_file_names_the_store(k_branch, tmp_path):
 
 def test_loss_of_contact_stops_the_branch_and_says_so():
     p = ChainParams(30.0, 1.0, 41)
-    branch = continue_in_coupling(p, 0.985, ct.nls_seed(p, 0.985), 40.0,
-                                  settings=ContinuationSettings(ds=0.15, ds_min=0.02, ds_max=0.3, max_newton=6,
-                                                                floquet=False))
+    branch = continue_in_coupling(
+        p,
+        0.985,
+        ct.nls_seed(p, 0.985),
+        40.0,
+        settings=ContinuationSettings(ds=0.15, ds_min=0.02, ds_max=0.3, max_newton=6, floquet=False),
+    )
     assert branch.stop_reason is StopReason.CONTACT_LOST
     assert "lost contact" in branch.message and branch.points[-1].min_contact <= 0 < branch.points[-2].min_contact
 
 
 def test_newton_failure_at_the_start_is_the_stop_reason():
     p = ChainParams(30.0, 40.0, 41)
-    branch = continue_in_coupling(p, 0.99, ct.nls_seed(p, 0.99), 80.0,
-                                  settings=ContinuationSettings(ds=0.15, ds_max=0.3, max_newton=6))
+    branch = continue_in_coupling(
+        p, 0.99, ct.nls_seed(p, 0.99), 80.0, settings=ContinuationSettings(ds=0.15, ds_max=0.3, max_newton=6)
+    )
     assert branch.stop_reason is StopReason.NEWTON_FAILED and "acoustic band" in branch.message and not branch.points
 
 
@@ -149,10 +158,12 @@ def test_newton_integrates_each_point_once():
 def test_continuation_runs_on_the_numpy_reference_flow():
     p = ChainParams(30.0, 0.5, 11)
     settings = ContinuationSettings(ds=0.3, ds_max=0.3, resolution=0.05)
-    ref = continue_in_coupling(p, 1.01, ct.anticontinuum_seed(p, 1.01), 2.0, settings=settings,
-                               flow=ReferenceFlow("kahan8", 32))
-    warp = continue_in_coupling(p, 1.01, ct.anticontinuum_seed(p, 1.01), 2.0, settings=settings,
-                                flow=Flow("kahan8", 32, "cpu"))
+    ref = continue_in_coupling(
+        p, 1.01, ct.anticontinuum_seed(p, 1.01), 2.0, settings=settings, flow=ReferenceFlow("kahan8", 32)
+    )
+    warp = continue_in_coupling(
+        p, 1.01, ct.anticontinuum_seed(p, 1.01), 2.0, settings=settings, flow=Flow("kahan8", 32, "cpu")
+    )
     assert ref.stop_reason is StopReason.END_REACHED and len(ref.points) == len(warp.points)
     for a, b in zip(ref.points, warp.points):
         assert a.K == b.K and np.max(np.abs(a.state - b.state)) < 1e-13 and a.stable == b.stable

@@ -27,8 +27,9 @@ def test_reduced_floquet_agrees_with_the_full_monodromy(breather):
     assert red.stable == full.stable
     # the trivial mu is 1 to the accuracy gauge, and the tolerance comes from the measured gauges
     assert abs(red.mu[red.mu_trivial] - 1) == pytest.approx(red.accuracy["trivial_deviation"])
-    assert red.tolerance == pytest.approx(10 * max(red.accuracy["trivial_deviation"], red.accuracy["symplecticity"],
-                                                   1e-13))
+    assert red.tolerance == pytest.approx(
+        10 * max(red.accuracy["trivial_deviation"], red.accuracy["symplecticity"], 1e-13)
+    )
 
 
 def test_reduced_matrix_of_a_harmonic_rotation():

@@ -4,8 +4,16 @@ import numpy as np
 import pytest
 
 from conftest import localized_state
-from warpchain import (METHODS, ChainParams, IntegrationError, StepSizeError, energy, propagate_tangent, simulate,
-                       stability_limit)
+from warpchain import (
+    METHODS,
+    ChainParams,
+    IntegrationError,
+    StepSizeError,
+    energy,
+    propagate_tangent,
+    simulate,
+    stability_limit,
+)
 from warpchain import reference
 
 
@@ -44,8 +52,14 @@ def test_warp_matches_numpy_reference_boundaries(boundary, layout):
         assert np.max(np.abs(warp.x - ref["x"])) <= 1e-12 * np.max(np.abs(ref["x"]))
 
 
-ORDER_STEPS = {"verlet": (0.04, 0.02, 0.01), "yoshida4": (0.1, 0.05, 0.025), "yoshida6": (0.2, 0.1, 0.05),
-               "kahan6": (0.4, 0.2, 0.1), "kahan8": (0.8, 0.4, 0.2), "rk4": (0.1, 0.05, 0.025)}
+ORDER_STEPS = {
+    "verlet": (0.04, 0.02, 0.01),
+    "yoshida4": (0.1, 0.05, 0.025),
+    "yoshida6": (0.2, 0.1, 0.05),
+    "kahan6": (0.4, 0.2, 0.1),
+    "kahan8": (0.8, 0.4, 0.2),
+    "rk4": (0.1, 0.05, 0.025),
+}
 
 
 @pytest.fixture(scope="module")
@@ -163,8 +177,16 @@ def test_t_final_not_multiple_of_dt_shortens_step(small_chain):
 def test_recording_and_callback(small_chain):
     x0 = localized_state(small_chain.N, batch=2)
     seen = []
-    r = simulate(small_chain, x0, 3.0, 0.1, device="cpu", save_every=3, chunks=4,
-                 on_chunk=lambda t, u, v: seen.append((t.copy(), u.shape)))
+    r = simulate(
+        small_chain,
+        x0,
+        3.0,
+        0.1,
+        device="cpu",
+        save_every=3,
+        chunks=4,
+        on_chunk=lambda t, u, v: seen.append((t.copy(), u.shape)),
+    )
     assert r.u.shape == (11, 2, small_chain.N)
     assert np.allclose(r.t, np.arange(11) * 0.3)
     assert np.allclose(np.concatenate([s[0] for s in seen]), r.t)
@@ -182,8 +204,7 @@ def test_tangent_columns_match_reference_and_finite_differences(method, layout):
     dx0 = np.concatenate([eye, eye])
     base = np.repeat([0, 1], ncols)
     nsteps, dt = 40, 0.05
-    tan = propagate_tangent(p, x0, dx0, nsteps, dt, method=method, column_base=base, device="cpu",
-                            layout=layout)
+    tan = propagate_tangent(p, x0, dx0, nsteps, dt, method=method, column_base=base, device="cpu", layout=layout)
     assert tan.layout == layout
     ref = reference.integrate(method, p, x0, dt, nsteps, dx0=dx0.reshape(2, ncols, 4, p.N))
     J = tan.columns.reshape(2, ncols, ncols)

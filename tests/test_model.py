@@ -7,11 +7,18 @@ from warpchain import ChainParams, accelerations, band_edges, dispersion, energy
 from warpchain.model import contact_force, contact_potential, stiffness_and_mass
 
 
-@pytest.mark.parametrize("kwargs, word", [
-    (dict(M=0.0, K=1.0), "M"), (dict(M=-1.0, K=1.0), "M"), (dict(M=1.0, K=-1.0), "K"),
-    (dict(M=1.0, K=1.0, N=0), "N"), (dict(M=1.0, K=1.0, N=2.5), "N"),
-    (dict(M=1.0, K=1.0, boundary="open"), "boundary"), (dict(M=float("nan"), K=1.0), "M"),
-])
+@pytest.mark.parametrize(
+    "kwargs, word",
+    [
+        (dict(M=0.0, K=1.0), "M"),
+        (dict(M=-1.0, K=1.0), "M"),
+        (dict(M=1.0, K=-1.0), "K"),
+        (dict(M=1.0, K=1.0, N=0), "N"),
+        (dict(M=1.0, K=1.0, N=2.5), "N"),
+        (dict(M=1.0, K=1.0, boundary="open"), "boundary"),
+        (dict(M=float("nan"), K=1.0), "M"),
+    ],
+)
 def test_params_validated(kwargs, word):
     with pytest.raises(ValueError, match=word):
         ChainParams(**kwargs)
@@ -34,7 +41,7 @@ def test_band_edges_closed_forms_and_design_numbers():
     q = np.linspace(0, np.pi, 50)
     s = 2 * 160 * (1 - np.cos(q))
     for w in dispersion(q, 30.0, 160.0):
-        assert np.max(np.abs(30 * w ** 4 - (s + 31) * w ** 2 + s)) < 1e-9
+        assert np.max(np.abs(30 * w**4 - (s + 31) * w**2 + s)) < 1e-9
 
 
 def test_linear_modes_mass_orthogonal_and_lowest_optical():

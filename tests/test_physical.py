@@ -18,7 +18,7 @@ def model():
 
 def test_wave_speeds_and_rayleigh_speed():
     c_L, c_T = ph.wave_speeds(70e9, 0.22, 2500.0)
-    assert math.isclose(c_L ** 2 / c_T ** 2, 2 * (1 - 0.22) / (1 - 2 * 0.22), rel_tol=1e-12)
+    assert math.isclose(c_L**2 / c_T**2, 2 * (1 - 0.22) / (1 - 2 * 0.22), rel_tol=1e-12)
     c_R = ph.rayleigh_speed(c_L, c_T)
     # Viktorov's approximation xi_R ~ (0.87 + 1.12 nu) / (1 + nu), good to ~0.5%
     assert math.isclose(c_R / c_T, (0.87 + 1.12 * 0.22) / 1.22, rel_tol=5e-3)
@@ -78,7 +78,8 @@ def test_fit_recovers_known_M_K_from_discrete_curves(M, K):
     # the "c_T line" of these synthetic curves: 8% faster than the long-wave speed
     line = 1.08 * speed
     q = __import__("scipy.optimize", fromlist=["brentq"]).brentq(
-        lambda q: dispersion(q, M, K)[1] * omega0 - line * q / D, 1e-6, math.pi)
+        lambda q: dispersion(q, M, K)[1] * omega0 - line * q / D, 1e-6, math.pi
+    )
     k_star = q / D
     fit = ph.fit_chain(speed, k_star, line * k_star, omega0, D)
     assert math.isclose(fit.M, M, rel_tol=1e-9) and math.isclose(fit.K, K, rel_tol=1e-9)

@@ -19,20 +19,32 @@ def test_numpy_scalars_and_0d_arrays_are_numbers():
     assert wc.ChainParams(np.float64(3.0), np.array(4.0), np.int32(11)).N == 11
 
 
-@pytest.mark.parametrize("kwargs, match", [
-    (dict(max_energy_error=-1), "max_energy_error"),
-    (dict(chunks=-3), "chunks"),
-    (dict(chunks=2.5), "chunks"),
-    (dict(save_every=1000), "larger than the run"),
-    (dict(save_every=0), "save_every"),
-])
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(max_energy_error=-1), "max_energy_error"),
+        (dict(chunks=-3), "chunks"),
+        (dict(chunks=2.5), "chunks"),
+        (dict(save_every=1000), "larger than the run"),
+        (dict(save_every=0), "save_every"),
+    ],
+)
 def test_simulate_options_are_range_checked(kwargs, match):
     with pytest.raises(ValueError, match=match):
         wc.simulate(P, X, 1.0, 0.1, device="cpu", **kwargs)
 
 
-@pytest.mark.parametrize("t_final, dt, match", [(1j, 0.1, "t_final"), (-1.0, 0.1, "t_final"), (1.0, 0.0, "dt"),
-                                                (1.0, np.nan, "dt"), (True, 0.1, "t_final"), ("1", 0.1, "t_final")])
+@pytest.mark.parametrize(
+    "t_final, dt, match",
+    [
+        (1j, 0.1, "t_final"),
+        (-1.0, 0.1, "t_final"),
+        (1.0, 0.0, "dt"),
+        (1.0, np.nan, "dt"),
+        (True, 0.1, "t_final"),
+        ("1", 0.1, "t_final"),
+    ],
+)
 def test_bad_times_are_refused(t_final, dt, match):
     with pytest.raises(ValueError, match=match):
         wc.simulate(P, X, t_final, dt, device="cpu")

@@ -91,8 +91,9 @@ def has_right(j: int, n: int, boundary: int) -> int:
 @wp.func
 def site_neighbours(j: int, n: int, boundary: int) -> wp.vec4i:
     """(left index, right index, has left, has right) of site j: fixed for the whole launch."""
-    return wp.vec4i(left_index(j, n, boundary), right_index(j, n, boundary), has_left(j, boundary),
-                    has_right(j, n, boundary))
+    return wp.vec4i(
+        left_index(j, n, boundary), right_index(j, n, boundary), has_left(j, boundary), has_right(j, n, boundary)
+    )
 
 
 @wp.func
@@ -111,8 +112,9 @@ def store_site(x: wp.array3d(dtype=wp.float64), b: int, j: int, active: bool, st
 
 
 @wp.func
-def site_acceleration(u: wp.float64, v: wp.float64, left: wp.float64, right: wp.float64,
-                      mass: wp.float64, coupling: wp.float64) -> wp.vec2d:
+def site_acceleration(
+    u: wp.float64, v: wp.float64, left: wp.float64, right: wp.float64, mass: wp.float64, coupling: wp.float64
+) -> wp.vec2d:
     """(u'', v'') of one site from its positions and its neighbours' u (same order as the
     thread-per-lattice ``acceleration_at`` and the numpy reference)."""
     force = contact_force(u - v)
@@ -121,8 +123,15 @@ def site_acceleration(u: wp.float64, v: wp.float64, left: wp.float64, right: wp.
 
 
 @wp.func
-def site_tangent_acceleration(du: wp.float64, dv: wp.float64, left: wp.float64, right: wp.float64,
-                              mass: wp.float64, coupling: wp.float64, stiffness: wp.float64) -> wp.vec2d:
+def site_tangent_acceleration(
+    du: wp.float64,
+    dv: wp.float64,
+    left: wp.float64,
+    right: wp.float64,
+    mass: wp.float64,
+    coupling: wp.float64,
+    stiffness: wp.float64,
+) -> wp.vec2d:
     dz = du - dv
     au = -(coupling * ((du - left) + (du - right)) + stiffness * dz) / mass
     return wp.vec2d(au, stiffness * dz)
@@ -227,8 +236,9 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
     halves = 2 * block
 
     @wp.func
-    def exchange(buf: wp.tile[wp.float64, halves], u: wp.float64, parity: int, nbr: wp.vec4i,
-                 boundary: int) -> wp.vec2d:
+    def exchange(
+        buf: wp.tile[wp.float64, halves], u: wp.float64, parity: int, nbr: wp.vec4i, boundary: int
+    ) -> wp.vec2d:
         """Publish u in half ``parity`` of the shared tile; return (left, right) neighbour values."""
         offset = parity * block
         wp.tile_assign(buf, wp.tile(u), offset=(offset,))
@@ -241,11 +251,20 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
 
     def make_splitting(stages: int, record: bool, save: bool):
         @wp.kernel(**options)
-        def splitting(x: wp.array3d(dtype=wp.float64), mass: wp.array(dtype=wp.float64),
-                      coupling: wp.array(dtype=wp.float64), drifts: coefficients, kicks: coefficients,
-                      boundary: int, dt: wp.float64, nsteps: int,
-                      save_every: int, rec: wp.array4d(dtype=wp.float64),
-                      record_stiffness: int, hist: wp.array3d(dtype=wp.float64)):
+        def splitting(
+            x: wp.array3d(dtype=wp.float64),
+            mass: wp.array(dtype=wp.float64),
+            coupling: wp.array(dtype=wp.float64),
+            drifts: coefficients,
+            kicks: coefficients,
+            boundary: int,
+            dt: wp.float64,
+            nsteps: int,
+            save_every: int,
+            rec: wp.array4d(dtype=wp.float64),
+            record_stiffness: int,
+            hist: wp.array3d(dtype=wp.float64),
+        ):
             """``nsteps`` steps of a kick-drift splitting method; block b = lattice, thread j = site.
             hist slot 0 holds f'(z) at the start, slot step*s + k + 1 after drift k of ``step``."""
             b, j = wp.tid()
@@ -294,10 +313,18 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
 
     def make_splitting_tangent(stages: int):
         @wp.kernel(**options)
-        def splitting_tangent(dx: wp.array3d(dtype=wp.float64), column_base: wp.array(dtype=wp.int32),
-                              mass: wp.array(dtype=wp.float64), coupling: wp.array(dtype=wp.float64),
-                              drifts: coefficients, kicks: coefficients,
-                              boundary: int, dt: wp.float64, nsteps: int, hist: wp.array3d(dtype=wp.float64)):
+        def splitting_tangent(
+            dx: wp.array3d(dtype=wp.float64),
+            column_base: wp.array(dtype=wp.int32),
+            mass: wp.array(dtype=wp.float64),
+            coupling: wp.array(dtype=wp.float64),
+            drifts: coefficients,
+            kicks: coefficients,
+            boundary: int,
+            dt: wp.float64,
+            nsteps: int,
+            hist: wp.array3d(dtype=wp.float64),
+        ):
             """Tangent column c (block) of the splitting map along base trajectory column_base[c]."""
             c, j = wp.tid()
             n = dx.shape[2]
@@ -326,8 +353,9 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
                     dv = dv + h * dpv
                     parity = 1 - parity
                     nb = exchange(buf, du, parity, nbr, boundary)
-                    a = site_tangent_acceleration(du, dv, nb[0], nb[1], m, k,
-                                                  hist[step * wp.static(stages) + s + 1, base, jj])
+                    a = site_tangent_acceleration(
+                        du, dv, nb[0], nb[1], m, k, hist[step * wp.static(stages) + s + 1, base, jj]
+                    )
                     h = kicks[s + 1] * dt
                     dpu = dpu + h * a[0]
                     dpv = dpv + h * a[1]
@@ -336,10 +364,18 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
         return splitting_tangent
 
     @wp.kernel(**options)
-    def rk4(x: wp.array3d(dtype=wp.float64), mass: wp.array(dtype=wp.float64),
-            coupling: wp.array(dtype=wp.float64), boundary: int, dt: wp.float64, nsteps: int,
-            save_every: int, rec: wp.array4d(dtype=wp.float64),
-            record_stiffness: int, hist: wp.array3d(dtype=wp.float64)):
+    def rk4(
+        x: wp.array3d(dtype=wp.float64),
+        mass: wp.array(dtype=wp.float64),
+        coupling: wp.array(dtype=wp.float64),
+        boundary: int,
+        dt: wp.float64,
+        nsteps: int,
+        save_every: int,
+        rec: wp.array4d(dtype=wp.float64),
+        record_stiffness: int,
+        hist: wp.array3d(dtype=wp.float64),
+    ):
         """``nsteps`` classical RK4 steps; block b = lattice; hist slot 4 step + stage."""
         b, j = wp.tid()
         n = x.shape[2]
@@ -372,9 +408,16 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
         store_site(x, b, j, active, state)
 
     @wp.kernel(**options)
-    def rk4_tangent(dx: wp.array3d(dtype=wp.float64), column_base: wp.array(dtype=wp.int32),
-                    mass: wp.array(dtype=wp.float64), coupling: wp.array(dtype=wp.float64),
-                    boundary: int, dt: wp.float64, nsteps: int, hist: wp.array3d(dtype=wp.float64)):
+    def rk4_tangent(
+        dx: wp.array3d(dtype=wp.float64),
+        column_base: wp.array(dtype=wp.int32),
+        mass: wp.array(dtype=wp.float64),
+        coupling: wp.array(dtype=wp.float64),
+        boundary: int,
+        dt: wp.float64,
+        nsteps: int,
+        hist: wp.array3d(dtype=wp.float64),
+    ):
         """Tangent column c (block) of the RK4 map along base trajectory column_base[c]."""
         c, j = wp.tid()
         n = dx.shape[2]
@@ -401,5 +444,11 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             state = state + (dt / SIX) * total
         store_site(dx, c, j, active, state)
 
-    return BlockKernels({"splitting": make_splitting, "splitting_tangent": make_splitting_tangent,
-                         "rk4": lambda: rk4, "rk4_tangent": lambda: rk4_tangent})
+    return BlockKernels(
+        {
+            "splitting": make_splitting,
+            "splitting_tangent": make_splitting_tangent,
+            "rk4": lambda: rk4,
+            "rk4_tangent": lambda: rk4_tangent,
+        }
+    )

@@ -20,8 +20,17 @@ from typing import Callable
 import numpy as np
 
 from .integrators import Method, get_method, steps_for
-from .model import (BOUNDARY_CODES, ChainParams, as_batch, band_edges, energy, min_contact, per_lattice_parameters,
-                    real_number, whole_number)
+from .model import (
+    BOUNDARY_CODES,
+    ChainParams,
+    as_batch,
+    band_edges,
+    energy,
+    min_contact,
+    per_lattice_parameters,
+    real_number,
+    whole_number,
+)
 
 
 class IntegrationError(RuntimeError):
@@ -248,7 +257,9 @@ def resolve_layout(layout: str, device: str, n_sites: int) -> str:
     if layout == "auto":
         return "block" if device != "cpu" and block_kernels.supports(n_sites) else "thread"
     if layout == "block" and not block_kernels.supports(n_sites):
-        raise ValueError(f"layout 'block' needs N <= {block_kernels.MAX_BLOCK} (one site per thread), got N = {n_sites}")
+        raise ValueError(
+            f"layout 'block' needs N <= {block_kernels.MAX_BLOCK} (one site per thread), got N = {n_sites}"
+        )
     return layout
 
 
@@ -260,8 +271,17 @@ def _relative_energy_error(E, E0, N):
 class _Runner:
     """Device buffers and launches for one batch and one method."""
 
-    def __init__(self, method: Method, params: ChainParams, x0: np.ndarray, M, K, device: str,
-                 record_stiffness_steps: int = 0, layout: str = "auto"):
+    def __init__(
+        self,
+        method: Method,
+        params: ChainParams,
+        x0: np.ndarray,
+        M,
+        K,
+        device: str,
+        record_stiffness_steps: int = 0,
+        layout: str = "auto",
+    ):
         wp = _warp()
         from . import block_kernels, kernels
 
@@ -273,8 +293,10 @@ class _Runner:
             self.bk = block_kernels.block_kernels(self.block, block_kernels.min_blocks_per_sm(method.stages))
             if method.family == "splitting":
                 self.block_tangent = self.bk.splitting_tangent(method.stages)
-                self.block_coefficients = [block_kernels.pack_coefficients(method.drifts),
-                                           block_kernels.pack_coefficients(method.kicks)]
+                self.block_coefficients = [
+                    block_kernels.pack_coefficients(method.drifts),
+                    block_kernels.pack_coefficients(method.kicks),
+                ]
             else:
                 self.block_tangent = self.bk.rk4_tangent
                 self.block_coefficients = []
@@ -298,8 +320,9 @@ class _Runner:
             self.y, self.kbuf, self.total = (wp.zeros(shape, dtype=f64, device=device) for _ in range(3))
         self.no_record = wp.zeros((1, 1, 2, 1), dtype=f64, device=device)
         if record_stiffness_steps:
-            self.hist = wp.zeros((self.history_length(record_stiffness_steps), self.batch, self.N), dtype=f64,
-                                 device=device)
+            self.hist = wp.zeros(
+                (self.history_length(record_stiffness_steps), self.batch, self.N), dtype=f64, device=device
+            )
         else:
             self.hist = wp.zeros((1, 1, 1), dtype=f64, device=device)
 
@@ -320,8 +343,10 @@ class _Runner:
         records the contact stiffness (tangent base) runs as one slice, since its history is shared."""
         wp, k = self.wp, self.k
         slices = [(0, self.batch)] if record_stiffness or self.serial else _slices(self.batch, self.device)
-        recs = [wp.zeros((n_rec, hi - lo, 2, self.N), dtype=wp.float64, device=self.device) if n_rec else self.no_record
-                for lo, hi in slices]
+        recs = [
+            wp.zeros((n_rec, hi - lo, 2, self.N), dtype=wp.float64, device=self.device) if n_rec else self.no_record
+            for lo, hi in slices
+        ]
         tail = [self.boundary, wp.float64(dt), int(nsteps), int(save_every) if n_rec else 0]
 
         def task(lo, hi, rec):
@@ -332,14 +357,27 @@ class _Runner:
                     kernel = self.bk.splitting(self.method.stages, record=record_stiffness, save=bool(n_rec))
                 else:
                     kernel = self.bk.rk4
-                wp.launch(kernel, dim=(hi - lo, self.block), block_dim=self.block, device=self.device,
-                          inputs=[self.x[lo:hi], *common, *self.block_coefficients, *end])
+                wp.launch(
+                    kernel,
+                    dim=(hi - lo, self.block),
+                    block_dim=self.block,
+                    device=self.device,
+                    inputs=[self.x[lo:hi], *common, *self.block_coefficients, *end],
+                )
             elif self.method.family == "splitting":
-                wp.launch(k.splitting_kernel, dim=hi - lo, device=self.device,
-                          inputs=[self.x[lo:hi], self.acc[lo:hi], *common, self.drifts, self.kicks, *end])
+                wp.launch(
+                    k.splitting_kernel,
+                    dim=hi - lo,
+                    device=self.device,
+                    inputs=[self.x[lo:hi], self.acc[lo:hi], *common, self.drifts, self.kicks, *end],
+                )
             else:
-                wp.launch(k.rk4_kernel, dim=hi - lo, device=self.device,
-                          inputs=[self.x[lo:hi], self.y[lo:hi], self.kbuf[lo:hi], self.total[lo:hi], *common, *end])
+                wp.launch(
+                    k.rk4_kernel,
+                    dim=hi - lo,
+                    device=self.device,
+                    inputs=[self.x[lo:hi], self.y[lo:hi], self.kbuf[lo:hi], self.total[lo:hi], *common, *end],
+                )
 
         _in_parallel([lambda lo=lo, hi=hi, rec=rec: task(lo, hi, rec) for (lo, hi), rec in zip(slices, recs)])
         if not n_rec:
@@ -356,19 +394,61 @@ class _Runner:
         def task(lo, hi):
             n = hi - lo
             if self.layout == "block":
-                wp.launch(self.block_tangent, dim=(n, self.block), block_dim=self.block, device=self.device,
-                          inputs=[dx[lo:hi], column_base[lo:hi], self.mass, self.coupling, *self.block_coefficients,
-                                  self.boundary, f64(dt), int(nsteps), self.hist])
+                wp.launch(
+                    self.block_tangent,
+                    dim=(n, self.block),
+                    block_dim=self.block,
+                    device=self.device,
+                    inputs=[
+                        dx[lo:hi],
+                        column_base[lo:hi],
+                        self.mass,
+                        self.coupling,
+                        *self.block_coefficients,
+                        self.boundary,
+                        f64(dt),
+                        int(nsteps),
+                        self.hist,
+                    ],
+                )
             elif self.method.family == "splitting":
                 dacc = wp.zeros((n, 2, self.N), dtype=f64, device=self.device)
-                wp.launch(k.splitting_tangent_kernel, dim=n, device=self.device,
-                          inputs=[dx[lo:hi], dacc, column_base[lo:hi], self.mass, self.coupling, self.drifts,
-                                  self.kicks, self.boundary, f64(dt), int(nsteps), self.hist])
+                wp.launch(
+                    k.splitting_tangent_kernel,
+                    dim=n,
+                    device=self.device,
+                    inputs=[
+                        dx[lo:hi],
+                        dacc,
+                        column_base[lo:hi],
+                        self.mass,
+                        self.coupling,
+                        self.drifts,
+                        self.kicks,
+                        self.boundary,
+                        f64(dt),
+                        int(nsteps),
+                        self.hist,
+                    ],
+                )
             else:
                 scratch = [wp.zeros((n, 4, self.N), dtype=f64, device=self.device) for _ in range(3)]
-                wp.launch(k.rk4_tangent_kernel, dim=n, device=self.device,
-                          inputs=[dx[lo:hi], *scratch, column_base[lo:hi], self.mass, self.coupling, self.boundary,
-                                  f64(dt), int(nsteps), self.hist])
+                wp.launch(
+                    k.rk4_tangent_kernel,
+                    dim=n,
+                    device=self.device,
+                    inputs=[
+                        dx[lo:hi],
+                        *scratch,
+                        column_base[lo:hi],
+                        self.mass,
+                        self.coupling,
+                        self.boundary,
+                        f64(dt),
+                        int(nsteps),
+                        self.hist,
+                    ],
+                )
 
         slices = [(0, ncols)] if self.serial else _slices(ncols, self.device)
         _in_parallel([lambda lo=lo, hi=hi: task(lo, hi) for lo, hi in slices])
@@ -377,11 +457,24 @@ class _Runner:
 # ----------------------------------------------------------------------------- public API
 
 
-def simulate(params: ChainParams, x0, t_final: float, dt: float, *, method: str = "verlet",
-             device: str | None = None, save_every: int | None = None, progress: bool = False,
-             M=None, K=None, max_energy_error: float | None = 0.05, allow_unstable_step: bool = False,
-             chunks: int | None = None, layout: str = "auto",
-             on_chunk: Callable[[np.ndarray, np.ndarray, np.ndarray], None] | None = None) -> SimulationResult:
+def simulate(
+    params: ChainParams,
+    x0,
+    t_final: float,
+    dt: float,
+    *,
+    method: str = "verlet",
+    device: str | None = None,
+    save_every: int | None = None,
+    progress: bool = False,
+    M=None,
+    K=None,
+    max_energy_error: float | None = 0.05,
+    allow_unstable_step: bool = False,
+    chunks: int | None = None,
+    layout: str = "auto",
+    on_chunk: Callable[[np.ndarray, np.ndarray, np.ndarray], None] | None = None,
+) -> SimulationResult:
     """Integrate a batch of lattices with a float64 Warp kernel.
 
     Args:
@@ -428,8 +521,10 @@ def simulate(params: ChainParams, x0, t_final: float, dt: float, *, method: str 
     device = resolve_device(device)
     nsteps, dt_used = steps_for(t_final, dt)
     if save_every is not None and save_every > max(nsteps, 1):
-        raise ValueError(f"save_every = {save_every} is larger than the run ({nsteps} steps of {dt_used:.6g}): "
-                         f"no frame after t = 0 would be saved; use save_every <= {max(nsteps, 1)}")
+        raise ValueError(
+            f"save_every = {save_every} is larger than the run ({nsteps} steps of {dt_used:.6g}): "
+            f"no frame after t = 0 would be saved; use save_every <= {max(nsteps, 1)}"
+        )
 
     runner = _Runner(meth, params, x0, Mb, Kb, device, layout=layout)
     E0 = energy(params, x0, Mb, Kb)
@@ -478,7 +573,12 @@ def simulate(params: ChainParams, x0, t_final: float, dt: float, *, method: str 
                     f"dt = {dt_used:.6g} (linear stability limit {limit:.6g}); failing lattices: {failed[:20]}"
                     + (" ..." if len(failed) > 20 else "")
                     + f"; largest relative energy error {np.nanmax(err):.3g}. Reduce dt or choose another method.",
-                    method=meth.name, dt=dt_used, stability_limit=limit, failed=failed, t=t_now)
+                    method=meth.name,
+                    dt=dt_used,
+                    stability_limit=limit,
+                    failed=failed,
+                    t=t_now,
+                )
             contact = np.minimum(contact, min_contact(x))
             if n_rec:
                 ts = (np.arange(1, n_rec + 1) * save_every + (done - steps)) * dt_used
@@ -500,11 +600,25 @@ def simulate(params: ChainParams, x0, t_final: float, dt: float, *, method: str 
     else:
         t_arr, u_arr, v_arr = np.array([0.0, nsteps * dt_used]), None, None
     return SimulationResult(
-        x=x, t=t_arr, u=u_arr, v=v_arr, energy_initial=E0, energy_final=E1,
-        energy_error=_relative_energy_error(E1, E0, params.N), max_energy_error=max_err, min_contact=contact,
-        energy_t=np.array(trace_t), energy_trace=np.stack(trace_E),
-        method=meth.name, dt=dt_used, nsteps=nsteps, t_final=nsteps * dt_used, device=device,
-        wall_seconds=time.perf_counter() - start, layout=runner.layout)
+        x=x,
+        t=t_arr,
+        u=u_arr,
+        v=v_arr,
+        energy_initial=E0,
+        energy_final=E1,
+        energy_error=_relative_energy_error(E1, E0, params.N),
+        max_energy_error=max_err,
+        min_contact=contact,
+        energy_t=np.array(trace_t),
+        energy_trace=np.stack(trace_E),
+        method=meth.name,
+        dt=dt_used,
+        nsteps=nsteps,
+        t_final=nsteps * dt_used,
+        device=device,
+        wall_seconds=time.perf_counter() - start,
+        layout=runner.layout,
+    )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -533,9 +647,21 @@ class TangentResult:
     kernel_seconds: float = float("nan")
 
 
-def propagate_tangent(params: ChainParams, x0, dx0, nsteps: int, dt: float, *, method: str = "verlet",
-                      column_base=None, device: str | None = None, M=None, K=None,
-                      allow_unstable_step: bool = False, layout: str = "auto") -> TangentResult:
+def propagate_tangent(
+    params: ChainParams,
+    x0,
+    dx0,
+    nsteps: int,
+    dt: float,
+    *,
+    method: str = "verlet",
+    column_base=None,
+    device: str | None = None,
+    M=None,
+    K=None,
+    allow_unstable_step: bool = False,
+    layout: str = "auto",
+) -> TangentResult:
     """End states and Jacobian columns of ``nsteps`` steps of the discrete map.
 
     The base trajectories run once, recording the contact stiffness at every force evaluation;
@@ -562,8 +688,7 @@ def propagate_tangent(params: ChainParams, x0, dx0, nsteps: int, dt: float, *, m
     if base.shape != (ncols,) or (base < 0).any() or (base >= n_base).any():
         raise ValueError(f"column_base must have shape ({ncols},) with entries in [0, {n_base})")
     device = resolve_device(device)
-    runner = _Runner(meth, params, x0, Mb, Kb, device, record_stiffness_steps=max(int(nsteps), 1),
-                     layout=layout)
+    runner = _Runner(meth, params, x0, Mb, Kb, device, record_stiffness_steps=max(int(nsteps), 1), layout=layout)
     wp = runner.wp
     dx = wp.array(dx0, dtype=wp.float64, device=device)
     base_dev = wp.array(base, dtype=wp.int32, device=device)
@@ -580,15 +705,39 @@ def propagate_tangent(params: ChainParams, x0, dx0, nsteps: int, dt: float, *, m
         raise IntegrationError(
             f"tangent propagation produced non-finite values with method '{meth.name}', dt = {dt:g} "
             f"(linear stability limit {stability_limit(meth, params, Mb, Kb):.6g})",
-            method=meth.name, dt=dt, stability_limit=stability_limit(meth, params, Mb, Kb),
-            failed=np.flatnonzero(~np.isfinite(x).all(axis=(1, 2))).tolist(), t=nsteps * dt)
-    return TangentResult(x=x, columns=columns, column_base=base, method=meth.name, dt=float(dt), nsteps=int(nsteps),
-                         device=device, wall_seconds=time.perf_counter() - start, layout=runner.layout,
-                         kernel_seconds=kernel_seconds)
+            method=meth.name,
+            dt=dt,
+            stability_limit=stability_limit(meth, params, Mb, Kb),
+            failed=np.flatnonzero(~np.isfinite(x).all(axis=(1, 2))).tolist(),
+            t=nsteps * dt,
+        )
+    return TangentResult(
+        x=x,
+        columns=columns,
+        column_base=base,
+        method=meth.name,
+        dt=float(dt),
+        nsteps=int(nsteps),
+        device=device,
+        wall_seconds=time.perf_counter() - start,
+        layout=runner.layout,
+        kernel_seconds=kernel_seconds,
+    )
 
 
-def time_steps(params: ChainParams, x0, nsteps: int, dt: float, *, method: str = "verlet",
-               device: str | None = None, layout: str = "auto", repeats: int = 3, M=None, K=None) -> float:
+def time_steps(
+    params: ChainParams,
+    x0,
+    nsteps: int,
+    dt: float,
+    *,
+    method: str = "verlet",
+    device: str | None = None,
+    layout: str = "auto",
+    repeats: int = 3,
+    M=None,
+    K=None,
+) -> float:
     """Best of ``repeats`` timings (seconds) of one launch of ``nsteps`` steps on a batch already on
     the device: kernel time alone (the device is synchronised before and after; compilation, set-up
     and transfers are excluded). This is what the throughput benchmark divides by.

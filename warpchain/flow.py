@@ -88,7 +88,7 @@ class Linearization:
         velocities (``"velocities"``: u' then v', 2N) or of the whole state (``"all"``, 4N)."""
         N = self.x0.shape[1]
         eye = np.eye(4 * N).reshape(4 * N, 4, N)
-        sel = {"positions": eye[: 2 * N], "velocities": eye[2 * N:], "all": eye}[which]
+        sel = {"positions": eye[: 2 * N], "velocities": eye[2 * N :], "all": eye}[which]
         if which == "all" and "positions" in self._cache and "velocities" in self._cache:
             return np.hstack([self._cache["positions"], self._cache["velocities"]])
         return self.columns(sel, key=which)
@@ -136,8 +136,13 @@ class Flow:
         return dataclasses.replace(self, **changes)
 
     def describe(self) -> dict:
-        return {"flow": type(self).__name__, "method": self.method, "steps_per_period": self.steps_per_period,
-                "device": self.device, "layout": self.layout}
+        return {
+            "flow": type(self).__name__,
+            "method": self.method,
+            "steps_per_period": self.steps_per_period,
+            "device": self.device,
+            "layout": self.layout,
+        }
 
     # ------------------------------------------------------------------ Warp backend
 
@@ -153,8 +158,16 @@ class Flow:
         key = (params.N, params.boundary, batch, int(nsteps) if record else 0, device)
         slot = self._pool.setdefault(key, {"runners": [], "turn": 0})
         if len(slot["runners"]) < 2:
-            runner = _Runner(get_method(self.method), params, x0, Mb, Kb, device,
-                             record_stiffness_steps=max(int(nsteps), 1) if record else 0, layout=self.layout)
+            runner = _Runner(
+                get_method(self.method),
+                params,
+                x0,
+                Mb,
+                Kb,
+                device,
+                record_stiffness_steps=max(int(nsteps), 1) if record else 0,
+                layout=self.layout,
+            )
             runner.generation = 0
             slot["runners"].append(runner)
         else:
@@ -200,8 +213,13 @@ class Flow:
                 limit = stability_limit(self.method, params)
                 raise IntegrationError(
                     f"tangent propagation produced non-finite values with method '{self.method}', dt = {dt:g} "
-                    f"(linear stability limit {limit:.6g})", method=self.method, dt=dt, stability_limit=limit,
-                    failed=[0], t=nsteps * dt)
+                    f"(linear stability limit {limit:.6g})",
+                    method=self.method,
+                    dt=dt,
+                    stability_limit=limit,
+                    failed=[0],
+                    t=nsteps * dt,
+                )
             return out
 
         return Linearization(x0[0], x_end, contact, nsteps, dt, columns)

@@ -59,6 +59,7 @@ class Method:
         """The one-step map of x'' = -x with step h, as a 2x2 matrix on (x, x')."""
         if self.family == "splitting":
             mat = np.eye(2)
+
             def kick(d):
                 return np.array([[1.0, 0.0], [-d * h, 1.0]])
 
@@ -132,11 +133,22 @@ def _symmetric(half, middle):
 # Kahan & Li (1997), Math. Comp. 66, 1089: optimised symmetric compositions of a 2nd-order
 # method, s9odr6a (9 stages, order 6) and s15odr8 (15 stages, order 8); far smaller error
 # constants than Yoshida's per force evaluation.
-_KL6 = _symmetric((0.39216144400731413928, 0.33259913678935943860, -0.70624617255763935981,
-                   0.082213596293550800230), 0.79854399093482996340)
-_KL8 = _symmetric((0.74167036435061295345, -0.40910082580003159400, 0.19075471029623837995,
-                   -0.57386247111608226666, 0.29906418130365592384, 0.33462491824529818378,
-                   0.31529309239676659663), -0.79688793935291635402)
+_KL6 = _symmetric(
+    (0.39216144400731413928, 0.33259913678935943860, -0.70624617255763935981, 0.082213596293550800230),
+    0.79854399093482996340,
+)
+_KL8 = _symmetric(
+    (
+        0.74167036435061295345,
+        -0.40910082580003159400,
+        0.19075471029623837995,
+        -0.57386247111608226666,
+        0.29906418130365592384,
+        0.33462491824529818378,
+        0.31529309239676659663,
+    ),
+    -0.79688793935291635402,
+)
 
 
 def _splitting(name, order, weights, description):

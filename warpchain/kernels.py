@@ -75,8 +75,9 @@ def laplacian_at(x: wp.array3d(dtype=wp.float64), b: int, comp: int, j: int, n: 
 
 
 @wp.func
-def acceleration_at(x: wp.array3d(dtype=wp.float64), b: int, j: int, n: int, boundary: int,
-                    mass: wp.float64, coupling: wp.float64) -> wp.vec2d:
+def acceleration_at(
+    x: wp.array3d(dtype=wp.float64), b: int, j: int, n: int, boundary: int, mass: wp.float64, coupling: wp.float64
+) -> wp.vec2d:
     """(u_j'', v_j'') of lattice b from the positions in rows 0 and 1 of x."""
     force = contact_force(x[b, 0, j] - x[b, 1, j])
     au = -(coupling * laplacian_at(x, b, 0, j, n, boundary) + force) / mass
@@ -84,8 +85,16 @@ def acceleration_at(x: wp.array3d(dtype=wp.float64), b: int, j: int, n: int, bou
 
 
 @wp.func
-def tangent_acceleration_at(dx: wp.array3d(dtype=wp.float64), c: int, j: int, n: int, boundary: int,
-                            mass: wp.float64, coupling: wp.float64, stiffness: wp.float64) -> wp.vec2d:
+def tangent_acceleration_at(
+    dx: wp.array3d(dtype=wp.float64),
+    c: int,
+    j: int,
+    n: int,
+    boundary: int,
+    mass: wp.float64,
+    coupling: wp.float64,
+    stiffness: wp.float64,
+) -> wp.vec2d:
     """Derivative of (u_j'', v_j'') along the tangent column c (positions in rows 0, 1 of dx)."""
     dz = dx[c, 0, j] - dx[c, 1, j]
     au = -(coupling * laplacian_at(dx, c, 0, j, n, boundary) + stiffness * dz) / mass
@@ -93,9 +102,18 @@ def tangent_acceleration_at(dx: wp.array3d(dtype=wp.float64), c: int, j: int, n:
 
 
 @wp.func
-def compute_accelerations(x: wp.array3d(dtype=wp.float64), acc: wp.array3d(dtype=wp.float64), b: int,
-                          n: int, boundary: int, mass: wp.float64, coupling: wp.float64,
-                          hist: wp.array3d(dtype=wp.float64), record: int, slot: int):
+def compute_accelerations(
+    x: wp.array3d(dtype=wp.float64),
+    acc: wp.array3d(dtype=wp.float64),
+    b: int,
+    n: int,
+    boundary: int,
+    mass: wp.float64,
+    coupling: wp.float64,
+    hist: wp.array3d(dtype=wp.float64),
+    record: int,
+    slot: int,
+):
     """acc[b] = a(x[b]); when ``record`` is set, also hist[slot, b, :] = f'(z)."""
     for j in range(n):
         a = acceleration_at(x, b, j, n, boundary, mass, coupling)
@@ -106,9 +124,18 @@ def compute_accelerations(x: wp.array3d(dtype=wp.float64), acc: wp.array3d(dtype
 
 
 @wp.func
-def compute_tangent_accelerations(dx: wp.array3d(dtype=wp.float64), dacc: wp.array3d(dtype=wp.float64),
-                                  c: int, base: int, n: int, boundary: int, mass: wp.float64,
-                                  coupling: wp.float64, hist: wp.array3d(dtype=wp.float64), slot: int):
+def compute_tangent_accelerations(
+    dx: wp.array3d(dtype=wp.float64),
+    dacc: wp.array3d(dtype=wp.float64),
+    c: int,
+    base: int,
+    n: int,
+    boundary: int,
+    mass: wp.float64,
+    coupling: wp.float64,
+    hist: wp.array3d(dtype=wp.float64),
+    slot: int,
+):
     for j in range(n):
         a = tangent_acceleration_at(dx, c, j, n, boundary, mass, coupling, hist[slot, base, j])
         dacc[c, 0, j] = a[0]
@@ -130,8 +157,9 @@ def drift(x: wp.array3d(dtype=wp.float64), b: int, n: int, h: wp.float64):
 
 
 @wp.func
-def save_positions(x: wp.array3d(dtype=wp.float64), rec: wp.array4d(dtype=wp.float64), b: int, n: int,
-                   step: int, save_every: int):
+def save_positions(
+    x: wp.array3d(dtype=wp.float64), rec: wp.array4d(dtype=wp.float64), b: int, n: int, step: int, save_every: int
+):
     if save_every > 0:
         if (step + 1) % save_every == 0:
             r = (step + 1) / save_every - 1
@@ -144,12 +172,21 @@ def save_positions(x: wp.array3d(dtype=wp.float64), rec: wp.array4d(dtype=wp.flo
 
 
 @wp.kernel
-def splitting_kernel(x: wp.array3d(dtype=wp.float64), acc: wp.array3d(dtype=wp.float64),
-                     mass: wp.array(dtype=wp.float64), coupling: wp.array(dtype=wp.float64),
-                     drifts: wp.array(dtype=wp.float64), kicks: wp.array(dtype=wp.float64),
-                     boundary: int, dt: wp.float64, nsteps: int,
-                     save_every: int, rec: wp.array4d(dtype=wp.float64),
-                     record_stiffness: int, hist: wp.array3d(dtype=wp.float64)):
+def splitting_kernel(
+    x: wp.array3d(dtype=wp.float64),
+    acc: wp.array3d(dtype=wp.float64),
+    mass: wp.array(dtype=wp.float64),
+    coupling: wp.array(dtype=wp.float64),
+    drifts: wp.array(dtype=wp.float64),
+    kicks: wp.array(dtype=wp.float64),
+    boundary: int,
+    dt: wp.float64,
+    nsteps: int,
+    save_every: int,
+    rec: wp.array4d(dtype=wp.float64),
+    record_stiffness: int,
+    hist: wp.array3d(dtype=wp.float64),
+):
     """``nsteps`` steps of a kick-drift splitting method for lattice b = tid.
 
     hist slot 0 holds f'(z) at the start, slot step*s + k + 1 after drift k of ``step``.
@@ -170,12 +207,19 @@ def splitting_kernel(x: wp.array3d(dtype=wp.float64), acc: wp.array3d(dtype=wp.f
 
 
 @wp.kernel
-def splitting_tangent_kernel(dx: wp.array3d(dtype=wp.float64), dacc: wp.array3d(dtype=wp.float64),
-                             column_base: wp.array(dtype=wp.int32),
-                             mass: wp.array(dtype=wp.float64), coupling: wp.array(dtype=wp.float64),
-                             drifts: wp.array(dtype=wp.float64), kicks: wp.array(dtype=wp.float64),
-                             boundary: int, dt: wp.float64, nsteps: int,
-                             hist: wp.array3d(dtype=wp.float64)):
+def splitting_tangent_kernel(
+    dx: wp.array3d(dtype=wp.float64),
+    dacc: wp.array3d(dtype=wp.float64),
+    column_base: wp.array(dtype=wp.int32),
+    mass: wp.array(dtype=wp.float64),
+    coupling: wp.array(dtype=wp.float64),
+    drifts: wp.array(dtype=wp.float64),
+    kicks: wp.array(dtype=wp.float64),
+    boundary: int,
+    dt: wp.float64,
+    nsteps: int,
+    hist: wp.array3d(dtype=wp.float64),
+):
     """Tangent column c = tid of the splitting step, along base trajectory column_base[c]."""
     c = wp.tid()
     base = column_base[c]
@@ -196,9 +240,18 @@ def splitting_tangent_kernel(dx: wp.array3d(dtype=wp.float64), dacc: wp.array3d(
 
 
 @wp.func
-def rk4_stage_derivative(y: wp.array3d(dtype=wp.float64), out: wp.array3d(dtype=wp.float64), b: int, n: int,
-                         boundary: int, mass: wp.float64, coupling: wp.float64,
-                         record: int, hist: wp.array3d(dtype=wp.float64), slot: int):
+def rk4_stage_derivative(
+    y: wp.array3d(dtype=wp.float64),
+    out: wp.array3d(dtype=wp.float64),
+    b: int,
+    n: int,
+    boundary: int,
+    mass: wp.float64,
+    coupling: wp.float64,
+    record: int,
+    hist: wp.array3d(dtype=wp.float64),
+    slot: int,
+):
     """out[b] = F(y[b]) = (y', a(y)); records f'(z) of the stage when asked."""
     for j in range(n):
         a = acceleration_at(y, b, j, n, boundary, mass, coupling)
@@ -211,9 +264,18 @@ def rk4_stage_derivative(y: wp.array3d(dtype=wp.float64), out: wp.array3d(dtype=
 
 
 @wp.func
-def rk4_tangent_stage_derivative(dy: wp.array3d(dtype=wp.float64), out: wp.array3d(dtype=wp.float64), c: int,
-                                 base: int, n: int, boundary: int, mass: wp.float64, coupling: wp.float64,
-                                 hist: wp.array3d(dtype=wp.float64), slot: int):
+def rk4_tangent_stage_derivative(
+    dy: wp.array3d(dtype=wp.float64),
+    out: wp.array3d(dtype=wp.float64),
+    c: int,
+    base: int,
+    n: int,
+    boundary: int,
+    mass: wp.float64,
+    coupling: wp.float64,
+    hist: wp.array3d(dtype=wp.float64),
+    slot: int,
+):
     for j in range(n):
         a = tangent_acceleration_at(dy, c, j, n, boundary, mass, coupling, hist[slot, base, j])
         out[c, 0, j] = dy[c, 2, j]
@@ -223,9 +285,16 @@ def rk4_tangent_stage_derivative(dy: wp.array3d(dtype=wp.float64), out: wp.array
 
 
 @wp.func
-def rk4_advance(x: wp.array3d(dtype=wp.float64), y: wp.array3d(dtype=wp.float64),
-                k: wp.array3d(dtype=wp.float64), total: wp.array3d(dtype=wp.float64), b: int, n: int,
-                stage: int, dt: wp.float64):
+def rk4_advance(
+    x: wp.array3d(dtype=wp.float64),
+    y: wp.array3d(dtype=wp.float64),
+    k: wp.array3d(dtype=wp.float64),
+    total: wp.array3d(dtype=wp.float64),
+    b: int,
+    n: int,
+    stage: int,
+    dt: wp.float64,
+):
     """After stage ``stage`` (0..3) has put its derivative in k: accumulate it into total and,
     for stages 0..2, form the next stage state y = x + a dt k."""
     weight = TWO
@@ -245,20 +314,28 @@ def rk4_advance(x: wp.array3d(dtype=wp.float64), y: wp.array3d(dtype=wp.float64)
 
 
 @wp.func
-def rk4_finish(x: wp.array3d(dtype=wp.float64), total: wp.array3d(dtype=wp.float64), b: int, n: int,
-               dt: wp.float64):
+def rk4_finish(x: wp.array3d(dtype=wp.float64), total: wp.array3d(dtype=wp.float64), b: int, n: int, dt: wp.float64):
     for i in range(4):
         for j in range(n):
             x[b, i, j] = x[b, i, j] + (dt / SIX) * total[b, i, j]
 
 
 @wp.kernel
-def rk4_kernel(x: wp.array3d(dtype=wp.float64), y: wp.array3d(dtype=wp.float64),
-               k: wp.array3d(dtype=wp.float64), total: wp.array3d(dtype=wp.float64),
-               mass: wp.array(dtype=wp.float64), coupling: wp.array(dtype=wp.float64),
-               boundary: int, dt: wp.float64, nsteps: int,
-               save_every: int, rec: wp.array4d(dtype=wp.float64),
-               record_stiffness: int, hist: wp.array3d(dtype=wp.float64)):
+def rk4_kernel(
+    x: wp.array3d(dtype=wp.float64),
+    y: wp.array3d(dtype=wp.float64),
+    k: wp.array3d(dtype=wp.float64),
+    total: wp.array3d(dtype=wp.float64),
+    mass: wp.array(dtype=wp.float64),
+    coupling: wp.array(dtype=wp.float64),
+    boundary: int,
+    dt: wp.float64,
+    nsteps: int,
+    save_every: int,
+    rec: wp.array4d(dtype=wp.float64),
+    record_stiffness: int,
+    hist: wp.array3d(dtype=wp.float64),
+):
     """``nsteps`` classical RK4 steps for lattice b = tid; hist slot 4 step + stage."""
     b = wp.tid()
     n = x.shape[2]
@@ -275,11 +352,19 @@ def rk4_kernel(x: wp.array3d(dtype=wp.float64), y: wp.array3d(dtype=wp.float64),
 
 
 @wp.kernel
-def rk4_tangent_kernel(dx: wp.array3d(dtype=wp.float64), dy: wp.array3d(dtype=wp.float64),
-                       dk: wp.array3d(dtype=wp.float64), dtotal: wp.array3d(dtype=wp.float64),
-                       column_base: wp.array(dtype=wp.int32),
-                       mass: wp.array(dtype=wp.float64), coupling: wp.array(dtype=wp.float64),
-                       boundary: int, dt: wp.float64, nsteps: int, hist: wp.array3d(dtype=wp.float64)):
+def rk4_tangent_kernel(
+    dx: wp.array3d(dtype=wp.float64),
+    dy: wp.array3d(dtype=wp.float64),
+    dk: wp.array3d(dtype=wp.float64),
+    dtotal: wp.array3d(dtype=wp.float64),
+    column_base: wp.array(dtype=wp.int32),
+    mass: wp.array(dtype=wp.float64),
+    coupling: wp.array(dtype=wp.float64),
+    boundary: int,
+    dt: wp.float64,
+    nsteps: int,
+    hist: wp.array3d(dtype=wp.float64),
+):
     """Tangent column c = tid of the RK4 step along base trajectory column_base[c]."""
     c = wp.tid()
     base = column_base[c]

@@ -50,9 +50,7 @@ class ChainParams:
             raise ValueError(f"ChainParams.K must be >= 0 (coupling), got {self.K}")
         object.__setattr__(self, "N", whole_number("ChainParams.N", self.N, minimum=1))
         if self.boundary not in BOUNDARIES:
-            raise ValueError(
-                f"ChainParams.boundary must be one of {BOUNDARIES}, got {self.boundary!r}"
-            )
+            raise ValueError(f"ChainParams.boundary must be one of {BOUNDARIES}, got {self.boundary!r}")
 
     @property
     def omega0(self) -> float:
@@ -164,14 +162,13 @@ def as_batch(x, N: int | None = None, name: str = "x") -> np.ndarray:
     try:
         arr = np.asarray(x, dtype=np.float64)
     except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a real array of shape (4, N) or (batch, 4, N), got {type(x).__name__}") \
-            from None
+        raise ValueError(
+            f"{name} must be a real array of shape (4, N) or (batch, 4, N), got {type(x).__name__}"
+        ) from None
     if arr.ndim == 2:
         arr = arr[None]
     if arr.ndim != 3 or arr.shape[1] != 4:
-        raise ValueError(
-            f"{name} must have shape (4, N) or (batch, 4, N) ordered (u, v, u', v'); got {np.shape(x)}"
-        )
+        raise ValueError(f"{name} must have shape (4, N) or (batch, 4, N) ordered (u, v, u', v'); got {np.shape(x)}")
     if N is not None and arr.shape[2] != N:
         raise ValueError(f"{name} has {arr.shape[2]} sites but the chain has N = {N}")
     if arr.shape[0] < 1:
@@ -221,8 +218,10 @@ def energy(params: ChainParams, x, M=None, K=None) -> np.ndarray:
     if x.ndim == 2:
         x = x[None]
     if x.ndim != 3 or x.shape[1] != 4 or x.shape[2] != params.N:
-        raise ValueError(f"x must have shape (4, {params.N}) or (batch, 4, {params.N}) ordered (u, v, u', v') "
-                         f"for this chain (N = {params.N}); got {shape}")
+        raise ValueError(
+            f"x must have shape (4, {params.N}) or (batch, 4, {params.N}) ordered (u, v, u', v') "
+            f"for this chain (N = {params.N}); got {shape}"
+        )
     batch = x.shape[0]
     Mb = _per_lattice(params.M if M is None else M, batch)[:, 0]
     Kb = _per_lattice(params.K if K is None else K, batch)[:, 0]

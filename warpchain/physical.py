@@ -64,7 +64,7 @@ def effective_modulus(E1: float, nu1: float, E2: float, nu2: float) -> float:
     for name, nu in (("nu1", nu1), ("nu2", nu2)):
         if not -1.0 < nu < 0.5 + 1e-12:
             raise ValueError(f"Poisson ratio {name} must lie in (-1, 0.5], got {nu!r}")
-    return 1.0 / ((1.0 - nu1 ** 2) / E1 + (1.0 - nu2 ** 2) / E2)
+    return 1.0 / ((1.0 - nu1**2) / E1 + (1.0 - nu2**2) / E2)
 
 
 def hertz_contact(diameter: float, E1: float, nu1: float, E2: float, nu2: float, work_of_adhesion: float) -> dict:
@@ -81,8 +81,15 @@ def hertz_contact(diameter: float, E1: float, nu1: float, E2: float, nu2: float,
     return {"A": A, "F_DMT": F, "delta0": delta0, "k2": 1.5 * A * math.sqrt(delta0)}
 
 
-def estimate_stiffness_ratio(diameter: float, E1: float, nu1: float, E2: float, nu2: float,
-                             work_of_adhesion: float, wavelength_over_diameter: float) -> float:
+def estimate_stiffness_ratio(
+    diameter: float,
+    E1: float,
+    nu1: float,
+    E2: float,
+    nu2: float,
+    work_of_adhesion: float,
+    wavelength_over_diameter: float,
+) -> float:
     """Appendix B: K = k1 / k2 with k1 = E1 lambda (substrate block) and k2 the linearised contact.
 
     For identical materials this equals the paper's closed form
@@ -93,23 +100,27 @@ def estimate_stiffness_ratio(diameter: float, E1: float, nu1: float, E2: float, 
     return k1 / hertz_contact(diameter, E1, nu1, E2, nu2, work_of_adhesion)["k2"]
 
 
-def stiffness_ratio_closed_form(diameter: float, E: float, nu: float, work_of_adhesion: float,
-                                wavelength_over_diameter: float) -> float:
+def stiffness_ratio_closed_form(
+    diameter: float, E: float, nu: float, work_of_adhesion: float, wavelength_over_diameter: float
+) -> float:
     """The paper's closed form of Appendix B for identical sphere and substrate materials."""
     _positive(diameter=diameter, E=E, work_of_adhesion=work_of_adhesion)
-    return ((8.0 * (1.0 - nu ** 2) ** 2 / (3.0 * math.pi)) ** (1.0 / 3.0)
-            * (E * diameter / (2.0 * work_of_adhesion)) ** (1.0 / 3.0) * wavelength_over_diameter)
+    return (
+        (8.0 * (1.0 - nu**2) ** 2 / (3.0 * math.pi)) ** (1.0 / 3.0)
+        * (E * diameter / (2.0 * work_of_adhesion)) ** (1.0 / 3.0)
+        * wavelength_over_diameter
+    )
 
 
 #: The material set of the Appendix A/B estimates (assumed handbook values for 1 um silica spheres on
 #: a silica-like glass; the source paper's exact inputs are not in our reference).
 SILICA_ON_GLASS = {
-    "diameter": 1.0e-6,        # m
-    "rho_sphere": 2000.0,      # kg/m^3 (Stober silica)
-    "rho_substrate": 2200.0,   # kg/m^3
-    "E_sphere": 73.0e9,        # Pa
+    "diameter": 1.0e-6,  # m
+    "rho_sphere": 2000.0,  # kg/m^3 (Stober silica)
+    "rho_substrate": 2200.0,  # kg/m^3
+    "E_sphere": 73.0e9,  # Pa
     "nu_sphere": 0.17,
-    "E_substrate": 73.0e9,     # Pa
+    "E_substrate": 73.0e9,  # Pa
     "nu_substrate": 0.17,
     "work_of_adhesion": 0.02,  # J/m^2 (order of magnitude for silica-silica in air)
     "wavelength_over_diameter": 10.0,
@@ -132,8 +143,8 @@ def wave_speeds(E: float, nu: float, rho: float) -> tuple[float, float]:
 def rayleigh_function(xi, speed_ratio: float):
     """R(xi) = (2 - xi^2)^2 - 4 sqrt(1 - xi^2 a) sqrt(1 - xi^2), a = (c_T/c_L)^2, for 0 <= xi <= 1."""
     xi = np.asarray(xi, dtype=float)
-    a = speed_ratio ** 2
-    return (2.0 - xi ** 2) ** 2 - 4.0 * np.sqrt(1.0 - a * xi ** 2) * np.sqrt(1.0 - xi ** 2)
+    a = speed_ratio**2
+    return (2.0 - xi**2) ** 2 - 4.0 * np.sqrt(1.0 - a * xi**2) * np.sqrt(1.0 - xi**2)
 
 
 def rayleigh_speed(c_L: float, c_T: float) -> float:
@@ -162,8 +173,14 @@ class SurfaceResonatorModel:
     cell_area: float
 
     def __post_init__(self):
-        _positive(c_L=self.c_L, c_T=self.c_T, rho=self.rho, sphere_mass=self.sphere_mass, omega0=self.omega0,
-                  cell_area=self.cell_area)
+        _positive(
+            c_L=self.c_L,
+            c_T=self.c_T,
+            rho=self.rho,
+            sphere_mass=self.sphere_mass,
+            omega0=self.omega0,
+            cell_area=self.cell_area,
+        )
         if self.c_T >= self.c_L:
             raise ValueError(f"c_T must be below c_L, got c_T = {self.c_T}, c_L = {self.c_L}")
 
@@ -179,8 +196,13 @@ class SurfaceResonatorModel:
     def load(self, omega, k):
         """Right-hand side of the dispersion relation (the resonators' load)."""
         omega, k = np.asarray(omega, float), np.asarray(k, float)
-        return (self.coupling_length * self.omega0 ** 2 * omega ** 4 * np.sqrt(1.0 - (omega / (self.c_L * k)) ** 2)
-                / (self.c_T ** 4 * k ** 3 * (omega ** 2 - self.omega0 ** 2)))
+        return (
+            self.coupling_length
+            * self.omega0**2
+            * omega**4
+            * np.sqrt(1.0 - (omega / (self.c_L * k)) ** 2)
+            / (self.c_T**4 * k**3 * (omega**2 - self.omega0**2))
+        )
 
     def residual(self, omega, k):
         """Rayleigh function minus the load: zero on the dispersion curves (subsonic, omega != w_0)."""
@@ -190,16 +212,18 @@ class SurfaceResonatorModel:
     def boundary_matrix(self, omega: float, k: float) -> np.ndarray:
         """The 2x2 system M (A, B) = 0 of the two boundary conditions, with the stresses in Lame form
         (lambda, mu) before any simplification; its determinant vanishes on the dispersion curves."""
-        mu = self.rho * self.c_T ** 2
-        lam = self.rho * self.c_L ** 2 - 2.0 * mu
+        mu = self.rho * self.c_T**2
+        lam = self.rho * self.c_L**2 - 2.0 * mu
         q = math.sqrt(k * k - (omega / self.c_L) ** 2)
         s = math.sqrt(k * k - (omega / self.c_T) ** 2)
-        phi = self.sphere_mass / self.cell_area * self.omega0 ** 2 * omega ** 2 / (self.omega0 ** 2 - omega ** 2)
+        phi = self.sphere_mass / self.cell_area * self.omega0**2 * omega**2 / (self.omega0**2 - omega**2)
         # displacements of A exp(qz), B exp(sz): u_x = ik A - s B, u_z = q A + ik B
         # sigma_xz = mu (du_x/dz + du_z/dx); sigma_zz = lam (du_x/dx + du_z/dz) + 2 mu du_z/dz
         shear = [mu * (1j * k * q + 1j * k * q), mu * (-s * s - k * k)]
-        normal = [lam * (1j * k * 1j * k + q * q) + 2.0 * mu * q * q - phi * q,
-                  lam * (1j * k * -s + 1j * k * s) + 2.0 * mu * 1j * k * s - phi * 1j * k]
+        normal = [
+            lam * (1j * k * 1j * k + q * q) + 2.0 * mu * q * q - phi * q,
+            lam * (1j * k * -s + 1j * k * s) + 2.0 * mu * 1j * k * s - phi * 1j * k,
+        ]
         return np.array([shear, normal], dtype=complex)
 
     def branch(self, k, which: str = "lower") -> np.ndarray:
@@ -237,8 +261,8 @@ class SurfaceResonatorModel:
         """(k_T, omega_T) where the upper branch meets the line omega = c_T k (closed form: on that
         line the Rayleigh function is 1, leaving c_T^2 k^2 - C w_0^2 sqrt(1 - c_T^2/c_L^2) k - w_0^2 = 0
         with C = m / (A_c rho))."""
-        b = self.coupling_length * self.omega0 ** 2 * math.sqrt(1.0 - (self.c_T / self.c_L) ** 2)
-        k_T = (b + math.sqrt(b * b + 4.0 * self.c_T ** 2 * self.omega0 ** 2)) / (2.0 * self.c_T ** 2)
+        b = self.coupling_length * self.omega0**2 * math.sqrt(1.0 - (self.c_T / self.c_L) ** 2)
+        k_T = (b + math.sqrt(b * b + 4.0 * self.c_T**2 * self.omega0**2)) / (2.0 * self.c_T**2)
         return k_T, self.c_T * k_T
 
 
@@ -262,25 +286,31 @@ class MaterialSet:
     name: str = ""
 
     def __post_init__(self):
-        _positive(diameter=self.diameter, rho_sphere=self.rho_sphere, E_sphere=self.E_sphere,
-                  rho_substrate=self.rho_substrate, E_substrate=self.E_substrate,
-                  work_of_adhesion=self.work_of_adhesion)
+        _positive(
+            diameter=self.diameter,
+            rho_sphere=self.rho_sphere,
+            E_sphere=self.E_sphere,
+            rho_substrate=self.rho_substrate,
+            E_substrate=self.E_substrate,
+            work_of_adhesion=self.work_of_adhesion,
+        )
         if self.contact_frequency_hz is not None:
             _positive(contact_frequency_hz=self.contact_frequency_hz)
         effective_modulus(self.E_substrate, self.nu_substrate, self.E_sphere, self.nu_sphere)  # validates nu
 
     @property
     def sphere_mass(self) -> float:
-        return math.pi / 6.0 * self.diameter ** 3 * self.rho_sphere
+        return math.pi / 6.0 * self.diameter**3 * self.rho_sphere
 
     @property
     def cell_area(self) -> float:
         """Close-packed monolayer: sqrt(3) D^2 / 2 per sphere."""
-        return math.sqrt(3.0) / 2.0 * self.diameter ** 2
+        return math.sqrt(3.0) / 2.0 * self.diameter**2
 
     def hertz(self) -> dict:
-        return hertz_contact(self.diameter, self.E_substrate, self.nu_substrate, self.E_sphere, self.nu_sphere,
-                             self.work_of_adhesion)
+        return hertz_contact(
+            self.diameter, self.E_substrate, self.nu_substrate, self.E_sphere, self.nu_sphere, self.work_of_adhesion
+        )
 
     @property
     def omega0_hertz(self) -> float:
@@ -295,8 +325,14 @@ class MaterialSet:
 
     def surface_model(self) -> SurfaceResonatorModel:
         c_L, c_T = wave_speeds(self.E_substrate, self.nu_substrate, self.rho_substrate)
-        return SurfaceResonatorModel(c_L=c_L, c_T=c_T, rho=self.rho_substrate, sphere_mass=self.sphere_mass,
-                                     omega0=self.omega0, cell_area=self.cell_area)
+        return SurfaceResonatorModel(
+            c_L=c_L,
+            c_T=c_T,
+            rho=self.rho_substrate,
+            sphere_mass=self.sphere_mass,
+            omega0=self.omega0,
+            cell_area=self.cell_area,
+        )
 
     def replace(self, **changes) -> "MaterialSet":
         return dataclasses.replace(self, **changes)
@@ -309,9 +345,17 @@ class MaterialSet:
 #: contact resonance the paper quotes as measured (215 MHz). Assumed handbook values: the source
 #: paper's exact inputs are not in our reference.
 SILICA_SPHERES_ON_GLASS = MaterialSet(
-    diameter=1.0e-6, rho_sphere=2000.0, E_sphere=73.0e9, nu_sphere=0.17,
-    rho_substrate=2500.0, E_substrate=70.0e9, nu_substrate=0.22,
-    work_of_adhesion=0.1, contact_frequency_hz=215.0e6, name="1 um silica spheres on soda-lime glass")
+    diameter=1.0e-6,
+    rho_sphere=2000.0,
+    E_sphere=73.0e9,
+    nu_sphere=0.17,
+    rho_substrate=2500.0,
+    E_substrate=70.0e9,
+    nu_substrate=0.22,
+    work_of_adhesion=0.1,
+    contact_frequency_hz=215.0e6,
+    name="1 um silica spheres on soda-lime glass",
+)
 
 
 # ----------------------------------------------------------------------------- the fit
@@ -354,16 +398,29 @@ class ChainFit:
     crossing_residual: float
 
 
-def fit_chain(long_wave_speed: float, crossing_k: float, crossing_omega: float, omega0: float, diameter: float,
-              *, convention: str = "exact", K_range=(1e-2, 1e6)) -> ChainFit:
+def fit_chain(
+    long_wave_speed: float,
+    crossing_k: float,
+    crossing_omega: float,
+    omega0: float,
+    diameter: float,
+    *,
+    convention: str = "exact",
+    K_range=(1e-2, 1e6),
+) -> ChainFit:
     """Fit (M, K): the chain's long-wave speed equals ``long_wave_speed`` and its optical branch passes
     through (``crossing_k``, ``crossing_omega``) (SI units).
 
     Raises:
         ValueError: bad input, or no K in ``K_range`` satisfies both criteria (the message says why).
     """
-    _positive(long_wave_speed=long_wave_speed, crossing_k=crossing_k, crossing_omega=crossing_omega, omega0=omega0,
-              diameter=diameter)
+    _positive(
+        long_wave_speed=long_wave_speed,
+        crossing_k=crossing_k,
+        crossing_omega=crossing_omega,
+        omega0=omega0,
+        diameter=diameter,
+    )
     if convention not in ("exact", "paper"):
         raise ValueError(f"convention must be 'exact' or 'paper', got {convention!r}")
     ratio = (long_wave_speed / (omega0 * diameter)) ** 2  # K/(M+1) (exact) or K/M (paper)
@@ -383,17 +440,28 @@ def fit_chain(long_wave_speed: float, crossing_k: float, crossing_omega: float, 
     values = [mismatch(g) for g in grid]
     brackets = [i for i in range(len(grid) - 1) if np.sign(values[i]) != np.sign(values[i + 1])]
     if not brackets:
-        raise ValueError(f"no K in {K_range} puts the optical branch through w/w_0 = {target:.6g} at k D = {q:.4g} "
-                         f"with K/{'(M+1)' if convention == 'exact' else 'M'} = {ratio:.6g}; the optical branch spans "
-                         f"{min(values) + 1:.4g}..{max(values) + 1:.4g} of the target there")
+        raise ValueError(
+            f"no K in {K_range} puts the optical branch through w/w_0 = {target:.6g} at k D = {q:.4g} "
+            f"with K/{'(M+1)' if convention == 'exact' else 'M'} = {ratio:.6g}; the optical branch spans "
+            f"{min(values) + 1:.4g}..{max(values) + 1:.4g} of the target there"
+        )
     i = brackets[0]
     logK = brentq(mismatch, grid[i], grid[i + 1], xtol=1e-14, rtol=1e-14)
     K = math.exp(logK)
     M = mass(K)
     speed = discrete_long_wave_speed(M, K, omega0, diameter, exact=convention == "exact")
-    return ChainFit(M=M, K=K, omega0=omega0, diameter=diameter, long_wave_speed=long_wave_speed, crossing_k=crossing_k,
-                    crossing_omega=crossing_omega, convention=convention,
-                    speed_residual=abs(speed / long_wave_speed - 1.0), crossing_residual=abs(mismatch(logK)))
+    return ChainFit(
+        M=M,
+        K=K,
+        omega0=omega0,
+        diameter=diameter,
+        long_wave_speed=long_wave_speed,
+        crossing_k=crossing_k,
+        crossing_omega=crossing_omega,
+        convention=convention,
+        speed_residual=abs(speed / long_wave_speed - 1.0),
+        crossing_residual=abs(mismatch(logK)),
+    )
 
 
 def fit_to_substrate(materials: MaterialSet, *, convention: str = "exact") -> dict:
@@ -412,8 +480,20 @@ def fit_to_substrate(materials: MaterialSet, *, convention: str = "exact") -> di
     discrete = dispersion(k * materials.diameter, fit.M, fit.K)[0] * model.omega0
     continuous = model.branch(k, "lower")
     misfit = float(np.sqrt(np.mean((discrete / continuous - 1.0) ** 2)))
-    return {"M": fit.M, "K": fit.K, "omega0": model.omega0, "f0_hz": model.omega0 / (2 * math.pi),
-            "c_L": model.c_L, "c_T": model.c_T, "c_R": c_R, "k_T": k_T, "omega_T": omega_T,
-            "coupling_length": model.coupling_length, "convention": convention,
-            "speed_residual": fit.speed_residual, "crossing_residual": fit.crossing_residual,
-            "residual": max(fit.speed_residual, fit.crossing_residual), "lower_branch_misfit": misfit}
+    return {
+        "M": fit.M,
+        "K": fit.K,
+        "omega0": model.omega0,
+        "f0_hz": model.omega0 / (2 * math.pi),
+        "c_L": model.c_L,
+        "c_T": model.c_T,
+        "c_R": c_R,
+        "k_T": k_T,
+        "omega_T": omega_T,
+        "coupling_length": model.coupling_length,
+        "convention": convention,
+        "speed_residual": fit.speed_residual,
+        "crossing_residual": fit.crossing_residual,
+        "residual": max(fit.speed_residual, fit.crossing_residual),
+        "lower_branch_misfit": misfit,
+    }

@@ -96,8 +96,18 @@ def step(method: Method | str, params: ChainParams, x, dt: float, M=None, K=None
     return x_new, dx + (dt / dtype(6.0)) * dtotal
 
 
-def integrate(method: Method | str, params: ChainParams, x0, dt: float, nsteps: int, M=None, K=None,
-              dx0=None, save_every: int | None = None, dtype=np.float64):
+def integrate(
+    method: Method | str,
+    params: ChainParams,
+    x0,
+    dt: float,
+    nsteps: int,
+    M=None,
+    K=None,
+    dx0=None,
+    save_every: int | None = None,
+    dtype=np.float64,
+):
     """Integrate ``nsteps`` steps with the numpy reference.
 
     Args:
@@ -141,8 +151,16 @@ def rhs_flat(params: ChainParams, M=None, K=None):
     return f
 
 
-def solve_ivp_reference(params: ChainParams, x0, t_final: float, rtol: float = 1e-13, atol: float = 1e-15,
-                        method: str = "DOP853", M=None, K=None):
+def solve_ivp_reference(
+    params: ChainParams,
+    x0,
+    t_final: float,
+    rtol: float = 1e-13,
+    atol: float = 1e-15,
+    method: str = "DOP853",
+    M=None,
+    K=None,
+):
     """Integrate one lattice with scipy's ``solve_ivp`` (DOP853 by default); returns the (4, N) state."""
     from scipy.integrate import solve_ivp
 

@@ -54,12 +54,18 @@ def git_commit() -> str | None:
     """Commit of the checkout this package runs from (with ``-dirty`` for local changes)."""
     here = Path(__file__).resolve().parent
     try:
-        commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=here, capture_output=True, text=True,
-                                timeout=5).stdout.strip()
+        commit = subprocess.run(
+            ["git", "rev-parse", "HEAD"], cwd=here, capture_output=True, text=True, timeout=5
+        ).stdout.strip()
         if not commit:
             return None
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=here,
-                               capture_output=True, text=True, timeout=5).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no"],
+            cwd=here,
+            capture_output=True,
+            text=True,
+            timeout=5,
+        ).stdout.strip()
         return commit + ("-dirty" if dirty else "")
     except (OSError, subprocess.SubprocessError):
         return None
@@ -87,8 +93,10 @@ def provenance(device: str | None = None, **extra) -> dict:
         "python": platform.python_version(),
         "platform": platform.platform(),
         "cpu": cpu_model(),
-        "packages": {name: _version(name) for name in
-                     ("warpchain", "warp-lang", "numpy", "scipy", "zarr", "matplotlib", "xarray")},
+        "packages": {
+            name: _version(name)
+            for name in ("warpchain", "warp-lang", "numpy", "scipy", "zarr", "matplotlib", "xarray")
+        },
     }
     info.update(extra)
     return info
@@ -149,8 +157,18 @@ class FieldWriter:
         attrs: attributes of the group.
     """
 
-    def __init__(self, root: zarr.Group, path, group: str, fields: dict, dims: tuple, chunk_t: int,
-                 coords: dict | None = None, expected_frames: int | None = None, attrs: dict | None = None):
+    def __init__(
+        self,
+        root: zarr.Group,
+        path,
+        group: str,
+        fields: dict,
+        dims: tuple,
+        chunk_t: int,
+        coords: dict | None = None,
+        expected_frames: int | None = None,
+        attrs: dict | None = None,
+    ):
         if not dims or dims[0] != "t":
             raise ValueError(f"field dims must start with 't', got {dims}")
         if chunk_t < 1:
@@ -163,11 +181,18 @@ class FieldWriter:
             if len(frame_shape) != len(dims) - 1:
                 raise ValueError(f"field {name}: frame shape {frame_shape} does not match dims {dims}")
             self.arrays[name] = self.group.create_array(
-                name, shape=(0, *frame_shape), chunks=(self.chunk_t, *frame_shape), dtype="f8",
-                fill_value=np.nan, dimension_names=self.dims, overwrite=True)  # a missing chunk reads as NaN
+                name,
+                shape=(0, *frame_shape),
+                chunks=(self.chunk_t, *frame_shape),
+                dtype="f8",
+                fill_value=np.nan,
+                dimension_names=self.dims,
+                overwrite=True,
+            )  # a missing chunk reads as NaN
         t_chunk = max(int(expected_frames or 0), 1 << 16)
-        self.t = self.group.create_array("t", shape=(0,), chunks=(t_chunk,), dtype="f8", dimension_names=("t",),
-                                         fill_value=np.nan, overwrite=True)
+        self.t = self.group.create_array(
+            "t", shape=(0,), chunks=(t_chunk,), dtype="f8", dimension_names=("t",), fill_value=np.nan, overwrite=True
+        )
         coords = dict(coords or {})
         first = next(iter(fields.values())) if fields else ()
         if "site" in dims and "site" not in coords:
@@ -175,8 +200,14 @@ class FieldWriter:
             coords["site"] = (("site",), np.arange(1, n_sites + 1))
         for name, (cdims, values) in coords.items():
             values = np.asarray(values)
-            arr = self.group.create_array(name, shape=values.shape, chunks=values.shape or (1,), dtype=values.dtype,
-                                          dimension_names=tuple(cdims), overwrite=True)
+            arr = self.group.create_array(
+                name,
+                shape=values.shape,
+                chunks=values.shape or (1,),
+                dtype=values.dtype,
+                dimension_names=tuple(cdims),
+                overwrite=True,
+            )
             arr[...] = values
         self.group.attrs.update(jsonable({**(attrs or {}), "complete": False, "n_written": 0, "t_written": None}))
         self.n_written = 0
@@ -196,7 +227,9 @@ class FieldWriter:
         for name, values in frames.items():
             values = np.asarray(values, dtype=np.float64)
             if values.shape != (len(t), *self.arrays[name].shape[1:]):
-                raise ValueError(f"field {name}: got shape {values.shape}, expected {(len(t), *self.arrays[name].shape[1:])}")
+                raise ValueError(
+                    f"field {name}: got shape {values.shape}, expected {(len(t), *self.arrays[name].shape[1:])}"
+                )
             self._pending[name].append(values)
         self._pending_t.append(t)
         if self._n_pending >= self.chunk_t:
@@ -230,17 +263,37 @@ class FieldWriter:
         consolidate(self.path)
 
 
-def write_fields(root: zarr.Group, path, group: str, t, fields: dict, dims: tuple, chunk_t: int = 256,
-                 coords: dict | None = None, attrs: dict | None = None) -> None:
+def write_fields(
+    root: zarr.Group,
+    path,
+    group: str,
+    t,
+    fields: dict,
+    dims: tuple,
+    chunk_t: int = 256,
+    coords: dict | None = None,
+    attrs: dict | None = None,
+) -> None:
     """Write complete fields (name -> array of shape (n_t, ...)) to a new group in one go."""
     t = np.asarray(t, dtype=np.float64)
-    writer = FieldWriter(root, path, group, {k: np.shape(v)[1:] for k, v in fields.items()}, dims,
-                         min(chunk_t, max(len(t), 1)), coords=coords, expected_frames=len(t), attrs=attrs)
+    writer = FieldWriter(
+        root,
+        path,
+        group,
+        {k: np.shape(v)[1:] for k, v in fields.items()},
+        dims,
+        min(chunk_t, max(len(t), 1)),
+        coords=coords,
+        expected_frames=len(t),
+        attrs=attrs,
+    )
     writer.append(t, **fields)
     writer.close()
 
 
-def write_table(root: zarr.Group, group: str, columns: dict, dim: str = "point", attrs: dict | None = None) -> zarr.Group:
+def write_table(
+    root: zarr.Group, group: str, columns: dict, dim: str = "point", attrs: dict | None = None
+) -> zarr.Group:
     """Write 1-D or N-D numeric arrays sharing a leading dimension ``dim`` (e.g. points along a
     branch). Strings are not stored as arrays (zarr v3 has no stable string type): put labels in
     ``attrs``."""
@@ -250,9 +303,15 @@ def write_table(root: zarr.Group, group: str, columns: dict, dim: str = "point",
         if values.dtype.kind not in "biufc":
             raise TypeError(f"column {name!r} has dtype {values.dtype}; store labels in attrs instead")
         dims = (dim,) + tuple(f"{name}_{k}" for k in range(1, values.ndim))
-        arr = g.create_array(name, shape=values.shape, chunks=values.shape if values.size else (1,) * values.ndim,
-                             dtype=values.dtype, dimension_names=dims, overwrite=True,
-                             fill_value=np.nan if values.dtype.kind in "fc" else 0)
+        arr = g.create_array(
+            name,
+            shape=values.shape,
+            chunks=values.shape if values.size else (1,) * values.ndim,
+            dtype=values.dtype,
+            dimension_names=dims,
+            overwrite=True,
+            fill_value=np.nan if values.dtype.kind in "fc" else 0,
+        )
         arr[...] = values
     if attrs:
         g.attrs.update(jsonable(attrs))
@@ -287,15 +346,19 @@ def read_group(path, group: str, *, require_complete: bool = True) -> tuple[dict
         raise StoreError(f"{where}: unreadable ({type(exc).__name__}: {exc}); rerun the scene that wrote it") from None
     if "n_written" in attrs:  # a field group
         if require_complete and not attrs.get("complete", False):
-            raise StoreError(f"{where}: half-written (not marked complete; {attrs.get('n_written')} frames): the run "
-                             "that wrote it did not finish")
+            raise StoreError(
+                f"{where}: half-written (not marked complete; {attrs.get('n_written')} frames): the run "
+                "that wrote it did not finish"
+            )
         n = int(attrs["n_written"])
         for name, values in arrays.items():
             if values.dtype.kind == "f" and values.ndim and values.shape[0] == n and name != "site":
                 bad = ~np.isfinite(values.reshape(n, -1)).all(axis=1)
                 if bad.any():
-                    raise StoreError(f"{where}, array '{name}': frame {int(np.flatnonzero(bad)[0])} is missing or "
-                                     "not finite (a lost or damaged chunk); rerun the scene that wrote it")
+                    raise StoreError(
+                        f"{where}, array '{name}': frame {int(np.flatnonzero(bad)[0])} is missing or "
+                        "not finite (a lost or damaged chunk); rerun the scene that wrote it"
+                    )
     return arrays, attrs
 
 
