@@ -299,9 +299,9 @@ def plot(out) -> None:
     c = len(br["site"]) // 2
     sl = slice(c - 25, c + 26)
     axes[0, 0].plot(br["site"][sl], br["u"][sl], "o-", ms=3)
-    axes[0, 0].set_title(f"u_j at t = 0 ($\\omega_b$ = {s['omega']}, K = {s['K']:g}, M = {s['M']:g})")
+    axes[0, 0].set_title(f"$u_j$ at t = 0 ($\\omega_b$ = {s['omega']}, K = {s['K']:g}, M = {s['M']:g})")
     axes[0, 1].plot(br["site"][sl], br["v"][sl], "o-", ms=3, color="tab:orange")
-    axes[0, 1].set_title(f"v_j at t = 0 (E = {s['energy']:.6f})")
+    axes[0, 1].set_title(f"$v_j$ at t = 0 (E = {s['energy']:.6f})")
     for ax in axes[0]:
         ax.set_xlabel("site j")
     lam = mult["real"] + 1j * mult["imag"]
@@ -312,20 +312,25 @@ def plot(out) -> None:
     ax.plot(lam[mult["trivial"]].real, lam[mult["trivial"]].imag, "x", color="k", label="trivial pair")
     ax.set_aspect("equal")
     ax.set_title(
-        f"Floquet: max |l| = {s['max_floquet_modulus']:.6f}, pairing err {s['floquet_pairing_error']:.1e}", fontsize=9
+        f"Floquet multipliers $\\lambda$: max $|\\lambda|$ = {s['max_floquet_modulus']:.6f}"
+        f" ({'stable' if s['stable'] else 'unstable'})",
+        fontsize=9,
     )
+    ax.set_xlabel(r"Re $\lambda$")
+    ax.set_ylabel(r"Im $\lambda$")
     ax.legend(fontsize=8, loc="lower left")
-    inset = ax.inset_axes([0.58, 0.58, 0.4, 0.4])
-    inset.plot(np.abs(lam), np.angle(lam), ".", ms=3)
-    inset.axvline(1, color="k", lw=0.5)
-    inset.set_xlim(1 - 4e-4, 1 + 4e-4)
-    inset.set_xlabel("|l|", fontsize=7)
-    inset.set_ylabel("arg l", fontsize=7)
+    # how far each multiplier is off the circle, in units of 1e-4, against its angle
+    inset = ax.inset_axes([0.56, 0.56, 0.42, 0.42])
+    inset.plot(1e4 * (np.abs(lam) - 1), np.angle(lam), ".", ms=3)
+    inset.axvline(0, color="k", lw=0.5)
+    inset.set_xlim(-4, 4)
+    inset.set_xlabel(r"($|\lambda|$ - 1) $\times 10^4$", fontsize=7, labelpad=1)
+    inset.set_ylabel(r"arg $\lambda$", fontsize=7, labelpad=1)
     inset.tick_params(labelsize=6)
     ax = axes[1, 1]
     ax.semilogy(per["period"], np.maximum(per["relative_deviation"], 1e-17), "-")
     ax.set_xlabel("periods")
-    ax.set_ylabel("max |x(nT) - x(0)| / max |x(0)|")
+    ax.set_ylabel(r"max $|x(nT) - x(0)|$ / max $|x(0)|$")
     ax.set_title("direct simulation with the same integrator")
     fig.tight_layout()
     save_figure(fig, out, "breather")

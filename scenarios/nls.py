@@ -136,7 +136,7 @@ def plot(out) -> None:
     sweep, _ = read_group(out / "data.zarr", "sweep")
     s = read_summary(out)
     plt = pyplot()
-    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.4), layout="constrained")
     c = len(prof["site"]) // 2
     sl = slice(c - 25, c + 26)
     for ax, comp in zip(axes[:2], ("u", "v")):
@@ -152,11 +152,12 @@ def plot(out) -> None:
             label="numerical breather",
         )
         ax.set_xlabel("site j")
-        ax.set_title(f"{comp}_j at t = 0, $\\omega_b$ = {s['omega']}, K = {s['K']:g}")
-        ax.legend(fontsize=8)
+        ax.set_ylabel(f"${comp}_j$ at t = 0")
+        ax.set_title(f"${comp}_j$, $\\omega_b$ = {s['omega']}, K = {s['K']:g}")
+        ax.legend(fontsize=8, loc="upper right" if comp == "u" else "lower right")
     axes[2].loglog(sweep["delta"], sweep["relative_profile_difference"], "o-")
     axes[2].set_xlabel(r"$\omega_0 - \omega_b$")
-    axes[2].set_ylabel("max |NLS - numerical| / max |v|")
+    axes[2].set_ylabel(r"max $|v_{NLS} - v|$ / max $|v|$")
     slope = s.get("relative_difference_vs_delta_slope")
-    axes[2].set_title("NLS error towards the band edge" + (f" (slope {slope:.2f})" if slope else ""))
+    axes[2].set_title("NLS error towards the band edge" + (f"\n(log-log slope {slope:.2f})" if slope else ""))
     save_figure(fig, out, "nls")
