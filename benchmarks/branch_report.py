@@ -39,7 +39,7 @@ def report(root: Path, flat: bool = False) -> str:
         f"{k['points'][0]['K']:g} to K = {k['end_K']:g} (stop: `{k['stop_reason']}`), "
         f"E = {k['end_energy']:.8f} at the end; "
         f"{len(k['stability_changes'])} stability changes, each bracketed to the resolution "
-        f"({k['parameters']['resolution']:g} in log10 K). Stable up to K = {ivs[0]['start']:.4g} if any interval, "
+        f"({k['parameters']['resolution']:g} in log10 K). Stable up to K = {ivs[0]['start']:.4g}, "
         f"then {len(short)} narrow bubbles of weak extended quadruplets (max |l| - 1 <= "
         f"{max((iv['max_modulus'] - 1 for iv in short), default=0):.0e}) between K = "
         f"{min((iv['start'] for iv in short), default=float('nan')):.4g} and "
