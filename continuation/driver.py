@@ -491,6 +491,8 @@ def continuation(
                     break
                 continue
             for p in refine(last, new, h_try):
+                if settings.max_points is not None and len(points) >= settings.max_points:
+                    break  # a stated point count is exact, even inside a bisected step
                 note(ev.harmonic_event(points[-1], p, par))
                 accept(p)
             # next step: grow after an easy solve, bounded by the multipliers' motion and ds_max

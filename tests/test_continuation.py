@@ -135,7 +135,7 @@ def test_frequency_branch_from_the_eigenmode(tmp_path):
     branch = continue_in_frequency(p, start, settings=settings, on_point=store.append)
     store.finish(branch)
     w, E = branch.column("omega"), branch.column("energy")
-    assert branch.stop_reason is StopReason.MAX_POINTS and len(branch.points) >= 7
+    assert branch.stop_reason is StopReason.MAX_POINTS and len(branch.points) == 7  # exact, bisections included
     assert np.all(np.diff(w) < 0) and np.all(np.diff(E) > 0)  # into the gap, growing energy
     last = branch.points[-1]
     check = ct.find_breather(p, last.omega, last.state)
