@@ -167,6 +167,7 @@ def plot(out) -> None:
     if s.get("energy_at_omega_1_01"):
         ax.plot([1.01], [s["energy_at_omega_1_01"]], "*", ms=12, color="k", label=r"$\omega_b$ = 1.01")
     ax.set_xlabel(r"$\omega_b$")
+    ax.set_yscale("log")  # the acoustic-band part reaches ~10x the gap's energies: both stay readable
     ax.set_ylabel("energy H")
     stop = s["stop_reason"].replace("_", " ")
     ax.set_title(f"frequency continuation, K = {s['K']:g}, M = {s['M']:g}, N = {s['N']} (stopped: {stop})")
