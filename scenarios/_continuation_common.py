@@ -5,10 +5,51 @@ from __future__ import annotations
 
 import numpy as np
 
-from continuation.driver import Branch, continuation
+import dataclasses
+
+from continuation.driver import Branch, ContinuationSettings, continuation
 from continuation.floquet import KINDS
+from warpchain import Flow
 
 from ._branch_store import BranchStore, StoreError, load_branch
+from ._common import BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD, PAPER_M, PAPER_N
+
+
+@dataclasses.dataclass(frozen=True)
+class BranchParameters:
+    """What both branch scenes share; each scene's ``Parameters`` adds its own fields and defaults.
+    Steps and the resolution are in the scene's continuation coordinate."""
+
+    N: int = PAPER_N
+    M: float = PAPER_M
+    ds: float = 0.05
+    ds_max: float = 0.5
+    ds_min: float = 1e-4
+    grow: float = 1.5  # step growth after an easy Newton solve
+    resolution: float = 1e-3  # smallest bracket of a stability change
+    max_newton: int = 8
+    max_points: int | None = None
+    method: str = BREATHER_METHOD
+    steps_per_period: int = BREATHER_STEPS_PER_PERIOD
+    max_seconds: float | None = None  # opt-in time budget
+    bisect_krein: str = "auto"  # opposite-signature passes bisected: auto (all for N <= 64), localized, all, none
+
+    def settings(self) -> ContinuationSettings:
+        return ContinuationSettings(
+            ds=self.ds,
+            ds_min=self.ds_min,
+            ds_max=self.ds_max,
+            grow=self.grow,
+            resolution=self.resolution,
+            max_newton=self.max_newton,
+            max_points=self.max_points,
+            max_seconds=self.max_seconds,
+            bisect_krein=self.bisect_krein,
+        )
+
+    def flow(self, device) -> Flow:
+        return Flow(self.method, self.steps_per_period, device)
+
 
 KIND_COLOURS = {"real_pair": "tab:red", "period_doubling": "tab:purple", "complex_quadruplet": "tab:orange"}
 KIND_LABELS = {

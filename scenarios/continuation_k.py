@@ -20,46 +20,33 @@ import numpy as np
 
 from continuation import anticontinuum_seed, nls_seed
 from continuation.branch import NaturalParameter
-from continuation.driver import ContinuationSettings
-from warpchain import ChainParams, Flow, energy
+from warpchain import ChainParams, energy
 
 from ._branch_store import load_branch
 from ._common import (
-    BREATHER_METHOD,
-    BREATHER_STEPS_PER_PERIOD,
     PAPER_K,
-    PAPER_M,
-    PAPER_N,
     PAPER_OMEGA,
     Context,
     pyplot,
     read_summary,
     save_figure,
 )
-from ._continuation_common import branch_summary, run_branch, stability_strip
+from ._continuation_common import BranchParameters, branch_summary, run_branch, stability_strip
 
 RESUMABLE = True
 
 
 @dataclasses.dataclass(frozen=True)
-class Parameters:
-    """The scene's parameters (``--set KEY=VALUE`` overrides any of them)."""
+class Parameters(BranchParameters):
+    """The scene's parameters (``--set KEY=VALUE`` overrides any of them); steps in log10 K."""
 
-    N: int = PAPER_N
-    M: float = PAPER_M
     omega: float = PAPER_OMEGA
     K_start: float = 0.01
     K_end: float = PAPER_K
     profile_K: tuple = (5.0, 20.0, PAPER_K)
-    ds: float = 0.15  # steps in log10 K
+    ds: float = 0.15
     ds_max: float = 0.3
-    ds_min: float = 1e-4
-    resolution: float = 1e-3  # smallest bracket of a stability change, in log10 K (0.23 % in K)
-    max_points: int | None = None
-    method: str = BREATHER_METHOD
-    steps_per_period: int = BREATHER_STEPS_PER_PERIOD
-    max_seconds: float | None = None  # opt-in time budget
-    bisect_krein: str = "auto"  # opposite-signature passes bisected: auto (all for N <= 64), localized, all, none
+    resolution: float = 1e-3  # in log10 K: 0.23 % in K
 
 
 QUICK = {"N": 101, "ds": 0.5, "ds_max": 1.0, "resolution": 1e-2}
@@ -68,16 +55,8 @@ QUICK = {"N": 101, "ds": 0.5, "ds_max": 1.0, "resolution": 1e-2}
 def run(ctx: Context) -> dict:
     P: Parameters = ctx.params
     params = ChainParams(P.M, P.K_start, P.N)
-    flow = Flow(P.method, P.steps_per_period, ctx.device)
-    settings = ContinuationSettings(
-        ds=P.ds,
-        ds_min=P.ds_min,
-        ds_max=P.ds_max,
-        resolution=P.resolution,
-        max_points=P.max_points,
-        max_seconds=P.max_seconds,
-        bisect_krein=P.bisect_krein,
-    )
+    flow = P.flow(ctx.device)
+    settings = P.settings()
     problem = NaturalParameter(params, P.omega, anticontinuum_seed(params, P.omega), P.K_end, flow, targets=P.profile_K)
     attrs = {
         "omega": P.omega,

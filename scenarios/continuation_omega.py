@@ -24,45 +24,31 @@ import numpy as np
 
 from continuation import find_breather, require
 from continuation.branch import PseudoArclength
-from continuation.driver import ContinuationSettings
-from warpchain import ChainParams, Flow, band_edges
+from warpchain import ChainParams, band_edges
 
 from ._branch_store import load_branch
 from ._common import (
-    BREATHER_METHOD,
-    BREATHER_STEPS_PER_PERIOD,
     PAPER_K,
-    PAPER_M,
-    PAPER_N,
     PAPER_OMEGA,
     Context,
     pyplot,
     read_summary,
     save_figure,
 )
-from ._continuation_common import KIND_COLOURS, branch_summary, run_branch, stability_strip
+from ._continuation_common import KIND_COLOURS, BranchParameters, branch_summary, run_branch, stability_strip
 
 RESUMABLE = True
 
 
 @dataclasses.dataclass(frozen=True)
-class Parameters:
-    """The scene's parameters (``--set KEY=VALUE`` overrides any of them)."""
+class Parameters(BranchParameters):
+    """The scene's parameters (``--set KEY=VALUE`` overrides any of them); steps in arclength."""
 
-    N: int = PAPER_N
-    M: float = PAPER_M
     K: float = PAPER_K
     omega_min: float = 0.8  # a floor; the branch is expected to stop at contact loss first
-    ds: float = 0.05  # arclength steps in the weighted norm (theta = 1 / gap width)
+    ds: float = 0.05  # arclength in the weighted norm (theta = 1 / gap width)
     ds_max: float = 0.6
-    ds_min: float = 1e-4
-    resolution: float = 1e-3  # smallest bracket of a stability change, in arclength
-    max_newton: int = 8
-    max_points: int | None = None
-    method: str = BREATHER_METHOD
-    steps_per_period: int = BREATHER_STEPS_PER_PERIOD
-    max_seconds: float | None = None  # opt-in time budget
-    bisect_krein: str = "auto"  # opposite-signature passes bisected: auto (all for N <= 64), localized, all, none
+    grow: float = 1.3
 
 
 QUICK = {"N": 101, "omega_min": 1.005, "resolution": 1e-2}
@@ -71,18 +57,8 @@ QUICK = {"N": 101, "omega_min": 1.005, "resolution": 1e-2}
 def run(ctx: Context) -> dict:
     P: Parameters = ctx.params
     params = ChainParams(P.M, P.K, P.N)
-    flow = Flow(P.method, P.steps_per_period, ctx.device)
-    settings = ContinuationSettings(
-        ds=P.ds,
-        ds_min=P.ds_min,
-        ds_max=P.ds_max,
-        grow=1.3,
-        resolution=P.resolution,
-        max_newton=P.max_newton,
-        max_points=P.max_points,
-        max_seconds=P.max_seconds,
-        bisect_krein=P.bisect_krein,
-    )
+    flow = P.flow(ctx.device)
+    settings = P.settings()
     problem = PseudoArclength(params, flow, None, omega_min=P.omega_min)
     attrs = {
         "K": P.K,
