@@ -57,6 +57,9 @@ def main(argv=None) -> int:
     command_line = " ".join(
         ["python -m scenarios", *(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))]
     )
+    from warpchain import store
+
+    store.COMMAND_LINE = command_line  # every store's provenance records the command as typed
     try:
         check_output_root(args.out)
         for name in names:

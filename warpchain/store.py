@@ -83,11 +83,16 @@ def device_description(device: str | None) -> str:
         return device
 
 
+#: the command as the user typed it, set by a front end (``python -m scenarios`` sets it); when
+#: empty, provenance falls back to sys.argv (which shows a module's path, not what was typed)
+COMMAND_LINE = ""
+
+
 def provenance(device: str | None = None, **extra) -> dict:
     """Package versions, device, git commit, command line and time of a run, as plain JSON."""
     info = {
         "created_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-        "command_line": " ".join(sys.argv),
+        "command_line": COMMAND_LINE or " ".join(sys.argv),
         "git_commit": git_commit(),
         "device": device_description(device),
         "python": platform.python_version(),
