@@ -80,3 +80,11 @@ def test_instabilities_carry_kind_and_localization(breather):
         assert inst.kind in ("real_pair", "period_doubling", "complex_quadruplet")
         assert inst.modulus > 1 and 1 <= inst.participation <= breather.params.N
     assert fl.stable == (not fl.instabilities)
+
+
+def test_a_non_symplectic_map_gives_no_verdict_unless_asked(breather):
+    with pytest.warns(RuntimeWarning, match="re-converged"), pytest.raises(ValueError, match="far from symplectic"):
+        ct.floquet(breather, method="rk4")  # re-converged with rk4, then the full path: pairing error ~0.1
+    with pytest.warns(RuntimeWarning, match="re-converged"):
+        coarse = ct.floquet(breather, method="rk4", tolerance=2.0)  # explicitly accepted
+    assert coarse.path == "full" and coarse.tolerance == 2.0
