@@ -12,7 +12,7 @@
   which leaves Newton's convergence unchanged at the tolerances used; no extra trajectory is run.
 
 Every corrector step is one ``Flow.linearize`` per Newton point (``shooting``), and the converged
-point's linearization gives the reduced Floquet problem its position columns.
+point's linearization (its recorded trajectory) is what the reduced Floquet problem's columns replay.
 
 ``continue_in_coupling`` and ``continue_in_frequency`` build the problem and call
 ``driver.continuation``; ``start_from_eigenmode`` gives the two first points of the frequency branch.

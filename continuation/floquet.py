@@ -19,9 +19,11 @@ blocks A11 = dq/dq0, A12 = dq/dq0', A21 = dq'/dq0, A22 = dq'/dq0' at T/2.
 
    Check: a harmonic oscillator with A a rotation by theta gives mu = cos 2 theta, V a rotation by
    2 theta. tests/test_floquet.py checks Mu against the full 4N eig of the monodromy.
-4. A's position columns (A11, A21) are the last Newton Jacobian's columns, so Floquet costs only the
-   2N velocity columns over half a period and a 2N eig (instead of 4N columns over a period and a
-   4N eig). The trivial Jordan pair at l = +1 becomes one simple, well-conditioned mu = 1.
+4. Floquet thus costs A's 4N tangent columns over half a period, replayed on the converged orbit's
+   recorded trajectory (no base run), and a 2N eig: half the integration of the 4N columns over a
+   whole period and ~1/8 of a 4N eig. (Newton's last Jacobian was formed at the previous iterate,
+   not at the converged point, so its columns are not reused: they would carry that step's error.)
+   The trivial Jordan pair at l = +1 becomes one simple, well-conditioned mu = 1.
 
 **Kinds.** Real mu in (-1, 1): a pair on the unit circle (``elliptic``); real mu > 1: a real pair
 through +1 (``real_pair``: symmetry breaking, branch point); mu < -1: a pair through -1

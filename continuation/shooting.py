@@ -14,8 +14,9 @@ The integrator is seen only through a ``warpchain.Flow``: each Newton point is o
 ``Flow.linearize`` (the base trajectory, run once with its contact stiffness recorded), from which
 the residual, the end state and the min contact are read at once, and the Jacobian's tangent
 columns are replayed only when Newton asks for them. The converged point's Linearization stays on
-the result, so ``floquet`` needs only the velocity columns. Finite-difference columns (batched
-perturbed trajectories, ``jacobian="finite-difference"``) exist as a check.
+the result, so ``floquet`` replays its tangent columns on that trajectory without integrating it
+again. Finite-difference columns (batched perturbed trajectories, ``jacobian="finite-difference"``)
+exist as a check.
 """
 
 from __future__ import annotations
