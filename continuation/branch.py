@@ -29,7 +29,7 @@ from warpchain.model import accelerations
 
 from .driver import Branch, BranchPoint, ContinuationSettings, Failure, Solution, continuation
 from .newton import NewtonSettings, newton
-from .shooting import PeriodMap, find_breather, is_mirror_symmetric, make_flow, mirror_projector
+from .shooting import PeriodMap, chord_solver, find_breather, is_mirror_symmetric, make_flow, mirror_projector
 
 __all__ = [
     "Branch",
@@ -46,7 +46,25 @@ __all__ = [
 # ----------------------------------------------------------------------------- continuation in K
 
 
-class NaturalParameter:
+class _JacobianMemory:
+    """The residual Jacobians of the last few analysed points (the velocity rows of the position
+    columns of their half-period maps, which Floquet computed anyway): the corrector's chord steps
+    start from the neighbour's."""
+
+    _KEEP = 6
+
+    def remember(self, point, J) -> None:
+        memory = self.__dict__.setdefault("_jacobians", {})
+        memory[id(point)] = (point, J)
+        while len(memory) > self._KEEP:
+            memory.pop(next(iter(memory)))
+
+    def hint(self, point):
+        entry = self.__dict__.get("_jacobians", {}).get(id(point))
+        return None if entry is None or entry[0] is not point else entry[1]
+
+
+class NaturalParameter(_JacobianMemory):
     """Continuation in K at fixed omega from ``params.K`` to ``K_end`` (natural parameter).
 
     Args:
@@ -82,9 +100,11 @@ class NaturalParameter:
     def inverse(self, s: float) -> float:
         return 10.0**s if self.log_spacing else s
 
-    def _solve(self, K: float, guess, s: float, max_newton: int, tol: float):
+    def _solve(self, K: float, guess, s: float, max_newton: int, tol: float, hint=None):
         pr = self.params.replace(K=K)
-        res = find_breather(pr, self.omega, guess, flow=self.flow, tol=tol, max_iterations=max_newton)
+        res = find_breather(
+            pr, self.omega, guess, flow=self.flow, tol=tol, max_iterations=max_newton, jacobian_hint=hint
+        )
         if not res.success:
             return Failure(res.message)
         return Solution(pr, self.omega, res.state, res.iterations, res.residual_history, res.linearization(), s)
@@ -117,12 +137,17 @@ class NaturalParameter:
             guess = last.state + (last.state - points[-2].state) * (s_new - s_last) / (s_last - s_prev)
         else:
             guess = last.state
-        return self._solve(K_new, guess, s_new, self._settings.max_newton, self._settings.newton_tol)
+        return self._solve(K_new, guess, s_new, self._settings.max_newton, self._settings.newton_tol, self.hint(last))
 
     def between(self, a: BranchPoint, b: BranchPoint):
         s = 0.5 * (self.coord(a.K) + self.coord(b.K))
         return self._solve(
-            self.inverse(s), 0.5 * (a.state + b.state), s, self._settings.max_newton, self._settings.newton_tol
+            self.inverse(s),
+            0.5 * (a.state + b.state),
+            s,
+            self._settings.max_newton,
+            self._settings.newton_tol,
+            self.hint(a),
         )
 
     def is_between(self, a, m, b) -> bool:
@@ -177,14 +202,36 @@ class _BorderedPoint:
         self.row = corrector.W * tau
         self.residual = np.append(self.point.residual, np.sum(self.row * (y - y_pred)))
 
+    def domega(self) -> np.ndarray:
+        """dR/dw from this trajectory: -(pi / w^2) a(q(T/2)) (module docstring)."""
+        x_end = self.linearization.x_end
+        return -(math.pi / self.omega**2) * accelerations(self.c.params, x_end[None])[0].ravel()
+
     def jacobian(self) -> np.ndarray:
-        params, n2 = self.c.params, 2 * self.c.params.N
+        n2 = 2 * self.c.params.N
         J = np.zeros((n2 + 1, n2 + 1))
         J[:n2, :n2] = self.point.jacobian()
-        x_end = self.linearization.x_end
-        J[:n2, -1] = -(math.pi / self.omega**2) * accelerations(params, x_end[None])[0].ravel()
+        J[:n2, -1] = self.domega()
         J[-1] = self.row
         return J
+
+
+def _bordered_chord(J0, row):
+    """Chord solver for [[J0, b], [row]] with J0 (the neighbour's 2N x 2N block) factored once and
+    b = dR/dw taken from each trajectory, by block elimination; None when J0 is singular."""
+    solve0 = chord_solver(J0)
+    if solve0 is None:
+        return None
+    c, d = row[:-1], row[-1]
+
+    def solve(ev, r):
+        y = solve0(ev, r[:-1])
+        z = solve0(ev, ev.domega())
+        denom = d - float(c @ z)
+        x2 = (r[-1] - float(c @ y)) / denom if denom != 0.0 else 0.0
+        return np.append(y - z * x2, x2)
+
+    return solve
 
 
 class _BadFrequency(ValueError):
@@ -196,14 +243,21 @@ class _ArclengthCorrector:
         self.params, self.flow, self.W, self.settings = params, flow, W, settings
         self.project = mirror_projector(params.N) if symmetric else None
 
-    def correct(self, y_pred, tau):
+    def correct(self, y_pred, tau, hint=None):
+        row = self.W * tau
         try:
-            return newton(y_pred, lambda y: _BorderedPoint(self, y, y_pred, tau), self.settings, project=self.project)
+            return newton(
+                y_pred,
+                lambda y: _BorderedPoint(self, y, y_pred, tau),
+                self.settings,
+                project=self.project,
+                chord=None if hint is None else _bordered_chord(hint, row),
+            )
         except _BadFrequency as exc:
             return Failure(f"the corrector left the positive frequencies (w = {exc.args[0]:.3g})")
 
 
-class PseudoArclength:
+class PseudoArclength(_JacobianMemory):
     """Pseudo-arclength continuation in (q, w_b) at fixed K, until contact is lost or w_b < omega_min.
 
     Args:
@@ -289,13 +343,13 @@ class PseudoArclength:
         y1, y0 = _pack(points[-1].state, points[-1].omega), _pack(points[-2].state, points[-2].omega)
         d = y1 - y0
         tau = d / self._norm(d)
-        return self._solution(self.corrector.correct(y1 + h * tau, tau), points[-1].s + h)
+        return self._solution(self.corrector.correct(y1 + h * tau, tau, self.hint(points[-1])), points[-1].s + h)
 
     def between(self, a: BranchPoint, b: BranchPoint):
         ya, yb = _pack(a.state, a.omega), _pack(b.state, b.omega)
         d = yb - ya
         tau = d / self._norm(d)
-        return self._solution(self.corrector.correct(0.5 * (ya + yb), tau), 0.5 * (a.s + b.s))
+        return self._solution(self.corrector.correct(0.5 * (ya + yb), tau, self.hint(a)), 0.5 * (a.s + b.s))
 
     def is_between(self, a, m, b) -> bool:
         ya, ym, yb = (_pack(p.state, p.omega) for p in (a, m, b))

@@ -375,13 +375,20 @@ def continuation(
         if on_point:
             on_point(point)
 
+    def analysed(solution):
+        point = analyse(solution, settings.floquet)
+        if settings.floquet and hasattr(problem, "remember"):  # the next corrector's chord Jacobian
+            n2 = 2 * solution.params.N
+            problem.remember(point, solution.linearization.unit_columns("positions")[n2:, :])
+        return point
+
     def solve(fn, *args):
         stats["solves"] += 1
         out = fn(*args)
         if isinstance(out, Failure):
             stats["failed_solves"] += 1
             return out
-        return analyse(out, settings.floquet)
+        return analysed(out)
 
     points: list = []
     problem.prepare(settings, resume)
@@ -403,7 +410,7 @@ def continuation(
                     dict(stats, wall_seconds=time.perf_counter() - start),
                 )
             stats["solves"] += 1
-            accept(analyse(sol, settings.floquet))
+            accept(analysed(sol))
 
     def refine(a, b, h, depth=0):
         """Points strictly after a up to b, bisecting while a change sits in a bracket > resolution."""

@@ -116,6 +116,7 @@ def newton(
     amplitude: Callable[[np.ndarray], float] | None = None,
     collapse_below: float = 0.0,
     project: Callable[[np.ndarray], np.ndarray] | None = None,
+    chord: Callable[[object, np.ndarray], np.ndarray] | None = None,
     log=None,
 ) -> NewtonOutcome:
     """Damped Newton: LU solve (least squares when singular, ill-conditioned or not square), step
@@ -129,10 +130,14 @@ def newton(
             as ``TRIVIAL`` (Newton fell onto the rest state).
         project: maps every iterate (the first included) onto an invariant subspace, e.g. mirror-
             symmetric profiles, so that round-off cannot lead the iteration off a symmetric branch.
+        chord: (evaluation, residual) -> step from an approximate Jacobian (e.g. a neighbouring
+            solution's, factored once). Chord steps cost no tangent columns; they are taken while each
+            one at least halves the residual, and Newton switches to true Jacobians for good at the
+            first that does not (the iterate is then not moved by it).
         log: optional callable receiving one line per iteration.
     """
     history, used_lstsq, iterations, message = [], 0, 0, ""
-    stats = {"evaluations": 0, "jacobians": 0}
+    stats = {"evaluations": 0, "jacobians": 0, "chord_steps": 0}
     status, ev = None, None
     if project is not None:
         unknowns = project(unknowns)
@@ -158,6 +163,21 @@ def newton(
                 status = ShootingStatus.MAX_ITERATIONS
                 message = f"residual {norm:.3g} > tol {settings.tol:g} after {iterations} iterations"
                 break
+            if chord is not None:
+                step = chord(ev, ev.residual)
+                trial = unknowns - step if project is None else project(unknowns - step)
+                trial_ev = evaluate(trial)
+                stats["evaluations"] += 1
+                trial_norm = float(np.linalg.norm(trial_ev.residual))
+                if math.isfinite(trial_norm) and trial_norm <= 0.5 * norm:
+                    iterations += 1
+                    stats["chord_steps"] += 1
+                    unknowns, ev, norm = trial, trial_ev, trial_norm
+                    history.append(norm)
+                    if log is not None:
+                        log(f"newton {iterations}: residual {norm:.3e} (chord)")
+                    continue
+                chord = None  # poor contraction: true Newton from here on
             J = ev.jacobian()
             stats["jacobians"] += 1
             step, lstsq_used = solve_linear(J, ev.residual)

@@ -26,6 +26,7 @@ import math
 import time
 
 import numpy as np
+import scipy.linalg
 
 from warpchain import ChainParams, Flow, band_edges, energy
 from warpchain.model import accelerations, as_batch
@@ -298,6 +299,17 @@ class ShootingPoint:
         return self._jacobian
 
 
+def chord_solver(J0: np.ndarray):
+    """(evaluation, r) -> J0^-1 r with J0 factored once; None when J0 is singular."""
+    try:
+        lu = scipy.linalg.lu_factor(np.asarray(J0, dtype=float), check_finite=True)
+    except (ValueError, scipy.linalg.LinAlgError):
+        return None
+    if not np.all(np.isfinite(lu[0])) or np.min(np.abs(np.diag(lu[0]))) == 0.0:
+        return None
+    return lambda ev, r: scipy.linalg.lu_solve(lu, r, check_finite=False)
+
+
 def is_mirror_symmetric(state, rtol: float) -> bool:
     """Whether the positions equal their reflection j -> N + 1 - j to rtol of their size."""
     q = np.asarray(state)[:2]
@@ -333,6 +345,7 @@ def find_breather(
     fd_step: float = 1e-7,
     collapse_ratio: float = 1e-3,
     symmetric: bool | None = None,
+    jacobian_hint: np.ndarray | None = None,
     device: str | None = None,
     log=None,
 ) -> ShootingResult:
@@ -353,6 +366,9 @@ def find_breather(
             seed is (to 1e-9 of its size) and the formulation is reversible. Newton then cannot drift
             off a site-centred family through round-off amplified by a near-symmetry-breaking
             direction; False solves without the constraint (e.g. for asymmetric breathers).
+        jacobian_hint: an approximate Jacobian of the residual (e.g. a neighbouring solution's, as
+            continuation has it): Newton takes chord steps with it, factored once, while they
+            converge fast, and forms true Jacobians only when they do not.
         log: optional callable receiving one line per iteration.
 
     Returns:
@@ -385,6 +401,7 @@ def find_breather(
         pmap.from_state(seed),
         pmap.evaluate,
         settings,
+        chord=chord_solver(jacobian_hint) if jacobian_hint is not None else None,
         amplitude=amplitude,
         collapse_below=collapse_ratio * seed_amplitude,
         project=mirror_projector(params.N) if symmetric else None,
