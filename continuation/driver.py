@@ -75,6 +75,8 @@ class ContinuationSettings:
             localized mode took part), ``"none"``, or ``"auto"`` (default: ``"all"`` for chains of at
             most AUTO_ALL_SITES sites, where it is affordable, ``"localized"`` above). The others are
             recorded as ``krein_crossing`` events.
+        chord: start each corrector with chord steps on the neighbouring point's Jacobian (from its
+            Floquet analysis), forming true Jacobians only when they converge slowly.
         bisect_counts: also bisect steps across which only the number of unstable multipliers of
             a kind changed (inside an unstable stretch; recorded as ``instability_count`` events).
         floquet: compute multipliers at every point (False: energies only, no stability).
@@ -93,6 +95,7 @@ class ContinuationSettings:
     resolution: float = 1e-3
     bisect_krein: str = "auto"
     bisect_counts: bool = False
+    chord: bool = True
     floquet: bool = True
     max_seconds: float | None = None
 
@@ -377,7 +380,7 @@ def continuation(
 
     def analysed(solution):
         point = analyse(solution, settings.floquet)
-        if settings.floquet and hasattr(problem, "remember"):  # the next corrector's chord Jacobian
+        if settings.floquet and settings.chord and hasattr(problem, "remember"):  # next corrector's chord Jacobian
             n2 = 2 * solution.params.N
             problem.remember(point, solution.linearization.unit_columns("positions")[n2:, :])
         return point

@@ -51,6 +51,12 @@ class Evaluation(Protocol):
     def jacobian(self) -> np.ndarray: ...
 
 
+#: a chord step is kept when it multiplies the residual by at most this; chord steps per solve are
+#: limited to CHORD_BUDGET x max_iterations
+CHORD_CONTRACTION = 0.25
+CHORD_BUDGET = 3
+
+
 @dataclasses.dataclass(frozen=True)
 class NewtonSettings:
     """Newton's options.
@@ -131,9 +137,10 @@ def newton(
         project: maps every iterate (the first included) onto an invariant subspace, e.g. mirror-
             symmetric profiles, so that round-off cannot lead the iteration off a symmetric branch.
         chord: (evaluation, residual) -> step from an approximate Jacobian (e.g. a neighbouring
-            solution's, factored once). Chord steps cost no tangent columns; they are taken while each
-            one at least halves the residual, and Newton switches to true Jacobians for good at the
-            first that does not (the iterate is then not moved by it).
+            solution's, factored once). Chord steps cost no tangent columns and do not count against
+            ``max_iterations`` (at most CHORD_BUDGET times it); they are taken while each one reduces
+            the residual by CHORD_CONTRACTION or better, and Newton switches to true Jacobians for good
+            at the first that does not (the iterate is then not moved by it).
         log: optional callable receiving one line per iteration.
     """
     history, used_lstsq, iterations, message = [], 0, 0, ""
@@ -163,21 +170,20 @@ def newton(
                 status = ShootingStatus.MAX_ITERATIONS
                 message = f"residual {norm:.3g} > tol {settings.tol:g} after {iterations} iterations"
                 break
-            if chord is not None:
+            if chord is not None and stats["chord_steps"] < CHORD_BUDGET * max(settings.max_iterations, 1):
                 step = chord(ev, ev.residual)
                 trial = unknowns - step if project is None else project(unknowns - step)
                 trial_ev = evaluate(trial)
                 stats["evaluations"] += 1
                 trial_norm = float(np.linalg.norm(trial_ev.residual))
-                if math.isfinite(trial_norm) and trial_norm <= 0.5 * norm:
-                    iterations += 1
-                    stats["chord_steps"] += 1
+                if math.isfinite(trial_norm) and trial_norm <= CHORD_CONTRACTION * norm:
+                    stats["chord_steps"] += 1  # cheap steps: not counted against max_iterations
                     unknowns, ev, norm = trial, trial_ev, trial_norm
                     history.append(norm)
                     if log is not None:
-                        log(f"newton {iterations}: residual {norm:.3e} (chord)")
+                        log(f"chord {stats['chord_steps']}: residual {norm:.3e}")
                     continue
-                chord = None  # poor contraction: true Newton from here on
+                chord = None  # poor contraction: true Newton (with its whole budget) from here on
             J = ev.jacobian()
             stats["jacobians"] += 1
             step, lstsq_used = solve_linear(J, ev.residual)
