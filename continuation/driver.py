@@ -47,7 +47,7 @@ from warpchain import ChainParams, energy
 
 from . import events as ev
 from .events import StopReason
-from .floquet import FloquetResult, reduced_floquet
+from .floquet import FloquetResult, half_period_map, reduced_floquet
 from .shooting import frequency_report
 
 
@@ -252,8 +252,7 @@ def analyse(solution: Solution, with_floquet: bool = True) -> BranchPoint:
     """Energy, multipliers (reduced Floquet on the solution's own linearization), harmonics."""
     params, lin = solution.params, solution.linearization
     if with_floquet:
-        A = np.hstack([lin.unit_columns("positions"), lin.unit_columns("velocities")])
-        fl: FloquetResult = reduced_floquet(A, params.M, solution.state)
+        fl: FloquetResult = reduced_floquet(half_period_map(lin), params.M, solution.state)
         fields = dict(
             multipliers=fl.multipliers,
             mu=fl.mu,
@@ -297,13 +296,9 @@ def analyse(solution: Solution, with_floquet: bool = True) -> BranchPoint:
 
 def _classes(point):
     """Elliptic nontrivial mu grouped by (signature, parity), each sorted."""
-    mu, sig = np.real(point.mu), point.signature
-    par = point.parity if point.parity is not None else np.zeros(len(mu), int)
-    out = {}
-    for key in {(int(s), int(p)) for s, p in zip(sig, par) if s != 0}:
-        sel = (sig == key[0]) & (par == key[1])
-        out[key] = np.sort(mu[sel])
-    return out
+    t = ev.elliptic_table(point)
+    keys = {(int(s), int(p)) for s, p in zip(t["sig"], t["parity"])}
+    return {key: np.sort(t["mu"][(t["sig"] == key[0]) & (t["parity"] == key[1])]) for key in keys}
 
 
 def spectral_step_factor(prev: BranchPoint, point: BranchPoint, fraction: float, floor: float) -> float:

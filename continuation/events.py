@@ -65,16 +65,12 @@ def krein_order(point) -> dict | None:
     """Signatures of the elliptic, nontrivial mu sorted by mu, per parity class (None without mu)."""
     if point.mu is None or point.signature is None:
         return None
-    mu = np.real(point.mu)
-    keep = point.signature != 0
+    t = elliptic_table(point)
+    parity = t["parity"] if np.all(t["parity"] != 0) else np.zeros(len(t["mu"]), int)  # unresolved: one class
     out = {}
-    parity = point.parity if point.parity is not None else np.zeros(len(mu), int)
-    if np.any(parity[keep] == 0):
-        parity = np.zeros(len(mu), int)  # parity not resolved for every mode: one class
-    for cls in np.unique(parity[keep]):
-        sel = keep & (parity == cls)
-        order = np.argsort(mu[sel])
-        out[int(cls)] = point.signature[sel][order]
+    for cls in np.unique(parity):
+        sel = parity == cls
+        out[int(cls)] = t["sig"][sel][np.argsort(t["mu"][sel])]
     return out
 
 
@@ -104,7 +100,7 @@ def localized_krein_crossings(a, b) -> int:
     if a.mu is None or b.mu is None or a.participation is None or b.participation is None:
         return 0
     total = 0
-    ca, cb = _elliptic_table(a), _elliptic_table(b)
+    ca, cb = elliptic_table(a), elliptic_table(b)
     N = len(a.mu) // 2
     for sig in (1, -1):
         for par in set(ca["parity"]) | set(cb["parity"]):
@@ -118,14 +114,16 @@ def localized_krein_crossings(a, b) -> int:
     return total
 
 
-def _elliptic_table(point) -> dict:
+def elliptic_table(point) -> dict:
+    """The elliptic, nontrivial mu (signature +1/-1) of a point: their real parts, signatures,
+    parities (0 where unknown) and participation ratios (None when the point has none)."""
     keep = point.signature != 0
     parity = point.parity if point.parity is not None else np.zeros(len(point.mu), int)
     return {
         "mu": np.real(point.mu)[keep],
         "sig": point.signature[keep],
         "parity": parity[keep],
-        "pr": point.participation[keep],
+        "pr": None if point.participation is None else point.participation[keep],
     }
 
 

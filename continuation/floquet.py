@@ -277,6 +277,11 @@ def vector_parity(vectors: np.ndarray, threshold: float = 0.9) -> np.ndarray:
 # ----------------------------------------------------------------------------- the two paths
 
 
+def half_period_map(lin) -> np.ndarray:
+    """A (4N x 4N, on (q, q')) from a half-period Linearization: position then velocity columns."""
+    return np.hstack([lin.unit_columns("positions"), lin.unit_columns("velocities")])
+
+
 def reduced_floquet(
     A: np.ndarray,
     M: float,
@@ -512,7 +517,7 @@ def floquet(
     if reduced:
         lin = breather.linearization(flow)
         cols = lin.stats["tangent_columns"]
-        A = np.hstack([lin.unit_columns("positions"), lin.unit_columns("velocities")])
+        A = half_period_map(lin)
         return reduced_floquet(
             A,
             params.M,
