@@ -44,6 +44,7 @@ from typing import Callable
 import numpy as np
 
 from warpchain import ChainParams, energy
+from warpchain.model import real_number, whole_number
 
 from . import events as ev
 from .events import StopReason
@@ -110,28 +111,18 @@ class ContinuationSettings:
             "multiplier_floor",
             "resolution",
         ):
-            value = getattr(self, name)
-            if (
-                isinstance(value, bool)
-                or not isinstance(value, (int, float, np.integer, np.floating))
-                or not math.isfinite(value)
-                or value <= 0
-            ):
-                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+            real_number(name, getattr(self, name), positive=True)
         if self.bisect_krein not in ("auto", "localized", "all", "none"):
             raise ValueError(f"bisect_krein must be 'auto', 'localized', 'all' or 'none', got {self.bisect_krein!r}")
         if not self.ds_min <= self.ds <= self.ds_max:
             raise ValueError(f"need ds_min <= ds <= ds_max, got {self.ds_min}, {self.ds}, {self.ds_max}")
         if self.grow < 1:
             raise ValueError(f"grow must be >= 1, got {self.grow}")
-        for name in ("max_points", "max_newton"):
-            value = getattr(self, name)
-            if value is None and name == "max_points":
-                continue
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-                raise ValueError(f"{name} must be a positive integer, got {value!r}")
-        if self.max_seconds is not None and not (self.max_seconds >= 0):
-            raise ValueError(f"max_seconds must be >= 0 or None, got {self.max_seconds!r}")
+        if self.max_points is not None:
+            whole_number("max_points", self.max_points, minimum=1)
+        whole_number("max_newton", self.max_newton, minimum=1)
+        if self.max_seconds is not None:
+            real_number("max_seconds", self.max_seconds, nonnegative=True)
 
     def replace(self, **changes) -> "ContinuationSettings":
         return dataclasses.replace(self, **changes)

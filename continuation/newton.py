@@ -20,6 +20,7 @@ import numpy as np
 import scipy.linalg
 
 from warpchain import IntegrationError
+from warpchain.model import real_number, whole_number
 
 
 class ShootingStatus(enum.Enum):
@@ -72,12 +73,9 @@ class NewtonSettings:
     max_halvings: int = 8
 
     def __post_init__(self):
-        if not (isinstance(self.tol, (int, float, np.floating)) and math.isfinite(self.tol) and self.tol > 0):
-            raise ValueError(f"tol must be a finite number > 0, got {self.tol!r}")
+        real_number("tol", self.tol, positive=True)
         for name in ("max_iterations", "max_halvings"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
-                raise ValueError(f"{name} must be an integer >= 0, got {value!r}")
+            whole_number(name, getattr(self, name), minimum=0)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -29,7 +29,7 @@ import numpy as np
 import scipy.linalg
 
 from warpchain import ChainParams, Flow, band_edges, energy
-from warpchain.model import accelerations, as_batch
+from warpchain.model import accelerations, as_batch, real_number
 
 from .newton import NewtonOutcome, NewtonSettings, ShootingStatus, newton, solve_linear
 
@@ -148,12 +148,10 @@ def frequency_report(params: ChainParams, omega: float, harmonics: int = 5) -> d
 
 def time_grid(omega: float, dt: float | None, steps_per_period: int | None) -> tuple[int, float]:
     """Steps per half period and the step, so that the half period is a whole number of steps."""
-    if not (isinstance(omega, (int, float, np.floating)) and math.isfinite(omega) and omega > 0):
-        raise ValueError(f"omega must be a finite number > 0, got {omega!r}")
+    omega = real_number("omega", omega, positive=True)
     half = math.pi / omega
     if dt is not None:
-        if not dt > 0:
-            raise ValueError(f"dt must be > 0, got {dt!r}")
+        dt = real_number("dt", dt, positive=True)
         n_half = max(1, math.ceil(half / dt - 1e-9))
     else:
         spp = DEFAULT_STEPS_PER_PERIOD if steps_per_period is None else int(steps_per_period)
@@ -316,19 +314,6 @@ def is_mirror_symmetric(state, rtol: float) -> bool:
     return bool(np.max(np.abs(q - q[:, ::-1])) <= rtol * max(float(np.max(np.abs(q))), 1e-300))
 
 
-def _check_number(name, value, *, positive=True):
-    if (
-        isinstance(value, bool)
-        or not isinstance(value, (int, float, np.integer, np.floating))
-        or np.iscomplexobj(value)
-    ):
-        raise ValueError(f"{name} must be a real number, got {value!r}")
-    value = float(value)
-    if not math.isfinite(value) or (positive and value <= 0):
-        raise ValueError(f"{name} must be a finite number{' > 0' if positive else ''}, got {value!r}")
-    return value
-
-
 def find_breather(
     params: ChainParams,
     omega: float,
@@ -375,7 +360,7 @@ def find_breather(
         ShootingResult (check ``.success``; ``require(result)`` raises on failure).
     """
     start = time.perf_counter()
-    omega = _check_number("omega", omega)
+    omega = real_number("omega", omega, positive=True)
     if formulation not in ("reversible", "general"):
         raise ValueError(f"formulation must be 'reversible' or 'general', got {formulation!r}")
     if jacobian not in ("tangent", "finite-difference"):
@@ -385,8 +370,8 @@ def find_breather(
         raise ValueError(f"seed must be one state of shape (4, {params.N}), got a batch of {seed.shape[0]}")
     seed = seed[0]
     flow = make_flow(flow, method=method, steps_per_period=steps_per_period, dt=dt, omega=omega, device=device)
-    settings = NewtonSettings(tol=_check_number("tol", tol), max_iterations=max_iterations)
-    pmap = PeriodMap(params, omega, flow, formulation, jacobian, _check_number("fd_step", fd_step), seed)
+    settings = NewtonSettings(tol=real_number("tol", tol, positive=True), max_iterations=max_iterations)
+    pmap = PeriodMap(params, omega, flow, formulation, jacobian, real_number("fd_step", fd_step, positive=True), seed)
     seed_amplitude = float(np.max(np.abs(seed[0] - seed[1])))
 
     def amplitude(unknowns):
