@@ -47,6 +47,31 @@ def _int(shape):
     return shape, "i1", INT_FILL
 
 
+def _array_spec(N: int, max_newton: int) -> dict:
+    """name -> (shape of one point, dtype, fill value) of every array a branch group holds."""
+    spec = {name: _float(()) for name in ("K", "omega", "energy", "max_modulus", "tolerance", "min_contact", "s")}
+    spec.update(
+        {
+            "iterations": _int(()),
+            "stable": _int(()),
+            "state": _float((4, N)),
+            "mu_real": _float((2 * N,)),
+            "mu_imag": _float((2 * N,)),
+            "signature": _int((2 * N,)),
+            "parity": _int((2 * N,)),
+            "participation": _float((2 * N,)),
+            "newton_residuals": _float((max_newton + 1,)),
+            "instability_kind": _int((MAX_INSTABILITIES,)),
+            "instability_mu_real": _float((MAX_INSTABILITIES,)),
+            "instability_mu_imag": _float((MAX_INSTABILITIES,)),
+            "instability_participation": _float((MAX_INSTABILITIES,)),
+            "instability_localized": _int((MAX_INSTABILITIES,)),
+            "instability_parity": _int((MAX_INSTABILITIES,)),
+        }
+    )
+    return spec
+
+
 class BranchStore:
     """Writes a branch to a zarr group, one whole point (one chunk of every array) at a time.
 
@@ -79,26 +104,7 @@ class BranchStore:
         )
         g = root.require_group(group)
         self.group = g
-        spec = {name: _float(()) for name in ("K", "omega", "energy", "max_modulus", "tolerance", "min_contact", "s")}
-        spec.update(
-            {
-                "iterations": _int(()),
-                "stable": _int(()),
-                "state": _float((4, N)),
-                "mu_real": _float((2 * N,)),
-                "mu_imag": _float((2 * N,)),
-                "signature": _int((2 * N,)),
-                "parity": _int((2 * N,)),
-                "participation": _float((2 * N,)),
-                "newton_residuals": _float((self.max_newton + 1,)),
-                "instability_kind": _int((MAX_INSTABILITIES,)),
-                "instability_mu_real": _float((MAX_INSTABILITIES,)),
-                "instability_mu_imag": _float((MAX_INSTABILITIES,)),
-                "instability_participation": _float((MAX_INSTABILITIES,)),
-                "instability_localized": _int((MAX_INSTABILITIES,)),
-                "instability_parity": _int((MAX_INSTABILITIES,)),
-            }
-        )
+        spec = _array_spec(N, self.max_newton)
         dims = {"state": ("point", "component", "site"), "newton_residuals": ("point", "newton_iteration")}
         for name in ("mu_real", "mu_imag", "signature", "parity", "participation"):
             dims[name] = ("point", "pair")
@@ -241,19 +247,7 @@ def load_branch(path, group: str = "branch") -> tuple[ChainParams, list, dict]:
     n = attrs.get("n_points")
     if not isinstance(n, int) or n < 0:
         _fail(path, group, "n_points (attribute)", None, f"not a point count: {n!r}")
-    required = (
-        "K",
-        "omega",
-        "energy",
-        "state",
-        "mu_real",
-        "mu_imag",
-        "stable",
-        "iterations",
-        "max_modulus",
-        "min_contact",
-        "newton_residuals",
-    )
+    required = tuple(_array_spec(params.N, 0))  # every array the writer writes
     a = {}
     for name in names:
         try:
@@ -270,7 +264,7 @@ def load_branch(path, group: str = "branch") -> tuple[ChainParams, list, dict]:
             _fail(path, group, name, None, "missing")
     N = params.N
     for i in range(n):
-        for name in ("K", "omega", "energy", "max_modulus", "min_contact"):
+        for name in ("K", "omega", "energy", "min_contact"):
             if not np.isfinite(a[name][i]):
                 _fail(path, group, name, i, "not a finite number (a missing or damaged chunk)")
         for name in ("K", "omega"):
@@ -282,21 +276,22 @@ def load_branch(path, group: str = "branch") -> tuple[ChainParams, list, dict]:
             _fail(path, group, "stable", i, f"flag {a['stable'][i]} is not 0 or 1 (a missing or damaged chunk)")
         if a["iterations"][i] < 0:
             _fail(path, group, "iterations", i, "negative (a missing or damaged chunk)")
-        if (
-            not (np.isfinite(a["mu_real"][i]).all() and np.isfinite(a["mu_imag"][i]).all())
-            and int(a["stable"][i]) == 1
-            and np.isfinite(a["max_modulus"][i])
-        ):
-            _fail(path, group, "mu_real", i, "non-finite multipliers at a point marked analysed")
+        # a point with multipliers (finite max_modulus) has all of them; one without (a branch run
+        # with floquet=False) has none and is not marked stable: anything else is damage
+        mu_finite = np.isfinite(a["mu_real"][i]) & np.isfinite(a["mu_imag"][i])
+        if np.isfinite(a["max_modulus"][i]) and not mu_finite.all():
+            _fail(path, group, "mu_real", i, "non-finite multipliers at an analysed point (a missing or damaged chunk)")
+        if not np.isfinite(a["max_modulus"][i]) and (mu_finite.any() or a["stable"][i] == 1):
+            _fail(
+                path, group, "max_modulus", i, "not a finite number at an analysed point (a missing or damaged chunk)"
+            )
     points = []
     for i in range(n):
         mu = a["mu_real"][i] + 1j * a["mu_imag"][i]
         have_mu = bool(np.isfinite(mu).all())
         insts = []
         for k in range(MAX_INSTABILITIES):
-            code = (
-                int(a.get("instability_kind", np.full((n, 1), INT_FILL))[i][k]) if "instability_kind" in a else INT_FILL
-            )
+            code = int(a["instability_kind"][i][k])
             if code == INT_FILL:
                 break
             if not 0 <= code < len(KINDS):
@@ -316,8 +311,7 @@ def load_branch(path, group: str = "branch") -> tuple[ChainParams, list, dict]:
         pr = params.replace(K=float(a["K"][i]))
 
         def ints(name):
-            v = a.get(name)
-            return None if v is None or (v[i] == INT_FILL).all() else v[i].astype(int)
+            return None if (a[name][i] == INT_FILL).all() else a[name][i].astype(int)
 
         points.append(
             BranchPoint(
@@ -331,14 +325,14 @@ def load_branch(path, group: str = "branch") -> tuple[ChainParams, list, dict]:
                 mu=mu if have_mu else None,
                 signature=ints("signature") if have_mu else None,
                 parity=ints("parity") if have_mu else None,
-                participation=a["participation"][i] if have_mu and "participation" in a else None,
+                participation=a["participation"][i] if have_mu else None,
                 max_modulus=float(a["max_modulus"][i]),
-                tolerance=float(a.get("tolerance", np.full(n, np.nan))[i]),
+                tolerance=float(a["tolerance"][i]),
                 stable=bool(a["stable"][i]),
                 instabilities=tuple(insts),
                 min_contact=float(a["min_contact"][i]),
                 harmonics_in_bands=tuple(frequency_report(pr, float(a["omega"][i]))["harmonics_in_bands"]),
-                s=float(a.get("s", np.full(n, np.nan))[i]),
+                s=float(a["s"][i]),
             )
         )
     return params, points, attrs

@@ -176,3 +176,19 @@ def test_settings_are_validated():
         ContinuationSettings(max_points=0)
     with pytest.raises(ValueError, match="bisect_krein"):
         ContinuationSettings(bisect_krein="some")
+
+
+def test_a_branch_without_floquet_is_stored_and_read_back(tmp_path):
+    p = ChainParams(30.0, 0.01, 21)
+    store = BranchStore(tmp_path / "nf.zarr", "branch", p, {"omega": 1.01})
+    branch = continue_in_coupling(
+        p,
+        1.01,
+        ct.anticontinuum_seed(p, 1.01),
+        0.1,
+        settings=ContinuationSettings(ds=0.3, ds_max=0.5, floquet=False),
+        on_point=store.append,
+    )
+    store.finish(branch)
+    _, points, _ = load_branch(tmp_path / "nf.zarr", "branch")
+    assert len(points) == len(branch.points) and all(q.mu is None and not q.stable for q in points)
