@@ -94,13 +94,11 @@ class BranchStore:
         max_newton: int = 40,
         resume: bool = False,
         device=None,
-        command_line: str | None = None,
     ):
         self.path, self.group_name, self.params, self.max_newton = Path(path), group, params, int(max_newton)
         N = params.N
-        extra = {"command_line": command_line} if command_line else {}
         root = open_store(
-            self.path, params=params.as_dict(), provenance_info=provenance(device, **extra), mode="a" if resume else "w"
+            self.path, params=params.as_dict(), provenance_info=provenance(device), mode="a" if resume else "w"
         )
         g = root.require_group(group)
         self.group = g

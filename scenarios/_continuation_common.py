@@ -86,7 +86,6 @@ def run_branch(ctx, problem, settings, params, attrs) -> Branch:
         max_newton=3 * settings.max_newton,
         resume=bool(resume),
         device=ctx.device,
-        command_line=ctx.command_line,
     )
     from tqdm.contrib.logging import logging_redirect_tqdm
 
