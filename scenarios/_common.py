@@ -172,15 +172,15 @@ def run_scene(
         name=name, out=out, device=resolved, quick=quick, params=params, resume=resume, command_line=command_line
     )
     try:
-        return _run_in(module, ctx, params, command_line)
+        return _run_in(module, ctx)
     except BaseException:
         if created and not any(out.iterdir()):  # nothing was written: leave no empty folder
             out.rmdir()
         raise
 
 
-def _run_in(module, ctx: Context, params, command_line: str) -> dict:
-    out = ctx.out
+def _run_in(module, ctx: Context) -> dict:
+    out, params, command_line = ctx.out, ctx.params, ctx.command_line
     start = time.perf_counter()
     ctx.log("start (device %s%s) -> %s", ctx.device, ", quick" if ctx.quick else "", out)
     if params is not None:
