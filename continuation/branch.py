@@ -3,13 +3,16 @@
 * ``NaturalParameter`` (continuation in the coupling K at fixed w_b): the coordinate is log10 K (or
   K); secant predictor on the states; corrector: fixed-K Newton shooting (reversible formulation);
   lands exactly on requested ``targets``.
-* ``PseudoArclength`` (continuation in the frequency at fixed K): unknowns y = (q, w_b), secant
+* ``PseudoArclength`` (continuation in the frequency at fixed K, ``FrequencyAxis``; or in log10 K at
+  fixed w_b through folds, ``CouplingAxis``, for the families of ``continuation.bifurcation``):
+  unknowns y = (q, w_b), secant
   tangent tau, corrector Newton on [R(q, w); <tau, y - y_pred>_W = 0] with the weighted inner product
   <a, b>_W = a_q . b_q + theta^2 a_w b_w, theta = 1 / (gap width), so that crossing the gap counts
   like a unit change of the profile. The half period keeps a fixed number of steps (dt follows w).
   dR/dw is read from the same trajectory: R is the velocity at T/2 = n dt, so
   dR/dw = -(pi / w^2) a(q(T/2)) up to the integrator's error in the modified flow (O(dt^8) for kahan8),
   which leaves Newton's convergence unchanged at the tolerances used; no extra trajectory is run.
+  In log10 K the force changes, so dR/d(log10 K) costs two extra runs (a central difference).
 
 Every corrector step is one ``Flow.linearize`` per Newton point (``shooting``), and the converged
 point's linearization (its recorded trajectory) is what the reduced Floquet problem's columns replay.
@@ -32,8 +35,11 @@ from .newton import NewtonSettings, newton
 from .shooting import PeriodMap, chord_solver, find_breather, is_mirror_symmetric, make_flow, mirror_projector
 
 __all__ = [
+    "ArclengthCorrector",
     "Branch",
     "BranchPoint",
+    "CouplingAxis",
+    "FrequencyAxis",
     "ContinuationSettings",
     "NaturalParameter",
     "PseudoArclength",
@@ -169,17 +175,68 @@ class NaturalParameter(_JacobianMemory):
         return f"K = {p.K:.8g}: E = {p.energy:.8f}, max|l| = {p.max_modulus:.8f}"
 
 
-# ----------------------------------------------------------------------------- continuation in frequency
+# ----------------------------------------------------------------------------- pseudo-arclength
 
 
-def _weights(params: ChainParams, theta):
-    edges = band_edges(params.M, params.K)
-    theta = (1.0 / edges["gap_width"]) if theta is None else theta
-    return np.concatenate([np.ones(2 * params.N), [theta**2]])
+class FrequencyAxis:
+    """The arclength parameter w_b at fixed K (the chain's ``params``): the half period keeps its
+    number of steps, so dt follows w, and dR/dw is read from the trajectory (module docstring)."""
+
+    name = "omega"
+
+    def __init__(self, params: ChainParams):
+        self.params = params
+        self.edges = band_edges(params.M, params.K)
+
+    def coordinate(self, point) -> float:
+        return float(point.omega)
+
+    def chain(self, c: float) -> tuple:
+        if not (math.isfinite(c) and c > 0):
+            raise _BadParameter(f"the corrector left the positive frequencies (w = {c:.3g})")
+        return self.params, float(c)
+
+    def default_theta(self) -> float:
+        return 1.0 / self.edges["gap_width"]
+
+    def derivative(self, point, c: float, x0) -> np.ndarray:
+        x_end = point.linearization.x_end
+        return -(math.pi / c**2) * accelerations(self.params, x_end[None])[0].ravel()
 
 
-def _pack(state, omega) -> np.ndarray:
-    return np.concatenate([np.asarray(state)[:2].ravel(), [omega]])
+class CouplingAxis:
+    """The arclength parameter log10 K at fixed w_b (``omega``): dR/d(log10 K) by a central difference
+    of two runs at K 10^(+-h) (R depends on K through the force only; h = 1e-6 keeps the truncation
+    error ~1e-12 and the round-off ~1e-10 relative, below the corrector's tolerance)."""
+
+    name = "K"
+    STEP = 1e-6
+
+    def __init__(self, params: ChainParams, omega: float):
+        self.params, self.omega = params, float(omega)
+
+    def coordinate(self, point) -> float:
+        return math.log10(point.K)
+
+    def chain(self, c: float) -> tuple:
+        if not (math.isfinite(c) and -12.0 < c < 12.0):
+            raise _BadParameter(f"the corrector left the couplings 1e-12 < K < 1e12 (log10 K = {c:.3g})")
+        return self.params.replace(K=10.0**c), self.omega
+
+    def default_theta(self) -> float:
+        return 1.0
+
+    def derivative(self, point, c: float, x0) -> np.ndarray:
+        pmap, h = point.pmap, self.STEP
+        ends = [
+            pmap.flow.run(self.params.replace(K=10.0 ** (c + d)), x0[None], pmap.nsteps, pmap.dt).x_end[0]
+            for d in (h, -h)
+        ]
+        return (ends[0][2:] - ends[1][2:]).ravel() / (2.0 * h)
+
+
+def _pack(state, c) -> np.ndarray:
+    return np.concatenate([np.asarray(state)[:2].ravel(), [c]])
 
 
 def _state_of(params: ChainParams, y) -> np.ndarray:
@@ -193,32 +250,32 @@ class _BorderedPoint:
 
     def __init__(self, corrector, y, y_pred, tau):
         self.c, self.y = corrector, y
-        params = corrector.params
-        self.omega = float(y[-1])
-        if not (math.isfinite(self.omega) and self.omega > 0):
-            raise _BadFrequency(self.omega)
-        self.point = PeriodMap(params, self.omega, corrector.flow).evaluate(y[:-1])
+        self.value = float(y[-1])
+        self.params, self.omega = corrector.axis.chain(self.value)
+        self.point = PeriodMap(self.params, self.omega, corrector.flow).evaluate(y[:-1])
         self.linearization = self.point.linearization
         self.row = corrector.W * tau
         self.residual = np.append(self.point.residual, np.sum(self.row * (y - y_pred)))
+        self._dparameter = None
 
-    def domega(self) -> np.ndarray:
-        """dR/dw from this trajectory: -(pi / w^2) a(q(T/2)) (module docstring)."""
-        x_end = self.linearization.x_end
-        return -(math.pi / self.omega**2) * accelerations(self.c.params, x_end[None])[0].ravel()
+    def dparameter(self) -> np.ndarray:
+        """dR/d(parameter) at this point (the axis says how)."""
+        if self._dparameter is None:
+            self._dparameter = self.c.axis.derivative(self.point, self.value, self.point.x0)
+        return self._dparameter
 
     def jacobian(self) -> np.ndarray:
-        n2 = 2 * self.c.params.N
+        n2 = len(self.y) - 1
         J = np.zeros((n2 + 1, n2 + 1))
         J[:n2, :n2] = self.point.jacobian()
-        J[:n2, -1] = self.domega()
+        J[:n2, -1] = self.dparameter()
         J[-1] = self.row
         return J
 
 
 def _bordered_chord(J0, row):
     """Chord solver for [[J0, b], [row]] with J0 (the neighbour's 2N x 2N block) factored once and
-    b = dR/dw taken from each trajectory, by block elimination; None when J0 is singular."""
+    b = dR/d(parameter) taken from each trajectory, by block elimination; None when J0 is singular."""
     solve0 = chord_solver(J0)
     if solve0 is None:
         return None
@@ -226,7 +283,7 @@ def _bordered_chord(J0, row):
 
     def solve(ev, r):
         y = solve0(ev, r[:-1])
-        z = solve0(ev, ev.domega())
+        z = solve0(ev, ev.dparameter())
         denom = d - float(c @ z)
         x2 = (r[-1] - float(c @ y)) / denom if denom != 0.0 else 0.0
         return np.append(y - z * x2, x2)
@@ -234,16 +291,27 @@ def _bordered_chord(J0, row):
     return solve
 
 
-class _BadFrequency(ValueError):
+class _BadParameter(ValueError):
     pass
 
 
-class _ArclengthCorrector:
-    def __init__(self, params: ChainParams, flow: Flow, W, settings: NewtonSettings, symmetric: bool = False):
-        self.params, self.flow, self.W, self.settings = params, flow, W, settings
-        self.project = mirror_projector(params.N) if symmetric else None
+class ArclengthCorrector:
+    """Newton on [R(q, c) = 0; <tau, y - y_pred>_W = 0] for y = (q, c), c the axis' coordinate.
+
+    Args:
+        axis: ``FrequencyAxis`` or ``CouplingAxis``.
+        flow: the integrator.
+        W: weights of the inner product (2N ones, then theta^2).
+        settings: NewtonSettings.
+        symmetric: project every iterate onto mirror-symmetric profiles.
+    """
+
+    def __init__(self, axis, flow: Flow, W, settings: NewtonSettings, symmetric: bool = False):
+        self.axis, self.flow, self.W, self.settings = axis, flow, W, settings
+        self.project = mirror_projector(axis.params.N) if symmetric else None
 
     def correct(self, y_pred, tau, hint=None):
+        """A NewtonOutcome (``.unknowns`` = (q, c)), or a Failure when the parameter left its range."""
         row = self.W * tau
         try:
             return newton(
@@ -253,24 +321,48 @@ class _ArclengthCorrector:
                 project=self.project,
                 chord=None if hint is None else _bordered_chord(hint, row),
             )
-        except _BadFrequency as exc:
-            return Failure(f"the corrector left the positive frequencies (w = {exc.args[0]:.3g})")
+        except _BadParameter as exc:
+            return Failure(str(exc))
+
+    def solution(self, outcome, s) -> Solution | Failure:
+        """The Solution of a converged outcome (a Failure otherwise)."""
+        if isinstance(outcome, Failure):
+            return outcome
+        if not outcome.success:
+            return Failure(f"{outcome.status.value}: {outcome.message}")
+        y = outcome.unknowns
+        params, omega = self.axis.chain(float(y[-1]))
+        return Solution(
+            params,
+            omega,
+            _state_of(params, y),
+            outcome.iterations,
+            outcome.history,
+            outcome.evaluation.linearization,
+            s,
+        )
 
 
 class PseudoArclength(_JacobianMemory):
-    """Pseudo-arclength continuation in (q, w_b) at fixed K, until contact is lost or w_b < omega_min.
+    """Pseudo-arclength continuation in (q, c), c the coordinate of ``axis``: w_b at fixed K
+    (``FrequencyAxis``, the default: from the eigenmode until contact is lost or w_b < omega_min) or
+    log10 K at fixed w_b (``CouplingAxis``: through folds in K, until K leaves [K_min, K_max] or
+    ``until`` says the branch ended).
 
     Args:
-        params: the chain.
+        params: the chain (the first point's, for the coupling axis).
         flow: the integrator.
-        start_points: two (state, omega, iterations, residual history) tuples that set the direction
-            (None: ``start_from_eigenmode``).
-        omega_min: the branch's floor in frequency (an end, reached only if contact holds until there).
-        theta: the frequency's weight (default 1 / gap width).
+        start_points: two (state, c, iterations, residual history[, linearization]) tuples that set
+            the direction (None: ``start_from_eigenmode``, frequency axis only).
+        omega_min: the frequency branch's floor (an end, reached only if contact holds until there).
+        theta: the parameter's weight in the norm (default: 1 / gap width for w_b, 1 for log10 K).
         eigenmode_amplitude: amplitude of the first eigenmode point (when start_points is None).
+        symmetric: project iterates onto mirror-symmetric profiles (None: when the start is).
+        axis: ``FrequencyAxis(params)`` (None) or ``CouplingAxis(params, omega)``.
+        K_range: (K_min, K_max) for the coupling axis: the branch ends when it leaves it.
+        until: optional (previous point, point) -> reason or None: the branch ends there (an event
+            such as joining another family).
     """
-
-    parameter = "omega"
 
     def __init__(
         self,
@@ -282,24 +374,41 @@ class PseudoArclength(_JacobianMemory):
         theta: float | None = None,
         eigenmode_amplitude: float = 0.03,
         symmetric: bool | None = None,
+        axis=None,
+        K_range: tuple = (1e-3, 1e3),
+        until=None,
     ):
         self.params, self.flow, self.start_points = params, flow, start_points
+        self.axis = FrequencyAxis(params) if axis is None else axis
+        self.parameter = self.axis.name
+        if self.parameter == "K" and start_points is None:
+            raise ValueError("a branch in K needs two start points (e.g. from bifurcation.switch_branch)")
         self.symmetric = symmetric
-        self.omega_min, self.theta, self.eigenmode_amplitude = float(omega_min), theta, eigenmode_amplitude
-        self.W = _weights(params, theta)
+        self.omega_min, self.eigenmode_amplitude = float(omega_min), eigenmode_amplitude
+        self.theta = self.axis.default_theta() if theta is None else float(theta)
+        self.W = np.concatenate([np.ones(2 * params.N), [self.theta**2]])
         self.edges = band_edges(params.M, params.K)
-        self.description = f"frequency continuation, K = {params.K:g}"
+        self.K_range = tuple(float(k) for k in K_range)
+        self.until = until
+        self.description = (
+            f"frequency continuation, K = {params.K:g}"
+            if self.parameter == "omega"
+            else f"arclength in K, w_b = {self.axis.omega:g}"
+        )
 
     def _norm(self, d) -> float:
         return math.sqrt(float(np.sum(self.W * d * d)))
+
+    def _y(self, point) -> np.ndarray:
+        return _pack(point.state, self.axis.coordinate(point))
 
     def prepare(self, settings: ContinuationSettings, resume=None) -> None:
         self._settings = settings
         if self.symmetric is None:  # the eigenmode start is symmetric; a resumed branch says itself
             first = resume[-1].state if resume else (self.start_points[-1][0] if self.start_points else None)
             self.symmetric = first is None or is_mirror_symmetric(first, 1e-9)
-        self.corrector = _ArclengthCorrector(
-            self.params,
+        self.corrector = ArclengthCorrector(
+            self.axis,
             self.flow,
             self.W,
             NewtonSettings(tol=settings.newton_tol, max_iterations=settings.max_newton),
@@ -316,55 +425,51 @@ class PseudoArclength(_JacobianMemory):
             except RuntimeError as exc:
                 return [Failure(str(exc))]
         out, s = [], 0.0
-        for k, (state, omega, it, hist, *rest) in enumerate(self.start_points):
+        for k, (state, c, it, hist, *rest) in enumerate(self.start_points):
             if k:
-                s += self._norm(_pack(state, omega) - _pack(*self.start_points[k - 1][:2]))
-            lin = rest[0] if rest else self.flow.linearize(self.params, state, *self.flow.grid(omega))
-            out.append(Solution(self.params, omega, state, it, hist, lin, s))
+                s += self._norm(_pack(state, c) - _pack(*self.start_points[k - 1][:2]))
+            params, omega = self.axis.chain(float(c))
+            lin = rest[0] if rest else self.flow.linearize(params, state, *self.flow.grid(omega))
+            out.append(Solution(params, omega, state, it, hist, lin, s))
         return out
 
-    def _solution(self, outcome, s) -> Solution | Failure:
-        if isinstance(outcome, Failure):
-            return outcome
-        if not outcome.success:
-            return Failure(f"{outcome.status.value}: {outcome.message}")
-        y = outcome.unknowns
-        return Solution(
-            self.params,
-            float(y[-1]),
-            _state_of(self.params, y),
-            outcome.iterations,
-            outcome.history,
-            outcome.evaluation.linearization,
-            s,
-        )
-
     def step(self, points, h: float):
-        y1, y0 = _pack(points[-1].state, points[-1].omega), _pack(points[-2].state, points[-2].omega)
+        y1, y0 = self._y(points[-1]), self._y(points[-2])
         d = y1 - y0
         tau = d / self._norm(d)
-        return self._solution(self.corrector.correct(y1 + h * tau, tau, self.hint(points[-1])), points[-1].s + h)
+        return self.corrector.solution(
+            self.corrector.correct(y1 + h * tau, tau, self.hint(points[-1])), points[-1].s + h
+        )
 
     def between(self, a: BranchPoint, b: BranchPoint):
-        ya, yb = _pack(a.state, a.omega), _pack(b.state, b.omega)
+        ya, yb = self._y(a), self._y(b)
         d = yb - ya
         tau = d / self._norm(d)
-        return self._solution(self.corrector.correct(0.5 * (ya + yb), tau, self.hint(a)), 0.5 * (a.s + b.s))
+        return self.corrector.solution(self.corrector.correct(0.5 * (ya + yb), tau, self.hint(a)), 0.5 * (a.s + b.s))
 
     def is_between(self, a, m, b) -> bool:
-        ya, ym, yb = (_pack(p.state, p.omega) for p in (a, m, b))
+        ya, ym, yb = (self._y(p) for p in (a, m, b))
         d = yb - ya
         t = float(np.sum(self.W * (ym - ya) * d)) / float(np.sum(self.W * d * d))
         return 0.0 < t < 1.0
 
     def is_forward(self, points, new) -> bool:
-        y1, y0 = _pack(points[-1].state, points[-1].omega), _pack(points[-2].state, points[-2].omega)
-        return float(np.sum(self.W * (_pack(new.state, new.omega) - y1) * (y1 - y0))) > 0
+        y1, y0 = self._y(points[-1]), self._y(points[-2])
+        return float(np.sum(self.W * (self._y(new) - y1) * (y1 - y0))) > 0
 
     def clip_step(self, last, h: float) -> float:
         return h
 
     def finished(self, last: BranchPoint):
+        previous, self._previous = getattr(self, "_previous", None), last
+        if self.until is not None and previous is not None and previous is not last:
+            why = self.until(previous, last)
+            if why:
+                return True, why
+        if self.parameter == "K":
+            if not self.K_range[0] <= last.K <= self.K_range[1]:
+                return True, f"K = {last.K:.8g} left [{self.K_range[0]:g}, {self.K_range[1]:g}]"
+            return False, ""
         if last.omega < self.omega_min:
             return True, f"w_b = {last.omega:.8g} < omega_min = {self.omega_min:g}"
         if last.omega > self.edges["optical_bottom"] + 0.5 * self.edges["gap_width"]:
@@ -372,6 +477,10 @@ class PseudoArclength(_JacobianMemory):
         return False, ""
 
     def progress(self, first: BranchPoint, last: BranchPoint) -> float:
+        if self.parameter == "K":  # fraction of the K range in log10 K, from the first point to the nearer end
+            lo, hi = (math.log10(k) for k in self.K_range)
+            k0, k1 = math.log10(first.K), math.log10(last.K)
+            return abs(k1 - k0) / max(max(hi - k0, k0 - lo), 1e-12)
         # contact loss is the expected end, so progress is the fall of min contact towards 0 (or of
         # w_b towards omega_min, whichever is further along)
         c0 = first.min_contact
@@ -380,6 +489,8 @@ class PseudoArclength(_JacobianMemory):
         return max(by_contact, by_omega)
 
     def describe(self, p: BranchPoint) -> str:
+        if self.parameter == "K":
+            return f"K = {p.K:.8g}: E = {p.energy:.8f}, max|l| = {p.max_modulus:.8f}"
         return f"w = {p.omega:.8f}: E = {p.energy:.8f}, max|l| = {p.max_modulus:.8f}, min contact {p.min_contact:.4f}"
 
 
@@ -412,9 +523,10 @@ def start_from_eigenmode(
     shape = shape / np.max(np.abs(z))
     phi = z / np.max(np.abs(z))
     ratio = np.sum(phi**4) / np.sum(phi**2)
-    W = _weights(params, theta)
-    corrector = _ArclengthCorrector(
-        params, flow, W, NewtonSettings(tol=tol, max_iterations=30), symmetric=is_mirror_symmetric(shape, 1e-9)
+    axis = FrequencyAxis(params)
+    W = np.concatenate([np.ones(2 * params.N), [(axis.default_theta() if theta is None else theta) ** 2]])
+    corrector = ArclengthCorrector(
+        axis, flow, W, NewtonSettings(tol=tol, max_iterations=30), symmetric=is_mirror_symmetric(shape, 1e-9)
     )
     direction = np.concatenate([shape[:2].ravel(), [0.0]])
     tau = direction / math.sqrt(np.sum(W * direction * direction))

@@ -76,6 +76,9 @@ UNRELIABLE_TOLERANCE = 1e-6
 #: site weight M |a_u|^2 + |a_v|^2) is below this fraction of N
 LOCALIZED_FRACTION = 0.1
 
+#: sites on each side of the orbit's energy centre counted in an instability's ``central_weight``
+CENTRAL_SITES = 2
+
 
 @dataclasses.dataclass(frozen=True)
 class Instability:
@@ -88,6 +91,8 @@ class Instability:
         participation: participation ratio of its Floquet vector in sites (NaN on the full path).
         localized: participation < LOCALIZED_FRACTION * N.
         parity: +1 even, -1 odd, 0 unknown.
+        central_weight: fraction of the Floquet vector's site weight on the CENTRAL_SITES sites on
+            either side of the orbit's energy centre (NaN on the full path or without the orbit).
     """
 
     kind: str
@@ -96,6 +101,7 @@ class Instability:
     participation: float
     localized: bool
     parity: int
+    central_weight: float = float("nan")
 
     def as_dict(self) -> dict:
         return {
@@ -106,6 +112,7 @@ class Instability:
             "participation": self.participation,
             "localized": self.localized,
             "parity": self.parity,
+            "central_weight": self.central_weight,
         }
 
 
@@ -259,6 +266,24 @@ def participation(vectors: np.ndarray, M: float) -> np.ndarray:
     return np.sum(w, axis=0) ** 2 / np.maximum(np.sum(w * w, axis=0), 1e-300)
 
 
+def energy_centre(state) -> float:
+    """Centre of a profile, sum j z_j^2 / sum z_j^2 with z = u - v at t = 0 (0-based sites): the centre
+    site c for a site-centred breather, c + 1/2 for a bond-centred one on (c, c + 1)."""
+    z = np.asarray(state)[0] - np.asarray(state)[1]
+    w = z * z
+    return float(np.sum(np.arange(len(z)) * w) / max(float(np.sum(w)), 1e-300))
+
+
+def central_weight(vectors: np.ndarray, M: float, centre: float, sites: int = CENTRAL_SITES) -> np.ndarray:
+    """Fraction of each column's site weight (M|a_u|^2 + |a_v|^2; columns of length 2N) on the sites
+    within ``sites`` of ``centre``."""
+    vectors = np.asarray(vectors)
+    n = vectors.shape[0] // 2
+    w = M * np.abs(vectors[:n]) ** 2 + np.abs(vectors[n:]) ** 2
+    near = np.abs(np.arange(n) - centre) <= sites + 0.5
+    return np.sum(w[near], axis=0) / np.maximum(np.sum(w, axis=0), 1e-300)
+
+
 def mirror_symmetric(state: np.ndarray, rtol: float = 1e-6) -> bool:
     """Whether positions equal their reflection j -> N + 1 - j (to rtol of their size)."""
     from .shooting import is_mirror_symmetric
@@ -319,6 +344,7 @@ def reduced_floquet(
     signature[trivial] = 0
     parity = vector_parity(vec) if state is not None and mirror_symmetric(state) else np.zeros(len(mu), int)
     pr = participation(vec, M)
+    weight = central_weight(vec, M, energy_centre(state)) if state is not None else np.full(len(mu), np.nan)
     modulus = outer_modulus(mu)
     mask = np.ones(len(mu), bool)
     mask[trivial] = False
@@ -334,6 +360,7 @@ def reduced_floquet(
                 participation=float(pr[i]),
                 localized=bool(pr[i] < LOCALIZED_FRACTION * N),
                 parity=int(parity[i]),
+                central_weight=float(weight[i]),
             )
         )
     instabilities.sort(key=lambda s: -s.modulus)

@@ -65,6 +65,7 @@ def _array_spec(N: int, max_newton: int) -> dict:
             "instability_mu_real": _float((MAX_INSTABILITIES,)),
             "instability_mu_imag": _float((MAX_INSTABILITIES,)),
             "instability_participation": _float((MAX_INSTABILITIES,)),
+            "instability_central_weight": _float((MAX_INSTABILITIES,)),
             "instability_localized": _int((MAX_INSTABILITIES,)),
             "instability_parity": _int((MAX_INSTABILITIES,)),
         }
@@ -82,6 +83,8 @@ class BranchStore:
         max_newton: Newton iterations stored per point.
         resume: open an existing group and append to it (its points are checked first).
         device: for provenance.
+        new_store: start a new store (False: add the group to an existing one, as scenes with
+            several branches do).
     """
 
     def __init__(
@@ -94,11 +97,15 @@ class BranchStore:
         max_newton: int = 40,
         resume: bool = False,
         device=None,
+        new_store: bool = True,
     ):
         self.path, self.group_name, self.params, self.max_newton = Path(path), group, params, int(max_newton)
         N = params.N
         root = open_store(
-            self.path, params=params.as_dict(), provenance_info=provenance(device), mode="a" if resume else "w"
+            self.path,
+            params=params.as_dict(),
+            provenance_info=provenance(device),
+            mode="w" if new_store and not resume else "a",
         )
         g = root.require_group(group)
         self.group = g
@@ -183,6 +190,7 @@ class BranchStore:
             "instability_mu_real": table(lambda i: i.mu.real, np.nan),
             "instability_mu_imag": table(lambda i: i.mu.imag, np.nan),
             "instability_participation": table(lambda i: i.participation, np.nan),
+            "instability_central_weight": table(lambda i: i.central_weight, np.nan),
             "instability_localized": table(lambda i: int(i.localized), INT_FILL),
             "instability_parity": table(lambda i: i.parity, INT_FILL),
         }
@@ -301,6 +309,7 @@ def load_branch(path, group: str = "branch") -> tuple[ChainParams, list, dict]:
                     mu=imu,
                     modulus=float(outer_modulus(np.array([imu]))[0]),
                     participation=float(a["instability_participation"][i][k]),
+                    central_weight=float(a["instability_central_weight"][i][k]),
                     localized=bool(a["instability_localized"][i][k] == 1),
                     parity=int(a["instability_parity"][i][k]),
                 )

@@ -19,6 +19,7 @@ SCENES = {
     "breather": "scenarios.breather",
     "continuation-k": "scenarios.continuation_k",
     "continuation-omega": "scenarios.continuation_omega",
+    "site-bond": "scenarios.site_bond",
     "direct-simulation": "scenarios.direct_simulation",
     "work-precision": "scenarios.work_precision",
     "stability-limits": "scenarios.stability_limits",
@@ -32,6 +33,7 @@ PAPER_SCENES = [
     "breather",
     "continuation-k",
     "continuation-omega",
+    "site-bond",
     "direct-simulation",
 ]
 

@@ -59,12 +59,15 @@ KIND_LABELS = {
 }
 
 
-def run_branch(ctx, problem, settings, params, attrs) -> Branch:
-    """Run (or with ``ctx.resume`` continue) the branch, streaming points into OUT/data.zarr."""
+def run_branch(
+    ctx, problem, settings, params, attrs, *, group: str = "branch", new_store: bool = True, progress: bool = True
+) -> Branch:
+    """Run (or with ``ctx.resume`` continue) the branch, streaming points into OUT/data.zarr (group
+    ``group``; ``new_store=False`` adds it to the scene's existing store)."""
     path = ctx.out / "data.zarr"
     resume = None
     if ctx.resume:
-        stored_params, resume, stored_attrs = load_branch(path, "branch")
+        stored_params, resume, stored_attrs = load_branch(path, group)
         if stored_params.N != params.N or stored_params.M != params.M:
             raise StoreError(
                 f"{path} holds a branch of N = {stored_params.N}, M = {stored_params.M}, not "
@@ -80,24 +83,28 @@ def run_branch(ctx, problem, settings, params, attrs) -> Branch:
         )
     store = BranchStore(
         path,
-        "branch",
+        group,
         params,
         attrs,
         max_newton=3 * settings.max_newton,
         resume=bool(resume),
         device=ctx.device,
+        new_store=new_store,
     )
     from tqdm.contrib.logging import logging_redirect_tqdm
 
     try:
         with logging_redirect_tqdm():  # log lines above the progress bar, not glued onto it
-            branch = continuation(problem, settings, resume=resume, on_point=store.append, log=ctx.log, progress=True)
+            branch = continuation(
+                problem, settings, resume=resume, on_point=store.append, log=ctx.log, progress=progress
+            )
     except KeyboardInterrupt:
         store.interrupted("interrupted by the user (Ctrl-C); the stored points are complete: resume with --resume")
         raise
     store.finish(branch)
     ctx.log(
-        "stop: %s (%d points, %.0f s, %.2f s per point)",
+        "%s: stop: %s (%d points, %.0f s, %.2f s per point)",
+        group,
         branch.message,
         len(branch.points),
         branch.wall_seconds,

@@ -1,0 +1,442 @@
+"""Branch points: detection, location, classification and branch switching; finite-size checks.
+
+**Which multipliers make a branch point.** Reversible shooting solves R(q; p) = q'(T/2) = 0 for the
+positions q at t = 0 (``shooting``), with Jacobian J = dR/dq = A21, the velocity rows of the position
+columns of the half-period map A. J a = 0 means a perturbation of the positions whose velocities
+vanish at T/2: a T-periodic reversible solution of the linearization, i.e. a Floquet multiplier +1
+beyond the trivial pair (whose direction is a time shift, a velocity perturbation, and does not enter
+J). In the reduced problem (``floquet``) that is mu = (l + 1/l) / 2 = 1, with the position part of
+the Floquet vector as eigenvector of Mu. A simple mu is analytic in the parameter, so a real pair
+leaving the unit circle through +1 is a simple zero of mu - 1 (mu goes from elliptic, mu < 1, to
+real, mu > 1): the test function of the locator.
+
+**Pitchfork (Z2 symmetry breaking).** A site-centred orbit is mirror symmetric (P q = q, P: j -> N + 1 - j
+on u and v), so J commutes with P and splits into even and odd blocks. When an *odd* mu passes 1, the
+odd block is singular and, by equivariance (R(Pq) = P R(q)), a family of asymmetric orbits is born:
+q = q* + a phi + O(a^2), p - p* = c a^2 + O(a^3) (p is even in a because a and -a are mirror images),
+so its distance from the symmetric family grows like sqrt(|p - p*|). phi is the eigenvector of Mu at
+mu = 1. The switcher fixes a (the constraint <phi, q - q*> = a, ``branch.ArclengthCorrector`` with
+tau = (phi, 0)) and solves for (q, p) without the symmetry projection, at a = h and 2h; those two
+points start a pseudo-arclength branch in log10 K (``branch.CouplingAxis``) that follows the new
+family through folds.
+
+**What is not a bifurcation of the breather.** mu = 1 also occurs whenever a phonon of the finite chain
+passes a harmonic, w_k = n w_b (l = exp(i w_k T) = 1): such a mu has an extended Floquet vector and
+touches 1 (mu = cos(w_k T)) without creating a localized family; its bubbles shrink with N. So the
+detector counts only *localized* real pairs (participation below ``floquet.LOCALIZED_FRACTION`` N),
+per parity; extended instabilities are classified by ``finite_size_check``: re-solved at ~2N sites
+(the profile padded with zeros), an intrinsic instability keeps its modulus, a finite-size resonance
+moves or vanishes.
+
+Period doubling (mu through -1) and Krein collisions (quadruplets) are reported from the branch's
+stability-change events and not followed.
+
+The generic pieces (``locate_zero``, ``brackets``, ``switch_branch``) know nothing of breathers; the
+tests feed them the closed-form pitchfork of a two-variable problem.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Callable
+
+import numpy as np
+
+from warpchain import ChainParams, Flow, energy
+
+from .branch import ArclengthCorrector, CouplingAxis
+from .driver import Failure
+from .floquet import (
+    central_weight,
+    energy_centre,
+    half_period_map,
+    participation,
+    reduced_floquet,
+    reduced_matrix,
+    vector_parity,
+)
+from .newton import NewtonSettings
+from .shooting import find_breather, is_mirror_symmetric
+
+__all__ = [
+    "BifurcationPoint",
+    "Located",
+    "brackets",
+    "central_weight",
+    "energy_centre",
+    "finite_size_check",
+    "locate_real_pair",
+    "locate_zero",
+    "localized_real_pairs",
+    "pad_chain",
+    "switch_branch",
+    "switch_to_asymmetric",
+]
+
+# ----------------------------------------------------------------------------- generic pieces
+
+
+@dataclasses.dataclass(frozen=True)
+class Located:
+    """A zero of a test function located in a bracket.
+
+    Attributes:
+        value: the parameter at the zero (the last secant estimate).
+        bracket: (lo, hi), the final sign-change bracket.
+        test: the test function's value at ``value``.
+        evaluations: test function evaluations used.
+        converged: the bracket (or the last secant step) is below the tolerance.
+        payload: what the test function returned with its value at ``value``.
+    """
+
+    value: float
+    bracket: tuple
+    test: float
+    evaluations: int
+    converged: bool
+    payload: object = None
+
+
+def locate_zero(
+    f: Callable[[float], tuple],
+    a: float,
+    b: float,
+    *,
+    atol: float = 1e-9,
+    max_evaluations: int = 60,
+) -> Located:
+    """Zero of a continuous test function in [a, b] by Brent's method (scipy's ``brentq``: inverse
+    quadratic and secant steps inside a sign-change bracket, bisection when they stall), to a final
+    bracket of ``atol``. A plain secant or regula falsi stops on a short step while one end is stuck,
+    which on the flat test functions of weak exchanges of stability (mu - 1 changes by ~1e-5 per unit
+    of K) left the estimate 1e-6 off; Brent's bracket cannot.
+
+    Args:
+        f: p -> (test value, payload).
+        a, b: the bracket.
+        atol: the final bracket's width (in p).
+        max_evaluations: give up (``converged`` False) after this many evaluations.
+
+    Raises:
+        ValueError: no sign change in [a, b].
+    """
+    from scipy.optimize import brentq
+
+    seen: dict = {}
+
+    def value(x):
+        if x not in seen:
+            seen[x] = f(x)
+        return seen[x][0]
+
+    fa, fb = value(a), value(b)
+    if fa == 0.0 or fb == 0.0:
+        x = a if fa == 0.0 else b
+        return Located(x, (x, x), 0.0, len(seen), True, seen[x][1])
+    if np.sign(fa) == np.sign(fb):
+        raise ValueError(f"no sign change of the test function in [{a:.10g}, {b:.10g}] ({fa:.3g}, {fb:.3g})")
+    x, info = brentq(
+        value, a, b, xtol=atol, rtol=4 * np.finfo(float).eps, maxiter=max_evaluations, full_output=True, disp=False
+    )
+    fx = value(x)
+    # the final bracket: the closest evaluated points on either side of x with opposite signs
+    xs = sorted(seen)
+    left = max((p for p in xs if p <= x and np.sign(seen[p][0]) != np.sign(fb if b > a else fa)), default=min(a, b))
+    right = min((p for p in xs if p >= x and np.sign(seen[p][0]) != np.sign(fa if b > a else fb)), default=max(a, b))
+    return Located(float(x), (left, right), float(fx), len(seen), bool(info.converged), seen[x][1])
+
+
+def brackets(items, signature: Callable[[object], object]) -> list:
+    """Indices (i, i + 1) of consecutive items whose ``signature`` differs (where a branch point
+    lies between them)."""
+    sig = [signature(x) for x in items]
+    return [(i, i + 1) for i in range(len(sig) - 1) if sig[i] != sig[i + 1]]
+
+
+def switch_branch(corrector, y_star: np.ndarray, phi: np.ndarray, amplitudes=(1.0, 2.0)) -> list:
+    """Points of the family that bifurcates at ``y_star`` = (x*, p*) along the null direction ``phi``
+    (on x only): for each amplitude a, Newton on [F(x, p) = 0; <phi, x - x*> = a], started at
+    (x* + a phi, p*). ``corrector.correct(y_pred, tau)`` is that bordered Newton (e.g.
+    ``branch.ArclengthCorrector`` with no weight on p; the tests use a closed-form one).
+
+    Returns:
+        one corrector outcome per amplitude (NewtonOutcome, or the corrector's Failure).
+    """
+    phi = np.asarray(phi, dtype=float)
+    tau = np.append(phi / np.linalg.norm(phi), 0.0)
+    y_star = np.asarray(y_star, dtype=float)
+    return [corrector.correct(y_star + a * tau, tau) for a in amplitudes]
+
+
+# ----------------------------------------------------------------------------- breathers
+
+
+def localized_real_pairs(point, parity: int | None = None) -> int:
+    """How many localized real pairs (mu > 1, participation < LOCALIZED_FRACTION N) a branch point
+    has (of the given parity when not None): the detector's signature."""
+    return sum(
+        1
+        for i in point.instabilities
+        if i.kind == "real_pair" and i.localized and (parity is None or i.parity == parity)
+    )
+
+
+@dataclasses.dataclass(frozen=True)
+class BifurcationPoint:
+    """A located branch point of a breather family.
+
+    Attributes:
+        family: the family it lies on (e.g. ``"site"``, ``"bond-in-phase"``).
+        kind: ``"symmetry_breaking_pitchfork"`` (an odd localized real pair through +1 on a mirror-
+            symmetric family), ``"branch_point"`` (a localized real pair through +1 elsewhere),
+            ``"period_doubling"`` or ``"krein_collision"`` (reported, not followed).
+        K, omega: where it is; bracket: the final bracket in K; evaluations: solves used.
+        direction: ``"gained"`` / ``"lost"``: whether the family gains or loses the real pair with growing K.
+        state: the orbit at the point (4, N); null_vector: the Floquet vector at mu = 1 (positions, 2N).
+        participation, central_weight: of the null vector (sites; fraction on the central 2 CENTRAL_SITES + 1).
+        energy: of the orbit; test: mu - 1 at the located point.
+    """
+
+    family: str
+    kind: str
+    K: float
+    omega: float
+    bracket: tuple
+    evaluations: int
+    direction: str
+    state: np.ndarray = dataclasses.field(repr=False)
+    null_vector: np.ndarray = dataclasses.field(repr=False)
+    participation: float
+    central_weight: float
+    energy: float
+    test: float
+
+    def as_dict(self) -> dict:
+        return {
+            "K": self.K,
+            "kind": self.kind,
+            "family": self.family,
+            "omega": self.omega,
+            "bracket": list(self.bracket),
+            "direction": self.direction,
+            "participation": self.participation,
+            "central_weight": self.central_weight,
+            "energy": self.energy,
+            "test_mu_minus_1": self.test,
+            "evaluations": self.evaluations,
+        }
+
+
+def _mu_and_vectors(result):
+    """Reduced Floquet matrix eigenpairs of a converged ShootingResult (positions columns)."""
+    A = half_period_map(result.linearization())
+    mu, vec = np.linalg.eig(reduced_matrix(A, result.params.M))
+    return mu, vec
+
+
+def locate_real_pair(
+    family: str,
+    params: ChainParams,
+    omega: float,
+    a,
+    b,
+    flow: Flow,
+    *,
+    parity: int | None = None,
+    atol: float = 1e-9,
+    tol: float = 1e-11,
+) -> BifurcationPoint:
+    """Locate where a localized real pair passes +1 between branch points ``a`` and ``b`` (the
+    detector's bracket) by the secant on mu - 1 of the most localized real mu of the given parity,
+    in log10 K. Each evaluation is a Newton solve (started from the interpolated profiles, kept
+    symmetric when both ends are) and a reduced Floquet analysis.
+
+    Args:
+        family: name of the family (for the record).
+        params: the chain (any K); omega: the frequency.
+        a, b: branch points (BranchPoint) with a different ``localized_real_pairs`` count.
+        flow: the integrator.
+        parity: -1 for odd modes of a symmetric family, None for any.
+        atol: in log10 K (1e-9: 2.3e-9 relative in K).
+
+    Raises:
+        RuntimeError: a solve inside the bracket failed.
+    """
+    ca, cb = math.log10(a.K), math.log10(b.K)
+    symmetric = is_mirror_symmetric(a.state, 1e-9) and is_mirror_symmetric(b.state, 1e-9)
+    centre = energy_centre(a.state)
+
+    def test(c):
+        t = (c - ca) / (cb - ca)
+        guess = (1.0 - t) * a.state + t * b.state
+        res = find_breather(params.replace(K=10.0**c), omega, guess, flow=flow, tol=tol, symmetric=symmetric)
+        if not res.success:
+            raise RuntimeError(f"locating the branch point of the {family} family: {res.message}")
+        mu, vec = _mu_and_vectors(res)
+        trivial = int(np.argmin(np.abs(mu - 1.0)))
+        real = np.abs(mu.imag) < 1e-9 * np.maximum(1.0, np.abs(mu.real))
+        real[trivial] = False
+        if parity is not None:
+            real &= vector_parity(vec) == parity
+        if not real.any():
+            raise RuntimeError(f"no real multiplier of parity {parity} near K = {10**c:.8g} on the {family} family")
+        pr = participation(vec, params.M)
+        k = np.flatnonzero(real)[np.argmin(pr[real])]
+        return float(mu[k].real - 1.0), (res, np.real(vec[:, k]), float(pr[k]))
+
+    loc = locate_zero(test, ca, cb, atol=atol)
+    res, phi, pr = loc.payload
+    phi = phi / np.linalg.norm(phi)
+    before = localized_real_pairs(a, parity)
+    kind = "symmetry_breaking_pitchfork" if symmetric and parity == -1 else "branch_point"
+    gained = (localized_real_pairs(b, parity) > before) == (b.K > a.K)
+    return BifurcationPoint(
+        family=family,
+        kind=kind,
+        K=10.0**loc.value,
+        omega=float(omega),
+        bracket=tuple(sorted((10.0 ** loc.bracket[0], 10.0 ** loc.bracket[1]))),
+        evaluations=loc.evaluations,
+        direction="gained" if gained else "lost",
+        state=res.state,
+        null_vector=phi,
+        participation=pr,
+        central_weight=float(central_weight(phi[:, None], params.M, centre)[0]),
+        energy=float(res.energy),
+        test=float(loc.test),
+    )
+
+
+def switch_to_asymmetric(
+    bif: BifurcationPoint,
+    params: ChainParams,
+    flow: Flow,
+    amplitude: float,
+    *,
+    toward: float | None = None,
+    tol: float = 1e-10,
+    max_newton: int = 12,
+) -> tuple:
+    """The first two points of the family born at ``bif`` (amplitudes ``amplitude`` and twice it
+    along the null vector), as start points for ``branch.PseudoArclength(axis=CouplingAxis(...))``.
+
+    Args:
+        toward: the sign of the null vector is chosen so that the energy centre moves toward this
+            site position (default: the right-hand neighbour bond, centre + 1/2).
+
+    Returns:
+        two (state, log10 K, iterations, residual history, linearization) tuples.
+
+    Raises:
+        RuntimeError: the bordered Newton failed (with its message).
+    """
+    axis = CouplingAxis(params, bif.omega)
+    W = np.ones(2 * params.N + 1)
+    corrector = ArclengthCorrector(axis, flow, W, NewtonSettings(tol=tol, max_iterations=max_newton))
+    q_star = bif.state[:2].ravel()
+    phi = bif.null_vector
+    centre = energy_centre(bif.state)
+    toward = centre + 0.5 if toward is None else toward
+    trial = np.zeros_like(bif.state)
+    trial[:2] = (q_star + 1e-3 * np.max(np.abs(q_star)) * phi).reshape(2, -1)
+    if (energy_centre(trial) - centre) * (toward - centre) < 0:
+        phi = -phi
+    y_star = np.append(q_star, math.log10(bif.K))
+    out = []
+    for outcome in switch_branch(corrector, y_star, phi, (amplitude, 2.0 * amplitude)):
+        if isinstance(outcome, Failure) or not outcome.success:
+            raise RuntimeError(f"branch switching at K = {bif.K:.8g} failed: {outcome.message}")
+        y = outcome.unknowns
+        state = np.zeros_like(bif.state)
+        state[:2] = y[:-1].reshape(2, -1)
+        out.append((state, float(y[-1]), outcome.iterations, outcome.history, outcome.evaluation.linearization))
+    return tuple(out)
+
+
+# ----------------------------------------------------------------------------- finite-size check
+
+
+def pad_chain(state, N_new: int) -> np.ndarray:
+    """The (4, N) state centred in a chain of N_new >= N sites, zeros outside (N_new - N even keeps a
+    site-centred profile's centre site in the middle)."""
+    state = np.asarray(state)
+    N = state.shape[1]
+    if N_new < N or (N_new - N) % 2:
+        raise ValueError(f"pad to N_new >= N with N_new - N even, got N = {N}, N_new = {N_new}")
+    out = np.zeros((4, N_new))
+    k = (N_new - N) // 2
+    out[:, k : k + N] = state
+    return out
+
+
+def _instability_table(fl, vectors, M, centre) -> tuple:
+    """Per unstable multiplier: its row (kind, |l|, participation, central weight, localized, parity)
+    and its Floquet vector's normalised site weights (M |a_u|^2 + |a_v|^2), shape (n, N)."""
+    rows, weights = [], []
+    n = vectors.shape[0] // 2
+    for inst in fl.instabilities:
+        k = int(np.argmin(np.abs(fl.mu - inst.mu)))
+        rows.append(dict(inst.as_dict(), central_weight=float(central_weight(vectors[:, k : k + 1], M, centre)[0])))
+        w = M * np.abs(vectors[:n, k]) ** 2 + np.abs(vectors[n:, k]) ** 2
+        weights.append(w / np.sum(w))
+    return rows, np.array(weights).reshape(len(rows), n)
+
+
+def finite_size_check(
+    params: ChainParams, omega: float, state, flow: Flow, *, N_new: int | None = None, tol: float = 1e-10
+) -> dict:
+    """Re-solve an orbit on a chain about twice as long (2N - 1 sites for odd N, so the centre site
+    stays the centre; the profile padded with zeros) and compare the unstable multipliers.
+
+    An unstable multiplier *persists* when the longer chain has one of the same kind and parity
+    whose |l| - 1 agrees to 10 % (and 1e-9); a localized one that persists is ``intrinsic``,
+    anything else ``finite-size`` (N-dependent: a resonance with the finite chain's phonons).
+
+    Returns:
+        dict with ``N``, ``N_new``, ``tables`` ({N: [rows]}, each row an instability with its
+        ``central_weight``), ``classification`` (per instability of the N chain: ``persists``,
+        ``modulus_new``, ``class``), ``weights`` ({N: (n_unstable, N) normalised site weights of the
+        unstable Floquet vectors}), ``energy`` ({N: E}) and the new orbit's ``state``.
+    """
+    N = params.N
+    N_new = (2 * N - 1 if N % 2 else 2 * N) if N_new is None else int(N_new)
+    tables, weights, energies, states = {}, {}, {}, {}
+    for n, guess in ((N, np.asarray(state)), (N_new, pad_chain(state, N_new))):
+        pn = params.replace(N=n)
+        res = find_breather(pn, omega, guess, flow=flow, tol=tol)
+        if not res.success:
+            raise RuntimeError(f"finite-size check: the orbit could not be re-solved at N = {n}: {res.message}")
+        A = half_period_map(res.linearization())
+        fl = reduced_floquet(A, params.M, res.state)
+        _, vec = np.linalg.eig(reduced_matrix(A, params.M))
+        tables[n], weights[n] = _instability_table(fl, vec, params.M, energy_centre(res.state))
+        energies[n], states[n] = float(energy(pn, res.state)[0]), res.state
+    classification = []
+    for row in tables[N]:
+        growth = row["modulus"] - 1.0
+        match = [
+            r
+            for r in tables[N_new]
+            if r["kind"] == row["kind"]
+            and r["parity"] == row["parity"]
+            and abs((r["modulus"] - 1.0) - growth) <= max(0.1 * growth, 1e-9)
+        ]
+        persists = bool(match)
+        classification.append(
+            dict(
+                row,
+                persists=persists,
+                modulus_new=match[0]["modulus"] if match else None,
+                **{"class": "intrinsic" if persists and row["localized"] else "finite-size"},
+            )
+        )
+    return {
+        "N": N,
+        "N_new": N_new,
+        "tables": tables,
+        "weights": weights,
+        "classification": classification,
+        "energy": energies,
+        "state": states[N_new],
+    }

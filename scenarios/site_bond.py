@@ -1,0 +1,649 @@
+"""Site- and bond-centred breathers, the asymmetric family that joins them, and which instabilities
+are the breather's own (the paper's abstract: breathers "localized around one or two lattice sites").
+
+Command: ``python -m scenarios run site-bond`` (CPU: ~4 min on 2 cores; ``--quick``: N = 101, under
+a minute). Options: ``--set KEY=VALUE`` (fields of ``Parameters``).
+
+1. **Families** at w_b = 1.01, from the anti-continuum seeds at K = 0.01 to K = 160: site-centred
+   (natural parameter in log10 K, kept mirror symmetric), bond-centred in phase and out of phase
+   (pseudo-arclength in log10 K, ``branch.CouplingAxis``, so folds are followed), multipliers and
+   their kinds at every point.
+2. **Branch points** (``continuation.bifurcation``): where the number of localized real pairs changes
+   (per parity on the symmetric family), located by the secant on mu - 1 to ``locate_atol`` in log10 K.
+3. **Switching** at the site family's symmetry-breaking pitchfork onto the asymmetric family, followed
+   until its energy centre reaches the bond centre (it joins the bond-centred family) or it leaves the
+   K range. The square-root law is measured with ``sqrt_amplitudes``; its first points are checked for
+   periodicity with scipy's DOP853.
+4. **Peierls-Nabarro barrier**: E(bond in phase) - E(site) at ``pn_K`` (exact solves) and along K.
+5. **Finite-size check** at ``finite_size_K``: the site breather re-solved on 2N - 1 sites; unstable
+   multipliers that keep their modulus and are localized are intrinsic, the others finite-size.
+6. Period doubling and localized Krein collisions on the families are reported (not followed).
+
+Everything is stored in ``data.zarr`` (groups ``site``, ``bond_in_phase``, ``bond_out_of_phase``,
+``asymmetric``, ``bifurcations``, ``sqrt_law``, ``finite_size_K<K>_N<N>``); the figures read it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from continuation import anticontinuum_seed, find_breather
+from continuation import bifurcation as bf
+from continuation.branch import CouplingAxis, NaturalParameter, PseudoArclength
+from continuation.floquet import KINDS, energy_centre
+from warpchain import ChainParams
+from warpchain.reference import solve_ivp_reference
+from warpchain.store import StoreError, open_store, write_table
+
+from ._branch_store import load_branch
+from ._common import PAPER_K, PAPER_OMEGA, Context, pyplot, read_summary, save_figure
+from ._continuation_common import KIND_COLOURS, BranchParameters, branch_summary, run_branch
+
+FAMILIES = ("site", "bond-in-phase", "bond-out-of-phase", "asymmetric")
+BIFURCATION_KINDS = ("symmetry_breaking_pitchfork", "branch_point", "period_doubling", "krein_collision")
+
+
+@dataclasses.dataclass(frozen=True)
+class Parameters(BranchParameters):
+    """The scene's parameters (``--set KEY=VALUE``); steps and resolution in log10 K."""
+
+    omega: float = PAPER_OMEGA
+    K_start: float = 0.01
+    K_end: float = PAPER_K
+    ds: float = 0.05
+    ds_max: float = 0.05  # the site/bond exchanges of stability come every ~0.07-0.12 in log10 K
+    resolution: float = 0.05  # no bisection: branch points are located by the secant instead
+    bisect_krein: str = "none"  # the phonon foam is the continuation scenes' business
+    multiplier_floor: float = 0.1
+    out_of_phase_ds_max: float = 0.3  # arclength; that family only has to be followed to its fold
+    locate_atol: float = 1e-9  # in log10 K (2.3e-9 relative in K)
+    locate_K_max: float = 30.0  # branch points above this are reported with their bracket, not located
+    pn_K: tuple = (5.0, 20.0, PAPER_K)
+    switch_amplitude: float = 0.02  # along the unit null vector (positions)
+    sqrt_amplitudes: tuple = (0.005, 0.01, 0.02, 0.04)
+    asymmetric_ds: float = 0.02  # arclength steps of the asymmetric family
+    asymmetric_max_points: int = 60
+    finite_size_K: tuple = (10.0, PAPER_K)
+    dop853_rtol: float = 1e-11
+
+    def settings(self):
+        return super().settings().replace(multiplier_floor=self.multiplier_floor)
+
+
+QUICK = {
+    "N": 61,
+    "K_end": 25.0,
+    "ds": 0.1,
+    "ds_max": 0.1,
+    "resolution": 0.1,
+    "locate_K_max": 12.0,
+    "finite_size_K": (10.0,),
+    "pn_K": (5.0, 20.0),
+}
+
+
+def _group(family: str) -> str:
+    return family.replace("-", "_")
+
+
+def _family_branch(ctx: Context, P: Parameters, flow, family: str):
+    """Continue one family from its anti-continuum seed at K_start to K_end."""
+    params = ChainParams(P.M, P.K_start, P.N)
+    settings = P.settings()
+    if family == "bond-out-of-phase":
+        settings = settings.replace(ds_max=P.out_of_phase_ds_max, resolution=P.out_of_phase_ds_max)
+    attrs = {"family": family, "omega": P.omega, "method": P.method, "steps_per_period": P.steps_per_period}
+    seed = anticontinuum_seed(params, P.omega, family)
+    if family == "site":
+        problem = NaturalParameter(params, P.omega, seed, P.K_end, flow, targets=P.pn_K + P.finite_size_K)
+        attrs.update(continuation="natural parameter in log10 K (mirror symmetric)", coordinate="log10 K")
+    else:
+        first = find_breather(params, P.omega, seed, flow=flow, symmetric=False)
+        if not first.success:
+            raise RuntimeError(f"the {family} seed did not converge at K = {P.K_start}: {first.message}")
+        p2 = params.replace(K=P.K_start * 10 ** (0.5 * P.ds))
+        second = find_breather(p2, P.omega, first.state, flow=flow, symmetric=False)
+        if not second.success:
+            raise RuntimeError(f"the {family} family's second point did not converge: {second.message}")
+        starts = [
+            (r.state, math.log10(r.params.K), r.iterations, r.residual_history, r.linearization())
+            for r in (first, second)
+        ]
+        problem = PseudoArclength(
+            params,
+            flow,
+            starts,
+            axis=CouplingAxis(params, P.omega),
+            symmetric=False,
+            K_range=(0.5 * P.K_start, P.K_end),
+        )
+        attrs.update(continuation="pseudo-arclength in (positions, log10 K)", coordinate="arclength")
+    attrs["settings"] = dataclasses.asdict(settings)
+    new = family == "site"
+    return run_branch(ctx, problem, settings, params, attrs, group=_group(family), new_store=new, progress=True)
+
+
+def _solve_near(points, K: float, P: Parameters, flow, symmetric=None):
+    """The family's orbit at exactly K, by Newton from its nearest stored point (None when K lies
+    outside the family's range or Newton fails)."""
+    Ks = np.array([p.K for p in points])
+    if not (Ks.min() <= K <= Ks.max()):
+        return None
+    near = points[int(np.argmin(np.abs(np.log(Ks) - math.log(K))))]
+    res = find_breather(ChainParams(P.M, K, P.N), P.omega, near.state, flow=flow, symmetric=symmetric)
+    return res if res.success else None
+
+
+def _folds(family: str, points) -> list:
+    """Turning points in K of an arclength family: K maxima or minima of three consecutive points,
+    placed at the vertex of the parabola through them in (arclength, log10 K)."""
+    out = []
+    for index, (a, b, c) in enumerate(zip(points, points[1:], points[2:]), start=1):
+        ka, kb, kc = (math.log10(p.K) for p in (a, b, c))
+        if (kb - ka) * (kc - kb) < 0:
+            s = np.array([a.s, b.s, c.s])
+            coeff = np.polyfit(s - b.s, [ka, kb, kc], 2)
+            vertex = kb if coeff[0] == 0 else float(np.polyval(coeff, -coeff[1] / (2 * coeff[0])))
+            out.append(
+                {
+                    "K": 10.0**vertex,
+                    "kind": "fold",
+                    "family": family,
+                    "bracket": [min(a.K, c.K), max(b.K, 10.0**vertex)],
+                    "located": False,
+                    "index": index,
+                }
+            )
+    return out
+
+
+def _other_events(family: str, branch) -> list:
+    """Period doubling and localized Krein collisions among the family's stability changes."""
+    out = []
+    for change in branch.stability_changes():
+        kinds = set(change["kinds"])
+        localized = set(change.get("localized") or [])
+        kind = None
+        if "period_doubling" in kinds:
+            kind = "period_doubling"
+        elif "complex_quadruplet" in localized:
+            kind = "krein_collision"
+        if kind:
+            lo, hi = change["bracket"]
+            out.append({"K": math.sqrt(lo * hi), "kind": kind, "family": family, "bracket": [lo, hi], "located": False})
+    return out
+
+
+def run(ctx: Context) -> dict:
+    P: Parameters = ctx.params
+    flow = P.flow(ctx.device)
+    branches, bifurcations, folds, unlocated = {}, [], [], []
+
+    # 1. the three families from the anti-continuum limit
+    for family in FAMILIES[:3]:
+        branches[family] = _family_branch(ctx, P, flow, family)
+
+    # 2. branch points: localized real pairs through +1
+    for family in FAMILIES[:3]:
+        points = branches[family].points
+        parity = -1 if family == "site" else None
+        family_folds = _folds(family, points)
+        folds.extend(family_folds)
+        for i, j in bf.brackets(points, lambda p: bf.localized_real_pairs(p, parity)):
+            if any(abs(i - f["index"]) <= 2 or abs(j - f["index"]) <= 2 for f in family_folds):
+                continue  # a real pair through +1 at a fold in K is the fold itself (J singular there)
+            if points[i].K > P.locate_K_max:
+                unlocated.append(
+                    {
+                        "K": math.sqrt(points[i].K * points[j].K),
+                        "kind": "symmetry_breaking_pitchfork" if parity == -1 else "branch_point",
+                        "family": family,
+                        "bracket": sorted([points[i].K, points[j].K]),
+                        "located": False,
+                        "direction": "gained"
+                        if bf.localized_real_pairs(points[j], parity) > bf.localized_real_pairs(points[i], parity)
+                        else "lost",
+                    }
+                )
+                continue
+            try:
+                bif = bf.locate_real_pair(
+                    family,
+                    ChainParams(P.M, P.K_start, P.N),
+                    P.omega,
+                    points[i],
+                    points[j],
+                    flow,
+                    parity=parity,
+                    atol=P.locate_atol,
+                )
+            except ValueError as exc:  # the count changed because a real pair's mode crossed the localization limit
+                ctx.log("%s: no crossing of +1 between K = %.8g and %.8g (%s)", family, points[i].K, points[j].K, exc)
+                continue
+            except RuntimeError as exc:
+                ctx.log(
+                    "%s: the branch point between K = %.8g and %.8g was not located: %s",
+                    family,
+                    points[i].K,
+                    points[j].K,
+                    exc,
+                )
+                continue
+            ctx.log(
+                "%s: %s at K = %.10g (%s the localized real pair; null vector: %.1f sites, %.0f %% on the centre; "
+                "mu - 1 = %.1e; %d solves)",
+                family,
+                bif.kind,
+                bif.K,
+                bif.direction,
+                bif.participation,
+                100 * bif.central_weight,
+                bif.test,
+                bif.evaluations,
+            )
+            bifurcations.append(bif)
+    if unlocated:
+        ctx.log(
+            "%d more exchanges of the localized real pair above K = %g (brackets in summary.json; "
+            "--set locate_K_max=... locates them)",
+            len(unlocated),
+            P.locate_K_max,
+        )
+    others = unlocated + folds + [e for family in FAMILIES[:3] for e in _other_events(family, branches[family])]
+    for e in folds:
+        ctx.log("%s: fold at K = %.6g (the family turns back towards smaller K)", e["family"], e["K"])
+
+    # 3. switch onto the asymmetric family at the site family's pitchfork
+    pitchforks = [b for b in bifurcations if b.kind == "symmetry_breaking_pitchfork"]
+    asym, sqrt_rows, dop = None, [], []
+    if pitchforks:
+        pf = pitchforks[0]
+        params_pf = ChainParams(P.M, pf.K, P.N)
+        site_points = branches["site"].points
+        for a in P.sqrt_amplitudes:  # the square-root law: distance from the symmetric family vs K - K*
+            (s1, c1, *_), _ = bf.switch_to_asymmetric(pf, params_pf, flow, a, tol=1e-12)
+            K1 = 10.0**c1
+            sym = _solve_near(site_points, K1, P, flow, symmetric=True)
+            dist = float(np.linalg.norm(s1[:2] - sym.state[:2])) if sym is not None else float("nan")
+            sqrt_rows.append((a, K1, K1 - pf.K, dist, energy_centre(s1) - energy_centre(pf.state)))
+        fit = np.polyfit(np.log([abs(r[2]) for r in sqrt_rows]), np.log([r[3] for r in sqrt_rows]), 1)
+        ctx.log("square-root law: distance ~ |K - K*|^%.4f (expected 1/2)", fit[0])
+        starts = bf.switch_to_asymmetric(pf, params_pf, flow, P.switch_amplitude)
+        for state, c, *_ in starts:  # the new orbits are breathers of the ODE, not only of the map
+            Kc = 10.0**c
+            end, _ = solve_ivp_reference(
+                ChainParams(P.M, Kc, P.N), state, 2 * math.pi / P.omega, rtol=P.dop853_rtol, atol=1e-3 * P.dop853_rtol
+            )
+            dop.append(float(np.max(np.abs(end - state)) / np.max(np.abs(state[:2]))))
+        ctx.log(
+            "asymmetric family's first points: DOP853 returns after one period to %s",
+            ", ".join(f"{d:.1e}" for d in dop),
+        )
+        bond_centre = energy_centre(pf.state) + 0.5
+
+        def until(prev, point):
+            a, b = energy_centre(prev.state) - bond_centre, energy_centre(point.state) - bond_centre
+            if a * b <= 0:
+                return f"its energy centre reached the bond centre between K = {prev.K:.10g} and {point.K:.10g}"
+            return None
+
+        problem = PseudoArclength(
+            params_pf,
+            flow,
+            starts,
+            axis=CouplingAxis(params_pf, P.omega),
+            symmetric=False,
+            K_range=(P.K_start, P.K_end),
+            until=until,
+        )
+        settings = P.settings().replace(
+            ds=P.asymmetric_ds, ds_max=4 * P.asymmetric_ds, max_points=P.asymmetric_max_points, ds_min=1e-6
+        )
+        attrs = {"family": "asymmetric", "omega": P.omega, "born_at_K": pf.K, "settings": dataclasses.asdict(settings)}
+        asym = run_branch(ctx, problem, settings, params_pf, attrs, group="asymmetric", new_store=False)
+        branches["asymmetric"] = asym
+    end_join = _asymmetric_end(asym, bifurcations)
+    if end_join:
+        ctx.log("asymmetric family: %s", end_join["message"])
+
+    # 4. the Peierls-Nabarro barrier: the bond-in-phase orbit solved at every site point's K
+    barrier = []
+    site_points, bond_points = branches["site"].points, branches["bond-in-phase"].points
+    bond_K = np.array([p.K for p in bond_points])
+    pn_rows = []
+    for p in site_points:
+        if not bond_K.min() <= p.K <= bond_K.max():
+            continue
+        bond = _solve_near(bond_points, p.K, P, flow, symmetric=False)
+        if bond is not None:
+            pn_rows.append((p.K, p.energy, bond.energy))
+    for K in P.pn_K:
+        row = next((r for r in pn_rows if abs(r[0] - K) <= 1e-12 * K), None)
+        if row is None:
+            barrier.append({"K": K, "site_energy": None, "bond_energy": None, "barrier": None})
+            continue
+        barrier.append({"K": K, "site_energy": row[1], "bond_energy": row[2], "barrier": row[2] - row[1]})
+        ctx.log("PN barrier at K = %g: E_bond - E_site = %.3e (E_site = %.10f)", K, row[2] - row[1], row[1])
+
+    # the exchange window of the first pitchfork: site and bond solved on a grid, the asymmetric points
+    exchange = None
+    if asym is not None and end_join and end_join.get("bond_branch_point_K"):
+        K_s, K_b = pitchforks[0].K, end_join["bond_branch_point_K"]
+        width = abs(K_b - K_s)
+        bond_start = min((b for b in bifurcations if b.family == "bond-in-phase"), key=lambda b: abs(b.K - K_b)).state
+        grid = np.linspace(min(K_s, K_b) - 0.5 * width, max(K_s, K_b) + 0.5 * width, 11)
+        rows = []
+        for K in grid:
+            site = find_breather(ChainParams(P.M, K, P.N), P.omega, pitchforks[0].state, flow=flow, tol=1e-12)
+            bond = find_breather(ChainParams(P.M, K, P.N), P.omega, bond_start, flow=flow, tol=1e-12)
+            if site.success and bond.success:
+                rows.append((K, site.energy, bond.energy))
+        exchange = np.array(rows, float)
+
+    # 5. finite-size check on the site family
+    root = open_store(ctx.out / "data.zarr", mode="a")
+    tables = {}
+    site_points = branches["site"].points
+    for K in P.finite_size_K:
+        site = _solve_near(site_points, K, P, flow, symmetric=True)
+        if site is None:
+            continue
+        check = bf.finite_size_check(ChainParams(P.M, K, P.N), P.omega, site.state, flow)
+        tables[f"{K:g}"] = check
+        for row in check["classification"]:
+            ctx.log(
+                "K = %g, N = %d: %s |l| = %.7f (%.1f sites, %.0f %% central) -> N = %d: %s: %s",
+                K,
+                check["N"],
+                row["kind"],
+                row["modulus"],
+                row["participation"],
+                100 * row["central_weight"],
+                check["N_new"],
+                "%.7f" % row["modulus_new"] if row["modulus_new"] else "gone",
+                row["class"],
+            )
+        for n, rows in check["tables"].items():
+            write_table(
+                root,
+                f"finite_size_K{K:g}_N{n}",
+                {
+                    "modulus": np.array([r["modulus"] for r in rows], float),
+                    "kind": np.array([KINDS.index(r["kind"]) for r in rows], np.int8),
+                    "participation": np.array([r["participation"] for r in rows], float),
+                    "central_weight": np.array([r["central_weight"] for r in rows], float),
+                    "localized": np.array([r["localized"] for r in rows], np.int8),
+                    "parity": np.array([r["parity"] for r in rows], np.int8),
+                    "weight": check["weights"][n],
+                },
+                dim="instability",
+                attrs={"K": K, "N": n, "kinds": list(KINDS)},
+            )
+
+    # the bifurcation table, the square-root law, the barrier and the exchange window
+    if pn_rows:
+        rows = np.array(pn_rows, float)
+        write_table(
+            root,
+            "pn_barrier",
+            {"K": rows[:, 0], "site_energy": rows[:, 1], "bond_energy": rows[:, 2], "barrier": rows[:, 2] - rows[:, 1]},
+            dim="K",
+        )
+    if exchange is not None and len(exchange):
+        write_table(
+            root,
+            "exchange",
+            {"K": exchange[:, 0], "site_energy": exchange[:, 1], "bond_energy": exchange[:, 2]},
+            dim="K",
+            attrs={"site_pitchfork_K": pitchforks[0].K, "bond_branch_point_K": end_join["bond_branch_point_K"]},
+        )
+    write_table(
+        root,
+        "bifurcations",
+        {
+            "K": np.array([b.K for b in bifurcations], float),
+            "energy": np.array([b.energy for b in bifurcations], float),
+            "participation": np.array([b.participation for b in bifurcations], float),
+            "central_weight": np.array([b.central_weight for b in bifurcations], float),
+            "state": np.array([b.state for b in bifurcations], float).reshape(len(bifurcations), 4, P.N),
+            "null_vector": np.array([b.null_vector for b in bifurcations], float).reshape(len(bifurcations), 2 * P.N),
+        },
+        dim="bifurcation",
+        attrs={
+            "family": [b.family for b in bifurcations],
+            "kind": [b.kind for b in bifurcations],
+            "direction": [b.direction for b in bifurcations],
+        },
+    )
+    if sqrt_rows:
+        rows = np.array(sqrt_rows, float)
+        write_table(
+            root,
+            "sqrt_law",
+            {"amplitude": rows[:, 0], "K": rows[:, 1], "K_offset": rows[:, 2], "distance": rows[:, 3]},
+            dim="amplitude",
+            attrs={"K_star": pitchforks[0].K, "exponent": float(fit[0])},
+        )
+    oop = branches["bond-out-of-phase"].points
+    z_end = oop[-1].state[0] - oop[-1].state[1]
+    out_of_phase_end = {
+        "K": oop[-1].K,
+        "energy": oop[-1].energy,
+        "excited_sites": int(np.sum(np.abs(z_end) > 0.3 * np.max(np.abs(z_end)))),
+        "message": branches["bond-out-of-phase"].message,
+    }
+    summary = {
+        "omega": P.omega,
+        "M": P.M,
+        "N": P.N,
+        "bifurcation_points": [b.as_dict() for b in bifurcations] + others,
+        "pn_barrier": barrier,
+        "bond_out_of_phase_end": out_of_phase_end,
+        "asymmetric": None
+        if asym is None
+        else {
+            "born_at_K": pitchforks[0].K,
+            "points": len(asym.points),
+            "K_range": [min(p.K for p in asym.points), max(p.K for p in asym.points)],
+            "stop_reason": asym.stop_reason.value,
+            "message": asym.message,
+            "joins": end_join,
+            "sqrt_law_exponent": float(fit[0]),
+            "sqrt_law": [dict(zip(("amplitude", "K", "K_offset", "distance", "centre_shift"), r)) for r in sqrt_rows],
+            "dop853_periodicity": dop,
+        },
+        "finite_size": {
+            K: {
+                "N": c["N"],
+                "N_new": c["N_new"],
+                "tables": {str(n): rows for n, rows in c["tables"].items()},
+                "classification": c["classification"],
+                "energy": {str(n): e for n, e in c["energy"].items()},
+            }
+            for K, c in tables.items()
+        },
+        "families": {f: branch_summary(b, "K") for f, b in branches.items()},
+    }
+    for f in summary["families"].values():
+        f.pop("points", None)  # in the store
+    return summary
+
+
+def _asymmetric_end(asym, bifurcations) -> dict | None:
+    """Where the asymmetric family ended, and how close that is to a branch point of the bond family."""
+    if asym is None or not asym.points:
+        return None
+    last = asym.points[-1]
+    bond = [b for b in bifurcations if b.family == "bond-in-phase"]
+    joined = asym.message and "bond centre" in asym.message
+    out = {"message": asym.message, "K_end": last.K, "joins_bond_family": bool(joined)}
+    if bond:
+        nearest = min(bond, key=lambda b: abs(b.K - last.K))
+        out.update(bond_branch_point_K=nearest.K, relative_distance=abs(last.K - nearest.K) / nearest.K)
+        out["message"] += f"; the bond-in-phase family's branch point is at K = {nearest.K:.10g}"
+    return out
+
+
+# ----------------------------------------------------------------------------- figures
+
+
+def plot(out) -> None:
+    s = read_summary(out)
+    path = out / "data.zarr"
+    fam = {}
+    for family in FAMILIES:
+        try:
+            fam[family] = load_branch(path, _group(family))[1]
+        except StoreError:
+            if family != "asymmetric":
+                raise
+    import zarr
+
+    root = zarr.open_group(str(path), mode="r", zarr_format=3, use_consolidated=False)
+    bif = root["bifurcations"]
+    bif_attrs = dict(bif.attrs)
+    plt = pyplot()
+    colours = {"site": "tab:blue", "bond-in-phase": "tab:green", "bond-out-of-phase": "tab:purple", "asymmetric": "k"}
+
+    fig = plt.figure(figsize=(13, 10))
+    gs = fig.add_gridspec(3, 2, height_ratios=[1.6, 1.3, 1.2])
+    ax = fig.add_subplot(gs[0, 0])
+    for family, points in fam.items():
+        K = np.array([p.K for p in points])
+        E = np.array([p.energy for p in points])
+        st = np.array([p.stable for p in points])
+        ax.plot(K, E, "-", color=colours[family], lw=1, label=family)
+        ax.plot(K[st], E[st], "o", ms=3, color=colours[family])
+        ax.plot(K[~st], E[~st], "o", ms=3, mfc="none", color=colours[family])
+    for k, family in zip(bif["K"][:], bif_attrs["family"]):
+        ax.axvline(k, color=colours[family], ls=":", lw=0.8)
+    ax.set_xscale("log")
+    ax.set_xlabel("K")
+    ax.set_ylabel("energy H")
+    ax.set_title(f"families at $\\omega_b$ = {s['omega']}, N = {s['N']} (filled: stable, open: unstable)", fontsize=10)
+    ax.legend(fontsize=8)
+
+    # zoom: the first exchange of stability, energies relative to the site family at the same K
+    az = fig.add_subplot(gs[0, 1])
+    site = fam["site"]
+    if "exchange" in root.group_keys() and "asymmetric" in fam:
+        ex = root["exchange"]
+        K_s = float(ex.attrs["site_pitchfork_K"])
+        K_b = float(ex.attrs["bond_branch_point_K"])
+        Kx, Esx, Ebx = ex["K"][:], ex["site_energy"][:], ex["bond_energy"][:]
+        az.plot(Kx - K_s, np.zeros_like(Kx), "-", color=colours["site"], label="site")
+        az.plot(Kx - K_s, Ebx - Esx, "-", color=colours["bond-in-phase"], label="bond in phase")
+        asym = fam["asymmetric"]
+        Ka = np.array([p.K for p in asym])
+        Ea = np.array([p.energy for p in asym]) - np.interp(Ka, Kx, Esx)  # site energy is linear on this scale
+        st = np.array([p.stable for p in asym])
+        az.plot(Ka - K_s, Ea, "o-", ms=4, color=colours["asymmetric"], mfc="none", label="asymmetric")
+        if st.any():
+            az.plot(Ka[st] - K_s, Ea[st], "o", ms=4, color=colours["asymmetric"])
+        az.plot([0.0], [0.0], "*", ms=12, color=colours["site"], label=f"site pitchfork K* = {K_s:.10g}")
+        az.plot(
+            [K_b - K_s],
+            [np.interp(K_b, Kx, Ebx - Esx)],
+            "*",
+            ms=12,
+            color=colours["bond-in-phase"],
+            label=f"bond branch point, K* + {K_b - K_s:.2e}",
+        )
+        az.set_xlabel("K - K*")
+        az.legend(fontsize=7)
+    az.set_ylabel("E - E(site) at the same K")
+    az.set_title("the first exchange of stability: the asymmetric family joins site and bond", fontsize=10)
+
+    # PN barrier along K (the bond orbit solved at every site point's K)
+    ap = fig.add_subplot(gs[1, 0])
+    if "pn_barrier" in root.group_keys():
+        pn = root["pn_barrier"]
+        Kp, dE = pn["K"][:], pn["barrier"][:]
+        ap.loglog(Kp[dE > 0], dE[dE > 0], "o", ms=3, color="tab:red", label="E(bond) > E(site)")
+        ap.loglog(Kp[dE < 0], -dE[dE < 0], "o", ms=3, mfc="none", color="tab:blue", label="E(bond) < E(site)")
+        floor = 1e-13 * float(np.max(np.abs(pn["site_energy"][:])))
+        ap.axhline(floor, color="0.6", ls=":", lw=0.8, label="energy resolution")
+    for row in s["pn_barrier"]:
+        if row["barrier"] is not None:
+            y = max(abs(row["barrier"]), 1e-16)
+            ap.plot([row["K"]], [y], "k*", ms=9)
+            ap.annotate(f"{row['barrier']:.2e}", (row["K"], y), fontsize=7, xytext=(4, 4), textcoords="offset points")
+    for k, family in zip(bif["K"][:], bif_attrs["family"]):
+        if family == "site":
+            ap.axvline(k, color=colours["site"], ls=":", lw=0.8)
+    ap.set_xlabel("K (dotted: the site family's pitchforks)")
+    ap.set_ylabel("|E(bond in phase) - E(site)|")
+    ap.set_title("Peierls-Nabarro barrier (stars: the summary's K values)", fontsize=10)
+    ap.legend(fontsize=8)
+
+    # participation of the unstable Floquet vectors along the site family
+    aq = fig.add_subplot(gs[1, 1])
+    for kind in KINDS:
+        x = [p.K for p in site for i in p.instabilities if i.kind == kind]
+        y = [i.participation for p in site for i in p.instabilities if i.kind == kind]
+        if x:
+            aq.loglog(x, y, "o", ms=3, color=KIND_COLOURS[kind], label=kind)
+    aq.axhline(0.1 * s["N"], color="0.5", ls="--", lw=0.8, label="localized below")
+    aq.set_xlabel("K")
+    aq.set_ylabel("participation (sites)")
+    aq.set_title("unstable Floquet vectors of the site family", fontsize=10)
+    aq.legend(fontsize=7)
+
+    # profiles at the branch points and the null vectors
+    for col, (name, title) in enumerate(
+        (("state", "profiles z = u - v at the branch points"), ("null_vector", "null vectors (positions: u then v)"))
+    ):
+        a = fig.add_subplot(gs[2, col])
+        data = bif[name][:]
+        N = s["N"]
+        c = N // 2
+        sites = np.arange(c - 8, c + 10)
+        for k in range(len(data)):
+            lab = f"{bif_attrs['family'][k]}, K = {bif['K'][k]:.8g}"
+            if name == "state":
+                z = data[k, 0] - data[k, 1]
+                a.plot(sites, z[sites], "o-", ms=3, color=colours[bif_attrs["family"][k]], label=lab)
+            else:
+                w = np.sqrt(30.0 * data[k, :N] ** 2 + data[k, N:] ** 2) * np.sign(data[k, N:] + 1e-300)
+                a.plot(sites, w[sites], "o-", ms=3, color=colours[bif_attrs["family"][k]], label=lab)
+        a.set_xlabel("site j (0-based)")
+        a.set_title(title, fontsize=10)
+        a.legend(fontsize=7)
+    fig.tight_layout()
+    save_figure(fig, out, "site_bond")
+
+    # the unstable Floquet vectors per K and N
+    groups = sorted(k for k in root.group_keys() if k.startswith("finite_size_"))
+    if groups:
+        Ks_fs = sorted({float(root[g].attrs["K"]) for g in groups})
+        fig, axes = plt.subplots(len(Ks_fs), 2, figsize=(13, 3.6 * len(Ks_fs)), squeeze=False)
+        for r, K in enumerate(Ks_fs):
+            for cidx, g in enumerate(
+                sorted((g for g in groups if float(root[g].attrs["K"]) == K), key=lambda g: root[g].attrs["N"])
+            ):
+                a = axes[r, cidx]
+                t = root[g]
+                n = int(t.attrs["N"])
+                weight = t["weight"][:]
+                for k in range(weight.shape[0]):
+                    w = weight[k]
+                    kind = KINDS[int(t["kind"][k])]
+                    lab = f"{kind}, |l| - 1 = {t['modulus'][k] - 1:.2e}, {t['participation'][k]:.0f} sites"
+                    a.semilogy(
+                        np.arange(n) - n // 2,
+                        np.maximum(w, 1e-12),
+                        "-",
+                        lw=1,
+                        color=KIND_COLOURS[kind] if k < 1 else None,
+                        label=lab,
+                    )
+                a.set_ylim(1e-8, 1)
+                a.set_title(f"K = {K:g}, N = {n}: unstable Floquet vectors", fontsize=10)
+                a.set_xlabel("site - centre")
+                a.set_ylabel("site weight (normalised)")
+                a.legend(fontsize=7)
+        fig.tight_layout()
+        save_figure(fig, out, "site_bond_floquet")
