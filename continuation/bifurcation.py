@@ -69,10 +69,17 @@ __all__ = [
     "locate_real_pair",
     "locate_zero",
     "localized_real_pairs",
+    "pinning_value",
+    "suspect_steps",
     "pad_chain",
     "switch_branch",
     "switch_to_asymmetric",
 ]
+
+#: a located zero of mu - 1 farther from 0 than this is a jump of the test function (the pinning mode
+#: changed identity), not a crossing; located crossings have |mu - 1| ~ 1e-13
+JUMP_TOLERANCE = 1e-8
+
 
 # ----------------------------------------------------------------------------- generic pieces
 
@@ -235,6 +242,72 @@ def _mu_and_vectors(result):
     return mu, vec
 
 
+def _pinning_index(mu, parity_of_mu, central, parity: int | None):
+    """Index of the nontrivial real mu (of the given parity) whose Floquet vector has the largest
+    weight on the orbit's central sites (the pinning mode), or None. (Not the smallest participation:
+    near the anti-continuum limit every phonon mode sits on one or two sites.)"""
+    mu = np.asarray(mu)
+    trivial = int(np.argmin(np.abs(mu - 1.0)))
+    real = np.abs(mu.imag) < 1e-9 * np.maximum(1.0, np.abs(mu.real))
+    real[trivial] = False
+    if parity is not None:
+        real &= np.asarray(parity_of_mu) == parity
+    if not real.any():
+        return None
+    return int(np.flatnonzero(real)[np.argmax(np.asarray(central)[real])])
+
+
+def pinning_value(point, parity: int | None = None) -> float:
+    """The detector's test function at a branch point, from its stored multipliers: mu - 1 of the
+    nontrivial real mu (of the given parity) with the largest central weight: the breather's pinning
+    mode, whose mu passes +1 where the family gains or loses its localized real pair. NaN without
+    multipliers."""
+    central = getattr(point, "central_weight", None)
+    if point.mu is None or central is None or not np.all(np.isfinite(point.mu)):
+        return float("nan")
+    k = _pinning_index(point.mu, point.parity, central, parity)
+    return float("nan") if k is None else float(point.mu[k].real - 1.0)
+
+
+def suspect_steps(points, parity: int | None = None) -> list:
+    """Steps of a branch across which the pinning mode's mu may have passed +1.
+
+    A step is suspect when ``pinning_value`` changes sign across it (one crossing, or an odd number),
+    or when it does not but the parabola through the step's ends and a neighbour (in log10 K) has its
+    vertex inside the step on the other side of zero (two crossings inside one step: a window of
+    the localized real pair narrower than the step).
+
+    Returns:
+        (i, i + 1, vertex) per suspect step: vertex is None for a sign change, else the log10 K of the
+        parabola's vertex, where the locator looks for the sign change first.
+    """
+    f = np.array([pinning_value(p, parity) for p in points])
+    c = np.array([math.log10(p.K) for p in points])
+    out = []
+    for i in range(len(points) - 1):
+        if not (np.isfinite(f[i]) and np.isfinite(f[i + 1])) or c[i] == c[i + 1]:
+            continue
+        if np.sign(f[i]) != np.sign(f[i + 1]):
+            out.append((i, i + 1, None))
+            continue
+        for trio in ((i - 1, i, i + 1), (i, i + 1, i + 2)):
+            if min(trio) < 0 or max(trio) >= len(points) or not np.all(np.isfinite(f[list(trio)])):
+                continue
+            x, y = c[list(trio)], f[list(trio)]
+            if len(set(x)) < 3:
+                continue
+            a2, a1, _ = np.polyfit(x - c[i], y, 2)
+            if a2 == 0.0:
+                continue
+            vertex = c[i] - a1 / (2 * a2)
+            if min(c[i], c[i + 1]) < vertex < max(c[i], c[i + 1]):
+                value = float(np.polyval(np.polyfit(x - c[i], y, 2), vertex - c[i]))
+                if np.sign(value) != np.sign(f[i]):
+                    out.append((i, i + 1, float(vertex)))
+                    break
+    return out
+
+
 def locate_real_pair(
     family: str,
     params: ChainParams,
@@ -244,68 +317,92 @@ def locate_real_pair(
     flow: Flow,
     *,
     parity: int | None = None,
+    vertex: float | None = None,
     atol: float = 1e-9,
     tol: float = 1e-11,
-) -> BifurcationPoint:
-    """Locate where a localized real pair passes +1 between branch points ``a`` and ``b`` (the
-    detector's bracket) by the secant on mu - 1 of the most localized real mu of the given parity,
-    in log10 K. Each evaluation is a Newton solve (started from the interpolated profiles, kept
-    symmetric when both ends are) and a reduced Floquet analysis.
+) -> list:
+    """Locate where the pinning mode's mu passes +1 between branch points ``a`` and ``b`` (a step of
+    ``suspect_steps``) by Brent's method on mu - 1 of the most localized real mu of the given
+    parity, in log10 K. Each evaluation is a Newton solve (started from the interpolated profiles,
+    kept symmetric when both ends are) and a reduced Floquet analysis.
 
     Args:
         family: name of the family (for the record).
         params: the chain (any K); omega: the frequency.
-        a, b: branch points (BranchPoint) with a different ``localized_real_pairs`` count.
+        a, b: branch points (BranchPoint).
         flow: the integrator.
         parity: -1 for odd modes of a symmetric family, None for any.
+        vertex: for a step without sign change, where (log10 K) to look for the other sign first.
         atol: in log10 K (1e-9: 2.3e-9 relative in K).
+
+    Returns:
+        the BifurcationPoints found (none, one, or two for a window inside the step).
 
     Raises:
         RuntimeError: a solve inside the bracket failed.
+        ValueError: no sign change where the step said there was one, or the test function jumps
+            there (its mode changed identity) instead of passing zero.
     """
     ca, cb = math.log10(a.K), math.log10(b.K)
     symmetric = is_mirror_symmetric(a.state, 1e-9) and is_mirror_symmetric(b.state, 1e-9)
     centre = energy_centre(a.state)
 
+    cache: dict = {}
+
     def test(c):
+        if c in cache:
+            return cache[c]
         t = (c - ca) / (cb - ca)
         guess = (1.0 - t) * a.state + t * b.state
         res = find_breather(params.replace(K=10.0**c), omega, guess, flow=flow, tol=tol, symmetric=symmetric)
         if not res.success:
             raise RuntimeError(f"locating the branch point of the {family} family: {res.message}")
         mu, vec = _mu_and_vectors(res)
-        trivial = int(np.argmin(np.abs(mu - 1.0)))
-        real = np.abs(mu.imag) < 1e-9 * np.maximum(1.0, np.abs(mu.real))
-        real[trivial] = False
-        if parity is not None:
-            real &= vector_parity(vec) == parity
-        if not real.any():
+        k = _pinning_index(mu, vector_parity(vec), central_weight(vec, params.M, energy_centre(res.state)), parity)
+        if k is None:
             raise RuntimeError(f"no real multiplier of parity {parity} near K = {10**c:.8g} on the {family} family")
-        pr = participation(vec, params.M)
-        k = np.flatnonzero(real)[np.argmin(pr[real])]
-        return float(mu[k].real - 1.0), (res, np.real(vec[:, k]), float(pr[k]))
+        pr = float(participation(vec[:, k : k + 1], params.M)[0])
+        cache[c] = (float(mu[k].real - 1.0), (res, np.real(vec[:, k]), pr))
+        return cache[c]
 
-    loc = locate_zero(test, ca, cb, atol=atol)
-    res, phi, pr = loc.payload
-    phi = phi / np.linalg.norm(phi)
-    before = localized_real_pairs(a, parity)
     kind = "symmetry_breaking_pitchfork" if symmetric and parity == -1 else "branch_point"
-    gained = (localized_real_pairs(b, parity) > before) == (b.K > a.K)
-    return BifurcationPoint(
-        family=family,
-        kind=kind,
-        K=10.0**loc.value,
-        omega=float(omega),
-        bracket=tuple(sorted((10.0 ** loc.bracket[0], 10.0 ** loc.bracket[1]))),
-        evaluations=loc.evaluations,
-        direction="gained" if gained else "lost",
-        state=res.state,
-        null_vector=phi,
-        participation=pr,
-        central_weight=float(central_weight(phi[:, None], params.M, centre)[0]),
-        energy=float(res.energy),
-        test=float(loc.test),
-    )
+    if vertex is None:
+        intervals = [(ca, cb)]
+    else:
+        fa, fv = test(ca)[0], test(vertex)[0]
+        if np.sign(fa) == np.sign(fv):
+            return []  # the parabola's near miss was a miss
+        intervals = [(ca, vertex), (vertex, cb)]
+    out = []
+    for lo, hi in intervals:
+        loc = locate_zero(test, lo, hi, atol=atol)
+        if not abs(loc.test) <= JUMP_TOLERANCE:
+            raise ValueError(
+                f"mu - 1 jumps from one sign to the other at K = {10**loc.value:.10g} (|mu - 1| = {abs(loc.test):.2g} "
+                "there): the most central real multiplier changed identity; no crossing of +1"
+            )
+        res, phi, pr = loc.payload
+        phi = phi / np.linalg.norm(phi)
+        # gained (with growing K) when mu - 1 goes from negative to positive
+        gained = (test(lo)[0] < 0) == (hi > lo)
+        out.append(
+            BifurcationPoint(
+                family=family,
+                kind=kind,
+                K=10.0**loc.value,
+                omega=float(omega),
+                bracket=tuple(sorted((10.0 ** loc.bracket[0], 10.0 ** loc.bracket[1]))),
+                evaluations=loc.evaluations,
+                direction="gained" if gained else "lost",
+                state=res.state,
+                null_vector=phi,
+                participation=pr,
+                central_weight=float(central_weight(phi[:, None], params.M, centre)[0]),
+                energy=float(res.energy),
+                test=float(loc.test),
+            )
+        )
+    return out
 
 
 def switch_to_asymmetric(

@@ -142,6 +142,7 @@ class BranchPoint:
         max_modulus, tolerance, stable, instabilities: the Floquet verdict (``floquet`` module).
         harmonics_in_bands: harmonics n of omega inside a phonon band.
         s: the continuation coordinate (log10 K or arclength).
+        central_weight: per mu, the fraction of its Floquet vector on the central sites (None without Floquet).
     """
 
     K: float
@@ -162,6 +163,7 @@ class BranchPoint:
     min_contact: float
     harmonics_in_bands: tuple
     s: float = float("nan")
+    central_weight: np.ndarray | None = None
 
     @property
     def pairing_error(self) -> float:  # the reduced path's spectrum is paired by construction
@@ -250,6 +252,7 @@ def analyse(solution: Solution, with_floquet: bool = True) -> BranchPoint:
             signature=fl.signature,
             parity=fl.parity,
             participation=fl.participation,
+            central_weight=fl.central_weight,
             max_modulus=fl.max_modulus,
             tolerance=fl.tolerance,
             stable=fl.stable,
@@ -263,6 +266,7 @@ def analyse(solution: Solution, with_floquet: bool = True) -> BranchPoint:
             signature=None,
             parity=None,
             participation=None,
+            central_weight=None,
             max_modulus=float("nan"),
             tolerance=float("nan"),
             stable=False,

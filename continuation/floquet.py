@@ -132,6 +132,7 @@ class FloquetResult:
         signature: Krein signature of each mu (+1/-1 for elliptic ones, 0 otherwise), shape (2N,).
         parity: parity of each mu's Floquet vector (+1, -1, 0), shape (2N,).
         participation: participation ratio (sites) of each mu's Floquet vector, shape (2N,).
+        central_weight: fraction of each mu's Floquet vector on the orbit's central sites, shape (2N,).
         accuracy: the measured gauges (``trivial_deviation``, ``symplecticity`` or ``pairing_error``).
         path: ``"reduced"`` or ``"full"``.
         pairing_error, symplecticity_error: kept for the full path's reports (0 / gauge on the reduced).
@@ -158,6 +159,7 @@ class FloquetResult:
     monodromy: np.ndarray | None
     wall_seconds: float
     stats: dict = dataclasses.field(default_factory=dict)
+    central_weight: np.ndarray | None = None
 
     @property
     def nontrivial(self) -> np.ndarray:
@@ -377,6 +379,7 @@ def reduced_floquet(
         signature=signature,
         parity=parity,
         participation=pr,
+        central_weight=weight,
         accuracy=accuracy,
         path="reduced",
         pairing_error=0.0,

@@ -60,6 +60,7 @@ def _array_spec(N: int, max_newton: int) -> dict:
             "signature": _int((2 * N,)),
             "parity": _int((2 * N,)),
             "participation": _float((2 * N,)),
+            "central_weight": _float((2 * N,)),
             "newton_residuals": _float((max_newton + 1,)),
             "instability_kind": _int((MAX_INSTABILITIES,)),
             "instability_mu_real": _float((MAX_INSTABILITIES,)),
@@ -111,7 +112,7 @@ class BranchStore:
         self.group = g
         spec = _array_spec(N, self.max_newton)
         dims = {"state": ("point", "component", "site"), "newton_residuals": ("point", "newton_iteration")}
-        for name in ("mu_real", "mu_imag", "signature", "parity", "participation"):
+        for name in ("mu_real", "mu_imag", "signature", "parity", "participation", "central_weight"):
             dims[name] = ("point", "pair")
         for name in spec:
             if name.startswith("instability_"):
@@ -185,6 +186,7 @@ class BranchStore:
             "signature": ints(point.signature),
             "parity": ints(point.parity),
             "participation": np.full(N2, np.nan) if point.participation is None else point.participation,
+            "central_weight": np.full(N2, np.nan) if point.central_weight is None else point.central_weight,
             "newton_residuals": hist,
             "instability_kind": table(lambda i: KINDS.index(i.kind), INT_FILL),
             "instability_mu_real": table(lambda i: i.mu.real, np.nan),
@@ -333,6 +335,7 @@ def load_branch(path, group: str = "branch") -> tuple[ChainParams, list, dict]:
                 signature=ints("signature") if have_mu else None,
                 parity=ints("parity") if have_mu else None,
                 participation=a["participation"][i] if have_mu else None,
+                central_weight=a["central_weight"][i] if have_mu else None,
                 max_modulus=float(a["max_modulus"][i]),
                 tolerance=float(a["tolerance"][i]),
                 stable=bool(a["stable"][i]),

@@ -9,16 +9,21 @@ log10 K, landing exactly on K = 5, 20 (profiles I, II) and 160 (III). Steps are 
 the multipliers move (``continuation.driver``); a step across which the number or kind of unstable
 multipliers changes is bisected until the bracket is below ``resolution`` (in log10 K). The branch is
 streamed point by point into data.zarr (group ``branch``) through the driver's ``on_point`` hook, and
-``--resume`` continues it from there. The NLS energy at K = 160 is the reference line.
+``--resume`` continues it from there. The NLS energy at K = 160 is the reference line. Where the
+site breather gains or loses its localized odd real pair (``continuation.bifurcation``), the first
+such point is located by the secant on mu - 1 and marked (dashed), the others by their brackets
+(dotted); the ``site-bond`` scene follows the families that branch off there.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 
 from continuation import anticontinuum_seed, nls_seed
+from continuation import bifurcation as bf
 from continuation.branch import NaturalParameter
 from warpchain import ChainParams, energy
 
@@ -47,6 +52,7 @@ class Parameters(BranchParameters):
     ds: float = 0.15
     ds_max: float = 0.3
     resolution: float = 1e-3  # in log10 K: 0.23 % in K
+    locate_first: int = 1  # symmetry-breaking points located by the secant (the rest: their brackets)
 
 
 QUICK = {"N": 101, "ds": 0.5, "ds_max": 1.0, "resolution": 1e-2}
@@ -67,6 +73,7 @@ def run(ctx: Context) -> dict:
         "settings": dataclasses.asdict(settings),
     }
     branch = run_branch(ctx, problem, settings, params, attrs)
+    symmetry_breaking = _symmetry_breaking(ctx, P, branch, params, flow)
     nls_energy = float(energy(params.replace(K=P.K_end), nls_seed(params.replace(K=P.K_end), P.omega))[0])
     end = branch.points[-1]
     return {
@@ -74,6 +81,7 @@ def run(ctx: Context) -> dict:
         "M": P.M,
         "N": P.N,
         **branch_summary(branch, "K"),
+        "bifurcation_points": symmetry_breaking,
         "nls_energy_at_K_end": nls_energy,
         "end_K": end.K,
         "end_energy": end.energy,
@@ -81,6 +89,42 @@ def run(ctx: Context) -> dict:
         "method": P.method,
         "steps_per_period": P.steps_per_period,
     }
+
+
+def _symmetry_breaking(ctx, P: Parameters, branch, params, flow) -> list:
+    """Where the site breather gains or loses its localized odd real pair (``continuation.bifurcation``):
+    the first ``P.locate_first`` located by the secant on mu - 1, the others given by their brackets."""
+    out = []
+    points = branch.points
+    for i, j, vertex in bf.suspect_steps(points, -1):
+        a, b = points[i], points[j]
+        if len([e for e in out if e["located"]]) < P.locate_first:
+            try:
+                found = bf.locate_real_pair("site", params, P.omega, a, b, flow, parity=-1, vertex=vertex)
+            except (ValueError, RuntimeError) as exc:
+                ctx.log("no symmetry-breaking point located between K = %.8g and %.8g: %s", a.K, b.K, exc)
+                found = []
+            for bif in found:
+                out.append(dict(bif.as_dict(), located=True))
+                ctx.log(
+                    "symmetry breaking at K = %.10g: the site breather %s a localized odd real pair (%.1f sites)",
+                    bif.K,
+                    bif.direction,
+                    bif.participation,
+                )
+            if found:
+                continue
+        out.append(
+            {
+                "K": math.sqrt(a.K * b.K),
+                "kind": "symmetry_breaking_pitchfork",
+                "family": "site",
+                "bracket": [a.K, b.K],
+                "located": False,
+                "window_inside_step": vertex is not None,
+            }
+        )
+    return out
 
 
 def plot(out) -> None:
@@ -102,6 +146,19 @@ def plot(out) -> None:
         i = np.argmin(np.abs(K - k))
         if abs(K[i] - k) < 1e-9 * k:
             ax.annotate(lab, (K[i], E[i]), textcoords="offset points", xytext=(-14, 2), ha="right")
+    for e in s.get("bifurcation_points", []):
+        if e["located"]:
+            ax.axvline(e["K"], color="tab:red", ls="--", lw=1)
+            ax.annotate(
+                f"symmetry breaking\nK = {e['K']:.8g}",
+                (e["K"], ax.get_ylim()[1]),
+                xytext=(4, -24),
+                textcoords="offset points",
+                fontsize=8,
+                color="tab:red",
+            )
+        else:
+            ax.axvline(e["K"], color="tab:red", ls=":", lw=0.6)
     ax.set_ylabel("energy H")
     stop = s["stop_reason"].replace("_", " ")
     ax.set_title(f"continuation in K: M = {s['M']:g}, $\\omega_b$ = {s['omega']}, N = {s['N']} (stopped: {stop})")

@@ -160,20 +160,25 @@ def _folds(family: str, points) -> list:
     return out
 
 
-def _other_events(family: str, branch) -> list:
-    """Period doubling and localized Krein collisions among the family's stability changes."""
+def _other_events(family: str, points) -> list:
+    """Where a localized period-doubling pair or a localized Krein quadruplet appears or disappears
+    along a family (reported, not followed); extended ones (finite-size resonances) are only counted
+    in the families' summaries."""
     out = []
-    for change in branch.stability_changes():
-        kinds = set(change["kinds"])
-        localized = set(change.get("localized") or [])
-        kind = None
-        if "period_doubling" in kinds:
-            kind = "period_doubling"
-        elif "complex_quadruplet" in localized:
-            kind = "krein_collision"
-        if kind:
-            lo, hi = change["bracket"]
-            out.append({"K": math.sqrt(lo * hi), "kind": kind, "family": family, "bracket": [lo, hi], "located": False})
+    for kind, name in (("period_doubling", "period_doubling"), ("complex_quadruplet", "krein_collision")):
+        has = [any(i.kind == kind and i.localized for i in p.instabilities) for p in points]
+        for a, b, ha, hb in zip(points, points[1:], has, has[1:]):
+            if ha != hb:
+                out.append(
+                    {
+                        "K": math.sqrt(a.K * b.K),
+                        "kind": name,
+                        "family": family,
+                        "bracket": sorted([a.K, b.K]),
+                        "direction": "gained" if hb else "lost",
+                        "located": False,
+                    }
+                )
     return out
 
 
@@ -192,7 +197,7 @@ def run(ctx: Context) -> dict:
         parity = -1 if family == "site" else None
         family_folds = _folds(family, points)
         folds.extend(family_folds)
-        for i, j in bf.brackets(points, lambda p: bf.localized_real_pairs(p, parity)):
+        for i, j, vertex in bf.suspect_steps(points, parity):
             if any(abs(i - f["index"]) <= 2 or abs(j - f["index"]) <= 2 for f in family_folds):
                 continue  # a real pair through +1 at a fold in K is the fold itself (J singular there)
             if points[i].K > P.locate_K_max:
@@ -203,14 +208,12 @@ def run(ctx: Context) -> dict:
                         "family": family,
                         "bracket": sorted([points[i].K, points[j].K]),
                         "located": False,
-                        "direction": "gained"
-                        if bf.localized_real_pairs(points[j], parity) > bf.localized_real_pairs(points[i], parity)
-                        else "lost",
+                        "window_inside_step": vertex is not None,
                     }
                 )
                 continue
             try:
-                bif = bf.locate_real_pair(
+                found = bf.locate_real_pair(
                     family,
                     ChainParams(P.M, P.K_start, P.N),
                     P.omega,
@@ -218,12 +221,10 @@ def run(ctx: Context) -> dict:
                     points[j],
                     flow,
                     parity=parity,
+                    vertex=vertex,
                     atol=P.locate_atol,
                 )
-            except ValueError as exc:  # the count changed because a real pair's mode crossed the localization limit
-                ctx.log("%s: no crossing of +1 between K = %.8g and %.8g (%s)", family, points[i].K, points[j].K, exc)
-                continue
-            except RuntimeError as exc:
+            except (ValueError, RuntimeError) as exc:
                 ctx.log(
                     "%s: the branch point between K = %.8g and %.8g was not located: %s",
                     family,
@@ -232,19 +233,20 @@ def run(ctx: Context) -> dict:
                     exc,
                 )
                 continue
-            ctx.log(
-                "%s: %s at K = %.10g (%s the localized real pair; null vector: %.1f sites, %.0f %% on the centre; "
-                "mu - 1 = %.1e; %d solves)",
-                family,
-                bif.kind,
-                bif.K,
-                bif.direction,
-                bif.participation,
-                100 * bif.central_weight,
-                bif.test,
-                bif.evaluations,
-            )
-            bifurcations.append(bif)
+            for bif in found:
+                ctx.log(
+                    "%s: %s at K = %.10g (%s the localized real pair; null vector: %.1f sites, %.0f %% on the centre; "
+                    "mu - 1 = %.1e; %d solves)",
+                    family,
+                    bif.kind,
+                    bif.K,
+                    bif.direction,
+                    bif.participation,
+                    100 * bif.central_weight,
+                    bif.test,
+                    bif.evaluations,
+                )
+                bifurcations.append(bif)
     if unlocated:
         ctx.log(
             "%d more exchanges of the localized real pair above K = %g (brackets in summary.json; "
@@ -252,7 +254,7 @@ def run(ctx: Context) -> dict:
             len(unlocated),
             P.locate_K_max,
         )
-    others = unlocated + folds + [e for family in FAMILIES[:3] for e in _other_events(family, branches[family])]
+    others = unlocated + folds + [e for family in FAMILIES[:3] for e in _other_events(family, branches[family].points)]
     for e in folds:
         ctx.log("%s: fold at K = %.6g (the family turns back towards smaller K)", e["family"], e["K"])
 

@@ -98,6 +98,27 @@ def test_detector_and_switcher_on_a_known_pitchfork():
     assert abs(slope - 0.5) < 1e-3  # new solutions, at a distance ~ sqrt(p - p*)
 
 
+def test_suspect_steps_sees_a_window_inside_one_step():
+    """mu - 1 of the pinning mode = 1e-4 - (log10 K - 1.05)^2: negative at every sampled point, positive in
+    a window of width 0.02 inside the step (1.0, 1.1): the parabola through the neighbours finds it."""
+    from types import SimpleNamespace
+
+    def point(c):
+        f = 1e-4 - (c - 1.05) ** 2
+        return SimpleNamespace(
+            K=10.0**c,
+            mu=np.array([1.0, 1.0 + f, 0.5]),  # trivial, pinning (odd, 5 sites), a phonon
+            parity=np.array([1, -1, -1]),
+            participation=np.array([100.0, 5.0, 80.0]),
+            central_weight=np.array([0.05, 0.9, 0.02]),
+        )
+
+    points = [point(c) for c in (0.8, 0.9, 1.0, 1.1, 1.2)]
+    assert all(bf.pinning_value(p, -1) < 0 for p in points)
+    steps = bf.suspect_steps(points, -1)
+    assert len(steps) == 1 and steps[0][:2] == (2, 3) and abs(steps[0][2] - 1.05) < 1e-9
+
+
 # ----------------------------------------------------------------------------- breathers
 
 
@@ -134,17 +155,18 @@ def _as_points(results):
 def test_site_pitchfork_is_located_switched_and_the_new_orbits_are_breathers(small_site_family):
     M, omega, N, flow, fams = small_site_family
     site = _as_points(fams["site"])
-    found = bf.brackets(site, lambda p: bf.localized_real_pairs(p, -1))
-    assert len(found) == 1
-    i, j = found[0]
-    bif = bf.locate_real_pair("site", wc.ChainParams(M, 1.0, N), omega, site[i], site[j], flow, parity=-1)
+    found = bf.suspect_steps(site, -1)
+    assert len(found) == 1 and found[0][2] is None  # one sign change of the pinning mode's mu - 1
+    assert bf.brackets(site, lambda p: bf.localized_real_pairs(p, -1)) == [found[0][:2]]
+    i, j, _ = found[0]
+    (bif,) = bf.locate_real_pair("site", wc.ChainParams(M, 1.0, N), omega, site[i], site[j], flow, parity=-1)
     assert bif.kind == "symmetry_breaking_pitchfork" and bif.direction == "gained"
     assert 8.5 < bif.K < 9.5 and bif.participation < 0.3 * N and bif.central_weight > 0.5
     assert abs(bif.test) < 1e-9
     # the bond family's real pair disappears at (nearly) the same coupling: an exchange of stability
     bond = _as_points(fams["bond-in-phase"])
-    (bi, bj), *_ = bf.brackets(bond, lambda p: bf.localized_real_pairs(p))
-    bond_bif = bf.locate_real_pair("bond-in-phase", wc.ChainParams(M, 1.0, N), omega, bond[bi], bond[bj], flow)
+    ((bi, bj, _),) = [step for step in bf.suspect_steps(bond) if step[2] is None]  # the one sign change
+    (bond_bif,) = bf.locate_real_pair("bond-in-phase", wc.ChainParams(M, 1.0, N), omega, bond[bi], bond[bj], flow)
     assert bond_bif.direction == "lost" and abs(bond_bif.K - bif.K) < 1e-3 * bif.K
     # switching: genuinely new, asymmetric orbits on a square-root branch
     params = wc.ChainParams(M, bif.K, N)
