@@ -53,9 +53,11 @@ class Parameters(BranchParameters):
     omega: float = PAPER_OMEGA
     K_start: float = 0.01
     K_end: float = PAPER_K
-    ds: float = 0.05
-    ds_max: float = 0.05  # the site/bond exchanges of stability come every ~0.07-0.12 in log10 K
-    resolution: float = 0.05  # no bisection: branch points are located by the secant instead
+    ds: float = 0.15
+    ds_max: float = 0.3
+    fine_from_K: float = 5.0  # above this K, steps of at most ds_fine:
+    ds_fine: float = 0.05  # the site/bond exchanges of stability come every ~0.07-0.12 in log10 K
+    resolution: float = 0.3  # no bisection: branch points are located by Brent's method instead
     bisect_krein: str = "none"  # the phonon foam is the continuation scenes' business
     multiplier_floor: float = 0.1
     out_of_phase_ds_max: float = 0.3  # arclength; that family only has to be followed to its fold
@@ -76,9 +78,10 @@ class Parameters(BranchParameters):
 QUICK = {
     "N": 61,
     "K_end": 25.0,
-    "ds": 0.1,
-    "ds_max": 0.1,
-    "resolution": 0.1,
+    "ds": 0.3,
+    "ds_max": 0.5,
+    "ds_fine": 0.1,
+    "resolution": 0.5,
     "locate_K_max": 12.0,
     "finite_size_K": (10.0,),
     "pn_K": (5.0, 20.0),
@@ -87,6 +90,21 @@ QUICK = {
 
 def _group(family: str) -> str:
     return family.replace("-", "_")
+
+
+class _FinerAbove:
+    """A continuation problem whose steps are capped at ``ds`` once K >= ``K_fine`` (every other
+    attribute is the wrapped problem's)."""
+
+    def __init__(self, problem, K_fine: float, ds: float):
+        self._problem, self._K_fine, self._ds = problem, K_fine, ds
+
+    def __getattr__(self, name):
+        return getattr(self._problem, name)
+
+    def clip_step(self, last, h: float) -> float:
+        h = self._problem.clip_step(last, h)
+        return min(h, self._ds) if last.K >= self._K_fine else h
 
 
 def _family_branch(ctx: Context, P: Parameters, flow, family: str):
@@ -122,6 +140,9 @@ def _family_branch(ctx: Context, P: Parameters, flow, family: str):
         )
         attrs.update(continuation="pseudo-arclength in (positions, log10 K)", coordinate="arclength")
     attrs["settings"] = dataclasses.asdict(settings)
+    if family != "bond-out-of-phase":
+        problem = _FinerAbove(problem, P.fine_from_K, P.ds_fine)
+        attrs["fine_steps"] = {"from_K": P.fine_from_K, "ds": P.ds_fine}
     new = family == "site"
     return run_branch(ctx, problem, settings, params, attrs, group=_group(family), new_store=new, progress=True)
 
@@ -605,12 +626,15 @@ def plot(out) -> None:
         sites = np.arange(c - 8, c + 10)
         for k in range(len(data)):
             lab = f"{bif_attrs['family'][k]}, K = {bif['K'][k]:.8g}"
+            style = ("o-", "s--", "^:", "d-.")[
+                sum(1 for f in bif_attrs["family"][:k] if f == bif_attrs["family"][k]) % 4
+            ]
             if name == "state":
                 z = data[k, 0] - data[k, 1]
-                a.plot(sites, z[sites], "o-", ms=3, color=colours[bif_attrs["family"][k]], label=lab)
+                a.plot(sites, z[sites], style, ms=3, color=colours[bif_attrs["family"][k]], label=lab)
             else:
                 w = np.sqrt(30.0 * data[k, :N] ** 2 + data[k, N:] ** 2) * np.sign(data[k, N:] + 1e-300)
-                a.plot(sites, w[sites], "o-", ms=3, color=colours[bif_attrs["family"][k]], label=lab)
+                a.plot(sites, w[sites], style, ms=3, color=colours[bif_attrs["family"][k]], label=lab)
         a.set_xlabel("site j (0-based)")
         a.set_title(title, fontsize=10)
         a.legend(fontsize=7)
@@ -630,22 +654,28 @@ def plot(out) -> None:
                 t = root[g]
                 n = int(t.attrs["N"])
                 weight = t["weight"][:]
+                n_ext = 0
                 for k in range(weight.shape[0]):
-                    w = weight[k]
                     kind = KINDS[int(t["kind"][k])]
+                    localized = bool(t["localized"][k])
                     lab = f"{kind}, |l| - 1 = {t['modulus'][k] - 1:.2e}, {t['participation'][k]:.0f} sites"
-                    a.semilogy(
-                        np.arange(n) - n // 2,
-                        np.maximum(w, 1e-12),
-                        "-",
-                        lw=1,
-                        color=KIND_COLOURS[kind] if k < 1 else None,
-                        label=lab,
-                    )
-                a.set_ylim(1e-8, 1)
-                a.set_title(f"K = {K:g}, N = {n}: unstable Floquet vectors", fontsize=10)
+                    if localized:
+                        style = dict(lw=2.0, color=KIND_COLOURS[kind], zorder=3)
+                    else:
+                        style = dict(lw=0.8, color=plt.cm.Oranges(0.35 + 0.5 * (n_ext % 4) / 3), zorder=2)
+                        n_ext += 1
+                    a.semilogy(np.arange(n) - n // 2, np.maximum(weight[k], 1e-12), "-", label=lab, **style)
+                a.set_ylim(1e-8, 3)
+                rows = s.get("finite_size", {}).get(f"{K:g}", {}).get("classification", [])
+                verdict = "; ".join(
+                    f"{r['kind'].replace('_', ' ')} {r['modulus'] - 1:.1e}: {r['class']}" for r in rows[:3]
+                )
+                first = cidx == 0 and verdict
+                a.set_title(
+                    f"K = {K:g}, N = {n}" + (f"\n{verdict}" if first else " (re-solved, profile padded)"), fontsize=9
+                )
                 a.set_xlabel("site - centre")
-                a.set_ylabel("site weight (normalised)")
-                a.legend(fontsize=7)
+                a.set_ylabel("site weight of the Floquet vector")
+                a.legend(fontsize=6, loc="upper right", ncol=2 if weight.shape[0] > 4 else 1)
         fig.tight_layout()
         save_figure(fig, out, "site_bond_floquet")

@@ -112,6 +112,35 @@ def test_continuation_scenes_quick(paper_quick):
     assert w["stop_reason"] in ("end_reached", "contact_lost") and w["message"]
     for name, figure in (("continuation-k", "continuation_k"), ("continuation-omega", "continuation_omega_energy")):
         assert (paper_quick / name / f"{figure}.png").exists()
+    assert all({"K", "kind", "family", "located"} <= set(e) for e in k["bifurcation_points"])
+
+
+def test_site_bond_scene_quick(paper_quick):
+    import xarray as xr
+    import zarr
+
+    out = paper_quick / "site-bond"
+    s = json.loads((out / "summary.json").read_text())
+    assert {"bifurcation_points", "pn_barrier", "finite_size", "asymmetric", "families"} <= set(s)
+    located = [b for b in s["bifurcation_points"] if b.get("located", True) and "test_mu_minus_1" in b]
+    site = [b for b in located if b["family"] == "site" and b["kind"] == "symmetry_breaking_pitchfork"]
+    bond = [b for b in located if b["family"] == "bond-in-phase"]
+    assert site and bond and all(abs(b["test_mu_minus_1"]) < 1e-8 for b in located)
+    # the asymmetric family born at the first pitchfork ends on the bond-centred family's branch point
+    asym = s["asymmetric"]
+    assert asym["joins"]["joins_bond_family"] and asym["joins"]["relative_distance"] < 1e-6
+    assert abs(asym["sqrt_law_exponent"] - 0.5) < 0.1 and max(asym["dop853_periodicity"]) < 1e-8
+    # K = 10: the localized real pair is intrinsic, the extended quadruplets finite-size
+    rows = s["finite_size"]["10"]["classification"]
+    assert any(r["kind"] == "real_pair" and r["localized"] and r["class"] == "intrinsic" for r in rows)
+    assert all(r["class"] == "finite-size" for r in rows if not r["localized"])
+    assert [row["K"] for row in s["pn_barrier"]] == [5.0, 20.0] and s["pn_barrier"][0]["barrier"] > 0
+    groups = set(zarr.open_group(str(out / "data.zarr"), mode="r").group_keys())
+    assert {"site", "bond_in_phase", "bond_out_of_phase", "asymmetric", "bifurcations", "pn_barrier"} <= groups
+    for group in groups:  # xarray opens every group
+        xr.open_zarr(out / "data.zarr", group=group, consolidated=False)
+    for figure in ("site_bond", "site_bond_floquet"):
+        assert (out / f"{figure}.png").stat().st_size > 10_000
 
 
 def test_set_overrides_and_resume(tmp_path):
