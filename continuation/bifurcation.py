@@ -488,7 +488,9 @@ def finite_size_check(
 
     An unstable multiplier *persists* when the longer chain has one of the same kind and parity
     whose |l| - 1 agrees to 10 % (and 1e-9); a localized one that persists is ``intrinsic``,
-    anything else ``finite-size`` (N-dependent: a resonance with the finite chain's phonons).
+    anything else ``finite-size`` (N-dependent: a resonance with the finite chain's phonons; an
+    extended one whose modulus happens to recur at ~2N has a participation that grew with N, see
+    ``participation_new``).
 
     Returns:
         dict with ``N``, ``N_new``, ``tables`` ({N: [rows]}, each row an instability with its
@@ -525,6 +527,7 @@ def finite_size_check(
                 row,
                 persists=persists,
                 modulus_new=match[0]["modulus"] if match else None,
+                participation_new=match[0]["participation"] if match else None,
                 **{"class": "intrinsic" if persists and row["localized"] else "finite-size"},
             )
         )

@@ -5,9 +5,10 @@ Command: ``python -m scenarios run site-bond`` (CPU: ~4 min on 2 cores; ``--quic
 a minute). Options: ``--set KEY=VALUE`` (fields of ``Parameters``).
 
 1. **Families** at w_b = 1.01, from the anti-continuum seeds at K = 0.01 to K = 160: site-centred
-   (natural parameter in log10 K, kept mirror symmetric), bond-centred in phase and out of phase
-   (pseudo-arclength in log10 K, ``branch.CouplingAxis``, so folds are followed), multipliers and
-   their kinds at every point.
+   (natural parameter in log10 K, kept mirror symmetric) and bond-centred in phase (natural
+   parameter: a pseudo-arclength corrector stalls at its branch points, where the bordered Jacobian
+   is singular), bond-centred out of phase (pseudo-arclength in log10 K, ``branch.CouplingAxis``,
+   which follows it through its fold), multipliers and their kinds at every point.
 2. **Branch points** (``continuation.bifurcation``): where the number of localized real pairs changes
    (per parity on the symmetric family), located by the secant on mu - 1 to ``locate_atol`` in log10 K.
 3. **Switching** at the site family's symmetry-breaking pitchfork onto the asymmetric family, followed
@@ -115,9 +116,10 @@ def _family_branch(ctx: Context, P: Parameters, flow, family: str):
         settings = settings.replace(ds_max=P.out_of_phase_ds_max, resolution=P.out_of_phase_ds_max)
     attrs = {"family": family, "omega": P.omega, "method": P.method, "steps_per_period": P.steps_per_period}
     seed = anticontinuum_seed(params, P.omega, family)
-    if family == "site":
+    if family != "bond-out-of-phase":  # monotonic in K; the natural parameter steps over the branch points
         problem = NaturalParameter(params, P.omega, seed, P.K_end, flow, targets=P.pn_K + P.finite_size_K)
-        attrs.update(continuation="natural parameter in log10 K (mirror symmetric)", coordinate="log10 K")
+        kept = " (mirror symmetric)" if family == "site" else ""
+        attrs.update(continuation=f"natural parameter in log10 K{kept}", coordinate="log10 K")
     else:
         first = find_breather(params, P.omega, seed, flow=flow, symmetric=False)
         if not first.success:
@@ -615,28 +617,32 @@ def plot(out) -> None:
     aq.set_title("unstable Floquet vectors of the site family", fontsize=10)
     aq.legend(fontsize=7)
 
-    # profiles at the branch points and the null vectors
-    for col, (name, title) in enumerate(
-        (("state", "profiles z = u - v at the branch points"), ("null_vector", "null vectors (positions: u then v)"))
-    ):
+    # profiles and null vectors at the first exchange (site pitchfork, bond branch point), with the
+    # asymmetric orbit halfway between them
+    families = list(bif_attrs["family"])
+    first = [families.index(f) for f in ("site", "bond-in-phase") if f in families]
+    N = s["N"]
+    c = N // 2
+    sites = np.arange(c - 8, c + 10)
+    for col, name in enumerate(("state", "null_vector")):
         a = fig.add_subplot(gs[2, col])
         data = bif[name][:]
-        N = s["N"]
-        c = N // 2
-        sites = np.arange(c - 8, c + 10)
-        for k in range(len(data)):
-            lab = f"{bif_attrs['family'][k]}, K = {bif['K'][k]:.8g}"
-            style = ("o-", "s--", "^:", "d-.")[
-                sum(1 for f in bif_attrs["family"][:k] if f == bif_attrs["family"][k]) % 4
-            ]
+        for k in first:
+            lab = f"{families[k]} at its branch point, K = {bif['K'][k]:.10g}"
             if name == "state":
-                z = data[k, 0] - data[k, 1]
-                a.plot(sites, z[sites], style, ms=3, color=colours[bif_attrs["family"][k]], label=lab)
-            else:
-                w = np.sqrt(30.0 * data[k, :N] ** 2 + data[k, N:] ** 2) * np.sign(data[k, N:] + 1e-300)
-                a.plot(sites, w[sites], style, ms=3, color=colours[bif_attrs["family"][k]], label=lab)
+                y = data[k, 0] - data[k, 1]
+            else:  # signed site amplitude sqrt(M a_u^2 + a_v^2)
+                y = np.sqrt(30.0 * data[k, :N] ** 2 + data[k, N:] ** 2) * np.sign(data[k, N:] + 1e-300)
+            a.plot(sites, y[sites], "o-", ms=3, color=colours[families[k]], label=lab)
+        if name == "state" and "asymmetric" in fam:
+            mid = fam["asymmetric"][len(fam["asymmetric"]) // 2]
+            z = mid.state[0] - mid.state[1]
+            a.plot(sites, z[sites], "s--", ms=3, color=colours["asymmetric"], label=f"asymmetric, K = {mid.K:.10g}")
         a.set_xlabel("site j (0-based)")
-        a.set_title(title, fontsize=10)
+        a.set_title(
+            "profiles z = u - v at the first exchange" if name == "state" else "null vectors (signed site amplitude)",
+            fontsize=10,
+        )
         a.legend(fontsize=7)
     fig.tight_layout()
     save_figure(fig, out, "site_bond")
