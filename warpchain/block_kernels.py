@@ -25,7 +25,20 @@ import functools
 
 import warp as wp
 
-from .kernels import BOUNDARY_FREE, BOUNDARY_PERIODIC, HALF, ONE, SIX, TWO, ZERO, contact_force, contact_stiffness
+from .kernels import (
+    BOUNDARY_FREE,
+    BOUNDARY_PERIODIC,
+    HALF,
+    NO_CONTACT,
+    ONE,
+    SIX,
+    TWO,
+    ZERO,
+    contact_force,
+    contact_stiffness,
+    finite_state,
+    site_energy,
+)
 
 #: Largest block Warp launches (CUDA's limit); longer lattices use the thread-per-lattice kernels.
 MAX_BLOCK = 1024
@@ -113,12 +126,12 @@ def store_site(x: wp.array3d(dtype=wp.float64), b: int, j: int, active: bool, st
 
 @wp.func
 def site_acceleration(
-    u: wp.float64, v: wp.float64, left: wp.float64, right: wp.float64, mass: wp.float64, coupling: wp.float64
+    u: wp.float64, v: wp.float64, left: wp.float64, right: wp.float64, inv_mass: wp.float64, coupling: wp.float64
 ) -> wp.vec2d:
     """(u'', v'') of one site from its positions and its neighbours' u (same order as the
-    thread-per-lattice ``acceleration_at`` and the numpy reference)."""
+    thread-per-lattice ``acceleration_at`` and the numpy reference; multiplied by 1/M)."""
     force = contact_force(u - v)
-    au = -(coupling * ((u - left) + (u - right)) + force) / mass
+    au = -(coupling * ((u - left) + (u - right)) + force) * inv_mass
     return wp.vec2d(au, force)
 
 
@@ -128,12 +141,12 @@ def site_tangent_acceleration(
     dv: wp.float64,
     left: wp.float64,
     right: wp.float64,
-    mass: wp.float64,
+    inv_mass: wp.float64,
     coupling: wp.float64,
     stiffness: wp.float64,
 ) -> wp.vec2d:
     dz = du - dv
-    au = -(coupling * ((du - left) + (du - right)) + stiffness * dz) / mass
+    au = -(coupling * ((du - left) + (du - right)) + stiffness * dz) * inv_mass
     return wp.vec2d(au, stiffness * dz)
 
 
@@ -205,6 +218,11 @@ class BlockKernels:
         return self._get("rk4")
 
     @property
+    def guard(self):
+        """Per-lattice energy, finite flag and running min contact (``kernels.guard_kernel``)."""
+        return self._get("guard")
+
+    @property
     def rk4_tangent(self):
         return self._get("rk4_tangent")
 
@@ -253,7 +271,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
         @wp.kernel(**options)
         def splitting(
             x: wp.array3d(dtype=wp.float64),
-            mass: wp.array(dtype=wp.float64),
+            inv_mass: wp.array(dtype=wp.float64),
             coupling: wp.array(dtype=wp.float64),
             drifts: coefficients,
             kicks: coefficients,
@@ -261,7 +279,8 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             dt: wp.float64,
             nsteps: int,
             save_every: int,
-            rec: wp.array4d(dtype=wp.float64),
+            rec_u: wp.array3d(dtype=wp.float64),
+            rec_v: wp.array3d(dtype=wp.float64),
             record_stiffness: int,
             hist: wp.array3d(dtype=wp.float64),
         ):
@@ -275,7 +294,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             v = start[1]
             pu = start[2]
             pv = start[3]
-            m = mass[b]
+            m = inv_mass[b]
             k = coupling[b]
             nbr = site_neighbours(j, n, boundary)
             buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
@@ -305,8 +324,8 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
                 if wp.static(save):
                     if active and (step + 1) % save_every == 0:
                         r = (step + 1) / save_every - 1
-                        rec[r, b, 0, j] = u
-                        rec[r, b, 1, j] = v
+                        rec_u[r, b, j] = u
+                        rec_v[r, b, j] = v
             store_site(x, b, j, active, wp.vec4d(u, v, pu, pv))
 
         return splitting
@@ -316,7 +335,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
         def splitting_tangent(
             dx: wp.array3d(dtype=wp.float64),
             column_base: wp.array(dtype=wp.int32),
-            mass: wp.array(dtype=wp.float64),
+            inv_mass: wp.array(dtype=wp.float64),
             coupling: wp.array(dtype=wp.float64),
             drifts: coefficients,
             kicks: coefficients,
@@ -336,7 +355,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             dv = start[1]
             dpu = start[2]
             dpv = start[3]
-            m = mass[base]
+            m = inv_mass[base]
             k = coupling[base]
             nbr = site_neighbours(j, n, boundary)
             buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
@@ -366,13 +385,14 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
     @wp.kernel(**options)
     def rk4(
         x: wp.array3d(dtype=wp.float64),
-        mass: wp.array(dtype=wp.float64),
+        inv_mass: wp.array(dtype=wp.float64),
         coupling: wp.array(dtype=wp.float64),
         boundary: int,
         dt: wp.float64,
         nsteps: int,
         save_every: int,
-        rec: wp.array4d(dtype=wp.float64),
+        rec_u: wp.array3d(dtype=wp.float64),
+        rec_v: wp.array3d(dtype=wp.float64),
         record_stiffness: int,
         hist: wp.array3d(dtype=wp.float64),
     ):
@@ -381,7 +401,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
         n = x.shape[2]
         active = j < n
         state = load_site(x, b, j, active)  # (u, v, u', v') of site j
-        m = mass[b]
+        m = inv_mass[b]
         k = coupling[b]
         nbr = site_neighbours(j, n, boundary)
         buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
@@ -403,15 +423,15 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             if save_every > 0 and active:
                 if (step + 1) % save_every == 0:
                     r = (step + 1) / save_every - 1
-                    rec[r, b, 0, j] = state[0]
-                    rec[r, b, 1, j] = state[1]
+                    rec_u[r, b, j] = state[0]
+                    rec_v[r, b, j] = state[1]
         store_site(x, b, j, active, state)
 
     @wp.kernel(**options)
     def rk4_tangent(
         dx: wp.array3d(dtype=wp.float64),
         column_base: wp.array(dtype=wp.int32),
-        mass: wp.array(dtype=wp.float64),
+        inv_mass: wp.array(dtype=wp.float64),
         coupling: wp.array(dtype=wp.float64),
         boundary: int,
         dt: wp.float64,
@@ -425,7 +445,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
         base = column_base[c]
         jj = wp.min(j, n - 1)
         state = load_site(dx, c, j, active)
-        m = mass[base]
+        m = inv_mass[base]
         k = coupling[base]
         nbr = site_neighbours(j, n, boundary)
         buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
@@ -444,8 +464,46 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             state = state + (dt / SIX) * total
         store_site(dx, c, j, active, state)
 
+    @wp.kernel(**options)
+    def guard(
+        x: wp.array3d(dtype=wp.float64),
+        mass: wp.array(dtype=wp.float64),
+        coupling: wp.array(dtype=wp.float64),
+        boundary: int,
+        rec_u: wp.array3d(dtype=wp.float64),
+        rec_v: wp.array3d(dtype=wp.float64),
+        n_rec: int,
+        contact: wp.array(dtype=wp.float64),
+        out: wp.array2d(dtype=wp.float64),
+    ):
+        """``kernels.guard_kernel`` with a block per lattice (coalesced reads, block reductions)."""
+        b, j = wp.tid()
+        n = x.shape[2]
+        active = j < n
+        state = load_site(x, b, j, active)
+        e = ZERO
+        finite = ONE
+        low = NO_CONTACT
+        if active:
+            right = x[b, 0, (j + 1) % n]
+            e = site_energy(state[0], state[1], state[2], state[3], right, j, n, boundary, mass[b], coupling[b])
+            finite = finite_state(state[0], state[1], state[2], state[3])
+            low = (ONE + state[0]) - state[1]
+            for r in range(n_rec):
+                low = wp.min(low, (ONE + rec_u[r, b, j]) - rec_v[r, b, j])
+        total = wp.tile_sum(wp.tile(e))
+        all_finite = wp.tile_min(wp.tile(finite))
+        lowest = wp.tile_min(wp.tile(low))
+        if j == 0:
+            c = wp.min(contact[b], lowest[0])
+            contact[b] = c
+            out[b, 0] = total[0]
+            out[b, 1] = all_finite[0]
+            out[b, 2] = c
+
     return BlockKernels(
         {
+            "guard": lambda: guard,
             "splitting": make_splitting,
             "splitting_tangent": make_splitting_tangent,
             "rk4": lambda: rk4,

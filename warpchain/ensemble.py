@@ -25,12 +25,11 @@ from .model import (
     ChainParams,
     as_batch,
     band_edges,
-    energy,
-    min_contact,
     per_lattice_parameters,
     real_number,
     whole_number,
 )
+from .reference import inverse_mass
 
 
 class IntegrationError(RuntimeError):
@@ -105,8 +104,12 @@ def _warp():
 
     with _WARP_LOCK:
         if not getattr(_warp, "_initialised", False):
-            from . import kernels  # noqa: F401  (sets Warp's log level before init)
-
+            if not wp.is_initialized() if hasattr(wp, "is_initialized") else True:
+                # keep Warp's start-up banner and per-module compile lines out of scene logs (set here,
+                # when warpchain first initialises Warp, not as a side effect of importing a module)
+                if hasattr(wp, "LOG_WARNING") and hasattr(wp.config, "log_level"):
+                    wp.config.log_level = wp.LOG_WARNING
+                wp.config.quiet = True
             _quiet_init(wp)
             _warp._initialised = True
     return wp
@@ -180,7 +183,8 @@ def stability_limit(method: Method | str, params: ChainParams, M=None, K=None) -
     Ms = np.atleast_1d(params.M if M is None else M).astype(float)
     Ks = np.atleast_1d(params.K if K is None else K).astype(float)
     Ms, Ks = np.broadcast_arrays(Ms, Ks)
-    w_max = max(band_edges(float(m), float(k))["optical_top"] for m, k in zip(Ms, Ks))
+    pairs = np.unique(np.stack([Ms.ravel(), Ks.ravel()], axis=1), axis=0)  # a sweep has few distinct (M, K)
+    w_max = max(band_edges(float(m), float(k))["optical_top"] for m, k in pairs)
     return method.linear_stability_limit(w_max)
 
 
@@ -268,6 +272,143 @@ def _relative_energy_error(E, E0, N):
     return np.abs(E - E0) / scale
 
 
+#: a chunk holds at least this many site force evaluations of the whole batch (``simulate``'s chunk count
+#: comes from the work: launch, guard and transfer overheads stay small against the kernel)
+_CHUNK_WORK = 1 << 28
+#: bytes of recorded u (and as many of v) per chunk: the size of each host staging buffer
+_STAGING_BYTES = 128 << 20
+_STAGING_POOL: dict = {}
+_STAGING_LOCK = threading.Lock()
+_COPY_POOL = None
+
+
+def _frames_per_chunk(batch: int, n_sites: int) -> int:
+    return max(1, _STAGING_BYTES // (8 * batch * n_sites))
+
+
+def _take_staging(wp, device: str, elements: int, pinned: bool) -> list:
+    """Four flat float64 host buffers (u and v, two slots) of at least ``elements`` each, pinned for a
+    GPU (page-locking costs ~0.4 s per GiB, so they are kept in a pool and reused across calls)."""
+    with _STAGING_LOCK:
+        free = _STAGING_POOL.setdefault((device, pinned), [])
+        for i, bufs in enumerate(free):
+            if bufs[0].shape[0] >= elements:
+                return free.pop(i)
+    return [wp.empty(elements, dtype=wp.float64, device="cpu", pinned=pinned) for _ in range(4)]
+
+
+def _give_staging(device: str, pinned: bool, bufs: list) -> None:
+    with _STAGING_LOCK:
+        free = _STAGING_POOL.setdefault((device, pinned), [])
+        if len(free) < 2:
+            free.append(bufs)
+
+
+def _copy(dst: np.ndarray, src: np.ndarray) -> None:
+    """dst[...] = src for large contiguous arrays, in pieces on a few threads (numpy releases the GIL;
+    one thread moves ~10 GB/s into memory it touches first at ~3 GB/s, eight ~17-35 GB/s)."""
+    global _COPY_POOL
+    d, s_ = dst.reshape(-1), src.reshape(-1)
+    workers = min(8, os.cpu_count() or 1)
+    if d.size < (1 << 19) or workers == 1:
+        np.copyto(d, s_)
+        return
+    if _COPY_POOL is None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        _COPY_POOL = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="warpchain-copy")
+    bounds = np.linspace(0, d.size, workers + 1).astype(int)
+    jobs = [_COPY_POOL.submit(np.copyto, d[a:b], s_[a:b]) for a, b in zip(bounds[:-1], bounds[1:])]
+    for job in jobs:
+        job.result()
+
+
+class _GuardReader:
+    """The guard's per-lattice scalars on their way to the host: two slots (chunk i uses slot i % 2),
+    pinned host buffers and an event per slot on a GPU, so the host can read chunk i while the device
+    runs chunk i + 1."""
+
+    def __init__(self, runner, gpu: bool):
+        wp = runner.wp
+        self.wp, self.gpu, self.runner = wp, gpu, runner
+        self.last = None
+        if gpu:
+            shape = (runner.batch, 3)
+            self.host = [wp.empty(shape, dtype=wp.float64, device="cpu", pinned=True) for _ in range(2)]
+            self.events = [wp.Event(runner.device) for _ in range(2)]
+        else:
+            self.host = [None, None]
+
+    def enqueue(self, out, i: int) -> None:
+        if self.gpu:
+            self.wp.copy(self.host[i % 2], out)
+        else:
+            self.host[i % 2] = out
+
+    def record(self, i: int) -> None:
+        if self.gpu:
+            self.wp.record_event(self.events[i % 2])
+
+    def wait(self, i: int):
+        """(energy, finite, min contact) of chunk i, each (batch,), once the device has finished it."""
+        if self.gpu:
+            self.wp.synchronize_event(self.events[i % 2])
+        g = self.host[i % 2].numpy()
+        self.last = g
+        return g[:, 0], g[:, 1] > 0.5, g[:, 2]
+
+    def read(self, out, i: int):
+        self.enqueue(out, i)
+        self.record(i)
+        return self.wait(i)
+
+
+class _FrameSink:
+    """Recorded frames on their way to the result arrays ``u`` and ``v`` (n_saved, batch, N): the kernel
+    writes a chunk's frames into device buffers, which are copied (asynchronously, on a GPU into pinned
+    host staging buffers, two slots) and then, by a few host threads, into the preallocated results."""
+
+    def __init__(self, runner, n_saved: int, max_frames: int, gpu: bool):
+        wp = runner.wp
+        self.wp, self.runner, self.gpu = wp, runner, gpu
+        self.batch, self.N = runner.batch, runner.N
+        self.u = np.empty((n_saved, self.batch, self.N))
+        self.v = np.empty((n_saved, self.batch, self.N))
+        self.frame = self.batch * self.N
+        self.rec = runner.frames(max(max_frames, 1))
+        self.device = runner.device
+        self.staging = _take_staging(wp, self.device, max(max_frames, 1) * self.frame, pinned=gpu)
+
+    def put_initial(self, x0: np.ndarray) -> None:
+        self.u[0] = x0[:, 0]
+        self.v[0] = x0[:, 1]
+
+    def enqueue(self, n_rec: int, i: int) -> None:
+        count = n_rec * self.frame
+        for buf, rec in zip(self.staging[2 * (i % 2) : 2 * (i % 2) + 2], self.rec):
+            self.wp.copy(buf, rec, count=count)
+
+    def take(self, i: int, first: int, n_rec: int) -> None:
+        count = n_rec * self.frame
+        shape = (n_rec, self.batch, self.N)
+        for dst, buf in zip((self.u, self.v), self.staging[2 * (i % 2) : 2 * (i % 2) + 2]):
+            _copy(dst[first : first + n_rec], buf.numpy()[:count].reshape(shape))
+
+    def view(self, a: int, b: int):
+        """Read-only views of frames a..b-1 of u and v (what ``on_chunk`` receives: no copy)."""
+        out = []
+        for arr in (self.u, self.v):
+            view = arr[a:b]
+            view.flags.writeable = False
+            out.append(view)
+        return out
+
+    def close(self) -> None:
+        if self.staging is not None:
+            _give_staging(self.device, self.gpu, self.staging)
+            self.staging = None
+
+
 class _Runner:
     """Device buffers and launches for one batch and one method."""
 
@@ -309,6 +450,7 @@ class _Runner:
         f64 = wp.float64
         self.x = wp.array(x0, dtype=f64, device=device)
         self.mass = wp.array(M, dtype=f64, device=device)
+        self.inv_mass = wp.array(inverse_mass(M), dtype=f64, device=device)  # the kernels multiply by 1/M
         self.coupling = wp.array(K, dtype=f64, device=device)
         if method.family == "splitting":
             if self.layout == "thread":
@@ -318,43 +460,58 @@ class _Runner:
         elif self.layout == "thread":
             shape = (self.batch, 4, self.N)
             self.y, self.kbuf, self.total = (wp.zeros(shape, dtype=f64, device=device) for _ in range(3))
-        self.no_record = wp.zeros((1, 1, 2, 1), dtype=f64, device=device)
+        self.no_record = wp.zeros((1, 1, 1), dtype=f64, device=device)
         if record_stiffness_steps:
             self.hist = wp.zeros(
                 (self.history_length(record_stiffness_steps), self.batch, self.N), dtype=f64, device=device
             )
         else:
             self.hist = wp.zeros((1, 1, 1), dtype=f64, device=device)
+        # the guard's outputs: running min contact, and (energy, finite, min contact) per lattice
+        self.contact = wp.empty(self.batch, dtype=f64, device=device)
+        self.guard_out = [wp.empty((self.batch, 3), dtype=f64, device=device) for _ in range(2)]
+        self.reset_contact()
 
     def load(self, x0: np.ndarray, M, K) -> None:
         """Copy a new batch (same shape) and its parameters into the existing device buffers."""
         self.x.assign(np.ascontiguousarray(x0, dtype=np.float64))
         self.mass.assign(np.ascontiguousarray(M, dtype=np.float64))
+        self.inv_mass.assign(np.ascontiguousarray(inverse_mass(M), dtype=np.float64))
         self.coupling.assign(np.ascontiguousarray(K, dtype=np.float64))
+        self.reset_contact()
+
+    def reset_contact(self) -> None:
+        self.contact.fill_(1.0e300)
 
     def history_length(self, nsteps: int) -> int:
         s = self.method.stages
         return nsteps * s + 1 if self.method.family == "splitting" else nsteps * s
 
-    def launch(self, nsteps: int, dt: float, save_every: int = 0, n_rec: int = 0, record_stiffness: bool = False):
-        """Advance every lattice by nsteps; returns the recorded frames (n_rec, batch, 2, N) or None.
+    def frames(self, n_rec: int):
+        """Device buffers for ``n_rec`` recorded frames: (u, v), each (n_rec, batch, N)."""
+        wp = self.wp
+        return tuple(wp.empty((n_rec, self.batch, self.N), dtype=wp.float64, device=self.device) for _ in range(2))
+
+    def launch(self, nsteps: int, dt: float, save_every: int = 0, rec=None, record_stiffness: bool = False):
+        """Advance every lattice by nsteps; with ``rec`` (device (u, v) frame buffers from ``frames``)
+        also record u and v every ``save_every`` steps into them. Asynchronous on a GPU.
 
         On the CPU the batch is split into one slice per thread (launched concurrently); a run that
         records the contact stiffness (tangent base) runs as one slice, since its history is shared."""
         wp, k = self.wp, self.k
         slices = [(0, self.batch)] if record_stiffness or self.serial else _slices(self.batch, self.device)
-        recs = [
-            wp.zeros((n_rec, hi - lo, 2, self.N), dtype=wp.float64, device=self.device) if n_rec else self.no_record
-            for lo, hi in slices
-        ]
-        tail = [self.boundary, wp.float64(dt), int(nsteps), int(save_every) if n_rec else 0]
+        tail = [self.boundary, wp.float64(dt), int(nsteps), int(save_every) if rec is not None else 0]
 
-        def task(lo, hi, rec):
-            common = [self.mass[lo:hi], self.coupling[lo:hi]]
-            end = [*tail, rec, int(record_stiffness), self.hist]
+        def task(lo, hi):
+            common = [self.inv_mass[lo:hi], self.coupling[lo:hi]]
+            if rec is None:
+                frames = [self.no_record, self.no_record]
+            else:
+                frames = [rec[0][:, lo:hi], rec[1][:, lo:hi]] if (lo, hi) != (0, self.batch) else list(rec)
+            end = [*tail, *frames, int(record_stiffness), self.hist]
             if self.layout == "block":
                 if self.method.family == "splitting":
-                    kernel = self.bk.splitting(self.method.stages, record=record_stiffness, save=bool(n_rec))
+                    kernel = self.bk.splitting(self.method.stages, record=record_stiffness, save=rec is not None)
                 else:
                     kernel = self.bk.rk4
                 wp.launch(
@@ -379,10 +536,22 @@ class _Runner:
                     inputs=[self.x[lo:hi], self.y[lo:hi], self.kbuf[lo:hi], self.total[lo:hi], *common, *end],
                 )
 
-        _in_parallel([lambda lo=lo, hi=hi, rec=rec: task(lo, hi, rec) for (lo, hi), rec in zip(slices, recs)])
-        if not n_rec:
-            return None
-        return np.concatenate([rec.numpy() for rec in recs], axis=1)
+        _in_parallel([lambda lo=lo, hi=hi: task(lo, hi) for lo, hi in slices])
+
+    def guard(self, rec=None, n_rec: int = 0, slot: int = 0):
+        """Launch the guard on the device: per lattice (energy, 1 if finite else 0, running min contact
+        over the chunk ends and the first ``n_rec`` frames of ``rec``). Returns the device array
+        (batch, 3); only it, not the state, needs to reach the host."""
+        wp = self.wp
+        ru, rv = rec if rec is not None and n_rec else (self.no_record, self.no_record)
+        out = self.guard_out[slot % 2]
+        inputs = [self.x, self.mass, self.coupling, self.boundary, ru, rv, int(n_rec), self.contact, out]
+        if self.layout == "block":
+            dim = (self.batch, self.block)
+            wp.launch(self.bk.guard, dim=dim, block_dim=self.block, device=self.device, inputs=inputs)
+        else:
+            wp.launch(self.k.guard_kernel, dim=self.batch, device=self.device, inputs=inputs)
+        return out
 
     def launch_tangent(self, dx, column_base, nsteps: int, dt: float):
         """Propagate tangent columns (device array (ncols, 4, N)) along the recorded history; on the
@@ -402,7 +571,7 @@ class _Runner:
                     inputs=[
                         dx[lo:hi],
                         column_base[lo:hi],
-                        self.mass,
+                        self.inv_mass,
                         self.coupling,
                         *self.block_coefficients,
                         self.boundary,
@@ -421,7 +590,7 @@ class _Runner:
                         dx[lo:hi],
                         dacc,
                         column_base[lo:hi],
-                        self.mass,
+                        self.inv_mass,
                         self.coupling,
                         self.drifts,
                         self.kicks,
@@ -441,7 +610,7 @@ class _Runner:
                         dx[lo:hi],
                         *scratch,
                         column_base[lo:hi],
-                        self.mass,
+                        self.inv_mass,
                         self.coupling,
                         self.boundary,
                         f64(dt),
@@ -527,45 +696,72 @@ def simulate(
         )
 
     runner = _Runner(meth, params, x0, Mb, Kb, device, layout=layout)
-    E0 = energy(params, x0, Mb, Kb)
+    wp = runner.wp
+    gpu = device != "cpu"
+    guard = _GuardReader(runner, gpu)
+    E0 = guard.read(runner.guard(), 0)[0].copy()  # energy, finite flag and contact of x0, on the device
+    contact = guard.last[:, 2].copy()
     trace_t, trace_E = [0.0], [E0]
     max_err = np.zeros(batch)
-    contact = min_contact(x0)
 
-    # chunk length: a whole number of save intervals
-    n_chunks = chunks or (50 if progress else 10)
+    # chunk length: a whole number of save intervals, at least _CHUNK_WORK force evaluations of the whole
+    # batch (launch, guard and transfer costs stay small against the kernel), at most 10 chunks (50 with a
+    # progress bar), and, when recording, at most the frames that fit the host staging buffers
     unit = save_every or 1
     units_total = max(1, math.ceil(nsteps / unit))
-    chunk_steps = max(1, math.ceil(units_total / n_chunks)) * unit
+    work = batch * params.N * max(nsteps, 1) * meth.force_evaluations
+    n_chunks = chunks or max(1, min(50 if progress else 10, math.ceil(work / _CHUNK_WORK)))
+    units_per_chunk = max(1, math.ceil(units_total / n_chunks))
+    if save_every:
+        units_per_chunk = min(units_per_chunk, _frames_per_chunk(batch, params.N))
+    chunk_steps = units_per_chunk * unit
+    plan = []  # (first step, steps, frames) of each chunk
+    while sum(p[1] for p in plan) < nsteps:
+        first = sum(p[1] for p in plan)
+        steps = min(chunk_steps, nsteps - first)
+        plan.append((first, steps, steps // save_every if save_every else 0))
 
-    saved_t = [0.0] if save_every else []
-    saved_u = [x0[:, 0].copy()] if save_every else []
-    saved_v = [x0[:, 1].copy()] if save_every else []
-    if on_chunk is not None and save_every:
-        on_chunk(np.array([0.0]), x0[None, :, 0].copy(), x0[None, :, 1].copy())
+    sink = None
+    if save_every:
+        n_saved = 1 + nsteps // save_every
+        sink = _FrameSink(runner, n_saved, max(p[2] for p in plan) if plan else 0, gpu)
+        sink.put_initial(x0)
+        if on_chunk is not None:
+            on_chunk(np.array([0.0]), *sink.view(0, 1))
 
     bar = None
     if progress:
         from tqdm.auto import tqdm
 
         bar = tqdm(total=nsteps, desc=f"{meth.name} dt={dt_used:.4g}", unit="step", leave=False)
-    done = 0
+
+    def enqueue(i):
+        """Queue chunk i on the device: kernel, guard, and the copies of its scalars and frames."""
+        _, steps, n_rec = plan[i]
+        runner.launch(steps, dt_used, save_every or 0, sink.rec if n_rec else None)
+        guard.enqueue(runner.guard(sink.rec if n_rec else None, n_rec, i), i)
+        if n_rec:
+            sink.enqueue(n_rec, i)
+        guard.record(i)
+
+    saved = 1
     try:
-        while done < nsteps:
-            steps = min(chunk_steps, nsteps - done)
-            n_rec = steps // save_every if save_every else 0
-            frames = runner.launch(steps, dt_used, save_every or 0, n_rec)
-            x = runner.x.numpy()
-            done += steps
+        if plan:
+            enqueue(0)
+        for i, (first, steps, n_rec) in enumerate(plan):
+            if i + 1 < len(plan):
+                enqueue(i + 1)  # the device works on the next chunk while the host checks this one
+            E, finite, low = guard.wait(i)
+            done = first + steps
             t_now = done * dt_used
-            finite = np.isfinite(x).all(axis=(1, 2))
-            E = energy(params, np.where(finite[:, None, None], x, 0.0), Mb, Kb)
             err = np.where(finite, _relative_energy_error(E, E0, params.N), np.inf)
             max_err = np.maximum(max_err, err)
             trace_t.append(t_now)
-            trace_E.append(E)
+            trace_E.append(E.copy())
             bad = ~finite | ((err > max_energy_error) if max_energy_error is not None else False)
             if np.any(bad):
+                if gpu:
+                    wp.synchronize_device(device)  # the next chunk may still be running; let it finish
                 failed = np.flatnonzero(bad).tolist()
                 what = "non-finite state" if not finite.all() else f"energy error above {max_energy_error:g}"
                 raise IntegrationError(
@@ -579,24 +775,27 @@ def simulate(
                     failed=failed,
                     t=t_now,
                 )
-            contact = np.minimum(contact, min_contact(x))
+            contact = low.copy()
             if n_rec:
-                ts = (np.arange(1, n_rec + 1) * save_every + (done - steps)) * dt_used
-                saved_t.extend(ts.tolist())
-                saved_u.extend(frames[:, :, 0])
-                saved_v.extend(frames[:, :, 1])
-                contact = np.minimum(contact, np.min(1.0 + frames[:, :, 0] - frames[:, :, 1], axis=(0, 2)))
+                sink.take(i, saved, n_rec)
                 if on_chunk is not None:
-                    on_chunk(ts, frames[:, :, 0].copy(), frames[:, :, 1].copy())
+                    ts = (np.arange(1, n_rec + 1) * save_every + first) * dt_used
+                    on_chunk(ts, *sink.view(saved, saved + n_rec))
+                saved += n_rec
             if bar is not None:
                 bar.update(steps)
     finally:
         if bar is not None:
             bar.close()
+        if sink is not None:
+            if gpu:
+                wp.synchronize_device(device)  # no copy into the staging buffers is left in flight
+            sink.close()
     x = runner.x.numpy()
-    E1 = energy(params, x, Mb, Kb)
+    E1 = trace_E[-1]
     if save_every:
-        t_arr, u_arr, v_arr = np.array(saved_t), np.stack(saved_u), np.stack(saved_v)
+        t_arr = (np.arange(n_saved) * save_every) * dt_used
+        u_arr, v_arr = sink.u, sink.v
     else:
         t_arr, u_arr, v_arr = np.array([0.0, nsteps * dt_used]), None, None
     return SimulationResult(
