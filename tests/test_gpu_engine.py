@@ -2,6 +2,8 @@
 reduced on the device (energy, finite flag, min contact), frames written into preallocated results,
 the chunk count chosen from the work, and the arithmetic shared with the numpy reference (1/M)."""
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -116,3 +118,56 @@ def test_flow_min_contact_reduced_on_the_device_matches_the_reference(layout):
     assert la.min_contact == lb.min_contact
     d = np.eye(4 * p.N)[:5].reshape(5, 4, p.N)
     assert np.array_equal(la.columns(d), lb.columns(d))
+
+
+def test_host_copy_helpers_and_buffer_pool():
+    from warpchain import ensemble
+
+    src = np.arange(3 * (1 << 19), dtype=np.float64).reshape(3, -1)  # large enough to be split
+    dst = np.empty_like(src)
+    ensemble._copy(dst, src)
+    assert np.array_equal(dst, src)
+    ensemble._fill_zero(dst)
+    assert not dst.any()
+    wp = ensemble._warp()
+    a = ensemble._take_buffer(wp, "cpu", 1000, False)
+    assert a.shape[0] >= 1000
+    ensemble._give_buffer("cpu", False, a)
+    assert ensemble._take_buffer(wp, "cpu", 500, False) is a  # reused, not allocated again
+    t = ensemble._prefault((4, 5))
+    t.join()
+    assert t.result.shape == (4, 5) and not t.result.any()
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_kernels_take_coefficients_from_the_method_type(layout):
+    """A Runge-Kutta tableau and a splitting not in METHODS run through the same launch plans: the
+    kernels read the coefficients the method owns (bit for bit with the reference on the CPU)."""
+    from warpchain.integrators import RungeKuttaMethod, SplittingMethod, _composition
+
+    p = ChainParams(3.0, 4.0, 13)
+    x0 = localized_state(p.N, amplitude=0.6, batch=2, seed=7)
+    rk = RungeKuttaMethod(
+        "rk-test", 2, False, "a made-up tableau", nodes=(0.25, 0.5, 1.0), weights=(1.0, 3.0, 1.0, 1.0)
+    )
+    split = SplittingMethod("split-test", 2, True, "two half Verlet steps", *_composition((0.5, 0.5)))
+    assert rk.force_evaluations == 4 and split.force_evaluations == 2 and rk.family == "rk4"
+    for method in (rk, split):
+        with warnings.catch_warnings():  # the made-up tableau is stable only for tiny steps: irrelevant here
+            warnings.simplefilter("ignore")
+            run = simulate(
+                p,
+                x0,
+                50 * 0.05,
+                0.05,
+                method=method,
+                device="cpu",
+                layout=layout,
+                max_energy_error=None,
+                allow_unstable_step=True,
+            )
+        ref = reference.integrate(method, p, x0, 0.05, 50)
+        assert np.array_equal(run.x, ref["x"]), method.name
+    assert not np.array_equal(
+        reference.integrate(rk, p, x0, 0.05, 5)["x"], reference.integrate("rk4", p, x0, 0.05, 5)["x"]
+    )

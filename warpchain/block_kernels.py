@@ -28,11 +28,8 @@ import warp as wp
 from .kernels import (
     BOUNDARY_FREE,
     BOUNDARY_PERIODIC,
-    HALF,
     NO_CONTACT,
     ONE,
-    SIX,
-    TWO,
     ZERO,
     contact_force,
     contact_stiffness,
@@ -136,6 +133,16 @@ def site_acceleration(
 
 
 @wp.func
+def site_acceleration_with(
+    u: wp.float64, force: wp.float64, left: wp.float64, right: wp.float64, inv_mass: wp.float64, coupling: wp.float64
+) -> wp.vec2d:
+    """``site_acceleration`` from a contact force computed beforehand: the kernels evaluate f(u - v)
+    before the neighbour exchange, so its square root overlaps the barrier (same operations, same
+    result)."""
+    return wp.vec2d(-(coupling * ((u - left) + (u - right)) + force) * inv_mass, force)
+
+
+@wp.func
 def site_tangent_acceleration(
     du: wp.float64,
     dv: wp.float64,
@@ -151,23 +158,17 @@ def site_tangent_acceleration(
 
 
 @wp.func
-def rk4_accumulate(stage: int, total: wp.vec4d, k: wp.vec4d) -> wp.vec4d:
-    """The RK4 weighted sum k0 + 2 k1 + 2 k2 + k3 after stage ``stage`` (as kernels.rk4_advance)."""
+def rk4_accumulate(stage: int, total: wp.vec4d, k: wp.vec4d, weights: wp.vec4d) -> wp.vec4d:
+    """The weighted sum of the stage derivatives after stage ``stage`` (as kernels.rk4_advance)."""
     if stage == 0:
-        return k
-    weight = TWO
-    if stage == 3:
-        weight = ONE
-    return total + weight * k
+        return weights[0] * k
+    return total + weights[stage] * k
 
 
 @wp.func
-def rk4_stage_state(stage: int, x: wp.vec4d, k: wp.vec4d, dt: wp.float64) -> wp.vec4d:
-    """The state of the next stage, x + c dt k with c = 1/2, 1/2, 1 after stages 0, 1, 2."""
-    c = HALF
-    if stage == 2:
-        c = ONE
-    return x + (c * dt) * k
+def rk4_stage_state(stage: int, x: wp.vec4d, k: wp.vec4d, dt: wp.float64, tableau: wp.vec4d) -> wp.vec4d:
+    """The state of the next stage, x + tableau[stage] dt k (classical RK4: 1/2, 1/2, 1)."""
+    return x + (tableau[stage] * dt) * k
 
 
 # ----------------------------------------------------------------------------- kernel factory
@@ -299,8 +300,9 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             nbr = site_neighbours(j, n, boundary)
             buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
             parity = int(0)
+            f = contact_force(u - v)
             nb = exchange(buf, u, parity, nbr, boundary)
-            a = site_acceleration(u, v, nb[0], nb[1], m, k)
+            a = site_acceleration_with(u, f, nb[0], nb[1], m, k)
             if wp.static(record):
                 if active:
                     hist[0, b, j] = contact_stiffness(u - v)
@@ -313,8 +315,9 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
                     u = u + h * pu
                     v = v + h * pv
                     parity = 1 - parity
+                    f = contact_force(u - v)  # before the exchange: overlaps the barrier
                     nb = exchange(buf, u, parity, nbr, boundary)
-                    a = site_acceleration(u, v, nb[0], nb[1], m, k)
+                    a = site_acceleration_with(u, f, nb[0], nb[1], m, k)
                     if wp.static(record):
                         if active:
                             hist[step * wp.static(stages) + s + 1, b, j] = contact_stiffness(u - v)
@@ -387,6 +390,8 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
         x: wp.array3d(dtype=wp.float64),
         inv_mass: wp.array(dtype=wp.float64),
         coupling: wp.array(dtype=wp.float64),
+        tableau: wp.vec4d,
+        weights: wp.vec4d,
         boundary: int,
         dt: wp.float64,
         nsteps: int,
@@ -411,15 +416,16 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             total = wp.vec4d()
             for stage in range(4):
                 parity = 1 - parity
+                f = contact_force(y[0] - y[1])
                 nb = exchange(buf, y[0], parity, nbr, boundary)
-                a = site_acceleration(y[0], y[1], nb[0], nb[1], m, k)
+                a = site_acceleration_with(y[0], f, nb[0], nb[1], m, k)
                 if record_stiffness != 0 and active:
                     hist[4 * step + stage, b, j] = contact_stiffness(y[0] - y[1])
                 slope = wp.vec4d(y[2], y[3], a[0], a[1])
-                total = rk4_accumulate(stage, total, slope)
+                total = rk4_accumulate(stage, total, slope, weights)
                 if stage < 3:
-                    y = rk4_stage_state(stage, state, slope, dt)
-            state = state + (dt / SIX) * total
+                    y = rk4_stage_state(stage, state, slope, dt, tableau)
+            state = state + (dt / tableau[3]) * total
             if save_every > 0 and active:
                 if (step + 1) % save_every == 0:
                     r = (step + 1) / save_every - 1
@@ -433,6 +439,8 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
         column_base: wp.array(dtype=wp.int32),
         inv_mass: wp.array(dtype=wp.float64),
         coupling: wp.array(dtype=wp.float64),
+        tableau: wp.vec4d,
+        weights: wp.vec4d,
         boundary: int,
         dt: wp.float64,
         nsteps: int,
@@ -458,10 +466,10 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
                 nb = exchange(buf, y[0], parity, nbr, boundary)
                 a = site_tangent_acceleration(y[0], y[1], nb[0], nb[1], m, k, hist[4 * step + stage, base, jj])
                 slope = wp.vec4d(y[2], y[3], a[0], a[1])
-                total = rk4_accumulate(stage, total, slope)
+                total = rk4_accumulate(stage, total, slope, weights)
                 if stage < 3:
-                    y = rk4_stage_state(stage, state, slope, dt)
-            state = state + (dt / SIX) * total
+                    y = rk4_stage_state(stage, state, slope, dt, tableau)
+            state = state + (dt / tableau[3]) * total
         store_site(dx, c, j, active, state)
 
     @wp.kernel(**options)

@@ -310,19 +310,18 @@ def rk4_advance(
     n: int,
     stage: int,
     dt: wp.float64,
+    tableau: wp.vec4d,
+    weights: wp.vec4d,
 ):
-    """After stage ``stage`` (0..3) has put its derivative in k: accumulate it into total and,
-    for stages 0..2, form the next stage state y = x + a dt k."""
-    weight = TWO
-    a = HALF
-    if stage == 0 or stage == 3:
-        weight = ONE
-    if stage == 2:
-        a = ONE
+    """After stage ``stage`` (0..3) has put its derivative in k: accumulate weights[stage] k into
+    total and, for stages 0..2, form the next stage state y = x + tableau[stage] dt k (the method's
+    own coefficients: ``RungeKuttaMethod.nodes``, ``weights``)."""
+    weight = weights[stage]
+    a = tableau[wp.min(stage, 2)]
     for i in range(4):
         for j in range(n):
             if stage == 0:
-                total[b, i, j] = k[b, i, j]
+                total[b, i, j] = weight * k[b, i, j]
             else:
                 total[b, i, j] = total[b, i, j] + weight * k[b, i, j]
             if stage < 3:
@@ -330,10 +329,17 @@ def rk4_advance(
 
 
 @wp.func
-def rk4_finish(x: wp.array3d(dtype=wp.float64), total: wp.array3d(dtype=wp.float64), b: int, n: int, dt: wp.float64):
+def rk4_finish(
+    x: wp.array3d(dtype=wp.float64),
+    total: wp.array3d(dtype=wp.float64),
+    b: int,
+    n: int,
+    dt: wp.float64,
+    divisor: wp.float64,
+):
     for i in range(4):
         for j in range(n):
-            x[b, i, j] = x[b, i, j] + (dt / SIX) * total[b, i, j]
+            x[b, i, j] = x[b, i, j] + (dt / divisor) * total[b, i, j]
 
 
 @wp.kernel
@@ -344,6 +350,8 @@ def rk4_kernel(
     total: wp.array3d(dtype=wp.float64),
     inv_mass: wp.array(dtype=wp.float64),
     coupling: wp.array(dtype=wp.float64),
+    tableau: wp.vec4d,
+    weights: wp.vec4d,
     boundary: int,
     dt: wp.float64,
     nsteps: int,
@@ -353,18 +361,19 @@ def rk4_kernel(
     record_stiffness: int,
     hist: wp.array3d(dtype=wp.float64),
 ):
-    """``nsteps`` classical RK4 steps for lattice b = tid; hist slot 4 step + stage."""
+    """``nsteps`` Runge-Kutta steps (tableau: nodes and divisor, weights) for lattice b = tid;
+    hist slot 4 step + stage."""
     b = wp.tid()
     n = x.shape[2]
     m = inv_mass[b]
     cpl = coupling[b]
     for step in range(nsteps):
         rk4_stage_derivative(x, k, b, n, boundary, m, cpl, record_stiffness, hist, 4 * step)
-        rk4_advance(x, y, k, total, b, n, 0, dt)
+        rk4_advance(x, y, k, total, b, n, 0, dt, tableau, weights)
         for stage in range(1, 4):
             rk4_stage_derivative(y, k, b, n, boundary, m, cpl, record_stiffness, hist, 4 * step + stage)
-            rk4_advance(x, y, k, total, b, n, stage, dt)
-        rk4_finish(x, total, b, n, dt)
+            rk4_advance(x, y, k, total, b, n, stage, dt, tableau, weights)
+        rk4_finish(x, total, b, n, dt, tableau[3])
         save_positions(x, rec_u, rec_v, b, n, step, save_every)
 
 
@@ -377,6 +386,8 @@ def rk4_tangent_kernel(
     column_base: wp.array(dtype=wp.int32),
     inv_mass: wp.array(dtype=wp.float64),
     coupling: wp.array(dtype=wp.float64),
+    tableau: wp.vec4d,
+    weights: wp.vec4d,
     boundary: int,
     dt: wp.float64,
     nsteps: int,
@@ -390,11 +401,11 @@ def rk4_tangent_kernel(
     cpl = coupling[base]
     for step in range(nsteps):
         rk4_tangent_stage_derivative(dx, dk, c, base, n, boundary, m, cpl, hist, 4 * step)
-        rk4_advance(dx, dy, dk, dtotal, c, n, 0, dt)
+        rk4_advance(dx, dy, dk, dtotal, c, n, 0, dt, tableau, weights)
         for stage in range(1, 4):
             rk4_tangent_stage_derivative(dy, dk, c, base, n, boundary, m, cpl, hist, 4 * step + stage)
-            rk4_advance(dx, dy, dk, dtotal, c, n, stage, dt)
-        rk4_finish(dx, dtotal, c, n, dt)
+            rk4_advance(dx, dy, dk, dtotal, c, n, stage, dt, tableau, weights)
+        rk4_finish(dx, dtotal, c, n, dt, tableau[3])
 
 
 # ----------------------------------------------------------------------------- run guard

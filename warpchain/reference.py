@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import model
-from .integrators import Method, get_method
+from .integrators import Method, SplittingMethod, get_method
 from .model import ChainParams, contact_force, contact_stiffness, laplacian
 
 
@@ -67,7 +67,7 @@ def step(method: Method | str, params: ChainParams, x, dt: float, M=None, K=None
     K = np.broadcast_to(np.asarray(params.K if K is None else K, dtype=dtype), (batch,))
     dx = None if dx is None else np.array(dx, dtype=dtype, copy=True)
     dt = dtype(dt)
-    if method.family == "splitting":
+    if isinstance(method, SplittingMethod):
         acc = accelerations(params, x, inv_M, K)
         dacc = None if dx is None else _linear_accelerations(params, x[:, :2], dx[:, :, :2], inv_M, K)
         kicks, drifts = [dtype(k) for k in method.kicks], [dtype(c) for c in method.drifts]
@@ -97,8 +97,9 @@ def step(method: Method | str, params: ChainParams, x, dt: float, M=None, K=None
         out[:, :, 2:] = _linear_accelerations(params, y[:, :2], dy[:, :, :2], inv_M, K)
         return out
 
-    stage_coefficients = tuple(dtype(a) for a in (0.5, 0.5, 1.0))
-    weights = tuple(dtype(w) for w in (1.0, 2.0, 2.0, 1.0))
+    # the Runge-Kutta method's own tableau (classical RK4: nodes 1/2, 1/2, 1; weights 1, 2, 2, 1; / 6)
+    stage_coefficients = tuple(dtype(a) for a in method.nodes)
+    weights = tuple(dtype(w) for w in method.weights)
     k = rhs(x)
     dk = None if dx is None else tangent_rhs(x, dx)
     total = weights[0] * k
@@ -110,10 +111,10 @@ def step(method: Method | str, params: ChainParams, x, dt: float, M=None, K=None
             dtotal = dtotal + w * dk
         k = rhs(y)
         total = total + w * k
-    x_new = x + (dt / dtype(6.0)) * total
+    x_new = x + (dt / dtype(method.divisor)) * total
     if dx is None:
         return x_new
-    return x_new, dx + (dt / dtype(6.0)) * dtotal
+    return x_new, dx + (dt / dtype(method.divisor)) * dtotal
 
 
 def integrate(
