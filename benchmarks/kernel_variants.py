@@ -3,8 +3,8 @@ without and with ``__launch_bounds__`` minimum blocks per SM, which caps registe
 hand-reduced Verlet-only Warp kernel (no recording branches), at 1, 805 and 32768 lattices, in one
 run; then registers per kernel.
 
-Command (GPU): ``python benchmarks/kernel_variants.py [--profile]``; ``--profile`` runs one short
-launch of each for ``ncu``.
+Command (GPU): ``python benchmarks/kernel_variants.py [--profile] [--quick]``; ``--profile`` runs one short
+launch of each for ``ncu``; ``--quick`` times Verlet and kahan8 alone.
 """
 
 import sys
@@ -18,7 +18,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from warpchain import ChainParams, lowest_optical_mode  # noqa: E402
 from warpchain import block_kernels as bk  # noqa: E402
-from warpchain.block_kernels import (
+from warpchain.block_kernels import (  # noqa: E402
     load_site,
     neighbour_or_wall,
     site_acceleration,  # noqa: E402
@@ -80,6 +80,7 @@ def verlet_only(
 
 def main():
     profile = "--profile" in sys.argv
+    quick = "--quick" in sys.argv  # Verlet and kahan8 only
     wp.init()
     p = ChainParams(30.0, 160.0, 201)
     _, shape = lowest_optical_mode(p)
@@ -89,16 +90,16 @@ def main():
     from warpchain.integrators import get_method
 
     variants = {}
-    for min_blocks in (0, 5, 7):
+    for min_blocks in (0, 5, 6, 7):
         kernels = bk.block_kernels(BLOCK, min_blocks)
-        for name in ("verlet", "yoshida4", "kahan8"):
+        for name in ("verlet", "kahan8") if quick else ("verlet", "yoshida4", "kahan8"):
             m = get_method(name)
             variants[f"{name} min_blocks={min_blocks}"] = (kernels.splitting(m.stages), m)
-    for batch in (1,) if profile else (1, 805, 32768):
+    for batch in (1, 805) if profile else (1, 805, 32768):
         x = wp.array(np.repeat(one[None], batch, 0), dtype=f64, device="cuda")
-        mass = wp.array(np.full(batch, 30.0), dtype=f64, device="cuda")
+        mass = wp.array(np.full(batch, 1.0 / 30.0), dtype=f64, device="cuda")  # the kernels take 1/M
         cpl = wp.array(np.full(batch, 160.0), dtype=f64, device="cuda")
-        rec = wp.zeros((1, 1, 2, 1), dtype=f64, device="cuda")
+        rec = wp.zeros((1, 1, 1), dtype=f64, device="cuda")
         hist = wp.zeros((1, 1, 1), dtype=f64, device="cuda")
 
         def runner(kernel, m):
@@ -108,7 +109,7 @@ def main():
                 dim=(batch, BLOCK),
                 block_dim=BLOCK,
                 device="cuda",
-                inputs=[x, mass, cpl, dr, ki, 0, f64(0.1 if m.stages == 1 else 0.5), n, 0, rec, 0, hist],
+                inputs=[x, mass, cpl, dr, ki, 0, f64(0.1 if m.stages == 1 else 0.5), n, 0, rec, rec, 0, hist],
             )
 
         def run_verlet(n):
@@ -141,7 +142,7 @@ def main():
                 flush=True,
             )
     if not profile:
-        for min_blocks in (0, 5, 7):
+        for min_blocks in (0, 5, 6, 7):
             for key, kern in bk.block_kernels(BLOCK, min_blocks).built().items():
                 print(min_blocks, key, wp.get_cuda_kernel_properties(kern, "cuda", block_dim=BLOCK))
 

@@ -12,6 +12,10 @@ Three parts:
   804-column monodromy (kernel time and wall time) and one Newton iteration end to end (tangent
   batch of the half-period map, transfers, linear solve).
 * **kernels** (GPU): registers per thread, local memory and theoretical occupancy of each kernel.
+* **simulate**: ``simulate()`` end to end as users call it (validation, upload, chunks, the guard,
+  the final state back on the host), with default arguments and recording a frame every
+  ``record_every`` steps, beside the kernel's own rate on the same batch (``time_steps``), all Verlet
+  over ``simulate_steps`` steps; recording also as GB/s of frames reaching host memory.
 
 Timings are kernel time (device synchronised before and after, transfers excluded; best of 3), with
 the step count sized so that a measurement takes about ``seconds`` s.
@@ -29,11 +33,11 @@ import time
 
 import numpy as np
 
-from warpchain import METHODS, ChainParams, lowest_optical_mode, propagate_tangent, reference
+from warpchain import METHODS, ChainParams, lowest_optical_mode, propagate_tangent, reference, simulate
 from warpchain.ensemble import cpu_threads, time_steps
 from warpchain.store import device_description, open_store, provenance, read_group, write_table
 
-from ._baselines import cupy_verlet_runner, jax_verlet_runner
+from ._baselines import cupy_variant, cupy_verlet_runner, jax_verlet_runner
 from ._common import PAPER_K, PAPER_M, PAPER_N, Context, paper_breather, pyplot, read_summary, save_figure
 
 #: an H100/H200-class SM: registers, resident threads, resident blocks (for the theoretical occupancy)
@@ -55,6 +59,11 @@ class Parameters:
     repeats: int = 3  # best of, for the ensemble timings
     monodromy: bool = True  # time the monodromy and a Newton iteration (needs the paper breather)
     monodromy_repeats: int = 3  # best of, for those
+    simulate_batches_cpu: tuple = (64, 805)  # simulate() end to end, on a CPU
+    simulate_batches_gpu: tuple = (805, 8192, 32768)  # and on a GPU
+    simulate_steps: int = 2000
+    record_every: int = 20
+    simulate_repeats: int = 3  # best of (after one untimed call)
 
 
 QUICK = {
@@ -63,6 +72,10 @@ QUICK = {
     "seconds": 0.12,
     "monodromy": False,
     "monodromy_repeats": 1,
+    "simulate_batches_cpu": (64,),
+    "simulate_batches_gpu": (805,),
+    "simulate_steps": 400,
+    "simulate_repeats": 1,
 }
 
 
@@ -193,6 +206,50 @@ def _ratios(batches, results, gpu):
     return out
 
 
+def _simulate_end_to_end(ctx, P: Parameters, params, one, gpu):
+    """simulate() as users call it against the kernel rate on the same batch, in one run."""
+    rows = []
+    steps = int(P.simulate_steps)
+    t_final = steps * P.dt
+    for batch in P.simulate_batches_gpu if gpu else P.simulate_batches_cpu:
+        batch = int(batch)
+        x0 = np.repeat(one[None], batch, axis=0)
+        kernel = time_steps(params, x0, steps, P.dt, device=ctx.device, repeats=P.repeats)
+        site_steps = batch * params.N * steps
+        row = {"batch": batch, "steps": steps, "kernel_seconds": kernel, "kernel_rate": site_steps / kernel}
+        for name, kwargs in (("default", {}), ("recording", {"save_every": int(P.record_every)})):
+            simulate(params, x0, t_final, P.dt, device=ctx.device, **kwargs)  # compile, pinned buffers
+            walls = []
+            for _ in range(int(P.simulate_repeats)):
+                t0 = time.perf_counter()
+                run = simulate(params, x0, t_final, P.dt, device=ctx.device, **kwargs)
+                walls.append(time.perf_counter() - t0)
+                del run
+            wall = min(walls)
+            row[f"{name}_seconds"] = wall
+            row[f"{name}_rate"] = site_steps / wall
+            row[f"{name}_over_kernel"] = kernel / wall
+        frames = 1 + steps // int(P.record_every)
+        row["recorded_frames"] = frames
+        row["frame_bytes"] = 2 * frames * batch * params.N * 8
+        row["recording_gb_per_second"] = row["frame_bytes"] / row["recording_seconds"] / 1e9
+        rows.append(row)
+        ctx.log(
+            "simulate() batch %6d, %d steps: kernel %.3g site-steps/s; default %.3g (%.2fx kernel); "
+            "recording every %d steps %.3g (%.2fx kernel, %.3g GB/s of frames)",
+            batch,
+            steps,
+            row["kernel_rate"],
+            row["default_rate"],
+            row["default_over_kernel"],
+            P.record_every,
+            row["recording_rate"],
+            row["recording_over_kernel"],
+            row["recording_gb_per_second"],
+        )
+    return rows
+
+
 def _monodromy(ctx, repeats):
     """Monodromy and Newton-iteration timings on the paper breather (best of ``repeats``)."""
     from continuation.shooting import PeriodMap, solve_linear
@@ -312,6 +369,7 @@ def run(ctx: Context) -> dict:
     gpu = ctx.device.startswith("cuda")
     batches, results = _ensemble(ctx, P, params, one, gpu)
     ratios = _ratios(batches, results, gpu)
+    end_to_end = _simulate_end_to_end(ctx, P, params, one, gpu)
     # the monodromy part needs the paper breather (Newton, ~10 s on a CPU): skipped by --quick
     monodromy = _monodromy(ctx, P.monodromy_repeats) if P.monodromy else None
     props = _kernel_properties(ctx, params) if gpu else []
@@ -344,7 +402,14 @@ def run(ctx: Context) -> dict:
         "results": results,
         "ratios": ratios,
         "monodromy": monodromy,
+        "simulate": {
+            "what": "simulate() wall time end to end (best of repeats after one untimed call) against "
+            "time_steps() kernel time on the same batch; velocity Verlet",
+            "record_every": P.record_every,
+            "rows": end_to_end,
+        },
         "kernel_properties": props,
+        "hand_cuda_variant": cupy_variant() if gpu else None,
     }
 
 

@@ -25,7 +25,17 @@ import functools
 
 import warp as wp
 
-from .kernels import BOUNDARY_FREE, BOUNDARY_PERIODIC, HALF, ONE, SIX, TWO, ZERO, contact_force, contact_stiffness
+from .kernels import (
+    BOUNDARY_FREE,
+    BOUNDARY_PERIODIC,
+    NO_CONTACT,
+    ONE,
+    ZERO,
+    contact_force,
+    contact_stiffness,
+    finite_state,
+    site_energy,
+)
 
 #: Largest block Warp launches (CUDA's limit); longer lattices use the thread-per-lattice kernels.
 MAX_BLOCK = 1024
@@ -113,13 +123,23 @@ def store_site(x: wp.array3d(dtype=wp.float64), b: int, j: int, active: bool, st
 
 @wp.func
 def site_acceleration(
-    u: wp.float64, v: wp.float64, left: wp.float64, right: wp.float64, mass: wp.float64, coupling: wp.float64
+    u: wp.float64, v: wp.float64, left: wp.float64, right: wp.float64, inv_mass: wp.float64, coupling: wp.float64
 ) -> wp.vec2d:
     """(u'', v'') of one site from its positions and its neighbours' u (same order as the
-    thread-per-lattice ``acceleration_at`` and the numpy reference)."""
+    thread-per-lattice ``acceleration_at`` and the numpy reference; multiplied by 1/M)."""
     force = contact_force(u - v)
-    au = -(coupling * ((u - left) + (u - right)) + force) / mass
+    au = -(coupling * ((u - left) + (u - right)) + force) * inv_mass
     return wp.vec2d(au, force)
+
+
+@wp.func
+def site_acceleration_with(
+    u: wp.float64, force: wp.float64, left: wp.float64, right: wp.float64, inv_mass: wp.float64, coupling: wp.float64
+) -> wp.vec2d:
+    """``site_acceleration`` from a contact force computed beforehand: the kernels evaluate f(u - v)
+    before the neighbour exchange, so its square root overlaps the barrier (same operations, same
+    result)."""
+    return wp.vec2d(-(coupling * ((u - left) + (u - right)) + force) * inv_mass, force)
 
 
 @wp.func
@@ -128,33 +148,27 @@ def site_tangent_acceleration(
     dv: wp.float64,
     left: wp.float64,
     right: wp.float64,
-    mass: wp.float64,
+    inv_mass: wp.float64,
     coupling: wp.float64,
     stiffness: wp.float64,
 ) -> wp.vec2d:
     dz = du - dv
-    au = -(coupling * ((du - left) + (du - right)) + stiffness * dz) / mass
+    au = -(coupling * ((du - left) + (du - right)) + stiffness * dz) * inv_mass
     return wp.vec2d(au, stiffness * dz)
 
 
 @wp.func
-def rk4_accumulate(stage: int, total: wp.vec4d, k: wp.vec4d) -> wp.vec4d:
-    """The RK4 weighted sum k0 + 2 k1 + 2 k2 + k3 after stage ``stage`` (as kernels.rk4_advance)."""
+def rk4_accumulate(stage: int, total: wp.vec4d, k: wp.vec4d, weights: wp.vec4d) -> wp.vec4d:
+    """The weighted sum of the stage derivatives after stage ``stage`` (as kernels.rk4_advance)."""
     if stage == 0:
-        return k
-    weight = TWO
-    if stage == 3:
-        weight = ONE
-    return total + weight * k
+        return weights[0] * k
+    return total + weights[stage] * k
 
 
 @wp.func
-def rk4_stage_state(stage: int, x: wp.vec4d, k: wp.vec4d, dt: wp.float64) -> wp.vec4d:
-    """The state of the next stage, x + c dt k with c = 1/2, 1/2, 1 after stages 0, 1, 2."""
-    c = HALF
-    if stage == 2:
-        c = ONE
-    return x + (c * dt) * k
+def rk4_stage_state(stage: int, x: wp.vec4d, k: wp.vec4d, dt: wp.float64, tableau: wp.vec4d) -> wp.vec4d:
+    """The state of the next stage, x + tableau[stage] dt k (classical RK4: 1/2, 1/2, 1)."""
+    return x + (tableau[stage] * dt) * k
 
 
 # ----------------------------------------------------------------------------- kernel factory
@@ -205,6 +219,11 @@ class BlockKernels:
         return self._get("rk4")
 
     @property
+    def guard(self):
+        """Per-lattice energy, finite flag and running min contact (``kernels.guard_kernel``)."""
+        return self._get("guard")
+
+    @property
     def rk4_tangent(self):
         return self._get("rk4_tangent")
 
@@ -253,7 +272,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
         @wp.kernel(**options)
         def splitting(
             x: wp.array3d(dtype=wp.float64),
-            mass: wp.array(dtype=wp.float64),
+            inv_mass: wp.array(dtype=wp.float64),
             coupling: wp.array(dtype=wp.float64),
             drifts: coefficients,
             kicks: coefficients,
@@ -261,7 +280,8 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             dt: wp.float64,
             nsteps: int,
             save_every: int,
-            rec: wp.array4d(dtype=wp.float64),
+            rec_u: wp.array3d(dtype=wp.float64),
+            rec_v: wp.array3d(dtype=wp.float64),
             record_stiffness: int,
             hist: wp.array3d(dtype=wp.float64),
         ):
@@ -275,13 +295,14 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             v = start[1]
             pu = start[2]
             pv = start[3]
-            m = mass[b]
+            m = inv_mass[b]
             k = coupling[b]
             nbr = site_neighbours(j, n, boundary)
             buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
             parity = int(0)
+            f = contact_force(u - v)
             nb = exchange(buf, u, parity, nbr, boundary)
-            a = site_acceleration(u, v, nb[0], nb[1], m, k)
+            a = site_acceleration_with(u, f, nb[0], nb[1], m, k)
             if wp.static(record):
                 if active:
                     hist[0, b, j] = contact_stiffness(u - v)
@@ -294,8 +315,9 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
                     u = u + h * pu
                     v = v + h * pv
                     parity = 1 - parity
+                    f = contact_force(u - v)  # before the exchange: overlaps the barrier
                     nb = exchange(buf, u, parity, nbr, boundary)
-                    a = site_acceleration(u, v, nb[0], nb[1], m, k)
+                    a = site_acceleration_with(u, f, nb[0], nb[1], m, k)
                     if wp.static(record):
                         if active:
                             hist[step * wp.static(stages) + s + 1, b, j] = contact_stiffness(u - v)
@@ -305,8 +327,8 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
                 if wp.static(save):
                     if active and (step + 1) % save_every == 0:
                         r = (step + 1) / save_every - 1
-                        rec[r, b, 0, j] = u
-                        rec[r, b, 1, j] = v
+                        rec_u[r, b, j] = u
+                        rec_v[r, b, j] = v
             store_site(x, b, j, active, wp.vec4d(u, v, pu, pv))
 
         return splitting
@@ -316,7 +338,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
         def splitting_tangent(
             dx: wp.array3d(dtype=wp.float64),
             column_base: wp.array(dtype=wp.int32),
-            mass: wp.array(dtype=wp.float64),
+            inv_mass: wp.array(dtype=wp.float64),
             coupling: wp.array(dtype=wp.float64),
             drifts: coefficients,
             kicks: coefficients,
@@ -336,7 +358,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             dv = start[1]
             dpu = start[2]
             dpv = start[3]
-            m = mass[base]
+            m = inv_mass[base]
             k = coupling[base]
             nbr = site_neighbours(j, n, boundary)
             buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
@@ -366,13 +388,16 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
     @wp.kernel(**options)
     def rk4(
         x: wp.array3d(dtype=wp.float64),
-        mass: wp.array(dtype=wp.float64),
+        inv_mass: wp.array(dtype=wp.float64),
         coupling: wp.array(dtype=wp.float64),
+        tableau: wp.vec4d,
+        weights: wp.vec4d,
         boundary: int,
         dt: wp.float64,
         nsteps: int,
         save_every: int,
-        rec: wp.array4d(dtype=wp.float64),
+        rec_u: wp.array3d(dtype=wp.float64),
+        rec_v: wp.array3d(dtype=wp.float64),
         record_stiffness: int,
         hist: wp.array3d(dtype=wp.float64),
     ):
@@ -381,7 +406,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
         n = x.shape[2]
         active = j < n
         state = load_site(x, b, j, active)  # (u, v, u', v') of site j
-        m = mass[b]
+        m = inv_mass[b]
         k = coupling[b]
         nbr = site_neighbours(j, n, boundary)
         buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
@@ -391,28 +416,31 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             total = wp.vec4d()
             for stage in range(4):
                 parity = 1 - parity
+                f = contact_force(y[0] - y[1])
                 nb = exchange(buf, y[0], parity, nbr, boundary)
-                a = site_acceleration(y[0], y[1], nb[0], nb[1], m, k)
+                a = site_acceleration_with(y[0], f, nb[0], nb[1], m, k)
                 if record_stiffness != 0 and active:
                     hist[4 * step + stage, b, j] = contact_stiffness(y[0] - y[1])
                 slope = wp.vec4d(y[2], y[3], a[0], a[1])
-                total = rk4_accumulate(stage, total, slope)
+                total = rk4_accumulate(stage, total, slope, weights)
                 if stage < 3:
-                    y = rk4_stage_state(stage, state, slope, dt)
-            state = state + (dt / SIX) * total
+                    y = rk4_stage_state(stage, state, slope, dt, tableau)
+            state = state + (dt / tableau[3]) * total
             if save_every > 0 and active:
                 if (step + 1) % save_every == 0:
                     r = (step + 1) / save_every - 1
-                    rec[r, b, 0, j] = state[0]
-                    rec[r, b, 1, j] = state[1]
+                    rec_u[r, b, j] = state[0]
+                    rec_v[r, b, j] = state[1]
         store_site(x, b, j, active, state)
 
     @wp.kernel(**options)
     def rk4_tangent(
         dx: wp.array3d(dtype=wp.float64),
         column_base: wp.array(dtype=wp.int32),
-        mass: wp.array(dtype=wp.float64),
+        inv_mass: wp.array(dtype=wp.float64),
         coupling: wp.array(dtype=wp.float64),
+        tableau: wp.vec4d,
+        weights: wp.vec4d,
         boundary: int,
         dt: wp.float64,
         nsteps: int,
@@ -425,7 +453,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
         base = column_base[c]
         jj = wp.min(j, n - 1)
         state = load_site(dx, c, j, active)
-        m = mass[base]
+        m = inv_mass[base]
         k = coupling[base]
         nbr = site_neighbours(j, n, boundary)
         buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
@@ -438,14 +466,52 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
                 nb = exchange(buf, y[0], parity, nbr, boundary)
                 a = site_tangent_acceleration(y[0], y[1], nb[0], nb[1], m, k, hist[4 * step + stage, base, jj])
                 slope = wp.vec4d(y[2], y[3], a[0], a[1])
-                total = rk4_accumulate(stage, total, slope)
+                total = rk4_accumulate(stage, total, slope, weights)
                 if stage < 3:
-                    y = rk4_stage_state(stage, state, slope, dt)
-            state = state + (dt / SIX) * total
+                    y = rk4_stage_state(stage, state, slope, dt, tableau)
+            state = state + (dt / tableau[3]) * total
         store_site(dx, c, j, active, state)
+
+    @wp.kernel(**options)
+    def guard(
+        x: wp.array3d(dtype=wp.float64),
+        mass: wp.array(dtype=wp.float64),
+        coupling: wp.array(dtype=wp.float64),
+        boundary: int,
+        rec_u: wp.array3d(dtype=wp.float64),
+        rec_v: wp.array3d(dtype=wp.float64),
+        n_rec: int,
+        contact: wp.array(dtype=wp.float64),
+        out: wp.array2d(dtype=wp.float64),
+    ):
+        """``kernels.guard_kernel`` with a block per lattice (coalesced reads, block reductions)."""
+        b, j = wp.tid()
+        n = x.shape[2]
+        active = j < n
+        state = load_site(x, b, j, active)
+        e = ZERO
+        finite = ONE
+        low = NO_CONTACT
+        if active:
+            right = x[b, 0, (j + 1) % n]
+            e = site_energy(state[0], state[1], state[2], state[3], right, j, n, boundary, mass[b], coupling[b])
+            finite = finite_state(state[0], state[1], state[2], state[3])
+            low = (ONE + state[0]) - state[1]
+            for r in range(n_rec):
+                low = wp.min(low, (ONE + rec_u[r, b, j]) - rec_v[r, b, j])
+        total = wp.tile_sum(wp.tile(e))
+        all_finite = wp.tile_min(wp.tile(finite))
+        lowest = wp.tile_min(wp.tile(low))
+        if j == 0:
+            c = wp.min(contact[b], lowest[0])
+            contact[b] = c
+            out[b, 0] = total[0]
+            out[b, 1] = all_finite[0]
+            out[b, 2] = c
 
     return BlockKernels(
         {
+            "guard": lambda: guard,
             "splitting": make_splitting,
             "splitting_tangent": make_splitting_tangent,
             "rk4": lambda: rk4,

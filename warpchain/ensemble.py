@@ -19,18 +19,17 @@ from typing import Callable
 
 import numpy as np
 
-from .integrators import Method, get_method, steps_for
+from .integrators import Method, RungeKuttaMethod, SplittingMethod, get_method, steps_for
 from .model import (
     BOUNDARY_CODES,
     ChainParams,
     as_batch,
     band_edges,
-    energy,
-    min_contact,
     per_lattice_parameters,
     real_number,
     whole_number,
 )
+from .reference import inverse_mass
 
 
 class IntegrationError(RuntimeError):
@@ -105,8 +104,12 @@ def _warp():
 
     with _WARP_LOCK:
         if not getattr(_warp, "_initialised", False):
-            from . import kernels  # noqa: F401  (sets Warp's log level before init)
-
+            if not wp.is_initialized() if hasattr(wp, "is_initialized") else True:
+                # keep Warp's start-up banner and per-module compile lines out of scene logs (set here,
+                # when warpchain first initialises Warp, not as a side effect of importing a module)
+                if hasattr(wp, "LOG_WARNING") and hasattr(wp.config, "log_level"):
+                    wp.config.log_level = wp.LOG_WARNING
+                wp.config.quiet = True
             _quiet_init(wp)
             _warp._initialised = True
     return wp
@@ -180,8 +183,23 @@ def stability_limit(method: Method | str, params: ChainParams, M=None, K=None) -
     Ms = np.atleast_1d(params.M if M is None else M).astype(float)
     Ks = np.atleast_1d(params.K if K is None else K).astype(float)
     Ms, Ks = np.broadcast_arrays(Ms, Ks)
-    w_max = max(band_edges(float(m), float(k))["optical_top"] for m, k in zip(Ms, Ks))
+    if Ms.min() == Ms.max() and Ks.min() == Ks.max():
+        pairs = [(Ms.flat[0], Ks.flat[0])]  # one chain for the whole batch
+    else:
+        pairs = np.unique(np.stack([Ms.ravel(), Ks.ravel()], axis=1), axis=0)
+    w_max = max(band_edges(float(m), float(k))["optical_top"] for m, k in pairs)
     return method.linear_stability_limit(w_max)
+
+
+def _as_state(x0, N: int) -> np.ndarray:
+    """``model.as_batch`` without its scan for non-finite values (``simulate`` runs that check on the
+    device, in its guard: on a large batch the host scan alone cost twice the kernel)."""
+    arr = np.asarray(x0) if not isinstance(x0, np.ndarray) else x0
+    if arr.dtype == np.float64 and arr.ndim == 3 and arr.shape[1:] == (4, N) and arr.shape[0] >= 1:
+        return np.ascontiguousarray(arr)
+    if arr.dtype == np.float64 and arr.ndim == 2 and arr.shape == (4, N):
+        return np.ascontiguousarray(arr[None])
+    return as_batch(x0, N, "x0")  # anything else: the full validation, with its messages
 
 
 def _check_step(method: Method, params, dt, M, K, allow_unstable_step: bool) -> float:
@@ -263,9 +281,355 @@ def resolve_layout(layout: str, device: str, n_sites: int) -> str:
     return layout
 
 
+_RUNNER_POOL: dict = {}
+_RUNNER_POOL_SIZE = 4
+
+
+def _pooled_runner(method: Method, params: ChainParams, x0, M, K, device: str, layout: str) -> "_Runner":
+    """A runner for this (method, chain, batch, device, layout): on a GPU one kept from an earlier call
+    (its device buffers reused, the new batch and parameters uploaded), else a new one. A runner in use
+    is out of the pool, so concurrent calls never share one."""
+    if device == "cpu":
+        return _Runner(method, params, x0, M, K, device, layout=layout)
+    key = (method.name, params.N, params.boundary, x0.shape[0], device, resolve_layout(layout, device, params.N))
+    with _STAGING_LOCK:
+        free = _RUNNER_POOL.get(key)
+        runner = free.pop() if free else None
+    if runner is None:
+        runner = _Runner(method, params, x0, M, K, device, layout=layout)
+    else:
+        runner.load(x0, M, K)
+    runner._pool_key = key
+    return runner
+
+
+def _release_runner(runner: "_Runner") -> None:
+    key = getattr(runner, "_pool_key", None)
+    if key is None:
+        return
+    with _STAGING_LOCK:
+        _RUNNER_POOL.setdefault(key, []).append(runner)
+        while sum(len(v) for v in _RUNNER_POOL.values()) > _RUNNER_POOL_SIZE:
+            oldest = next(k for k, v in _RUNNER_POOL.items() if v)
+            _RUNNER_POOL[oldest].pop(0)
+            if not _RUNNER_POOL[oldest]:
+                del _RUNNER_POOL[oldest]
+
+
+def _prefault(shape) -> "threading.Thread":
+    """Start filling a new host array of this shape on background threads (the page faults of fresh
+    memory, ~3 GB/s on one thread, happen while the GPU computes); ``.result`` holds it after join()."""
+
+    def work():
+        out = np.empty(shape)
+        _fill_zero(out)
+        holder.result = out
+
+    holder = threading.Thread(target=work, daemon=True)
+    holder.result = None
+    holder.start()
+    return holder
+
+
 def _relative_energy_error(E, E0, N):
     scale = np.maximum(np.abs(E0), 1e-14 * N)
     return np.abs(E - E0) / scale
+
+
+#: a chunk holds at least this many site force evaluations of the whole batch (``simulate``'s chunk count
+#: comes from the work: launch, guard and transfer overheads stay small against the kernel)
+_CHUNK_WORK = 1 << 28
+#: bytes of recorded u (and as many of v) per chunk: the size of each host staging buffer
+_STAGING_BYTES = 128 << 20
+_STAGING_POOL: dict = {}
+_STAGING_LOCK = threading.Lock()
+_COPY_POOL = None
+
+
+def _frames_per_chunk(batch: int, n_sites: int) -> int:
+    return max(1, _STAGING_BYTES // (8 * batch * n_sites))
+
+
+def _take_buffer(wp, device: str, elements: int, pinned: bool):
+    """A flat float64 host buffer of at least ``elements``, pinned for a GPU (page-locking costs ~0.4 s
+    per GiB, so buffers are kept in a small pool and reused across calls)."""
+    with _STAGING_LOCK:
+        free = _STAGING_POOL.setdefault((device, pinned), [])
+        fits = [i for i, buf in enumerate(free) if buf.shape[0] >= elements]
+        if fits:
+            return free.pop(min(fits, key=lambda i: free[i].shape[0]))
+    return wp.empty(max(int(elements), 1), dtype=wp.float64, device="cpu", pinned=pinned)
+
+
+def _give_buffer(device: str, pinned: bool, buf) -> None:
+    with _STAGING_LOCK:
+        free = _STAGING_POOL.setdefault((device, pinned), [])
+        free.append(buf)
+        if len(free) > 12:  # keep the largest few
+            free.sort(key=lambda b: b.shape[0])
+            del free[0]
+
+
+def _copy(dst: np.ndarray, src: np.ndarray) -> None:
+    """dst[...] = src for large contiguous arrays, in pieces on a few threads (numpy releases the GIL;
+    one thread moves ~10 GB/s, and into memory it touches first ~3 GB/s (page faults); eight threads
+    17-35 GB/s on the H200 host)."""
+    global _COPY_POOL
+    d, s_ = dst.reshape(-1), src.reshape(-1)
+    workers = min(16, os.cpu_count() or 1)
+    if d.size < (1 << 19) or workers == 1:
+        np.copyto(d, s_)
+        return
+    _copy_pool(workers)
+    bounds = np.linspace(0, d.size, workers + 1).astype(int)
+    jobs = [_COPY_POOL.submit(np.copyto, d[a:b], s_[a:b]) for a, b in zip(bounds[:-1], bounds[1:])]
+    for job in jobs:
+        job.result()
+
+
+def _fill_zero(arr: np.ndarray) -> None:
+    """arr[...] = 0 in pieces on the copy threads (touches fresh memory in parallel)."""
+    flat = arr.reshape(-1)
+    workers = min(16, os.cpu_count() or 1)
+    if flat.size < (1 << 19) or workers == 1:
+        flat.fill(0.0)
+        return
+    _copy_pool(workers)
+    bounds = np.linspace(0, flat.size, workers + 1).astype(int)
+    jobs = [_COPY_POOL.submit(flat[a:b].fill, 0.0) for a, b in zip(bounds[:-1], bounds[1:])]
+    for job in jobs:
+        job.result()
+
+
+def _copy_pool(workers: int):
+    global _COPY_POOL
+    with _STAGING_LOCK:
+        if _COPY_POOL is None:
+            from concurrent.futures import ThreadPoolExecutor
+
+            _COPY_POOL = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="warpchain-copy")
+    return _COPY_POOL
+
+
+class _GuardReader:
+    """The guard's per-lattice scalars on their way to the host: two slots (chunk i uses slot i % 2),
+    pinned host buffers and an event per slot on a GPU, so the host can read chunk i while the device
+    runs chunk i + 1."""
+
+    def __init__(self, runner, gpu: bool):
+        wp = runner.wp
+        self.wp, self.gpu, self.runner = wp, gpu, runner
+        self.last = None
+        if gpu:
+            self.flat = [_take_buffer(wp, runner.device, 3 * runner.batch, True) for _ in range(2)]
+            self.host = [buf[: 3 * runner.batch].reshape((runner.batch, 3)) for buf in self.flat]
+            self.events = [wp.Event(runner.device) for _ in range(2)]
+        else:
+            self.host = [None, None]
+
+    def close(self) -> None:
+        if self.gpu and self.flat:
+            for buf in self.flat:
+                _give_buffer(self.runner.device, True, buf)
+            self.flat = []
+
+    def enqueue(self, out, i: int) -> None:
+        if self.gpu:
+            self.wp.copy(self.host[i % 2], out)
+        else:
+            self.host[i % 2] = out
+
+    def record(self, i: int) -> None:
+        if self.gpu:
+            self.wp.record_event(self.events[i % 2])
+
+    def wait(self, i: int):
+        """(energy, finite, min contact) of chunk i, each (batch,), once the device has finished it."""
+        if self.gpu:
+            self.wp.synchronize_event(self.events[i % 2])
+        g = self.host[i % 2].numpy()
+        self.last = g
+        return g[:, 0], g[:, 1] > 0.5, g[:, 2]
+
+    def read(self, out, i: int):
+        self.enqueue(out, i)
+        self.record(i)
+        return self.wait(i)
+
+
+class _FrameSink:
+    """Recorded frames on their way to the result arrays ``u`` and ``v`` (n_saved, batch, N): the kernel
+    writes a chunk's frames into device buffers, which are copied (asynchronously, on a GPU into pinned
+    host staging buffers, two slots) and then, by a few host threads, into the preallocated results."""
+
+    def __init__(self, runner, n_saved: int, max_frames: int, gpu: bool):
+        wp = runner.wp
+        self.wp, self.runner, self.gpu = wp, runner, gpu
+        self.batch, self.N = runner.batch, runner.N
+        self.u = np.empty((n_saved, self.batch, self.N))
+        self.v = np.empty((n_saved, self.batch, self.N))
+        self.frame = self.batch * self.N
+        cached = getattr(runner, "_sink_frames", None)
+        if cached is None or cached[0] < max(max_frames, 1):
+            cached = (max(max_frames, 1), runner.frames(max(max_frames, 1)))
+            runner._sink_frames = cached  # kept with the runner (reused by the next call)
+        self.rec = cached[1]
+        self.device = runner.device
+        self.staging = [_take_buffer(wp, self.device, max(max_frames, 1) * self.frame, gpu) for _ in range(4)]
+
+    def put_initial(self, x0: np.ndarray) -> None:
+        self.u[0] = x0[:, 0]
+        self.v[0] = x0[:, 1]
+
+    def enqueue(self, n_rec: int, i: int) -> None:
+        count = n_rec * self.frame
+        for buf, rec in zip(self.staging[2 * (i % 2) : 2 * (i % 2) + 2], self.rec):
+            self.wp.copy(buf, rec, count=count)
+
+    def take(self, i: int, first: int, n_rec: int) -> None:
+        count = n_rec * self.frame
+        shape = (n_rec, self.batch, self.N)
+        for dst, buf in zip((self.u, self.v), self.staging[2 * (i % 2) : 2 * (i % 2) + 2]):
+            _copy(dst[first : first + n_rec], buf.numpy()[:count].reshape(shape))
+
+    def view(self, a: int, b: int):
+        """Read-only views of frames a..b-1 of u and v (what ``on_chunk`` receives: no copy)."""
+        out = []
+        for arr in (self.u, self.v):
+            view = arr[a:b]
+            view.flags.writeable = False
+            out.append(view)
+        return out
+
+    def close(self) -> None:
+        if self.staging is not None:
+            for buf in self.staging:
+                _give_buffer(self.device, self.gpu, buf)
+            self.staging = None
+
+
+class _Plan:
+    """What one (kernel layout, method type) launches: the kernels and, built beside each launch, their
+    arguments. ``_PLANS`` maps (layout, method type) to the plan; the runner holds the buffers."""
+
+    def __init__(self, runner: "_Runner"):
+        self.r = runner
+
+    def step(self, lo: int, hi: int, dt: float, nsteps: int, save_every: int, frames, record: bool) -> None:
+        raise NotImplementedError
+
+    def tangent(self, dx, column_base, lo: int, hi: int, dt: float, nsteps: int) -> None:
+        raise NotImplementedError
+
+
+class _BlockSplitting(_Plan):
+    """A thread block per lattice, a splitting method compiled for its stage count."""
+
+    def __init__(self, runner):
+        super().__init__(runner)
+        from . import block_kernels
+
+        m = runner.method
+        self.coefficients = [block_kernels.pack_coefficients(m.drifts), block_kernels.pack_coefficients(m.kicks)]
+
+    def step(self, lo, hi, dt, nsteps, save_every, frames, record):
+        r = self.r
+        kernel = r.bk.splitting(r.method.stages, record=record, save=save_every > 0)
+        inputs = [r.x[lo:hi], r.inv_mass[lo:hi], r.coupling[lo:hi], *self.coefficients, r.boundary, r.wp.float64(dt)]
+        inputs += [int(nsteps), int(save_every), *frames, int(record), r.hist]
+        r.wp.launch(kernel, dim=(hi - lo, r.block), block_dim=r.block, device=r.device, inputs=inputs)
+
+    def tangent(self, dx, column_base, lo, hi, dt, nsteps):
+        r = self.r
+        inputs = [dx[lo:hi], column_base[lo:hi], r.inv_mass, r.coupling, *self.coefficients, r.boundary]
+        inputs += [r.wp.float64(dt), int(nsteps), r.hist]
+        kernel = r.bk.splitting_tangent(r.method.stages)
+        r.wp.launch(kernel, dim=(hi - lo, r.block), block_dim=r.block, device=r.device, inputs=inputs)
+
+
+class _BlockRungeKutta(_Plan):
+    """A thread block per lattice, a four-stage Runge-Kutta method (its tableau as arguments)."""
+
+    def __init__(self, runner):
+        super().__init__(runner)
+        m, wp = runner.method, runner.wp
+        self.tableau = [wp.vec4d(*m.nodes, m.divisor), wp.vec4d(*m.weights)]
+
+    def step(self, lo, hi, dt, nsteps, save_every, frames, record):
+        r = self.r
+        inputs = [r.x[lo:hi], r.inv_mass[lo:hi], r.coupling[lo:hi], *self.tableau, r.boundary, r.wp.float64(dt)]
+        inputs += [int(nsteps), int(save_every), *frames, int(record), r.hist]
+        r.wp.launch(r.bk.rk4, dim=(hi - lo, r.block), block_dim=r.block, device=r.device, inputs=inputs)
+
+    def tangent(self, dx, column_base, lo, hi, dt, nsteps):
+        r = self.r
+        inputs = [dx[lo:hi], column_base[lo:hi], r.inv_mass, r.coupling, *self.tableau, r.boundary]
+        inputs += [r.wp.float64(dt), int(nsteps), r.hist]
+        r.wp.launch(r.bk.rk4_tangent, dim=(hi - lo, r.block), block_dim=r.block, device=r.device, inputs=inputs)
+
+
+class _ThreadSplitting(_Plan):
+    """A thread per lattice (the CPU path), a splitting method; accelerations in a scratch array."""
+
+    def __init__(self, runner):
+        super().__init__(runner)
+        wp, m, f64 = runner.wp, runner.method, runner.wp.float64
+        self.acc = wp.zeros((runner.batch, 2, runner.N), dtype=f64, device=runner.device)
+        self.drifts = wp.array(np.array(m.drifts), dtype=f64, device=runner.device)
+        self.kicks = wp.array(np.array(m.kicks), dtype=f64, device=runner.device)
+
+    def step(self, lo, hi, dt, nsteps, save_every, frames, record):
+        r = self.r
+        inputs = [r.x[lo:hi], self.acc[lo:hi], r.inv_mass[lo:hi], r.coupling[lo:hi], self.drifts, self.kicks]
+        inputs += [r.boundary, r.wp.float64(dt), int(nsteps), int(save_every), *frames, int(record), r.hist]
+        r.wp.launch(r.k.splitting_kernel, dim=hi - lo, device=r.device, inputs=inputs)
+
+    def tangent(self, dx, column_base, lo, hi, dt, nsteps):
+        r, wp = self.r, self.r.wp
+        dacc = wp.zeros((hi - lo, 2, r.N), dtype=wp.float64, device=r.device)
+        inputs = [dx[lo:hi], dacc, column_base[lo:hi], r.inv_mass, r.coupling, self.drifts, self.kicks]
+        inputs += [r.boundary, wp.float64(dt), int(nsteps), r.hist]
+        wp.launch(r.k.splitting_tangent_kernel, dim=hi - lo, device=r.device, inputs=inputs)
+
+
+class _ThreadRungeKutta(_Plan):
+    """A thread per lattice (the CPU path), a four-stage Runge-Kutta method; stage states in scratch arrays."""
+
+    def __init__(self, runner):
+        super().__init__(runner)
+        wp, m = runner.wp, runner.method
+        shape = (runner.batch, 4, runner.N)
+        self.scratch = [wp.zeros(shape, dtype=wp.float64, device=runner.device) for _ in range(3)]
+        self.tableau = [wp.vec4d(*m.nodes, m.divisor), wp.vec4d(*m.weights)]
+
+    def step(self, lo, hi, dt, nsteps, save_every, frames, record):
+        r = self.r
+        inputs = [r.x[lo:hi], *(a[lo:hi] for a in self.scratch), r.inv_mass[lo:hi], r.coupling[lo:hi]]
+        inputs += [*self.tableau, r.boundary, r.wp.float64(dt), int(nsteps), int(save_every), *frames]
+        inputs += [int(record), r.hist]
+        r.wp.launch(r.k.rk4_kernel, dim=hi - lo, device=r.device, inputs=inputs)
+
+    def tangent(self, dx, column_base, lo, hi, dt, nsteps):
+        r, wp = self.r, self.r.wp
+        scratch = [wp.zeros((hi - lo, 4, r.N), dtype=wp.float64, device=r.device) for _ in range(3)]
+        inputs = [dx[lo:hi], *scratch, column_base[lo:hi], r.inv_mass, r.coupling, *self.tableau, r.boundary]
+        inputs += [wp.float64(dt), int(nsteps), r.hist]
+        wp.launch(r.k.rk4_tangent_kernel, dim=hi - lo, device=r.device, inputs=inputs)
+
+
+_PLANS = {
+    ("block", SplittingMethod): _BlockSplitting,
+    ("block", RungeKuttaMethod): _BlockRungeKutta,
+    ("thread", SplittingMethod): _ThreadSplitting,
+    ("thread", RungeKuttaMethod): _ThreadRungeKutta,
+}
+
+
+def _plan_for(layout: str, method: Method):
+    for (plan_layout, kind), plan in _PLANS.items():
+        if plan_layout == layout and isinstance(method, kind):
+            return plan
+    raise ValueError(f"no launch plan for layout {layout!r} and method type {type(method).__name__}")
 
 
 class _Runner:
@@ -291,15 +655,6 @@ class _Runner:
         if self.layout == "block":
             self.block = block_kernels.block_size(self.N)
             self.bk = block_kernels.block_kernels(self.block, block_kernels.min_blocks_per_sm(method.stages))
-            if method.family == "splitting":
-                self.block_tangent = self.bk.splitting_tangent(method.stages)
-                self.block_coefficients = [
-                    block_kernels.pack_coefficients(method.drifts),
-                    block_kernels.pack_coefficients(method.kicks),
-                ]
-            else:
-                self.block_tangent = self.bk.rk4_tangent
-                self.block_coefficients = []
             if device == "cpu":
                 # run the block's threads as cooperative fibers (Warp's experimental CPU blocks)
                 wp.config.enable_cpu_blocks = True
@@ -307,151 +662,116 @@ class _Runner:
         self.serial = self.layout == "block" and device == "cpu"
         self.boundary = BOUNDARY_CODES[params.boundary]
         f64 = wp.float64
-        self.x = wp.array(x0, dtype=f64, device=device)
+        self.x = wp.empty(x0.shape, dtype=f64, device=device)
+        self.upload(x0)
         self.mass = wp.array(M, dtype=f64, device=device)
+        self.inv_mass = wp.array(inverse_mass(M), dtype=f64, device=device)  # the kernels multiply by 1/M
         self.coupling = wp.array(K, dtype=f64, device=device)
-        if method.family == "splitting":
-            if self.layout == "thread":
-                self.acc = wp.zeros((self.batch, 2, self.N), dtype=f64, device=device)
-            self.drifts = wp.array(np.array(method.drifts), dtype=f64, device=device)
-            self.kicks = wp.array(np.array(method.kicks), dtype=f64, device=device)
-        elif self.layout == "thread":
-            shape = (self.batch, 4, self.N)
-            self.y, self.kbuf, self.total = (wp.zeros(shape, dtype=f64, device=device) for _ in range(3))
-        self.no_record = wp.zeros((1, 1, 2, 1), dtype=f64, device=device)
+        self.plan = _plan_for(self.layout, method)(self)
+        self.no_record = wp.zeros((1, 1, 1), dtype=f64, device=device)
         if record_stiffness_steps:
             self.hist = wp.zeros(
                 (self.history_length(record_stiffness_steps), self.batch, self.N), dtype=f64, device=device
             )
         else:
             self.hist = wp.zeros((1, 1, 1), dtype=f64, device=device)
+        # the guard's outputs: running min contact, and (energy, finite, min contact) per lattice
+        self.contact = wp.empty(self.batch, dtype=f64, device=device)
+        self.guard_out = [wp.empty((self.batch, 3), dtype=f64, device=device) for _ in range(2)]
+        self.reset_contact()
+
+    def upload(self, x0: np.ndarray) -> None:
+        """Copy a batch state to the device (on a GPU through a pinned buffer: ~55 GB/s instead of the
+        ~15 GB/s of pageable memory)."""
+        wp = self.wp
+        if self.device == "cpu" or x0.size < (1 << 16):
+            self.x.assign(np.ascontiguousarray(x0, dtype=np.float64))
+            return
+        buf = _take_buffer(wp, self.device, x0.size, True)
+        try:
+            _copy(buf.numpy()[: x0.size], np.ascontiguousarray(x0, dtype=np.float64))
+            wp.copy(self.x, buf, count=x0.size)
+            wp.synchronize_device(self.device)
+        finally:
+            _give_buffer(self.device, True, buf)
+
+    def download(self, out: np.ndarray | None = None) -> np.ndarray:
+        """The batch state as a new host array (on a GPU through a pinned buffer, then a few threads
+        write the result: fresh host memory is filled ~5x faster that way than by one thread);
+        ``out``: a host array of the state's shape to fill instead (e.g. one touched in advance)."""
+        wp = self.wp
+        if self.device == "cpu":
+            return self.x.numpy()  # on the CPU a view of the device buffer
+        if self.x.size < (1 << 16):
+            return self.x.numpy()
+        buf = _take_buffer(wp, self.device, self.x.size, True)
+        try:
+            wp.copy(buf, self.x, count=self.x.size)
+            wp.synchronize_device(self.device)
+            out = np.empty(self.x.shape) if out is None else out
+            _copy(out, buf.numpy()[: self.x.size])
+        finally:
+            _give_buffer(self.device, True, buf)
+        return out
 
     def load(self, x0: np.ndarray, M, K) -> None:
         """Copy a new batch (same shape) and its parameters into the existing device buffers."""
-        self.x.assign(np.ascontiguousarray(x0, dtype=np.float64))
+        self.upload(x0)
         self.mass.assign(np.ascontiguousarray(M, dtype=np.float64))
+        self.inv_mass.assign(np.ascontiguousarray(inverse_mass(M), dtype=np.float64))
         self.coupling.assign(np.ascontiguousarray(K, dtype=np.float64))
+        self.reset_contact()
+
+    def reset_contact(self) -> None:
+        self.contact.fill_(1.0e300)
 
     def history_length(self, nsteps: int) -> int:
-        s = self.method.stages
-        return nsteps * s + 1 if self.method.family == "splitting" else nsteps * s
+        return self.method.history_length(nsteps)
 
-    def launch(self, nsteps: int, dt: float, save_every: int = 0, n_rec: int = 0, record_stiffness: bool = False):
-        """Advance every lattice by nsteps; returns the recorded frames (n_rec, batch, 2, N) or None.
+    def frames(self, n_rec: int):
+        """Device buffers for ``n_rec`` recorded frames: (u, v), each (n_rec, batch, N)."""
+        wp = self.wp
+        return tuple(wp.empty((n_rec, self.batch, self.N), dtype=wp.float64, device=self.device) for _ in range(2))
+
+    def launch(self, nsteps: int, dt: float, save_every: int = 0, rec=None, record_stiffness: bool = False):
+        """Advance every lattice by nsteps; with ``rec`` (device (u, v) frame buffers from ``frames``)
+        also record u and v every ``save_every`` steps into them. Asynchronous on a GPU.
 
         On the CPU the batch is split into one slice per thread (launched concurrently); a run that
         records the contact stiffness (tangent base) runs as one slice, since its history is shared."""
-        wp, k = self.wp, self.k
         slices = [(0, self.batch)] if record_stiffness or self.serial else _slices(self.batch, self.device)
-        recs = [
-            wp.zeros((n_rec, hi - lo, 2, self.N), dtype=wp.float64, device=self.device) if n_rec else self.no_record
-            for lo, hi in slices
-        ]
-        tail = [self.boundary, wp.float64(dt), int(nsteps), int(save_every) if n_rec else 0]
+        save = int(save_every) if rec is not None else 0
 
-        def task(lo, hi, rec):
-            common = [self.mass[lo:hi], self.coupling[lo:hi]]
-            end = [*tail, rec, int(record_stiffness), self.hist]
-            if self.layout == "block":
-                if self.method.family == "splitting":
-                    kernel = self.bk.splitting(self.method.stages, record=record_stiffness, save=bool(n_rec))
-                else:
-                    kernel = self.bk.rk4
-                wp.launch(
-                    kernel,
-                    dim=(hi - lo, self.block),
-                    block_dim=self.block,
-                    device=self.device,
-                    inputs=[self.x[lo:hi], *common, *self.block_coefficients, *end],
-                )
-            elif self.method.family == "splitting":
-                wp.launch(
-                    k.splitting_kernel,
-                    dim=hi - lo,
-                    device=self.device,
-                    inputs=[self.x[lo:hi], self.acc[lo:hi], *common, self.drifts, self.kicks, *end],
-                )
+        def task(lo, hi):
+            if rec is None:
+                frames = [self.no_record, self.no_record]
             else:
-                wp.launch(
-                    k.rk4_kernel,
-                    dim=hi - lo,
-                    device=self.device,
-                    inputs=[self.x[lo:hi], self.y[lo:hi], self.kbuf[lo:hi], self.total[lo:hi], *common, *end],
-                )
+                frames = [rec[0][:, lo:hi], rec[1][:, lo:hi]] if (lo, hi) != (0, self.batch) else list(rec)
+            self.plan.step(lo, hi, dt, nsteps, save, frames, bool(record_stiffness))
 
-        _in_parallel([lambda lo=lo, hi=hi, rec=rec: task(lo, hi, rec) for (lo, hi), rec in zip(slices, recs)])
-        if not n_rec:
-            return None
-        return np.concatenate([rec.numpy() for rec in recs], axis=1)
+        _in_parallel([lambda lo=lo, hi=hi: task(lo, hi) for lo, hi in slices])
+
+    def guard(self, rec=None, n_rec: int = 0, slot: int = 0):
+        """Launch the guard on the device: per lattice (energy, 1 if finite else 0, running min contact
+        over the chunk ends and the first ``n_rec`` frames of ``rec``). Returns the device array
+        (batch, 3); only it, not the state, needs to reach the host."""
+        wp = self.wp
+        ru, rv = rec if rec is not None and n_rec else (self.no_record, self.no_record)
+        out = self.guard_out[slot % 2]
+        inputs = [self.x, self.mass, self.coupling, self.boundary, ru, rv, int(n_rec), self.contact, out]
+        if self.layout == "block":
+            dim = (self.batch, self.block)
+            wp.launch(self.bk.guard, dim=dim, block_dim=self.block, device=self.device, inputs=inputs)
+        else:
+            wp.launch(self.k.guard_kernel, dim=self.batch, device=self.device, inputs=inputs)
+        return out
 
     def launch_tangent(self, dx, column_base, nsteps: int, dt: float):
         """Propagate tangent columns (device array (ncols, 4, N)) along the recorded history; on the
         CPU the columns are split into one slice per thread."""
-        wp, k = self.wp, self.k
         ncols = dx.shape[0]
-        f64 = wp.float64
-
-        def task(lo, hi):
-            n = hi - lo
-            if self.layout == "block":
-                wp.launch(
-                    self.block_tangent,
-                    dim=(n, self.block),
-                    block_dim=self.block,
-                    device=self.device,
-                    inputs=[
-                        dx[lo:hi],
-                        column_base[lo:hi],
-                        self.mass,
-                        self.coupling,
-                        *self.block_coefficients,
-                        self.boundary,
-                        f64(dt),
-                        int(nsteps),
-                        self.hist,
-                    ],
-                )
-            elif self.method.family == "splitting":
-                dacc = wp.zeros((n, 2, self.N), dtype=f64, device=self.device)
-                wp.launch(
-                    k.splitting_tangent_kernel,
-                    dim=n,
-                    device=self.device,
-                    inputs=[
-                        dx[lo:hi],
-                        dacc,
-                        column_base[lo:hi],
-                        self.mass,
-                        self.coupling,
-                        self.drifts,
-                        self.kicks,
-                        self.boundary,
-                        f64(dt),
-                        int(nsteps),
-                        self.hist,
-                    ],
-                )
-            else:
-                scratch = [wp.zeros((n, 4, self.N), dtype=f64, device=self.device) for _ in range(3)]
-                wp.launch(
-                    k.rk4_tangent_kernel,
-                    dim=n,
-                    device=self.device,
-                    inputs=[
-                        dx[lo:hi],
-                        *scratch,
-                        column_base[lo:hi],
-                        self.mass,
-                        self.coupling,
-                        self.boundary,
-                        f64(dt),
-                        int(nsteps),
-                        self.hist,
-                    ],
-                )
-
         slices = [(0, ncols)] if self.serial else _slices(ncols, self.device)
-        _in_parallel([lambda lo=lo, hi=hi: task(lo, hi) for lo, hi in slices])
+        _in_parallel([lambda lo=lo, hi=hi: self.plan.tangent(dx, column_base, lo, hi, dt, nsteps) for lo, hi in slices])
 
 
 # ----------------------------------------------------------------------------- public API
@@ -506,7 +826,7 @@ def simulate(
     """
     start = time.perf_counter()
     meth = get_method(method)
-    x0 = as_batch(x0, params.N, "x0")
+    x0 = _as_state(x0, params.N)  # the check for non-finite values runs on the device (the guard)
     batch = x0.shape[0]
     Mb, Kb = per_lattice_parameters(params, batch, M, K)
     t_final = real_number("t_final", t_final, nonnegative=True)
@@ -526,46 +846,76 @@ def simulate(
             f"no frame after t = 0 would be saved; use save_every <= {max(nsteps, 1)}"
         )
 
-    runner = _Runner(meth, params, x0, Mb, Kb, device, layout=layout)
-    E0 = energy(params, x0, Mb, Kb)
+    runner = _pooled_runner(meth, params, x0, Mb, Kb, device, layout)
+    wp = runner.wp
+    gpu = device != "cpu"
+    target = _prefault(x0.shape) if gpu and x0.size >= (1 << 20) else None  # the final state's host array
+    guard = _GuardReader(runner, gpu)
+    E0, finite0, contact = (a.copy() for a in guard.read(runner.guard(), 0))  # of x0, on the device
+    if not finite0.all():
+        guard.close()
+        raise ValueError(f"x0 has non-finite entries in lattice(s) {np.flatnonzero(~finite0).tolist()}")
     trace_t, trace_E = [0.0], [E0]
     max_err = np.zeros(batch)
-    contact = min_contact(x0)
 
-    # chunk length: a whole number of save intervals
-    n_chunks = chunks or (50 if progress else 10)
+    # chunk length: a whole number of save intervals, at least _CHUNK_WORK force evaluations of the whole
+    # batch (launch, guard and transfer costs stay small against the kernel), at most 10 chunks (50 with a
+    # progress bar), and, when recording, at most the frames that fit the host staging buffers
     unit = save_every or 1
     units_total = max(1, math.ceil(nsteps / unit))
-    chunk_steps = max(1, math.ceil(units_total / n_chunks)) * unit
+    work = batch * params.N * max(nsteps, 1) * meth.force_evaluations
+    n_chunks = chunks or max(1, min(50 if progress else 10, math.ceil(work / _CHUNK_WORK)))
+    units_per_chunk = max(1, math.ceil(units_total / n_chunks))
+    if save_every:
+        units_per_chunk = min(units_per_chunk, _frames_per_chunk(batch, params.N))
+    chunk_steps = units_per_chunk * unit
+    plan = []  # (first step, steps, frames) of each chunk
+    while sum(p[1] for p in plan) < nsteps:
+        first = sum(p[1] for p in plan)
+        steps = min(chunk_steps, nsteps - first)
+        plan.append((first, steps, steps // save_every if save_every else 0))
 
-    saved_t = [0.0] if save_every else []
-    saved_u = [x0[:, 0].copy()] if save_every else []
-    saved_v = [x0[:, 1].copy()] if save_every else []
-    if on_chunk is not None and save_every:
-        on_chunk(np.array([0.0]), x0[None, :, 0].copy(), x0[None, :, 1].copy())
+    sink = None
+    if save_every:
+        n_saved = 1 + nsteps // save_every
+        sink = _FrameSink(runner, n_saved, max(p[2] for p in plan) if plan else 0, gpu)
+        sink.put_initial(x0)
+        if on_chunk is not None:
+            on_chunk(np.array([0.0]), *sink.view(0, 1))
 
     bar = None
     if progress:
         from tqdm.auto import tqdm
 
         bar = tqdm(total=nsteps, desc=f"{meth.name} dt={dt_used:.4g}", unit="step", leave=False)
-    done = 0
+
+    def enqueue(i):
+        """Queue chunk i on the device: kernel, guard, and the copies of its scalars and frames."""
+        _, steps, n_rec = plan[i]
+        runner.launch(steps, dt_used, save_every or 0, sink.rec if n_rec else None)
+        guard.enqueue(runner.guard(sink.rec if n_rec else None, n_rec, i), i)
+        if n_rec:
+            sink.enqueue(n_rec, i)
+        guard.record(i)
+
+    saved = 1
     try:
-        while done < nsteps:
-            steps = min(chunk_steps, nsteps - done)
-            n_rec = steps // save_every if save_every else 0
-            frames = runner.launch(steps, dt_used, save_every or 0, n_rec)
-            x = runner.x.numpy()
-            done += steps
+        if plan:
+            enqueue(0)
+        for i, (first, steps, n_rec) in enumerate(plan):
+            if i + 1 < len(plan):
+                enqueue(i + 1)  # the device works on the next chunk while the host checks this one
+            E, finite, low = guard.wait(i)
+            done = first + steps
             t_now = done * dt_used
-            finite = np.isfinite(x).all(axis=(1, 2))
-            E = energy(params, np.where(finite[:, None, None], x, 0.0), Mb, Kb)
             err = np.where(finite, _relative_energy_error(E, E0, params.N), np.inf)
             max_err = np.maximum(max_err, err)
             trace_t.append(t_now)
-            trace_E.append(E)
+            trace_E.append(E.copy())
             bad = ~finite | ((err > max_energy_error) if max_energy_error is not None else False)
             if np.any(bad):
+                if gpu:
+                    wp.synchronize_device(device)  # the next chunk may still be running; let it finish
                 failed = np.flatnonzero(bad).tolist()
                 what = "non-finite state" if not finite.all() else f"energy error above {max_energy_error:g}"
                 raise IntegrationError(
@@ -579,24 +929,31 @@ def simulate(
                     failed=failed,
                     t=t_now,
                 )
-            contact = np.minimum(contact, min_contact(x))
+            contact = low.copy()
             if n_rec:
-                ts = (np.arange(1, n_rec + 1) * save_every + (done - steps)) * dt_used
-                saved_t.extend(ts.tolist())
-                saved_u.extend(frames[:, :, 0])
-                saved_v.extend(frames[:, :, 1])
-                contact = np.minimum(contact, np.min(1.0 + frames[:, :, 0] - frames[:, :, 1], axis=(0, 2)))
+                sink.take(i, saved, n_rec)
                 if on_chunk is not None:
-                    on_chunk(ts, frames[:, :, 0].copy(), frames[:, :, 1].copy())
+                    ts = (np.arange(1, n_rec + 1) * save_every + first) * dt_used
+                    on_chunk(ts, *sink.view(saved, saved + n_rec))
+                saved += n_rec
             if bar is not None:
                 bar.update(steps)
     finally:
         if bar is not None:
             bar.close()
-    x = runner.x.numpy()
-    E1 = energy(params, x, Mb, Kb)
+        if gpu:
+            wp.synchronize_device(device)  # no copy into the staging buffers is left in flight
+        guard.close()
+        if sink is not None:
+            sink.close()
+        if target is not None:
+            target.join()
+    x = runner.download(target.result if target is not None else None)
+    _release_runner(runner)
+    E1 = trace_E[-1]
     if save_every:
-        t_arr, u_arr, v_arr = np.array(saved_t), np.stack(saved_u), np.stack(saved_v)
+        t_arr = (np.arange(n_saved) * save_every) * dt_used
+        u_arr, v_arr = sink.u, sink.v
     else:
         t_arr, u_arr, v_arr = np.array([0.0, nsteps * dt_used]), None, None
     return SimulationResult(

@@ -183,8 +183,7 @@ class Flow:
         runner = self._runner(params, x0, nsteps, record=False)
         contact = min_contact(x0)
         if nsteps:
-            frames = runner.launch(int(nsteps), float(dt), save_every=1, n_rec=int(nsteps))
-            contact = np.minimum(contact, np.min(1.0 + frames[:, :, 0] - frames[:, :, 1], axis=(0, 2)))
+            contact = np.minimum(contact, _run_with_contact(runner, int(nsteps), float(dt), record_stiffness=False))
         return Trajectory(x_end=runner.x.numpy().copy(), min_contact=contact)  # CPU numpy() is a view
 
     def linearize(self, params: ChainParams, x0, nsteps: int, dt: float) -> Linearization:
@@ -193,9 +192,10 @@ class Flow:
         if x0.shape[0] != 1:
             raise ValueError(f"linearize takes one lattice, got a batch of {x0.shape[0]}")
         runner = self._runner(params, x0, nsteps, record=True)
-        frames = runner.launch(int(nsteps), float(dt), save_every=1, n_rec=int(nsteps), record_stiffness=True)
+        contact = float(min_contact(x0)[0])
+        if nsteps:
+            contact = min(contact, float(_run_with_contact(runner, int(nsteps), float(dt), record_stiffness=True)[0]))
         x_end = runner.x.numpy()[0].copy()  # on the CPU numpy() is a view of the reused buffer
-        contact = min(float(min_contact(x0)[0]), float(np.min(1.0 + frames[:, 0, 0] - frames[:, 0, 1])))
         generation = runner.generation
         wp = runner.wp
 
@@ -223,6 +223,20 @@ class Flow:
             return out
 
         return Linearization(x0[0], x_end, contact, nsteps, dt, columns)
+
+
+def _run_with_contact(runner, nsteps: int, dt: float, record_stiffness: bool) -> np.ndarray:
+    """Run ``nsteps`` steps recording u and v at every step into device buffers (kept by the runner) and
+    return the min over those steps and sites of 1 + u - v per lattice, reduced on the device: only
+    these scalars cross to the host."""
+    key = ("contact_frames", nsteps)
+    rec = getattr(runner, "_contact_frames", None)
+    if rec is None or rec[0] != key:
+        rec = (key, runner.frames(nsteps))
+        runner._contact_frames = rec
+    runner.reset_contact()
+    runner.launch(nsteps, dt, save_every=1, rec=rec[1], record_stiffness=record_stiffness)
+    return runner.guard(rec[1], nsteps).numpy()[:, 2].copy()
 
 
 def _parameters(params: ChainParams):

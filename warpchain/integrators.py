@@ -10,8 +10,10 @@ Two families:
   of this form and are symplectic.
 * **rk4**: the classical Runge-Kutta method (4 force evaluations, not symplectic).
 
-The Warp kernels (``kernels.py``) and the numpy reference (``reference.py``) both read the
-coefficients from here, so they integrate the same scheme step for step.
+Each family is a type that owns its coefficients (``SplittingMethod``: drifts and kicks;
+``RungeKuttaMethod``: nodes, weights, divisor). The Warp kernels (``kernels.py``,
+``block_kernels.py``) receive them as kernel arguments and the numpy reference (``reference.py``)
+reads them, so both integrate the same scheme step for step.
 """
 
 from __future__ import annotations
@@ -19,61 +21,47 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+from typing import ClassVar
 
 import numpy as np
 
 
 @dataclasses.dataclass(frozen=True)
 class Method:
-    """One integration scheme.
+    """One integration scheme (the base of ``SplittingMethod`` and ``RungeKuttaMethod``, which own
+    their coefficients).
 
     Attributes:
         name: registry key.
         order: nominal order of accuracy.
-        family: ``"splitting"`` or ``"rk4"``.
         symplectic: whether the discrete map is symplectic.
-        drifts: c_1..c_s (splitting only).
-        kicks: d_0..d_s (splitting only).
         description: one line for listings.
+        family: ``"splitting"`` or ``"rk4"`` (a class attribute; code dispatches on the type).
     """
 
     name: str
     order: int
-    family: str
     symplectic: bool
-    drifts: tuple = ()
-    kicks: tuple = ()
     description: str = ""
+    family: ClassVar[str] = ""
 
     @property
     def force_evaluations(self) -> int:
         """Force evaluations per step."""
-        return len(self.drifts) if self.family == "splitting" else 4
+        raise NotImplementedError
 
     @property
     def stages(self) -> int:
         """Stage states per step whose contact stiffness a tangent run records."""
         return self.force_evaluations
 
+    def history_length(self, nsteps: int) -> int:
+        """Contact-stiffness records of a tangent base run of ``nsteps`` steps."""
+        raise NotImplementedError
+
     def harmonic_step_matrix(self, h: float) -> np.ndarray:
         """The one-step map of x'' = -x with step h, as a 2x2 matrix on (x, x')."""
-        if self.family == "splitting":
-            mat = np.eye(2)
-
-            def kick(d):
-                return np.array([[1.0, 0.0], [-d * h, 1.0]])
-
-            def drift(c):
-                return np.array([[1.0, c * h], [0.0, 1.0]])
-
-            mat = kick(self.kicks[0]) @ mat
-            for c, d in zip(self.drifts, self.kicks[1:]):
-                mat = kick(d) @ drift(c) @ mat
-            return mat
-        # RK4 on y' = A y is the degree-4 Taylor polynomial of exp(hA)
-        A = np.array([[0.0, 1.0], [-1.0, 0.0]])
-        hA = h * A
-        return np.eye(2) + hA + hA @ hA / 2 + hA @ hA @ hA / 6 + hA @ hA @ hA @ hA / 24
+        raise NotImplementedError
 
     @functools.cached_property
     def stability_bound(self) -> float:
@@ -103,6 +91,78 @@ class Method:
     def linear_stability_limit(self, omega_max: float) -> float:
         """Largest stable dt for a linear system whose highest frequency is ``omega_max``."""
         return self.stability_bound / omega_max
+
+
+@dataclasses.dataclass(frozen=True)
+class SplittingMethod(Method):
+    """A kick-drift splitting: ``kick d_0, drift c_1, kick d_1, ..., drift c_s, kick d_s``.
+
+    Attributes:
+        drifts: c_1..c_s.
+        kicks: d_0..d_s.
+    """
+
+    drifts: tuple = ()
+    kicks: tuple = ()
+    family: ClassVar[str] = "splitting"
+
+    @property
+    def force_evaluations(self) -> int:
+        return len(self.drifts)
+
+    def history_length(self, nsteps: int) -> int:
+        return nsteps * self.stages + 1  # the start, then after every drift
+
+    def harmonic_step_matrix(self, h: float) -> np.ndarray:
+        def kick(d):
+            return np.array([[1.0, 0.0], [-d * h, 1.0]])
+
+        def drift(c):
+            return np.array([[1.0, c * h], [0.0, 1.0]])
+
+        mat = kick(self.kicks[0]) @ np.eye(2)
+        for c, d in zip(self.drifts, self.kicks[1:]):
+            mat = kick(d) @ drift(c) @ mat
+        return mat
+
+
+@dataclasses.dataclass(frozen=True)
+class RungeKuttaMethod(Method):
+    """An explicit Runge-Kutta method whose stage i + 1 is evaluated at x + nodes[i] dt k_i (a
+    tableau with one nonzero entry per row, as the classical RK4), and whose step is
+    x + (dt / divisor) sum_i weights[i] k_i. The numpy reference and every kernel read these.
+
+    Attributes:
+        nodes: a_21, a_32, a_43 (classical RK4: 1/2, 1/2, 1).
+        weights: b_i times ``divisor`` (classical RK4: 1, 2, 2, 1).
+        divisor: 6 for the classical RK4.
+    """
+
+    nodes: tuple = (0.5, 0.5, 1.0)
+    weights: tuple = (1.0, 2.0, 2.0, 1.0)
+    divisor: float = 6.0
+    family: ClassVar[str] = "rk4"
+
+    def __post_init__(self):
+        if len(self.weights) != 4 or len(self.nodes) != 3:
+            raise ValueError("the kernels implement four-stage Runge-Kutta methods (3 nodes, 4 weights)")
+
+    @property
+    def force_evaluations(self) -> int:
+        return len(self.weights)
+
+    def history_length(self, nsteps: int) -> int:
+        return nsteps * self.stages  # every stage
+
+    def harmonic_step_matrix(self, h: float) -> np.ndarray:
+        A = np.array([[0.0, 1.0], [-1.0, 0.0]])
+        eye = np.eye(2)
+        k = A  # stage derivatives as matrices acting on the start state
+        total = self.weights[0] * k
+        for a, w in zip(self.nodes, self.weights[1:]):
+            k = A @ (eye + a * h * k)
+            total = total + w * k
+        return eye + (h / self.divisor) * total
 
 
 def _composition(weights) -> tuple[tuple, tuple]:
@@ -153,7 +213,7 @@ _KL8 = _symmetric(
 
 def _splitting(name, order, weights, description):
     drifts, kicks = _composition(weights)
-    return Method(name, order, "splitting", True, drifts, kicks, description)
+    return SplittingMethod(name, order, True, description, drifts, kicks)
 
 
 METHODS: dict[str, Method] = {
@@ -164,7 +224,7 @@ METHODS: dict[str, Method] = {
         _splitting("yoshida6", 6, _Y6, "Yoshida 7-stage composition (solution A), order 6, symplectic"),
         _splitting("kahan6", 6, _KL6, "Kahan-Li s9odr6a 9-stage composition of Verlet, order 6, symplectic"),
         _splitting("kahan8", 8, _KL8, "Kahan-Li s15odr8 15-stage composition of Verlet, order 8, symplectic"),
-        Method("rk4", 4, "rk4", False, description="classical Runge-Kutta, order 4, not symplectic"),
+        RungeKuttaMethod("rk4", 4, False, "classical Runge-Kutta, order 4, not symplectic"),
     )
 }
 

@@ -6,6 +6,9 @@ long run costs one launch per chunk of many steps, never one per step. All per-s
 lives in ``@wp.func`` helpers that take (lattice, site) indices, so that a later kernel where a
 thread block owns a lattice (one thread per site) can reuse them unchanged.
 
+Accelerations multiply by a precomputed 1/M (``inv_mass`` arrays, rounded once on the host, as the numpy
+reference does): no division in any time loop.
+
 Float constants are module-level ``wp.constant`` values: a literal such as ``wp.float64(2.0/3.0)``
 written inside a kernel is evaluated in float32 (errors of ~5e-9), which these avoid.
 
@@ -19,17 +22,16 @@ from __future__ import annotations
 
 import warp as wp
 
-# keep Warp's start-up banner and per-module compile lines out of scene logs
-if hasattr(wp, "LOG_WARNING") and hasattr(wp.config, "log_level"):
-    wp.config.log_level = wp.LOG_WARNING
-wp.config.quiet = True
-
 ZERO = wp.constant(wp.float64(0.0))
 ONE = wp.constant(wp.float64(1.0))
 TWO = wp.constant(wp.float64(2.0))
 HALF = wp.constant(wp.float64(0.5))
 SIX = wp.constant(wp.float64(6.0))
 TWO_THIRDS = wp.constant(wp.float64(2.0 / 3.0))
+TWO_FIFTHS = wp.constant(wp.float64(0.4))
+FOUR_FIFTEENTHS = wp.constant(wp.float64(4.0 / 15.0))
+#: the min-contact value of a site that holds nothing (idle block threads): larger than any real one
+NO_CONTACT = wp.constant(wp.float64(1.0e300))
 
 BOUNDARY_FIXED = wp.constant(0)
 BOUNDARY_FREE = wp.constant(1)
@@ -45,6 +47,13 @@ def contact_force(z: wp.float64) -> wp.float64:
     ``max(0, s)`` keeps a NaN as NaN, as numpy's ``maximum`` does."""
     s = wp.max(ZERO, ONE + z)
     return TWO_THIRDS * (s * wp.sqrt(s) - ONE)
+
+
+@wp.func
+def contact_potential(z: wp.float64) -> wp.float64:
+    """(2/3)((2/5)[1+z]_+^{5/2} - z) - 4/15, as ``model.contact_potential``."""
+    s = wp.max(ZERO, ONE + z)
+    return TWO_THIRDS * (TWO_FIFTHS * s * s * wp.sqrt(s) - z) - FOUR_FIFTEENTHS
 
 
 @wp.func
@@ -76,11 +85,11 @@ def laplacian_at(x: wp.array3d(dtype=wp.float64), b: int, comp: int, j: int, n: 
 
 @wp.func
 def acceleration_at(
-    x: wp.array3d(dtype=wp.float64), b: int, j: int, n: int, boundary: int, mass: wp.float64, coupling: wp.float64
+    x: wp.array3d(dtype=wp.float64), b: int, j: int, n: int, boundary: int, inv_mass: wp.float64, coupling: wp.float64
 ) -> wp.vec2d:
     """(u_j'', v_j'') of lattice b from the positions in rows 0 and 1 of x."""
     force = contact_force(x[b, 0, j] - x[b, 1, j])
-    au = -(coupling * laplacian_at(x, b, 0, j, n, boundary) + force) / mass
+    au = -(coupling * laplacian_at(x, b, 0, j, n, boundary) + force) * inv_mass
     return wp.vec2d(au, force)
 
 
@@ -91,13 +100,13 @@ def tangent_acceleration_at(
     j: int,
     n: int,
     boundary: int,
-    mass: wp.float64,
+    inv_mass: wp.float64,
     coupling: wp.float64,
     stiffness: wp.float64,
 ) -> wp.vec2d:
     """Derivative of (u_j'', v_j'') along the tangent column c (positions in rows 0, 1 of dx)."""
     dz = dx[c, 0, j] - dx[c, 1, j]
-    au = -(coupling * laplacian_at(dx, c, 0, j, n, boundary) + stiffness * dz) / mass
+    au = -(coupling * laplacian_at(dx, c, 0, j, n, boundary) + stiffness * dz) * inv_mass
     return wp.vec2d(au, stiffness * dz)
 
 
@@ -108,7 +117,7 @@ def compute_accelerations(
     b: int,
     n: int,
     boundary: int,
-    mass: wp.float64,
+    inv_mass: wp.float64,
     coupling: wp.float64,
     hist: wp.array3d(dtype=wp.float64),
     record: int,
@@ -116,7 +125,7 @@ def compute_accelerations(
 ):
     """acc[b] = a(x[b]); when ``record`` is set, also hist[slot, b, :] = f'(z)."""
     for j in range(n):
-        a = acceleration_at(x, b, j, n, boundary, mass, coupling)
+        a = acceleration_at(x, b, j, n, boundary, inv_mass, coupling)
         acc[b, 0, j] = a[0]
         acc[b, 1, j] = a[1]
         if record != 0:
@@ -131,13 +140,13 @@ def compute_tangent_accelerations(
     base: int,
     n: int,
     boundary: int,
-    mass: wp.float64,
+    inv_mass: wp.float64,
     coupling: wp.float64,
     hist: wp.array3d(dtype=wp.float64),
     slot: int,
 ):
     for j in range(n):
-        a = tangent_acceleration_at(dx, c, j, n, boundary, mass, coupling, hist[slot, base, j])
+        a = tangent_acceleration_at(dx, c, j, n, boundary, inv_mass, coupling, hist[slot, base, j])
         dacc[c, 0, j] = a[0]
         dacc[c, 1, j] = a[1]
 
@@ -158,14 +167,20 @@ def drift(x: wp.array3d(dtype=wp.float64), b: int, n: int, h: wp.float64):
 
 @wp.func
 def save_positions(
-    x: wp.array3d(dtype=wp.float64), rec: wp.array4d(dtype=wp.float64), b: int, n: int, step: int, save_every: int
+    x: wp.array3d(dtype=wp.float64),
+    rec_u: wp.array3d(dtype=wp.float64),
+    rec_v: wp.array3d(dtype=wp.float64),
+    b: int,
+    n: int,
+    step: int,
+    save_every: int,
 ):
     if save_every > 0:
         if (step + 1) % save_every == 0:
             r = (step + 1) / save_every - 1
             for j in range(n):
-                rec[r, b, 0, j] = x[b, 0, j]
-                rec[r, b, 1, j] = x[b, 1, j]
+                rec_u[r, b, j] = x[b, 0, j]
+                rec_v[r, b, j] = x[b, 1, j]
 
 
 # ----------------------------------------------------------------------------- splitting methods
@@ -175,7 +190,7 @@ def save_positions(
 def splitting_kernel(
     x: wp.array3d(dtype=wp.float64),
     acc: wp.array3d(dtype=wp.float64),
-    mass: wp.array(dtype=wp.float64),
+    inv_mass: wp.array(dtype=wp.float64),
     coupling: wp.array(dtype=wp.float64),
     drifts: wp.array(dtype=wp.float64),
     kicks: wp.array(dtype=wp.float64),
@@ -183,7 +198,8 @@ def splitting_kernel(
     dt: wp.float64,
     nsteps: int,
     save_every: int,
-    rec: wp.array4d(dtype=wp.float64),
+    rec_u: wp.array3d(dtype=wp.float64),
+    rec_v: wp.array3d(dtype=wp.float64),
     record_stiffness: int,
     hist: wp.array3d(dtype=wp.float64),
 ):
@@ -194,7 +210,7 @@ def splitting_kernel(
     b = wp.tid()
     n = x.shape[2]
     stages = drifts.shape[0]
-    m = mass[b]
+    m = inv_mass[b]
     k = coupling[b]
     compute_accelerations(x, acc, b, n, boundary, m, k, hist, record_stiffness, 0)
     for step in range(nsteps):
@@ -203,7 +219,7 @@ def splitting_kernel(
             drift(x, b, n, drifts[s] * dt)
             compute_accelerations(x, acc, b, n, boundary, m, k, hist, record_stiffness, step * stages + s + 1)
             kick(x, acc, b, n, kicks[s + 1] * dt)
-        save_positions(x, rec, b, n, step, save_every)
+        save_positions(x, rec_u, rec_v, b, n, step, save_every)
 
 
 @wp.kernel
@@ -211,7 +227,7 @@ def splitting_tangent_kernel(
     dx: wp.array3d(dtype=wp.float64),
     dacc: wp.array3d(dtype=wp.float64),
     column_base: wp.array(dtype=wp.int32),
-    mass: wp.array(dtype=wp.float64),
+    inv_mass: wp.array(dtype=wp.float64),
     coupling: wp.array(dtype=wp.float64),
     drifts: wp.array(dtype=wp.float64),
     kicks: wp.array(dtype=wp.float64),
@@ -225,7 +241,7 @@ def splitting_tangent_kernel(
     base = column_base[c]
     n = dx.shape[2]
     stages = drifts.shape[0]
-    m = mass[base]
+    m = inv_mass[base]
     k = coupling[base]
     compute_tangent_accelerations(dx, dacc, c, base, n, boundary, m, k, hist, 0)
     for step in range(nsteps):
@@ -246,7 +262,7 @@ def rk4_stage_derivative(
     b: int,
     n: int,
     boundary: int,
-    mass: wp.float64,
+    inv_mass: wp.float64,
     coupling: wp.float64,
     record: int,
     hist: wp.array3d(dtype=wp.float64),
@@ -254,7 +270,7 @@ def rk4_stage_derivative(
 ):
     """out[b] = F(y[b]) = (y', a(y)); records f'(z) of the stage when asked."""
     for j in range(n):
-        a = acceleration_at(y, b, j, n, boundary, mass, coupling)
+        a = acceleration_at(y, b, j, n, boundary, inv_mass, coupling)
         out[b, 0, j] = y[b, 2, j]
         out[b, 1, j] = y[b, 3, j]
         out[b, 2, j] = a[0]
@@ -271,13 +287,13 @@ def rk4_tangent_stage_derivative(
     base: int,
     n: int,
     boundary: int,
-    mass: wp.float64,
+    inv_mass: wp.float64,
     coupling: wp.float64,
     hist: wp.array3d(dtype=wp.float64),
     slot: int,
 ):
     for j in range(n):
-        a = tangent_acceleration_at(dy, c, j, n, boundary, mass, coupling, hist[slot, base, j])
+        a = tangent_acceleration_at(dy, c, j, n, boundary, inv_mass, coupling, hist[slot, base, j])
         out[c, 0, j] = dy[c, 2, j]
         out[c, 1, j] = dy[c, 3, j]
         out[c, 2, j] = a[0]
@@ -294,19 +310,18 @@ def rk4_advance(
     n: int,
     stage: int,
     dt: wp.float64,
+    tableau: wp.vec4d,
+    weights: wp.vec4d,
 ):
-    """After stage ``stage`` (0..3) has put its derivative in k: accumulate it into total and,
-    for stages 0..2, form the next stage state y = x + a dt k."""
-    weight = TWO
-    a = HALF
-    if stage == 0 or stage == 3:
-        weight = ONE
-    if stage == 2:
-        a = ONE
+    """After stage ``stage`` (0..3) has put its derivative in k: accumulate weights[stage] k into
+    total and, for stages 0..2, form the next stage state y = x + tableau[stage] dt k (the method's
+    own coefficients: ``RungeKuttaMethod.nodes``, ``weights``)."""
+    weight = weights[stage]
+    a = tableau[wp.min(stage, 2)]
     for i in range(4):
         for j in range(n):
             if stage == 0:
-                total[b, i, j] = k[b, i, j]
+                total[b, i, j] = weight * k[b, i, j]
             else:
                 total[b, i, j] = total[b, i, j] + weight * k[b, i, j]
             if stage < 3:
@@ -314,10 +329,17 @@ def rk4_advance(
 
 
 @wp.func
-def rk4_finish(x: wp.array3d(dtype=wp.float64), total: wp.array3d(dtype=wp.float64), b: int, n: int, dt: wp.float64):
+def rk4_finish(
+    x: wp.array3d(dtype=wp.float64),
+    total: wp.array3d(dtype=wp.float64),
+    b: int,
+    n: int,
+    dt: wp.float64,
+    divisor: wp.float64,
+):
     for i in range(4):
         for j in range(n):
-            x[b, i, j] = x[b, i, j] + (dt / SIX) * total[b, i, j]
+            x[b, i, j] = x[b, i, j] + (dt / divisor) * total[b, i, j]
 
 
 @wp.kernel
@@ -326,29 +348,33 @@ def rk4_kernel(
     y: wp.array3d(dtype=wp.float64),
     k: wp.array3d(dtype=wp.float64),
     total: wp.array3d(dtype=wp.float64),
-    mass: wp.array(dtype=wp.float64),
+    inv_mass: wp.array(dtype=wp.float64),
     coupling: wp.array(dtype=wp.float64),
+    tableau: wp.vec4d,
+    weights: wp.vec4d,
     boundary: int,
     dt: wp.float64,
     nsteps: int,
     save_every: int,
-    rec: wp.array4d(dtype=wp.float64),
+    rec_u: wp.array3d(dtype=wp.float64),
+    rec_v: wp.array3d(dtype=wp.float64),
     record_stiffness: int,
     hist: wp.array3d(dtype=wp.float64),
 ):
-    """``nsteps`` classical RK4 steps for lattice b = tid; hist slot 4 step + stage."""
+    """``nsteps`` Runge-Kutta steps (tableau: nodes and divisor, weights) for lattice b = tid;
+    hist slot 4 step + stage."""
     b = wp.tid()
     n = x.shape[2]
-    m = mass[b]
+    m = inv_mass[b]
     cpl = coupling[b]
     for step in range(nsteps):
         rk4_stage_derivative(x, k, b, n, boundary, m, cpl, record_stiffness, hist, 4 * step)
-        rk4_advance(x, y, k, total, b, n, 0, dt)
+        rk4_advance(x, y, k, total, b, n, 0, dt, tableau, weights)
         for stage in range(1, 4):
             rk4_stage_derivative(y, k, b, n, boundary, m, cpl, record_stiffness, hist, 4 * step + stage)
-            rk4_advance(x, y, k, total, b, n, stage, dt)
-        rk4_finish(x, total, b, n, dt)
-        save_positions(x, rec, b, n, step, save_every)
+            rk4_advance(x, y, k, total, b, n, stage, dt, tableau, weights)
+        rk4_finish(x, total, b, n, dt, tableau[3])
+        save_positions(x, rec_u, rec_v, b, n, step, save_every)
 
 
 @wp.kernel
@@ -358,8 +384,10 @@ def rk4_tangent_kernel(
     dk: wp.array3d(dtype=wp.float64),
     dtotal: wp.array3d(dtype=wp.float64),
     column_base: wp.array(dtype=wp.int32),
-    mass: wp.array(dtype=wp.float64),
+    inv_mass: wp.array(dtype=wp.float64),
     coupling: wp.array(dtype=wp.float64),
+    tableau: wp.vec4d,
+    weights: wp.vec4d,
     boundary: int,
     dt: wp.float64,
     nsteps: int,
@@ -369,12 +397,91 @@ def rk4_tangent_kernel(
     c = wp.tid()
     base = column_base[c]
     n = dx.shape[2]
-    m = mass[base]
+    m = inv_mass[base]
     cpl = coupling[base]
     for step in range(nsteps):
         rk4_tangent_stage_derivative(dx, dk, c, base, n, boundary, m, cpl, hist, 4 * step)
-        rk4_advance(dx, dy, dk, dtotal, c, n, 0, dt)
+        rk4_advance(dx, dy, dk, dtotal, c, n, 0, dt, tableau, weights)
         for stage in range(1, 4):
             rk4_tangent_stage_derivative(dy, dk, c, base, n, boundary, m, cpl, hist, 4 * step + stage)
-            rk4_advance(dx, dy, dk, dtotal, c, n, stage, dt)
-        rk4_finish(dx, dtotal, c, n, dt)
+            rk4_advance(dx, dy, dk, dtotal, c, n, stage, dt, tableau, weights)
+        rk4_finish(dx, dtotal, c, n, dt, tableau[3])
+
+
+# ----------------------------------------------------------------------------- run guard
+
+
+@wp.func
+def site_energy(
+    u: wp.float64,
+    v: wp.float64,
+    pu: wp.float64,
+    pv: wp.float64,
+    right: wp.float64,
+    j: int,
+    n: int,
+    boundary: int,
+    mass: wp.float64,
+    coupling: wp.float64,
+) -> wp.float64:
+    """Site j's share of the Hamiltonian (``model.energy``): kinetic energy, the bond to its right
+    neighbour (``right`` is that neighbour's u; at the right end the wall bond (fixed), the bond to
+    site 0 (periodic) or none (free)), the left wall bond at j = 0 (fixed), and the contact energy."""
+    bonds = ZERO
+    if j < n - 1:
+        bonds = (right - u) * (right - u)
+    elif boundary == BOUNDARY_PERIODIC:
+        if n > 1:
+            bonds = (right - u) * (right - u)
+    elif boundary != BOUNDARY_FREE:
+        bonds = u * u
+    if j == 0 and boundary != BOUNDARY_FREE and boundary != BOUNDARY_PERIODIC:
+        bonds = bonds + u * u
+    kinetic = HALF * mass * (pu * pu) + HALF * (pv * pv)
+    return kinetic + HALF * coupling * bonds + contact_potential(u - v)
+
+
+@wp.func
+def finite_state(u: wp.float64, v: wp.float64, pu: wp.float64, pv: wp.float64) -> wp.float64:
+    """1 when all four values are finite, else 0."""
+    if wp.isfinite(u) and wp.isfinite(v) and wp.isfinite(pu) and wp.isfinite(pv):
+        return ONE
+    return ZERO
+
+
+@wp.kernel
+def guard_kernel(
+    x: wp.array3d(dtype=wp.float64),
+    mass: wp.array(dtype=wp.float64),
+    coupling: wp.array(dtype=wp.float64),
+    boundary: int,
+    rec_u: wp.array3d(dtype=wp.float64),
+    rec_v: wp.array3d(dtype=wp.float64),
+    n_rec: int,
+    contact: wp.array(dtype=wp.float64),
+    out: wp.array2d(dtype=wp.float64),
+):
+    """Per lattice b = tid, on the device: out[b] = (energy, 1 if finite else 0, min contact), where the
+    min contact runs over the state, the first ``n_rec`` recorded frames and ``contact[b]`` (the running
+    min of earlier chunks), which it also updates. Only these scalars need to reach the host."""
+    b = wp.tid()
+    n = x.shape[2]
+    m = mass[b]
+    k = coupling[b]
+    total = ZERO
+    finite = ONE
+    low = contact[b]
+    for j in range(n):
+        u = x[b, 0, j]
+        v = x[b, 1, j]
+        right = x[b, 0, (j + 1) % n]
+        total = total + site_energy(u, v, x[b, 2, j], x[b, 3, j], right, j, n, boundary, m, k)
+        finite = wp.min(finite, finite_state(u, v, x[b, 2, j], x[b, 3, j]))
+        low = wp.min(low, (ONE + u) - v)
+    for r in range(n_rec):
+        for j in range(n):
+            low = wp.min(low, (ONE + rec_u[r, b, j]) - rec_v[r, b, j])
+    contact[b] = low
+    out[b, 0] = total
+    out[b, 1] = finite
+    out[b, 2] = low

@@ -13,16 +13,36 @@ from __future__ import annotations
 
 import numpy as np
 
-from .integrators import Method, get_method
-from .model import ChainParams, accelerations, contact_stiffness, laplacian
+from . import model
+from .integrators import Method, SplittingMethod, get_method
+from .model import ChainParams, contact_force, contact_stiffness, laplacian
 
 
-def _linear_accelerations(params: ChainParams, q, dq, M, K):
+def inverse_mass(M, dtype=np.float64):
+    """1/M, rounded once: every scheme multiplies by it instead of dividing by M (the Warp kernels
+    receive this same array), so u'' = -(K lap(u) + f(u - v)) * (1/M)."""
+    M = np.asarray(M, dtype=dtype)
+    return dtype(1.0) / M
+
+
+def accelerations(params: ChainParams, x, inv_M, K):
+    """(u'', v'') of a batch, shape (batch, 2, N), from the positions in x[:, :2] and per-lattice
+    1/M and K (shape (batch,)); the arithmetic of the kernels (multiplied by 1/M)."""
+    u, v = x[:, 0], x[:, 1]
+    force = contact_force(u - v)
+    acc = np.empty((x.shape[0], 2, x.shape[-1]), dtype=x.dtype)
+    acc[:, 0] = -(K[:, None] * laplacian(u, params.boundary) + force) * inv_M[:, None]
+    acc[:, 1] = force
+    return acc
+
+
+def _linear_accelerations(params: ChainParams, q, dq, inv_M, K):
     """Tangent of the accelerations at positions q (batch, 2, N) along dq (batch, ncols, 2, N)."""
     stiff = contact_stiffness(q[:, 0] - q[:, 1])[:, None, :]  # (batch, 1, N)
     dz = dq[:, :, 0] - dq[:, :, 1]
     out = np.empty_like(dq)
-    out[:, :, 0] = -(K[:, None, None] * laplacian(dq[:, :, 0], params.boundary) + stiff * dz) / M[:, None, None]  # noqa: E501
+    lap = laplacian(dq[:, :, 0], params.boundary)
+    out[:, :, 0] = -(K[:, None, None] * lap + stiff * dz) * inv_M[:, None, None]
     out[:, :, 1] = stiff * dz
     return out
 
@@ -43,24 +63,24 @@ def step(method: Method | str, params: ChainParams, x, dt: float, M=None, K=None
     method = get_method(method)
     x = np.array(x, dtype=dtype, copy=True)
     batch = x.shape[0]
-    M = np.broadcast_to(np.asarray(params.M if M is None else M, dtype=dtype), (batch,))
+    inv_M = inverse_mass(np.broadcast_to(np.asarray(params.M if M is None else M, dtype=dtype), (batch,)), dtype)
     K = np.broadcast_to(np.asarray(params.K if K is None else K, dtype=dtype), (batch,))
     dx = None if dx is None else np.array(dx, dtype=dtype, copy=True)
     dt = dtype(dt)
-    if method.family == "splitting":
-        acc = accelerations(params, x, M, K)
-        dacc = None if dx is None else _linear_accelerations(params, x[:, :2], dx[:, :, :2], M, K)
+    if isinstance(method, SplittingMethod):
+        acc = accelerations(params, x, inv_M, K)
+        dacc = None if dx is None else _linear_accelerations(params, x[:, :2], dx[:, :, :2], inv_M, K)
         kicks, drifts = [dtype(k) for k in method.kicks], [dtype(c) for c in method.drifts]
         x[:, 2:] += kicks[0] * dt * acc
         if dx is not None:
             dx[:, :, 2:] += kicks[0] * dt * dacc
         for c, d in zip(drifts, kicks[1:]):
             x[:, :2] += c * dt * x[:, 2:]
-            acc = accelerations(params, x, M, K)
+            acc = accelerations(params, x, inv_M, K)
             x[:, 2:] += d * dt * acc
             if dx is not None:
                 dx[:, :, :2] += c * dt * dx[:, :, 2:]
-                dacc = _linear_accelerations(params, x[:, :2], dx[:, :, :2], M, K)
+                dacc = _linear_accelerations(params, x[:, :2], dx[:, :, :2], inv_M, K)
                 dx[:, :, 2:] += d * dt * dacc
         return x if dx is None else (x, dx)
 
@@ -68,17 +88,18 @@ def step(method: Method | str, params: ChainParams, x, dt: float, M=None, K=None
     def rhs(y):
         out = np.empty_like(y)
         out[:, :2] = y[:, 2:]
-        out[:, 2:] = accelerations(params, y, M, K)
+        out[:, 2:] = accelerations(params, y, inv_M, K)
         return out
 
     def tangent_rhs(y, dy):
         out = np.empty_like(dy)
         out[:, :, :2] = dy[:, :, 2:]
-        out[:, :, 2:] = _linear_accelerations(params, y[:, :2], dy[:, :, :2], M, K)
+        out[:, :, 2:] = _linear_accelerations(params, y[:, :2], dy[:, :, :2], inv_M, K)
         return out
 
-    stage_coefficients = tuple(dtype(a) for a in (0.5, 0.5, 1.0))
-    weights = tuple(dtype(w) for w in (1.0, 2.0, 2.0, 1.0))
+    # the Runge-Kutta method's own tableau (classical RK4: nodes 1/2, 1/2, 1; weights 1, 2, 2, 1; / 6)
+    stage_coefficients = tuple(dtype(a) for a in method.nodes)
+    weights = tuple(dtype(w) for w in method.weights)
     k = rhs(x)
     dk = None if dx is None else tangent_rhs(x, dx)
     total = weights[0] * k
@@ -90,10 +111,10 @@ def step(method: Method | str, params: ChainParams, x, dt: float, M=None, K=None
             dtotal = dtotal + w * dk
         k = rhs(y)
         total = total + w * k
-    x_new = x + (dt / dtype(6.0)) * total
+    x_new = x + (dt / dtype(method.divisor)) * total
     if dx is None:
         return x_new
-    return x_new, dx + (dt / dtype(6.0)) * dtotal
+    return x_new, dx + (dt / dtype(method.divisor)) * dtotal
 
 
 def integrate(
@@ -145,7 +166,7 @@ def rhs_flat(params: ChainParams, M=None, K=None):
         x = y.reshape(1, 4, N)
         out = np.empty((4, N))
         out[:2] = x[0, 2:]
-        out[2:] = accelerations(params, x, M, K)[0]
+        out[2:] = model.accelerations(params, x, M, K)[0]
         return out.ravel()
 
     return f

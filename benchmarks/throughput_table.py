@@ -1,0 +1,74 @@
+"""The README's GPU throughput tables, generated from a throughput summary (no figure typed by hand).
+
+Command: ``python benchmarks/throughput_table.py benchmarks/h200-2026-11-22b/throughput-summary.json``
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+
+
+def rate(results, impl, batch, method="verlet"):
+    hit = [r for r in results if r["implementation"] == impl and r["batch"] == batch and r["method"] == method]
+    return hit[0]["site_steps_per_second"] if hit else None
+
+
+def fmt(value, spec=".3g", missing="-"):
+    return missing if value is None else format(value, spec)
+
+
+def main(path):
+    s = json.load(open(path))
+    results = s["results"]
+    batches = sorted({r["batch"] for r in results})
+    lines = [
+        "| batch | Warp block verlet | Warp block kahan8 | Warp thread verlet | JAX | hand CUDA (CuPy) "
+        "| Warp block / hand | Warp block / JAX |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for b in batches:
+        w, hand, jax = rate(results, "warp-block", b), rate(results, "cupy", b), rate(results, "jax", b)
+        lines.append(
+            f"| {b} | {fmt(w, '.3e')} | {fmt(rate(results, 'warp-block', b, 'kahan8'), '.3e')} "
+            f"| {fmt(rate(results, 'warp-thread', b), '.3e')} | {fmt(jax, '.3e')} | {fmt(hand, '.3e')} "
+            f"| {fmt(w / hand if w and hand else None, '.2f')} | {fmt(w / jax if w and jax else None, '.0f')}x |"
+        )
+    print("\n".join(lines))
+    sim = (s.get("simulate") or {}).get("rows", [])
+    if sim:
+        every = s["simulate"]["record_every"]
+        print()
+        print(
+            f"| batch | kernel (`time_steps`) | `simulate()` default | `simulate(save_every={every})` "
+            "| frames to host |"
+        )
+        print("| --- | --- | --- | --- | --- |")
+        for r in sim:
+            print(
+                f"| {r['batch']} | {r['kernel_rate']:.2e} | {r['default_rate']:.2e} ({r['default_over_kernel']:.2f}x) "
+                f"| {r['recording_rate']:.2e} ({r['recording_over_kernel']:.2f}x) "
+                f"| {r['recording_gb_per_second']:.1f} GB/s |"
+            )
+    ratios = s["ratios"]
+    print()
+    print(f"single lattice: {ratios['single_lattice_ns_per_step']:.0f} ns per Verlet step (Warp block)")
+    hand1 = [r for r in results if r["implementation"] == "cupy" and r["batch"] == 1]
+    if hand1:
+        print(f"single lattice, hand CUDA: {hand1[0]['ns_per_step']:.0f} ns per step")
+    for b, per in ratios.get("force_eval_cost_over_verlet", {}).items():
+        print(f"cost per force evaluation over Verlet at {b}: " + ", ".join(f"{k} {v:.2f}" for k, v in per.items()))
+    mono = s.get("monodromy")
+    if mono:
+        print(
+            f"monodromy ({mono['columns']} columns, {mono['period_steps']} steps of {mono['method']}): kernel "
+            f"{1e3 * mono['monodromy_kernel_seconds']:.2f} ms, wall {1e3 * mono['monodromy_wall_seconds']:.1f} ms; "
+            f"Newton iteration {1e3 * mono['newton_iteration_seconds']:.2f} ms "
+            f"(linear solve {1e3 * mono['newton_linear_solve_seconds']:.2f} ms)"
+        )
+    for row in s.get("kernel_properties", []):
+        print(f"{row['kernel']}: {row['register_count']} registers, occupancy {row['occupancy']:.2f}")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1])

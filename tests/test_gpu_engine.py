@@ -1,0 +1,173 @@
+"""The engine around the kernels (run here on the CPU; the same code path drives a GPU): the guard
+reduced on the device (energy, finite flag, min contact), frames written into preallocated results,
+the chunk count chosen from the work, and the arithmetic shared with the numpy reference (1/M)."""
+
+import warnings
+
+import numpy as np
+import pytest
+
+from conftest import localized_state
+from warpchain import METHODS, ChainParams, IntegrationError, energy, reference, simulate
+from warpchain.ensemble import _CHUNK_WORK, _Runner
+from warpchain.flow import Flow, ReferenceFlow
+from warpchain.integrators import get_method
+from warpchain.model import min_contact
+
+LAYOUTS = ["thread", "block"]
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+@pytest.mark.parametrize("method", sorted(METHODS))
+def test_cpu_results_bit_for_bit_with_the_reference(method, layout):
+    p = ChainParams(30.0, 160.0, 41)
+    x0 = localized_state(p.N, amplitude=0.8, batch=3, seed=3)
+    M, K = np.array([30.0, 10.0, 50.0]), np.array([160.0, 40.0, 100.0])
+    run = simulate(p, x0, 200 * 0.02, 0.02, method=method, device="cpu", M=M, K=K, save_every=50, layout=layout)
+    ref = reference.integrate(method, p, x0, 0.02, 200, M=M, K=K, save_every=50)
+    assert np.array_equal(run.x, ref["x"]) and np.array_equal(run.u, ref["u"]) and np.array_equal(run.v, ref["v"])
+    # the guard's energies (reduced on the device) agree with model.energy to rounding
+    assert np.allclose(run.energy_final, energy(p, run.x, M, K), rtol=1e-13, atol=0)
+    assert np.allclose(run.energy_initial, energy(p, x0, M, K), rtol=1e-13, atol=0)
+    # min contact over the recorded frames and the chunk ends, as computed on the host before
+    expected = np.minimum(np.min(1 + ref["u"] - ref["v"], axis=(0, 2)), min_contact(run.x))
+    assert np.array_equal(run.min_contact, expected)
+
+
+def test_reference_multiplies_by_the_inverse_mass():
+    p = ChainParams(3.0, 4.0, 9)
+    x = localized_state(p.N, amplitude=0.7, batch=2, seed=1)
+    inv = reference.inverse_mass(np.array([3.0, 7.0]))
+    acc = reference.accelerations(p, x, inv, np.array([4.0, 5.0]))
+    from warpchain.model import accelerations
+
+    divided = accelerations(p, x, np.array([3.0, 7.0]), np.array([4.0, 5.0]))
+    assert np.allclose(acc, divided, rtol=1e-15, atol=1e-15) and np.array_equal(acc[:, 1], divided[:, 1])
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+@pytest.mark.parametrize("boundary", ["fixed", "free", "periodic"])
+def test_guard_kernel_energy_finite_and_contact(boundary, layout):
+    p = ChainParams(3.0, 4.0, 17, boundary)
+    x0 = localized_state(p.N, amplitude=1.5, batch=3, centre=2, seed=5)
+    x0[0, 1, 3] = 2.0  # lattice 0 has lost contact at site 3
+    x0[2, 3, 4] = np.nan
+    M, K = np.array([3.0, 2.0, 5.0]), np.array([4.0, 1.0, 6.0])
+    runner = _Runner(get_method("verlet"), p, x0, M, K, "cpu", layout=layout)
+    out = runner.guard().numpy()
+    assert np.allclose(out[:2, 0], energy(p, x0[:2], M[:2], K[:2]), rtol=1e-13, atol=0)
+    assert out[:, 1].tolist() == [1.0, 1.0, 0.0]
+    assert np.array_equal(out[:2, 2], min_contact(x0[:2])) and out[0, 2] < 0
+    # frames enter the running min; a later guard keeps the lowest value seen
+    rec = runner.frames(2)
+    frames = np.zeros((2, 3, p.N))
+    frames[1, 1, 3] = -5.0
+    rec[0].assign(frames)
+    rec[1].assign(np.zeros((2, 3, p.N)))
+    out = runner.guard(rec, 2).numpy()
+    assert out[1, 2] == -4.0 and out[0, 2] == min_contact(x0[:1])[0]
+
+
+def test_chunk_count_comes_from_the_work(monkeypatch):
+    from warpchain import ensemble
+
+    p = ChainParams(30.0, 160.0, 21)
+    x0 = localized_state(p.N, amplitude=0.1, batch=2)
+    small = simulate(p, x0, 100 * 0.1, 0.1, device="cpu")  # 4200 site-steps, far below a chunk's work
+    assert _CHUNK_WORK > 4200 and small.energy_t.tolist() == [0.0, small.t_final]
+    monkeypatch.setattr(ensemble, "_CHUNK_WORK", 2 * p.N * 100)  # a chunk: 100 steps of both lattices
+    assert simulate(p, x0, 250 * 0.1, 0.1, device="cpu").energy_t.shape == (4,)  # 3 chunks
+    assert simulate(p, x0, 100 * 0.1, 0.1, device="cpu", chunks=5).energy_t.shape == (6,)  # as asked
+    assert simulate(p, x0, 5000 * 0.1, 0.1, device="cpu").energy_t.shape == (11,)  # at most 10
+
+
+def test_on_chunk_gets_read_only_views_of_the_results(small_chain):
+    x0 = localized_state(small_chain.N, batch=2)
+    seen = []
+
+    def keep(t, u, v):
+        assert not u.flags.writeable and not v.flags.writeable
+        seen.append((t.copy(), u.copy(), v.copy()))
+
+    run = simulate(small_chain, x0, 3.0, 0.1, device="cpu", save_every=3, chunks=4, on_chunk=keep)
+    assert np.array_equal(np.concatenate([s[1] for s in seen]), run.u)
+    assert np.array_equal(np.concatenate([s[2] for s in seen]), run.v)
+    assert np.array_equal(np.concatenate([s[0] for s in seen]), run.t)
+    assert run.u.flags.writeable  # the result itself is the caller's
+
+
+def test_blow_up_is_caught_at_the_chunk_where_it_happens():
+    p = ChainParams(30.0, 160.0, 21)
+    x0 = localized_state(p.N, amplitude=0.1, batch=2)
+    K = np.array([10.0, 160.0])
+    with pytest.warns(RuntimeWarning):
+        with pytest.raises(IntegrationError) as info:
+            simulate(p, x0, 400.0, 0.5, device="cpu", K=K, allow_unstable_step=True, chunks=10)
+    assert info.value.failed == [1] and info.value.t < 400.0  # before the end: chunks are checked in turn
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_flow_min_contact_reduced_on_the_device_matches_the_reference(layout):
+    p = ChainParams(3.0, 4.0, 11)
+    x0 = localized_state(p.N, amplitude=1.2, batch=2, seed=2)
+    flow = Flow("yoshida4", 16, device="cpu", layout=layout)
+    ref = ReferenceFlow("yoshida4", 16)
+    a, b = flow.run(p, x0, 40, 0.05), ref.run(p, x0, 40, 0.05)
+    assert np.array_equal(a.x_end, b.x_end) and np.array_equal(a.min_contact, b.min_contact)
+    la, lb = flow.linearize(p, x0[:1], 40, 0.05), ref.linearize(p, x0[:1], 40, 0.05)
+    assert la.min_contact == lb.min_contact
+    d = np.eye(4 * p.N)[:5].reshape(5, 4, p.N)
+    assert np.array_equal(la.columns(d), lb.columns(d))
+
+
+def test_host_copy_helpers_and_buffer_pool():
+    from warpchain import ensemble
+
+    src = np.arange(3 * (1 << 19), dtype=np.float64).reshape(3, -1)  # large enough to be split
+    dst = np.empty_like(src)
+    ensemble._copy(dst, src)
+    assert np.array_equal(dst, src)
+    ensemble._fill_zero(dst)
+    assert not dst.any()
+    wp = ensemble._warp()
+    a = ensemble._take_buffer(wp, "cpu", 1000, False)
+    assert a.shape[0] >= 1000
+    ensemble._give_buffer("cpu", False, a)
+    assert ensemble._take_buffer(wp, "cpu", 500, False) is a  # reused, not allocated again
+    t = ensemble._prefault((4, 5))
+    t.join()
+    assert t.result.shape == (4, 5) and not t.result.any()
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_kernels_take_coefficients_from_the_method_type(layout):
+    """A Runge-Kutta tableau and a splitting not in METHODS run through the same launch plans: the
+    kernels read the coefficients the method owns (bit for bit with the reference on the CPU)."""
+    from warpchain.integrators import RungeKuttaMethod, SplittingMethod, _composition
+
+    p = ChainParams(3.0, 4.0, 13)
+    x0 = localized_state(p.N, amplitude=0.6, batch=2, seed=7)
+    rk = RungeKuttaMethod(
+        "rk-test", 2, False, "a made-up tableau", nodes=(0.25, 0.5, 1.0), weights=(1.0, 3.0, 1.0, 1.0)
+    )
+    split = SplittingMethod("split-test", 2, True, "two half Verlet steps", *_composition((0.5, 0.5)))
+    assert rk.force_evaluations == 4 and split.force_evaluations == 2 and rk.family == "rk4"
+    for method in (rk, split):
+        with warnings.catch_warnings():  # the made-up tableau is stable only for tiny steps: irrelevant here
+            warnings.simplefilter("ignore")
+            run = simulate(
+                p,
+                x0,
+                50 * 0.05,
+                0.05,
+                method=method,
+                device="cpu",
+                layout=layout,
+                max_energy_error=None,
+                allow_unstable_step=True,
+            )
+        ref = reference.integrate(method, p, x0, 0.05, 50)
+        assert np.array_equal(run.x, ref["x"]), method.name
+    assert not np.array_equal(
+        reference.integrate(rk, p, x0, 0.05, 5)["x"], reference.integrate("rk4", p, x0, 0.05, 5)["x"]
+    )
