@@ -108,17 +108,25 @@ class _FinerAbove:
         return min(h, self._ds) if last.K >= self._K_fine else h
 
 
+def _family_sites(P: Parameters, family: str) -> int:
+    """Sites of a family's chain: N, except N + 1 for the in-phase bond family when N is odd, so that
+    the chain is mirror symmetric about the bond (its profile is then projected onto that symmetry,
+    which removes its singular odd direction at its own branch points; boundary effects on energies
+    are ~exp(-kappa N / 2), far below 1e-13)."""
+    return P.N + 1 if family == "bond-in-phase" and P.N % 2 else P.N
+
+
 def _family_branch(ctx: Context, P: Parameters, flow, family: str):
     """Continue one family from its anti-continuum seed at K_start to K_end."""
-    params = ChainParams(P.M, P.K_start, P.N)
+    params = ChainParams(P.M, P.K_start, _family_sites(P, family))
     settings = P.settings()
     if family == "bond-out-of-phase":
         settings = settings.replace(ds_max=P.out_of_phase_ds_max, resolution=P.out_of_phase_ds_max)
     attrs = {"family": family, "omega": P.omega, "method": P.method, "steps_per_period": P.steps_per_period}
-    seed = anticontinuum_seed(params, P.omega, family)
+    seed = anticontinuum_seed(params, P.omega, family, centre=params.N // 2 - (params.N % 2 == 0))
     if family != "bond-out-of-phase":  # monotonic in K; the natural parameter steps over the branch points
         problem = NaturalParameter(params, P.omega, seed, P.K_end, flow, targets=P.pn_K + P.finite_size_K)
-        kept = " (mirror symmetric)" if family == "site" else ""
+        kept = f" (mirror symmetric, N = {params.N})"
         attrs.update(continuation=f"natural parameter in log10 K{kept}", coordinate="log10 K")
     else:
         first = find_breather(params, P.omega, seed, flow=flow, symmetric=False)
@@ -156,7 +164,8 @@ def _solve_near(points, K: float, P: Parameters, flow, symmetric=None):
     if not (Ks.min() <= K <= Ks.max()):
         return None
     near = points[int(np.argmin(np.abs(np.log(Ks) - math.log(K))))]
-    res = find_breather(ChainParams(P.M, K, P.N), P.omega, near.state, flow=flow, symmetric=symmetric)
+    N = near.state.shape[1]
+    res = find_breather(ChainParams(P.M, K, N), P.omega, near.state, flow=flow, symmetric=symmetric)
     return res if res.success else None
 
 
@@ -217,7 +226,7 @@ def run(ctx: Context) -> dict:
     # 2. branch points: localized real pairs through +1
     for family in FAMILIES[:3]:
         points = branches[family].points
-        parity = -1 if family == "site" else None
+        parity = -1 if family != "bond-out-of-phase" else None
         family_folds = _folds(family, points)
         folds.extend(family_folds)
         for i, j, vertex in bf.suspect_steps(points, parity):
@@ -238,7 +247,7 @@ def run(ctx: Context) -> dict:
             try:
                 found = bf.locate_real_pair(
                     family,
-                    ChainParams(P.M, P.K_start, P.N),
+                    ChainParams(P.M, P.K_start, points[0].state.shape[1]),
                     P.omega,
                     points[i],
                     points[j],
@@ -342,7 +351,7 @@ def run(ctx: Context) -> dict:
     for p in site_points:
         if not bond_K.min() <= p.K <= bond_K.max():
             continue
-        bond = _solve_near(bond_points, p.K, P, flow, symmetric=False)
+        bond = _solve_near(bond_points, p.K, P, flow)
         if bond is not None:
             pn_rows.append((p.K, p.energy, bond.energy))
     for K in P.pn_K:
@@ -359,6 +368,7 @@ def run(ctx: Context) -> dict:
         K_s, K_b = pitchforks[0].K, end_join["bond_branch_point_K"]
         width = abs(K_b - K_s)
         bond_start = min((b for b in bifurcations if b.family == "bond-in-phase"), key=lambda b: abs(b.K - K_b)).state
+        bond_start = bond_start[:, : P.N]  # the bond family's chain has one more (empty) site at the end
         grid = np.linspace(min(K_s, K_b) - 0.5 * width, max(K_s, K_b) + 0.5 * width, 11)
         rows = []
         for K in grid:
