@@ -203,6 +203,9 @@ class BifurcationPoint:
         state: the orbit at the point (4, N); null_vector: the Floquet vector at mu = 1 (positions, 2N).
         participation, central_weight: of the null vector (sites; fraction on the central 2 CENTRAL_SITES + 1).
         energy: of the orbit; test: mu - 1 at the located point.
+        slope: d(mu - 1)/dK across the located bracket's first step (a secant).
+        K_error: the location's uncertainty, the measured noise of mu (the trivial mu's distance
+            from 1, or |test| if larger) over |slope|: flat test functions locate worse.
     """
 
     family: str
@@ -218,6 +221,8 @@ class BifurcationPoint:
     central_weight: float
     energy: float
     test: float
+    slope: float = float("nan")
+    K_error: float = float("nan")
 
     def as_dict(self) -> dict:
         return {
@@ -231,6 +236,9 @@ class BifurcationPoint:
             "central_weight": self.central_weight,
             "energy": self.energy,
             "test_mu_minus_1": self.test,
+            "slope": self.slope,
+            "K_error": self.K_error,
+            "relative_error": self.K_error / self.K,
             "evaluations": self.evaluations,
         }
 
@@ -362,7 +370,8 @@ def locate_real_pair(
         if k is None:
             raise RuntimeError(f"no real multiplier of parity {parity} near K = {10**c:.8g} on the {family} family")
         pr = float(participation(vec[:, k : k + 1], params.M)[0])
-        cache[c] = (float(mu[k].real - 1.0), (res, np.real(vec[:, k]), pr))
+        noise = float(np.min(np.abs(mu - 1.0)))  # the trivial mu's distance from 1
+        cache[c] = (float(mu[k].real - 1.0), (res, np.real(vec[:, k]), pr, noise))
         return cache[c]
 
     kind = "symmetry_breaking_pitchfork" if symmetric and parity == -1 else "branch_point"
@@ -381,8 +390,9 @@ def locate_real_pair(
                 f"mu - 1 jumps from one sign to the other at K = {10**loc.value:.10g} (|mu - 1| = {abs(loc.test):.2g} "
                 "there): the most central real multiplier changed identity; no crossing of +1"
             )
-        res, phi, pr = loc.payload
+        res, phi, pr, noise = loc.payload
         phi = phi / np.linalg.norm(phi)
+        slope = (test(hi)[0] - test(lo)[0]) / (10.0**hi - 10.0**lo)
         # gained (with growing K) when mu - 1 goes from negative to positive
         gained = (test(lo)[0] < 0) == (hi > lo)
         out.append(
@@ -400,6 +410,8 @@ def locate_real_pair(
                 central_weight=float(central_weight(phi[:, None], params.M, centre)[0]),
                 energy=float(res.energy),
                 test=float(loc.test),
+                slope=float(slope),
+                K_error=max(noise, abs(loc.test)) / abs(slope) if slope else float("inf"),
             )
         )
     return out

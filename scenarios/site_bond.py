@@ -267,11 +267,12 @@ def run(ctx: Context) -> dict:
                 continue
             for bif in found:
                 ctx.log(
-                    "%s: %s at K = %.10g (%s the localized real pair; null vector: %.1f sites, %.0f %% on the centre; "
-                    "mu - 1 = %.1e; %d solves)",
+                    "%s: %s at K = %.10g +- %.1e (%s the localized real pair; null vector: %.1f sites, %.0f %% on the "
+                    "centre; mu - 1 = %.1e; %d solves)",
                     family,
                     bif.kind,
                     bif.K,
+                    bif.K_error,
                     bif.direction,
                     bif.participation,
                     100 * bif.central_weight,
