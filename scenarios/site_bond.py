@@ -192,6 +192,14 @@ def _folds(family: str, points) -> list:
     return out
 
 
+def _padded(arrays, shape) -> np.ndarray:
+    """Stack (rows, n_i) arrays into (len, *shape), NaN to the right of each one's n_i columns."""
+    out = np.full((len(arrays), *shape), np.nan)
+    for k, a in enumerate(arrays):
+        out[k, :, : a.shape[1]] = a
+    return out
+
+
 def _other_events(family: str, points) -> list:
     """Where a localized period-doubling pair or a localized Krein quadruplet appears or disappears
     along a family (reported, not followed); extended ones (finite-size resonances) are only counted
@@ -304,8 +312,17 @@ def run(ctx: Context) -> dict:
             sym = _solve_near(site_points, K1, P, flow, symmetric=True)
             dist = float(np.linalg.norm(s1[:2] - sym.state[:2])) if sym is not None else float("nan")
             sqrt_rows.append((a, K1, K1 - pf.K, dist, energy_centre(s1) - energy_centre(pf.state)))
-        fit = np.polyfit(np.log([abs(r[2]) for r in sqrt_rows]), np.log([r[3] for r in sqrt_rows]), 1)
-        ctx.log("square-root law: distance ~ |K - K*|^%.4f (expected 1/2)", fit[0])
+        # K(a) = K0 + c a^2 from the new points alone: K0 cross-checks the located K*, and the exponent
+        # of distance vs |K - K0| does not depend on K*'s last digits (the offsets are ~1e-8 .. 1e-6)
+        amps, Ks_new = np.array([r[0] for r in sqrt_rows]), np.array([r[1] for r in sqrt_rows])
+        curvature, K0 = np.polyfit(amps**2, Ks_new, 1)
+        fit = np.polyfit(np.log(np.abs(Ks_new - K0)), np.log([r[3] for r in sqrt_rows]), 1)
+        ctx.log(
+            "square-root law: K = K0 + %.3g a^2 with K0 - K* = %.1e; distance ~ |K - K0|^%.4f (expected 1/2)",
+            curvature,
+            K0 - pf.K,
+            fit[0],
+        )
         starts = bf.switch_to_asymmetric(pf, params_pf, flow, P.switch_amplitude)
         for state, c, *_ in starts:  # the new orbits are breathers of the ODE, not only of the map
             Kc = 10.0**c
@@ -420,6 +437,7 @@ def run(ctx: Context) -> dict:
             )
 
     # the bifurcation table, the square-root law, the barrier and the exchange window
+    n_max = max([P.N] + [b.state.shape[1] for b in bifurcations])
     if pn_rows:
         rows = np.array(pn_rows, float)
         write_table(
@@ -444,11 +462,15 @@ def run(ctx: Context) -> dict:
             "energy": np.array([b.energy for b in bifurcations], float),
             "participation": np.array([b.participation for b in bifurcations], float),
             "central_weight": np.array([b.central_weight for b in bifurcations], float),
-            "state": np.array([b.state for b in bifurcations], float).reshape(len(bifurcations), 4, P.N),
-            "null_vector": np.array([b.null_vector for b in bifurcations], float).reshape(len(bifurcations), 2 * P.N),
+            "state": _padded([b.state for b in bifurcations], (4, n_max)),
+            "null_vector": _padded([b.null_vector.reshape(2, -1) for b in bifurcations], (2, n_max)).reshape(
+                -1, 2 * n_max
+            ),
+            "sites": np.array([b.state.shape[1] for b in bifurcations], np.int32),
         },
         dim="bifurcation",
         attrs={
+            "padding": "families on N + 1 sites are stored as they are, shorter ones padded with NaN on the right",
             "family": [b.family for b in bifurcations],
             "kind": [b.kind for b in bifurcations],
             "direction": [b.direction for b in bifurcations],
@@ -488,6 +510,8 @@ def run(ctx: Context) -> dict:
             "message": asym.message,
             "joins": end_join,
             "sqrt_law_exponent": float(fit[0]),
+            "sqrt_law_K0": float(K0),
+            "sqrt_law_curvature": float(curvature),
             "sqrt_law": [dict(zip(("amplitude", "K", "K_offset", "distance", "centre_shift"), r)) for r in sqrt_rows],
             "dop853_periodicity": dop,
         },
@@ -643,7 +667,9 @@ def plot(out) -> None:
             if name == "state":
                 y = data[k, 0] - data[k, 1]
             else:  # signed site amplitude sqrt(M a_u^2 + a_v^2)
-                y = np.sqrt(30.0 * data[k, :N] ** 2 + data[k, N:] ** 2) * np.sign(data[k, N:] + 1e-300)
+                half = data.shape[1] // 2
+                au, av = data[k, :half], data[k, half:]
+                y = np.sqrt(s["M"] * au**2 + av**2) * np.sign(av + 1e-300)
             a.plot(sites, y[sites], "o-", ms=3, color=colours[families[k]], label=lab)
         if name == "state" and "asymmetric" in fam:
             mid = fam["asymmetric"][len(fam["asymmetric"]) // 2]
