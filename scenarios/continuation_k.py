@@ -146,19 +146,15 @@ def plot(out) -> None:
         i = np.argmin(np.abs(K - k))
         if abs(K[i] - k) < 1e-9 * k:
             ax.annotate(lab, (K[i], E[i]), textcoords="offset points", xytext=(-14, 2), ha="right")
-    for e in s.get("bifurcation_points", []):
-        if e["located"]:
-            ax.axvline(e["K"], color="tab:red", ls="--", lw=1)
-            ax.annotate(
-                f"symmetry breaking\nK = {e['K']:.8g}",
-                (e["K"], ax.get_ylim()[1]),
-                xytext=(4, -24),
-                textcoords="offset points",
-                fontsize=8,
-                color="tab:red",
-            )
-        else:
-            ax.axvline(e["K"], color="tab:red", ls=":", lw=0.6)
+    located = [e["K"] for e in s.get("bifurcation_points", []) if e["located"]]
+    flagged = [e["K"] for e in s.get("bifurcation_points", []) if not e["located"]]
+    for n, k in enumerate(located):
+        label = "symmetry breaking (located): K = " + ", ".join(f"{x:.8g}" for x in located) if n == 0 else None
+        ax.axvline(k, color="tab:red", ls="--", lw=1, label=label)
+    for n, k in enumerate(flagged):
+        ax.axvline(
+            k, color="tab:red", ls=":", lw=0.6, label="further changes flagged (not located)" if n == 0 else None
+        )
     ax.set_ylabel("energy H")
     stop = s["stop_reason"].replace("_", " ")
     ax.set_title(f"continuation in K: M = {s['M']:g}, $\\omega_b$ = {s['omega']}, N = {s['N']} (stopped: {stop})")

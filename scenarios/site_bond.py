@@ -108,6 +108,12 @@ class _FinerAbove:
         return min(h, self._ds) if last.K >= self._K_fine else h
 
 
+def _arclength_in_K(params, omega, flow, starts, K_range, until=None) -> PseudoArclength:
+    """Pseudo-arclength in (positions, log10 K) from two start points, without symmetry projection."""
+    axis = CouplingAxis(params, omega)
+    return PseudoArclength(params, flow, starts, axis=axis, symmetric=False, K_range=K_range, until=until)
+
+
 def _family_sites(P: Parameters, family: str) -> int:
     """Sites of a family's chain: N, except N + 1 for the in-phase bond family when N is odd, so that
     the chain is mirror symmetric about the bond (its profile is then projected onto that symmetry,
@@ -140,14 +146,7 @@ def _family_branch(ctx: Context, P: Parameters, flow, family: str):
             (r.state, math.log10(r.params.K), r.iterations, r.residual_history, r.linearization())
             for r in (first, second)
         ]
-        problem = PseudoArclength(
-            params,
-            flow,
-            starts,
-            axis=CouplingAxis(params, P.omega),
-            symmetric=False,
-            K_range=(0.5 * P.K_start, P.K_end),
-        )
+        problem = _arclength_in_K(params, P.omega, flow, starts, (0.5 * P.K_start, P.K_end))
         attrs.update(continuation="pseudo-arclength in (positions, log10 K)", coordinate="arclength")
     attrs["settings"] = dataclasses.asdict(settings)
     if family != "bond-out-of-phase":
@@ -342,15 +341,7 @@ def run(ctx: Context) -> dict:
                 return f"its energy centre reached the bond centre between K = {prev.K:.10g} and {point.K:.10g}"
             return None
 
-        problem = PseudoArclength(
-            params_pf,
-            flow,
-            starts,
-            axis=CouplingAxis(params_pf, P.omega),
-            symmetric=False,
-            K_range=(P.K_start, P.K_end),
-            until=until,
-        )
+        problem = _arclength_in_K(params_pf, P.omega, flow, starts, (P.K_start, P.K_end), until)
         settings = P.settings().replace(
             ds=P.asymmetric_ds, ds_max=4 * P.asymmetric_ds, max_points=P.asymmetric_max_points, ds_min=1e-6
         )
