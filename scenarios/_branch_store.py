@@ -3,8 +3,10 @@
 Layout (group ``branch`` of ``data.zarr``): one chunk per point along ``point``; scalars per point
 (K, omega, energy, max_modulus, tolerance, min_contact, iterations, s, stable), the state
 (point, component, site), the reduced multipliers mu (point, pair) with their Krein signature,
-parity and participation, the Newton residuals (point, newton_iteration), and the instabilities
-(point, instability; at most ``MAX_INSTABILITIES`` per point, largest first). Float arrays have a NaN
+parity, participation and central weight, the Newton residuals (point, newton_iteration), and the
+instabilities (point, instability; kind, mu, participation, central weight, localized, parity; at
+most ``MAX_INSTABILITIES`` per point, largest first). Scenes with several branches (``site-bond``)
+keep one such group per family in one store. Float arrays have a NaN
 fill value and integer arrays a -128 fill value, so a missing chunk can never read as a valid point.
 The group's attributes hold ``n_points`` (updated after every whole point), ``complete``,
 ``stop_reason``, ``message`` and ``events``.
