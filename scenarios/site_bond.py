@@ -15,7 +15,8 @@ a minute). Options: ``--set KEY=VALUE`` (fields of ``Parameters``).
    until its energy centre reaches the bond centre (it joins the bond-centred family) or it leaves the
    K range. The square-root law is measured with ``sqrt_amplitudes``; its first points are checked for
    periodicity with scipy's DOP853.
-4. **Peierls-Nabarro barrier**: E(bond in phase) - E(site) at ``pn_K`` (exact solves) and along K.
+4. **Peierls-Nabarro barrier**: E(bond in phase) - E(site) at ``pn_K`` and at the site family's
+   points from ``pn_from_K`` on (the bond orbit solved at each of those K).
 5. **Finite-size check** at ``finite_size_K``: the site breather re-solved on 2N - 1 sites; unstable
    multipliers that keep their modulus and are localized are intrinsic, the others finite-size.
 6. Period doubling and localized Krein collisions on the families are reported (not followed).
@@ -62,7 +63,8 @@ class Parameters(BranchParameters):
     bisect_krein: str = "none"  # the phonon foam is the continuation scenes' business
     multiplier_floor: float = 0.1
     out_of_phase_ds_max: float = 0.3  # arclength; that family only has to be followed to its fold
-    locate_atol: float = 1e-9  # in log10 K (2.3e-9 relative in K)
+    locate_atol: float = 1e-8  # in log10 K (2.3e-8 relative in K; the noise of mu limits it more, see K_error)
+    pn_from_K: float = 1.0  # the barrier is solved at the site family's points from here on (and at pn_K)
     locate_K_max: float = 30.0  # branch points above this are reported with their bracket, not located
     pn_K: tuple = (5.0, 20.0, PAPER_K)
     switch_amplitude: float = 0.02  # along the unit null vector (positions)
@@ -358,7 +360,7 @@ def run(ctx: Context) -> dict:
     bond_K = np.array([p.K for p in bond_points])
     pn_rows = []
     for p in site_points:
-        if not bond_K.min() <= p.K <= bond_K.max():
+        if not bond_K.min() <= p.K <= bond_K.max() or (p.K < P.pn_from_K and p.K not in P.pn_K):
             continue
         bond = _solve_near(bond_points, p.K, P, flow)
         if bond is not None:
