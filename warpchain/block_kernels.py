@@ -133,16 +133,6 @@ def site_acceleration(
 
 
 @wp.func
-def site_acceleration_with(
-    u: wp.float64, force: wp.float64, left: wp.float64, right: wp.float64, inv_mass: wp.float64, coupling: wp.float64
-) -> wp.vec2d:
-    """``site_acceleration`` from a contact force computed beforehand: the kernels evaluate f(u - v)
-    before the neighbour exchange, so its square root overlaps the barrier (same operations, same
-    result)."""
-    return wp.vec2d(-(coupling * ((u - left) + (u - right)) + force) * inv_mass, force)
-
-
-@wp.func
 def site_tangent_acceleration(
     du: wp.float64,
     dv: wp.float64,
@@ -180,9 +170,10 @@ MAX_STAGES = 15
 coefficients = wp.types.vector(length=MAX_STAGES + 1, dtype=wp.float64)
 
 
-def pack_coefficients(values) -> "coefficients":
-    """A method's drift or kick coefficients as the fixed-length kernel argument (zero padded)."""
-    values = [float(c) for c in values]
+def pack_coefficients(values, dt: float = 1.0) -> "coefficients":
+    """A method's drift or kick coefficients times ``dt`` as the fixed-length kernel argument (zero
+    padded). The kernels use c * dt as given: the product rounds exactly as the reference's c * dt."""
+    values = [float(c) * float(dt) for c in values]
     if len(values) > MAX_STAGES + 1:
         raise ValueError(f"at most {MAX_STAGES} stages are supported by the block kernels, got {len(values)}")
     return coefficients(*(values + [0.0] * (MAX_STAGES + 1 - len(values))))
@@ -300,28 +291,26 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             nbr = site_neighbours(j, n, boundary)
             buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
             parity = int(0)
-            f = contact_force(u - v)
             nb = exchange(buf, u, parity, nbr, boundary)
-            a = site_acceleration_with(u, f, nb[0], nb[1], m, k)
+            a = site_acceleration(u, v, nb[0], nb[1], m, k)
             if wp.static(record):
                 if active:
                     hist[0, b, j] = contact_stiffness(u - v)
             for step in range(nsteps):
-                h = kicks[0] * dt
+                h = kicks[0]  # the coefficients arrive multiplied by dt (on the host: the same product)
                 pu = pu + h * a[0]
                 pv = pv + h * a[1]
                 for s in range(wp.static(stages)):  # unrolled: coefficients become constants
-                    h = drifts[s] * dt
+                    h = drifts[s]
                     u = u + h * pu
                     v = v + h * pv
                     parity = 1 - parity
-                    f = contact_force(u - v)  # before the exchange: overlaps the barrier
                     nb = exchange(buf, u, parity, nbr, boundary)
-                    a = site_acceleration_with(u, f, nb[0], nb[1], m, k)
+                    a = site_acceleration(u, v, nb[0], nb[1], m, k)
                     if wp.static(record):
                         if active:
                             hist[step * wp.static(stages) + s + 1, b, j] = contact_stiffness(u - v)
-                    h = kicks[s + 1] * dt
+                    h = kicks[s + 1]
                     pu = pu + h * a[0]
                     pv = pv + h * a[1]
                 if wp.static(save):
@@ -366,11 +355,11 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             nb = exchange(buf, du, parity, nbr, boundary)
             a = site_tangent_acceleration(du, dv, nb[0], nb[1], m, k, hist[0, base, jj])
             for step in range(nsteps):
-                h = kicks[0] * dt
+                h = kicks[0]  # times dt, as in the splitting kernel
                 dpu = dpu + h * a[0]
                 dpv = dpv + h * a[1]
                 for s in range(wp.static(stages)):
-                    h = drifts[s] * dt
+                    h = drifts[s]
                     du = du + h * dpu
                     dv = dv + h * dpv
                     parity = 1 - parity
@@ -378,7 +367,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
                     a = site_tangent_acceleration(
                         du, dv, nb[0], nb[1], m, k, hist[step * wp.static(stages) + s + 1, base, jj]
                     )
-                    h = kicks[s + 1] * dt
+                    h = kicks[s + 1]
                     dpu = dpu + h * a[0]
                     dpv = dpv + h * a[1]
             store_site(dx, c, j, active, wp.vec4d(du, dv, dpu, dpv))
@@ -416,9 +405,8 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             total = wp.vec4d()
             for stage in range(4):
                 parity = 1 - parity
-                f = contact_force(y[0] - y[1])
                 nb = exchange(buf, y[0], parity, nbr, boundary)
-                a = site_acceleration_with(y[0], f, nb[0], nb[1], m, k)
+                a = site_acceleration(y[0], y[1], nb[0], nb[1], m, k)
                 if record_stiffness != 0 and active:
                     hist[4 * step + stage, b, j] = contact_stiffness(y[0] - y[1])
                 slope = wp.vec4d(y[2], y[3], a[0], a[1])
