@@ -1,7 +1,8 @@
 """simulate() on a GPU: the sliced transfer path against the plain one (identical results), the
-non-finite x0 error, and simulate() end to end (default and recording every 20 steps) against the
-kernel rate at 805, 8192 and 32768 lattices (Verlet, N = 201, 2000 steps, best of 3 after one
-untimed call). The throughput scene measures the same; this is the quick look.
+two-lattices-per-block kernel against the numpy reference, the non-finite x0 error, and simulate() end
+to end (default and recording every 20 steps) against the kernel rate at 805, 8192 and 32768 lattices
+(Verlet, N = 201, 2000 steps, best of 3 after one untimed call). The throughput scene measures the
+same; this is the quick look.
 
 Command (GPU): ``python benchmarks/simulate_probe.py``
 """
@@ -41,6 +42,17 @@ def main():
         np.array_equal(a.energy_trace, b.energy_trace),
     ]
     print("sliced == plain (x, u, min_contact, x without recording, energy trace):", same)
+    # the two-lattices-per-block kernel (batches >= 4096) against the numpy reference, odd batch
+    from warpchain import reference
+
+    xs = x0[:4097].copy()
+    run = simulate(p, xs, 200 * 0.1, 0.1, device="cuda", method="yoshida4", save_every=100)
+    ref = reference.integrate("yoshida4", p, xs, 0.1, 200, save_every=100)
+    scale = np.max(np.abs(ref["x"]))
+    print(
+        "two per block, 4097 lattices, 200 yoshida4 steps: max |x - reference| / max |x| =",
+        f"{np.max(np.abs(run.x - ref['x'])) / scale:.2g}, frames {np.max(np.abs(run.u - ref['u'])) / scale:.2g}",
+    )
     bad = x0.copy()
     bad[5000, 1, 3] = np.nan
     try:

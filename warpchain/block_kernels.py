@@ -233,30 +233,36 @@ def min_blocks_per_sm(stages: int) -> int:
 
 
 @functools.lru_cache(maxsize=None)
-def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
-    """The block kernels for blocks of ``block`` threads (a multiple of 32, at most 1024).
+def block_kernels(block: int, min_blocks_per_sm: int = 0, lattices: int = 1) -> BlockKernels:
+    """The block kernels for ``block`` threads per lattice (a multiple of 32, at most 1024).
 
     Args:
-        block: threads per block.
+        block: threads per lattice.
         min_blocks_per_sm: passed to ``__launch_bounds__`` (0: none), which caps registers so that
             this many blocks fit on one SM.
+        lattices: lattices per thread block (the splitting kernel only; 2 halves the blocks of a large
+            batch, as the best hand-written kernel does). Launch with ``dim=(ceil(batch / lattices),
+            lattices * block)``.
     """
     if block % WARP_LANES or not WARP_LANES <= block <= MAX_BLOCK:
         raise ValueError(f"block must be a multiple of {WARP_LANES} in [{WARP_LANES}, {MAX_BLOCK}], got {block}")
-    halves = 2 * block
+    if lattices < 1 or lattices * block > MAX_BLOCK:
+        raise ValueError(f"lattices * block must be at most {MAX_BLOCK}, got {lattices} x {block}")
+    threads = lattices * block
+    halves = 2 * threads
 
     @wp.func
     def exchange(
         buf: wp.tile[wp.float64, halves], u: wp.float64, parity: int, nbr: wp.vec4i, boundary: int
     ) -> wp.vec2d:
         """Publish u in half ``parity`` of the shared tile; return (left, right) neighbour values."""
-        offset = parity * block
+        offset = parity * threads
         wp.tile_assign(buf, wp.tile(u), offset=(offset,))
         left = neighbour_or_wall(buf[offset + nbr[0]], u, nbr[2], boundary)
         right = neighbour_or_wall(buf[offset + nbr[1]], u, nbr[3], boundary)
         return wp.vec2d(left, right)
 
-    bounds = (block, min_blocks_per_sm) if min_blocks_per_sm else block
+    bounds = (threads, min_blocks_per_sm) if min_blocks_per_sm else threads
     options = {"enable_backward": False, "module": "unique", "grid_stride": False, "launch_bounds": bounds}
 
     def make_splitting(stages: int, record: bool, save: bool):
@@ -276,19 +282,29 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             record_stiffness: int,
             hist: wp.array3d(dtype=wp.float64),
         ):
-            """``nsteps`` steps of a kick-drift splitting method; block b = lattice, thread j = site.
-            hist slot 0 holds f'(z) at the start, slot step*s + k + 1 after drift k of ``step``."""
+            """``nsteps`` steps of a kick-drift splitting method; lattice b, thread j = site (one or, with
+            ``lattices`` = 2, two lattices per block). hist slot 0 holds f'(z) at the start, slot
+            step*s + k + 1 after drift k of ``step``."""
             b, j = wp.tid()
             n = x.shape[2]
-            active = j < n
+            nbr = site_neighbours(j, n, boundary)
+            if wp.static(lattices > 1):  # thread t of block g: lattice g * lattices + t / block, site t % block
+                sub = j / wp.static(block)
+                j = j - sub * wp.static(block)
+                b = b * wp.static(lattices) + sub
+                nbr = site_neighbours(j, n, boundary) + wp.vec4i(sub * wp.static(block), sub * wp.static(block), 0, 0)
+                active = j < n and b < x.shape[0]
+                b_read = wp.min(b, x.shape[0] - 1)  # an unpaired last block reads a valid (unused) lattice
+            else:
+                active = j < n
+                b_read = b
             start = load_site(x, b, j, active)
             u = start[0]
             v = start[1]
             pu = start[2]
             pv = start[3]
-            m = inv_mass[b]
-            k = coupling[b]
-            nbr = site_neighbours(j, n, boundary)
+            m = inv_mass[b_read]
+            k = coupling[b_read]
             buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
             parity = int(0)
             nb = exchange(buf, u, parity, nbr, boundary)
@@ -496,6 +512,9 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             out[b, 0] = total[0]
             out[b, 1] = all_finite[0]
             out[b, 2] = c
+
+    if lattices > 1:  # only the splitting kernel comes in this layout
+        return BlockKernels({"splitting": make_splitting})
 
     return BlockKernels(
         {

@@ -285,6 +285,12 @@ def resolve_layout(layout: str, device: str, n_sites: int) -> str:
 _SLICED_MIN_VALUES = 1 << 24
 _SLICES = 4
 _SLICE_ON_CPU = False  # tests set it to run the sliced path on the CPU
+#: from this many lattices a launch of a method with few stages would take two lattices per thread block
+#: (None: never). Off: on the H200 it made the Verlet kernel slower, 3.27e11 against 3.56e11 site-steps/s
+#: at 4096 lattices and 3.41e11 against 3.76e11 at 32768 (benchmarks/h200-2026-11-22b/two-per-block/),
+#: although two per block is what makes the hand-written CUDA kernel faster there.
+_PAIR_MIN_BATCH = None
+_PAIR_ON_CPU = False  # tests set it to run the two-per-block kernels on the CPU
 _RUNNER_POOL: dict = {}
 _RUNNER_POOL_SIZE = 4
 
@@ -625,10 +631,21 @@ class _BlockSplitting(_Plan):
 
     def step(self, lo, hi, dt, nsteps, save_every, frames, record):
         r = self.r
-        kernel = r.bk.splitting(r.method.stages, record=record, save=save_every > 0)
         inputs = [r.x[lo:hi], r.inv_mass[lo:hi], r.coupling[lo:hi], *self.coefficients(dt), r.boundary]
         inputs += [r.wp.float64(dt)]
         inputs += [int(nsteps), int(save_every), *frames, int(record), r.hist]
+        from . import block_kernels
+
+        stages = r.method.stages
+        pairs = _PAIR_MIN_BATCH is not None and hi - lo >= _PAIR_MIN_BATCH
+        pairs = pairs and block_kernels.min_blocks_per_sm(stages) == 0
+        if pairs and (r.device != "cpu" or _PAIR_ON_CPU) and 2 * r.block <= block_kernels.MAX_BLOCK:
+            # two lattices per block on a large batch (as the best hand-written kernel: hand-cuda-variants.txt)
+            kernel = block_kernels.block_kernels(r.block, 0, 2).splitting(stages, record=record, save=save_every > 0)
+            dim = (-(-(hi - lo) // 2), 2 * r.block)
+            r.wp.launch(kernel, dim=dim, block_dim=2 * r.block, device=r.device, inputs=inputs)
+            return
+        kernel = r.bk.splitting(stages, record=record, save=save_every > 0)
         r.wp.launch(kernel, dim=(hi - lo, r.block), block_dim=r.block, device=r.device, inputs=inputs)
 
     def tangent(self, dx, column_base, lo, hi, dt, nsteps):
