@@ -3,8 +3,9 @@ without and with ``__launch_bounds__`` minimum blocks per SM, which caps registe
 hand-reduced Verlet-only Warp kernel (no recording branches), at 1, 805 and 32768 lattices, in one
 run; then registers per kernel.
 
-Command (GPU): ``python benchmarks/kernel_variants.py [--profile] [--quick]``; ``--profile`` runs one short
-launch of each for ``ncu``; ``--quick`` times Verlet and kahan8 alone.
+Command (GPU): ``python benchmarks/kernel_variants.py [--profile] [--quick]``; ``--profile`` runs one
+launch of Verlet and kahan8 as simulate() compiles them, and of the hand-reduced kernel, for ``ncu``;
+``--quick`` times Verlet and kahan8 alone.
 """
 
 import sys
@@ -90,12 +91,14 @@ def main():
     from warpchain.integrators import get_method
 
     variants = {}
-    for min_blocks in (0, 5, 6, 7):
+    for min_blocks in (0, 5) if profile else (0, 5, 6, 7):
         kernels = bk.block_kernels(BLOCK, min_blocks)
         for name in ("verlet", "kahan8") if quick else ("verlet", "yoshida4", "kahan8"):
+            if profile and min_blocks != bk.min_blocks_per_sm(get_method(name).stages):
+                continue  # profile what simulate() launches
             m = get_method(name)
             variants[f"{name} min_blocks={min_blocks}"] = (kernels.splitting(m.stages), m)
-    for batch in (1, 805) if profile else (1, 805, 32768):
+    for batch in (1, 805, 32768):
         x = wp.array(np.repeat(one[None], batch, 0), dtype=f64, device="cuda")
         mass = wp.array(np.full(batch, 1.0 / 30.0), dtype=f64, device="cuda")  # the kernels take 1/M
         cpl = wp.array(np.full(batch, 160.0), dtype=f64, device="cuda")
@@ -103,13 +106,14 @@ def main():
         hist = wp.zeros((1, 1, 1), dtype=f64, device="cuda")
 
         def runner(kernel, m):
-            dr, ki = bk.pack_coefficients(m.drifts), bk.pack_coefficients(m.kicks)
+            step = 0.1 if m.stages == 1 else 0.5
+            dr, ki = bk.pack_coefficients(m.drifts, step), bk.pack_coefficients(m.kicks, step)
             return lambda n: wp.launch(
                 kernel,
                 dim=(batch, BLOCK),
                 block_dim=BLOCK,
                 device="cuda",
-                inputs=[x, mass, cpl, dr, ki, 0, f64(0.1 if m.stages == 1 else 0.5), n, 0, rec, rec, 0, hist],
+                inputs=[x, mass, cpl, dr, ki, 0, f64(step), n, 0, rec, rec, 0, hist],
             )
 
         def run_verlet(n):
@@ -123,12 +127,12 @@ def main():
 
         runs = [("verlet-only", run_verlet, 1)] + [(k, runner(kern, m), m.stages) for k, (kern, m) in variants.items()]
         for name, fn, evals in runs:
-            fn(10)
-            wp.synchronize()
-            if profile:
-                fn(200)
+            if profile:  # one launch of 200 steps (Verlet) or 40 (kahan8) per kernel and batch, for ncu
+                fn(200 // evals + 1)
                 wp.synchronize()
                 continue
+            fn(10)
+            wp.synchronize()
             steps = (20000 if batch < 1000 else 2000) // evals
             best = 1e9
             for _ in range(3):

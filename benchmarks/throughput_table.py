@@ -18,23 +18,7 @@ def fmt(value, spec=".3g", missing="-"):
     return missing if value is None else format(value, spec)
 
 
-def main(path):
-    s = json.load(open(path))
-    results = s["results"]
-    batches = sorted({r["batch"] for r in results})
-    lines = [
-        "| batch | Warp block verlet | Warp block kahan8 | Warp thread verlet | JAX | hand CUDA (CuPy) "
-        "| Warp block / hand | Warp block / JAX |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- |",
-    ]
-    for b in batches:
-        w, hand, jax = rate(results, "warp-block", b), rate(results, "cupy", b), rate(results, "jax", b)
-        lines.append(
-            f"| {b} | {fmt(w, '.3e')} | {fmt(rate(results, 'warp-block', b, 'kahan8'), '.3e')} "
-            f"| {fmt(rate(results, 'warp-thread', b), '.3e')} | {fmt(jax, '.3e')} | {fmt(hand, '.3e')} "
-            f"| {fmt(w / hand if w and hand else None, '.2f')} | {fmt(w / jax if w and jax else None, '.0f')}x |"
-        )
-    print("\n".join(lines))
+def print_simulate(s):
     sim = (s.get("simulate") or {}).get("rows", [])
     if sim:
         every = s["simulate"]["record_every"]
@@ -50,6 +34,47 @@ def main(path):
                 f"| {r['recording_rate']:.2e} ({r['recording_over_kernel']:.2f}x) "
                 f"| {r['recording_gb_per_second']:.1f} GB/s |"
             )
+
+
+def main(path):
+    s = json.load(open(path))
+    results = s["results"]
+    batches = sorted({r["batch"] for r in results})
+    if s["ratios"]["main_layout"] == "warp-thread":  # a CPU run
+        print(
+            "| batch | Warp verlet (thread layout) | Warp kahan8 | Warp block layout (CPU fibers) | numpy verlet "
+            "| Warp / numpy |"
+        )
+        print("| --- | --- | --- | --- | --- | --- |")
+        for b in batches:
+            w, n = rate(results, "warp-thread", b), rate(results, "numpy", b)
+            print(
+                f"| {b} | {fmt(w, '.2e')} | {fmt(rate(results, 'warp-thread', b, 'kahan8'), '.2e')} "
+                f"| {fmt(rate(results, 'warp-block', b), '.2e')} | {fmt(n, '.2e')} "
+                f"| {fmt(w / n if w and n else None, '.1f')}{'x' if w and n else ''} |"
+            )
+        print_simulate(s)
+        mono = s.get("monodromy")
+        if mono:
+            print(
+                f"\nmonodromy {mono['monodromy_wall_seconds']:.2f} s wall; Newton iteration "
+                f"{1e3 * mono['newton_iteration_seconds']:.0f} ms"
+            )
+        return
+    lines = [
+        "| batch | Warp block verlet | Warp block kahan8 | Warp thread verlet | JAX | hand CUDA (CuPy) "
+        "| Warp block / hand | Warp block / JAX |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for b in batches:
+        w, hand, jax = rate(results, "warp-block", b), rate(results, "cupy", b), rate(results, "jax", b)
+        lines.append(
+            f"| {b} | {fmt(w, '.3e')} | {fmt(rate(results, 'warp-block', b, 'kahan8'), '.3e')} "
+            f"| {fmt(rate(results, 'warp-thread', b), '.3e')} | {fmt(jax, '.3e')} | {fmt(hand, '.3e')} "
+            f"| {fmt(w / hand if w and hand else None, '.2f')} | {fmt(w / jax if w and jax else None, '.0f')}x |"
+        )
+    print("\n".join(lines))
+    print_simulate(s)
     ratios = s["ratios"]
     print()
     print(f"single lattice: {ratios['single_lattice_ns_per_step']:.0f} ns per Verlet step (Warp block)")

@@ -171,3 +171,46 @@ def test_kernels_take_coefficients_from_the_method_type(layout):
     assert not np.array_equal(
         reference.integrate(rk, p, x0, 0.05, 5)["x"], reference.integrate("rk4", p, x0, 0.05, 5)["x"]
     )
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_sliced_transfers_give_the_same_run(layout, monkeypatch):
+    """The GPU path for large batches (state moved in lattice slices, the first and last chunks run
+    slice by slice), forced here on the CPU: the same results, errors and traces."""
+    from warpchain import ensemble
+
+    p = ChainParams(30.0, 160.0, 41)
+    x0 = localized_state(p.N, amplitude=0.8, batch=6, seed=3)
+    M = np.array([30.0, 10.0, 50.0, 30.0, 20.0, 40.0])
+    kwargs = dict(method="yoshida4", device="cpu", M=M, layout=layout, chunks=3)
+    plain = simulate(p, x0, 60 * 0.02, 0.02, save_every=10, **kwargs)
+    monkeypatch.setattr(ensemble, "_SLICE_ON_CPU", True)
+    monkeypatch.setattr(ensemble, "_SLICED_MIN_VALUES", 1)
+    monkeypatch.setattr(ensemble, "_SLICES", 4)
+    for chunks in (3, 1):
+        sliced = simulate(p, x0, 60 * 0.02, 0.02, save_every=10, **{**kwargs, "chunks": chunks})
+        assert np.array_equal(sliced.x, plain.x) and np.array_equal(sliced.u, plain.u)
+        assert np.array_equal(sliced.min_contact, plain.min_contact)
+        assert np.array_equal(sliced.energy_initial, plain.energy_initial)
+    assert np.array_equal(sliced.energy_trace[[0, -1]], plain.energy_trace[[0, -1]])
+    bad = x0.copy()
+    bad[4, 2, 7] = np.inf
+    with pytest.raises(ValueError, match=r"non-finite entries in lattice\(s\) \[4\]"):
+        simulate(p, bad, 60 * 0.02, 0.02, **kwargs)
+
+
+@pytest.mark.parametrize("boundary", ["fixed", "free", "periodic"])
+def test_two_lattices_per_block_bit_for_bit(boundary, monkeypatch):
+    """The GPU's two-lattices-per-block splitting kernel (large batches), forced here on the CPU, odd
+    batch included (the last block holds one lattice): identical to the reference, recording too."""
+    from warpchain import ensemble
+
+    monkeypatch.setattr(ensemble, "_PAIR_ON_CPU", True)
+    monkeypatch.setattr(ensemble, "_PAIR_MIN_BATCH", 1)
+    p = ChainParams(3.0, 4.0, 37, boundary)
+    x0 = localized_state(p.N, amplitude=0.7, batch=5, seed=9)
+    K = np.array([4.0, 1.0, 6.0, 2.0, 3.0])
+    for method in ("verlet", "yoshida4"):
+        run = simulate(p, x0, 80 * 0.05, 0.05, method=method, device="cpu", K=K, layout="block", save_every=20)
+        ref = reference.integrate(method, p, x0, 0.05, 80, K=K, save_every=20)
+        assert np.array_equal(run.x, ref["x"]) and np.array_equal(run.u, ref["u"]), method

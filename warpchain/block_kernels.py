@@ -133,16 +133,6 @@ def site_acceleration(
 
 
 @wp.func
-def site_acceleration_with(
-    u: wp.float64, force: wp.float64, left: wp.float64, right: wp.float64, inv_mass: wp.float64, coupling: wp.float64
-) -> wp.vec2d:
-    """``site_acceleration`` from a contact force computed beforehand: the kernels evaluate f(u - v)
-    before the neighbour exchange, so its square root overlaps the barrier (same operations, same
-    result)."""
-    return wp.vec2d(-(coupling * ((u - left) + (u - right)) + force) * inv_mass, force)
-
-
-@wp.func
 def site_tangent_acceleration(
     du: wp.float64,
     dv: wp.float64,
@@ -180,9 +170,10 @@ MAX_STAGES = 15
 coefficients = wp.types.vector(length=MAX_STAGES + 1, dtype=wp.float64)
 
 
-def pack_coefficients(values) -> "coefficients":
-    """A method's drift or kick coefficients as the fixed-length kernel argument (zero padded)."""
-    values = [float(c) for c in values]
+def pack_coefficients(values, dt: float = 1.0) -> "coefficients":
+    """A method's drift or kick coefficients times ``dt`` as the fixed-length kernel argument (zero
+    padded). The kernels use c * dt as given: the product rounds exactly as the reference's c * dt."""
+    values = [float(c) * float(dt) for c in values]
     if len(values) > MAX_STAGES + 1:
         raise ValueError(f"at most {MAX_STAGES} stages are supported by the block kernels, got {len(values)}")
     return coefficients(*(values + [0.0] * (MAX_STAGES + 1 - len(values))))
@@ -242,30 +233,36 @@ def min_blocks_per_sm(stages: int) -> int:
 
 
 @functools.lru_cache(maxsize=None)
-def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
-    """The block kernels for blocks of ``block`` threads (a multiple of 32, at most 1024).
+def block_kernels(block: int, min_blocks_per_sm: int = 0, lattices: int = 1) -> BlockKernels:
+    """The block kernels for ``block`` threads per lattice (a multiple of 32, at most 1024).
 
     Args:
-        block: threads per block.
+        block: threads per lattice.
         min_blocks_per_sm: passed to ``__launch_bounds__`` (0: none), which caps registers so that
             this many blocks fit on one SM.
+        lattices: lattices per thread block (the splitting kernel only; 2 halves the blocks of a large
+            batch, as the best hand-written kernel does). Launch with ``dim=(ceil(batch / lattices),
+            lattices * block)``.
     """
     if block % WARP_LANES or not WARP_LANES <= block <= MAX_BLOCK:
         raise ValueError(f"block must be a multiple of {WARP_LANES} in [{WARP_LANES}, {MAX_BLOCK}], got {block}")
-    halves = 2 * block
+    if lattices < 1 or lattices * block > MAX_BLOCK:
+        raise ValueError(f"lattices * block must be at most {MAX_BLOCK}, got {lattices} x {block}")
+    threads = lattices * block
+    halves = 2 * threads
 
     @wp.func
     def exchange(
         buf: wp.tile[wp.float64, halves], u: wp.float64, parity: int, nbr: wp.vec4i, boundary: int
     ) -> wp.vec2d:
         """Publish u in half ``parity`` of the shared tile; return (left, right) neighbour values."""
-        offset = parity * block
+        offset = parity * threads
         wp.tile_assign(buf, wp.tile(u), offset=(offset,))
         left = neighbour_or_wall(buf[offset + nbr[0]], u, nbr[2], boundary)
         right = neighbour_or_wall(buf[offset + nbr[1]], u, nbr[3], boundary)
         return wp.vec2d(left, right)
 
-    bounds = (block, min_blocks_per_sm) if min_blocks_per_sm else block
+    bounds = (threads, min_blocks_per_sm) if min_blocks_per_sm else threads
     options = {"enable_backward": False, "module": "unique", "grid_stride": False, "launch_bounds": bounds}
 
     def make_splitting(stages: int, record: bool, save: bool):
@@ -285,43 +282,51 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             record_stiffness: int,
             hist: wp.array3d(dtype=wp.float64),
         ):
-            """``nsteps`` steps of a kick-drift splitting method; block b = lattice, thread j = site.
-            hist slot 0 holds f'(z) at the start, slot step*s + k + 1 after drift k of ``step``."""
+            """``nsteps`` steps of a kick-drift splitting method; lattice b, thread j = site (one or, with
+            ``lattices`` = 2, two lattices per block). hist slot 0 holds f'(z) at the start, slot
+            step*s + k + 1 after drift k of ``step``."""
             b, j = wp.tid()
             n = x.shape[2]
-            active = j < n
+            nbr = site_neighbours(j, n, boundary)
+            if wp.static(lattices > 1):  # thread t of block g: lattice g * lattices + t / block, site t % block
+                sub = j / wp.static(block)
+                j = j - sub * wp.static(block)
+                b = b * wp.static(lattices) + sub
+                nbr = site_neighbours(j, n, boundary) + wp.vec4i(sub * wp.static(block), sub * wp.static(block), 0, 0)
+                active = j < n and b < x.shape[0]
+                b_read = wp.min(b, x.shape[0] - 1)  # an unpaired last block reads a valid (unused) lattice
+            else:
+                active = j < n
+                b_read = b
             start = load_site(x, b, j, active)
             u = start[0]
             v = start[1]
             pu = start[2]
             pv = start[3]
-            m = inv_mass[b]
-            k = coupling[b]
-            nbr = site_neighbours(j, n, boundary)
+            m = inv_mass[b_read]
+            k = coupling[b_read]
             buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
             parity = int(0)
-            f = contact_force(u - v)
             nb = exchange(buf, u, parity, nbr, boundary)
-            a = site_acceleration_with(u, f, nb[0], nb[1], m, k)
+            a = site_acceleration(u, v, nb[0], nb[1], m, k)
             if wp.static(record):
                 if active:
                     hist[0, b, j] = contact_stiffness(u - v)
             for step in range(nsteps):
-                h = kicks[0] * dt
+                h = kicks[0]  # the coefficients arrive multiplied by dt (on the host: the same product)
                 pu = pu + h * a[0]
                 pv = pv + h * a[1]
                 for s in range(wp.static(stages)):  # unrolled: coefficients become constants
-                    h = drifts[s] * dt
+                    h = drifts[s]
                     u = u + h * pu
                     v = v + h * pv
                     parity = 1 - parity
-                    f = contact_force(u - v)  # before the exchange: overlaps the barrier
                     nb = exchange(buf, u, parity, nbr, boundary)
-                    a = site_acceleration_with(u, f, nb[0], nb[1], m, k)
+                    a = site_acceleration(u, v, nb[0], nb[1], m, k)
                     if wp.static(record):
                         if active:
                             hist[step * wp.static(stages) + s + 1, b, j] = contact_stiffness(u - v)
-                    h = kicks[s + 1] * dt
+                    h = kicks[s + 1]
                     pu = pu + h * a[0]
                     pv = pv + h * a[1]
                 if wp.static(save):
@@ -366,11 +371,11 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             nb = exchange(buf, du, parity, nbr, boundary)
             a = site_tangent_acceleration(du, dv, nb[0], nb[1], m, k, hist[0, base, jj])
             for step in range(nsteps):
-                h = kicks[0] * dt
+                h = kicks[0]  # times dt, as in the splitting kernel
                 dpu = dpu + h * a[0]
                 dpv = dpv + h * a[1]
                 for s in range(wp.static(stages)):
-                    h = drifts[s] * dt
+                    h = drifts[s]
                     du = du + h * dpu
                     dv = dv + h * dpv
                     parity = 1 - parity
@@ -378,7 +383,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
                     a = site_tangent_acceleration(
                         du, dv, nb[0], nb[1], m, k, hist[step * wp.static(stages) + s + 1, base, jj]
                     )
-                    h = kicks[s + 1] * dt
+                    h = kicks[s + 1]
                     dpu = dpu + h * a[0]
                     dpv = dpv + h * a[1]
             store_site(dx, c, j, active, wp.vec4d(du, dv, dpu, dpv))
@@ -416,9 +421,8 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             total = wp.vec4d()
             for stage in range(4):
                 parity = 1 - parity
-                f = contact_force(y[0] - y[1])
                 nb = exchange(buf, y[0], parity, nbr, boundary)
-                a = site_acceleration_with(y[0], f, nb[0], nb[1], m, k)
+                a = site_acceleration(y[0], y[1], nb[0], nb[1], m, k)
                 if record_stiffness != 0 and active:
                     hist[4 * step + stage, b, j] = contact_stiffness(y[0] - y[1])
                 slope = wp.vec4d(y[2], y[3], a[0], a[1])
@@ -508,6 +512,9 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             out[b, 0] = total[0]
             out[b, 1] = all_finite[0]
             out[b, 2] = c
+
+    if lattices > 1:  # only the splitting kernel comes in this layout
+        return BlockKernels({"splitting": make_splitting})
 
     return BlockKernels(
         {

@@ -281,24 +281,36 @@ def resolve_layout(layout: str, device: str, n_sites: int) -> str:
     return layout
 
 
+#: ``simulate`` moves the state in lattice slices (overlapped with the kernels) from this many values up
+_SLICED_MIN_VALUES = 1 << 24
+_SLICES = 4
+_SLICE_ON_CPU = False  # tests set it to run the sliced path on the CPU
+#: from this many lattices a launch of a method with few stages would take two lattices per thread block
+#: (None: never). Off: on the H200 it made the Verlet kernel slower, 3.27e11 against 3.56e11 site-steps/s
+#: at 4096 lattices and 3.41e11 against 3.76e11 at 32768 (benchmarks/h200-2026-11-22b/two-per-block/),
+#: although two per block is what makes the hand-written CUDA kernel faster there.
+_PAIR_MIN_BATCH = None
+_PAIR_ON_CPU = False  # tests set it to run the two-per-block kernels on the CPU
 _RUNNER_POOL: dict = {}
 _RUNNER_POOL_SIZE = 4
 
 
-def _pooled_runner(method: Method, params: ChainParams, x0, M, K, device: str, layout: str) -> "_Runner":
+def _pooled_runner(
+    method: Method, params: ChainParams, x0, M, K, device: str, layout: str, upload: bool = True
+) -> "_Runner":
     """A runner for this (method, chain, batch, device, layout): on a GPU one kept from an earlier call
     (its device buffers reused, the new batch and parameters uploaded), else a new one. A runner in use
     is out of the pool, so concurrent calls never share one."""
     if device == "cpu":
-        return _Runner(method, params, x0, M, K, device, layout=layout)
-    key = (method.name, params.N, params.boundary, x0.shape[0], device, resolve_layout(layout, device, params.N))
+        return _Runner(method, params, x0, M, K, device, layout=layout, upload=upload)
+    key = (method, params.N, params.boundary, x0.shape[0], device, resolve_layout(layout, device, params.N))
     with _STAGING_LOCK:
         free = _RUNNER_POOL.get(key)
         runner = free.pop() if free else None
     if runner is None:
-        runner = _Runner(method, params, x0, M, K, device, layout=layout)
+        runner = _Runner(method, params, x0, M, K, device, layout=layout, upload=upload)
     else:
-        runner.load(x0, M, K)
+        runner.load(x0, M, K, upload=upload)
     runner._pool_key = key
     return runner
 
@@ -427,6 +439,22 @@ class _GuardReader:
         else:
             self.host = [None, None]
 
+    def enqueue_init(self, out) -> None:
+        """Copy slot 2 (the start's scalars) to the host; read it with ``init`` once a later event
+        recorded after it has completed."""
+        if self.gpu:
+            if not hasattr(self, "init_flat"):
+                self.init_flat = _take_buffer(self.wp, self.runner.device, 3 * self.runner.batch, True)
+                self.flat.append(self.init_flat)
+            self.init_host = self.init_flat[: 3 * self.runner.batch].reshape((self.runner.batch, 3))
+            self.wp.copy(self.init_host, out)
+        else:
+            self.init_host = out
+
+    def init(self):
+        g = self.init_host.numpy()
+        return g[:, 0].copy(), g[:, 1] > 0.5, g[:, 2].copy()
+
     def close(self) -> None:
         if self.gpu and self.flat:
             for buf in self.flat:
@@ -455,6 +483,68 @@ class _GuardReader:
         self.enqueue(out, i)
         self.record(i)
         return self.wait(i)
+
+
+class _SlicedTransfers:
+    """The state's trip to the device and back in lattice slices, overlapped with the first and the
+    last chunk: slice s is copied (host -> pinned -> device, on a copy stream) while the kernel runs
+    on slice s - 1, and its final state goes back while the kernel runs on slice s + 1, so only one
+    slice's transfer each way is exposed (on a GPU; on the CPU the same steps run in order)."""
+
+    def __init__(self, runner, x0: np.ndarray, n_slices: int):
+        wp = runner.wp
+        self.wp, self.r, self.x0 = wp, runner, x0
+        self.gpu = runner.device != "cpu"
+        bounds = np.linspace(0, runner.batch, n_slices + 1).astype(int)
+        self.slices = [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
+        self.site_values = 4 * runner.N
+        self.up = _take_buffer(wp, runner.device, x0.size, self.gpu)
+        self.down = _take_buffer(wp, runner.device, x0.size, self.gpu)
+        self.events = {}
+        if self.gpu:
+            self.copy_stream = wp.Stream(runner.device)
+            self.main = wp.get_stream(runner.device)
+
+    def _range(self, s: int):
+        lo, hi = self.slices[s]
+        return lo * self.site_values, hi * self.site_values
+
+    def upload(self, s: int) -> None:
+        """Slice s to the device; the compute stream waits for it."""
+        a, b = self._range(s)
+        lo, hi = self.slices[s]
+        _copy(self.up.numpy()[a:b], np.ascontiguousarray(self.x0[lo:hi]))
+        if self.gpu:
+            self.wp.copy(self.r.x, self.up, dest_offset=a, src_offset=a, count=b - a, stream=self.copy_stream)
+            self.main.wait_event(self.copy_stream.record_event())
+        else:
+            self.wp.copy(self.r.x, self.up, dest_offset=a, src_offset=a, count=b - a)
+
+    def download(self, s: int) -> None:
+        """Slice s's state back to pinned memory once the kernels queued so far have run."""
+        a, b = self._range(s)
+        if self.gpu:
+            self.copy_stream.wait_event(self.main.record_event())
+            self.wp.copy(self.down, self.r.x, dest_offset=a, src_offset=a, count=b - a, stream=self.copy_stream)
+            self.events[s] = self.copy_stream.record_event()
+        else:
+            self.wp.copy(self.down, self.r.x, dest_offset=a, src_offset=a, count=b - a)
+
+    def take(self, s: int, out: np.ndarray) -> None:
+        """Write slice s's final state into ``out`` (the whole batch's host array)."""
+        a, b = self._range(s)
+        if self.gpu:
+            self.wp.synchronize_event(self.events[s])
+        _copy(out.reshape(-1)[a:b], self.down.numpy()[a:b])
+
+    def close(self) -> None:
+        if self.up is None:
+            return
+        if self.gpu:
+            self.wp.synchronize_stream(self.copy_stream)
+        _give_buffer(self.r.device, self.gpu, self.up)
+        _give_buffer(self.r.device, self.gpu, self.down)
+        self.up = self.down = None
 
 
 class _FrameSink:
@@ -529,19 +619,38 @@ class _BlockSplitting(_Plan):
         super().__init__(runner)
         from . import block_kernels
 
-        m = runner.method
-        self.coefficients = [block_kernels.pack_coefficients(m.drifts), block_kernels.pack_coefficients(m.kicks)]
+        self.pack = block_kernels.pack_coefficients
+        self.scaled = {}
+
+    def coefficients(self, dt: float) -> list:
+        """Drift and kick coefficients times dt (the kernels multiply by them as they are)."""
+        if dt not in self.scaled:
+            m = self.r.method
+            self.scaled = {dt: [self.pack(m.drifts, dt), self.pack(m.kicks, dt)]}
+        return self.scaled[dt]
 
     def step(self, lo, hi, dt, nsteps, save_every, frames, record):
         r = self.r
-        kernel = r.bk.splitting(r.method.stages, record=record, save=save_every > 0)
-        inputs = [r.x[lo:hi], r.inv_mass[lo:hi], r.coupling[lo:hi], *self.coefficients, r.boundary, r.wp.float64(dt)]
+        inputs = [r.x[lo:hi], r.inv_mass[lo:hi], r.coupling[lo:hi], *self.coefficients(dt), r.boundary]
+        inputs += [r.wp.float64(dt)]
         inputs += [int(nsteps), int(save_every), *frames, int(record), r.hist]
+        from . import block_kernels
+
+        stages = r.method.stages
+        pairs = _PAIR_MIN_BATCH is not None and hi - lo >= _PAIR_MIN_BATCH
+        pairs = pairs and block_kernels.min_blocks_per_sm(stages) == 0
+        if pairs and (r.device != "cpu" or _PAIR_ON_CPU) and 2 * r.block <= block_kernels.MAX_BLOCK:
+            # two lattices per block on a large batch (as the best hand-written kernel: hand-cuda-variants.txt)
+            kernel = block_kernels.block_kernels(r.block, 0, 2).splitting(stages, record=record, save=save_every > 0)
+            dim = (-(-(hi - lo) // 2), 2 * r.block)
+            r.wp.launch(kernel, dim=dim, block_dim=2 * r.block, device=r.device, inputs=inputs)
+            return
+        kernel = r.bk.splitting(stages, record=record, save=save_every > 0)
         r.wp.launch(kernel, dim=(hi - lo, r.block), block_dim=r.block, device=r.device, inputs=inputs)
 
     def tangent(self, dx, column_base, lo, hi, dt, nsteps):
         r = self.r
-        inputs = [dx[lo:hi], column_base[lo:hi], r.inv_mass, r.coupling, *self.coefficients, r.boundary]
+        inputs = [dx[lo:hi], column_base[lo:hi], r.inv_mass, r.coupling, *self.coefficients(dt), r.boundary]
         inputs += [r.wp.float64(dt), int(nsteps), r.hist]
         kernel = r.bk.splitting_tangent(r.method.stages)
         r.wp.launch(kernel, dim=(hi - lo, r.block), block_dim=r.block, device=r.device, inputs=inputs)
@@ -645,6 +754,7 @@ class _Runner:
         device: str,
         record_stiffness_steps: int = 0,
         layout: str = "auto",
+        upload: bool = True,
     ):
         wp = _warp()
         from . import block_kernels, kernels
@@ -663,7 +773,8 @@ class _Runner:
         self.boundary = BOUNDARY_CODES[params.boundary]
         f64 = wp.float64
         self.x = wp.empty(x0.shape, dtype=f64, device=device)
-        self.upload(x0)
+        if upload:
+            self.upload(x0)
         self.mass = wp.array(M, dtype=f64, device=device)
         self.inv_mass = wp.array(inverse_mass(M), dtype=f64, device=device)  # the kernels multiply by 1/M
         self.coupling = wp.array(K, dtype=f64, device=device)
@@ -677,7 +788,7 @@ class _Runner:
             self.hist = wp.zeros((1, 1, 1), dtype=f64, device=device)
         # the guard's outputs: running min contact, and (energy, finite, min contact) per lattice
         self.contact = wp.empty(self.batch, dtype=f64, device=device)
-        self.guard_out = [wp.empty((self.batch, 3), dtype=f64, device=device) for _ in range(2)]
+        self.guard_out = [wp.empty((self.batch, 3), dtype=f64, device=device) for _ in range(3)]
         self.reset_contact()
 
     def upload(self, x0: np.ndarray) -> None:
@@ -714,9 +825,10 @@ class _Runner:
             _give_buffer(self.device, True, buf)
         return out
 
-    def load(self, x0: np.ndarray, M, K) -> None:
+    def load(self, x0: np.ndarray, M, K, upload: bool = True) -> None:
         """Copy a new batch (same shape) and its parameters into the existing device buffers."""
-        self.upload(x0)
+        if upload:
+            self.upload(x0)
         self.mass.assign(np.ascontiguousarray(M, dtype=np.float64))
         self.inv_mass.assign(np.ascontiguousarray(inverse_mass(M), dtype=np.float64))
         self.coupling.assign(np.ascontiguousarray(K, dtype=np.float64))
@@ -733,13 +845,23 @@ class _Runner:
         wp = self.wp
         return tuple(wp.empty((n_rec, self.batch, self.N), dtype=wp.float64, device=self.device) for _ in range(2))
 
-    def launch(self, nsteps: int, dt: float, save_every: int = 0, rec=None, record_stiffness: bool = False):
+    def launch(
+        self,
+        nsteps: int,
+        dt: float,
+        save_every: int = 0,
+        rec=None,
+        record_stiffness: bool = False,
+        lattices: tuple | None = None,
+    ):
         """Advance every lattice by nsteps; with ``rec`` (device (u, v) frame buffers from ``frames``)
         also record u and v every ``save_every`` steps into them. Asynchronous on a GPU.
 
         On the CPU the batch is split into one slice per thread (launched concurrently); a run that
         records the contact stiffness (tangent base) runs as one slice, since its history is shared."""
         slices = [(0, self.batch)] if record_stiffness or self.serial else _slices(self.batch, self.device)
+        if lattices is not None:  # only these lattices (lo, hi), in one launch
+            slices = [lattices]
         save = int(save_every) if rec is not None else 0
 
         def task(lo, hi):
@@ -751,19 +873,22 @@ class _Runner:
 
         _in_parallel([lambda lo=lo, hi=hi: task(lo, hi) for lo, hi in slices])
 
-    def guard(self, rec=None, n_rec: int = 0, slot: int = 0):
+    def guard(self, rec=None, n_rec: int = 0, slot: int = 0, lattices: tuple | None = None):
         """Launch the guard on the device: per lattice (energy, 1 if finite else 0, running min contact
         over the chunk ends and the first ``n_rec`` frames of ``rec``). Returns the device array
-        (batch, 3); only it, not the state, needs to reach the host."""
+        (batch, 3) of slot ``slot`` (0 and 1 alternate between chunks, 2 holds the start); only it, not
+        the state, needs to reach the host. ``lattices``: (lo, hi) to guard only those."""
         wp = self.wp
-        ru, rv = rec if rec is not None and n_rec else (self.no_record, self.no_record)
-        out = self.guard_out[slot % 2]
-        inputs = [self.x, self.mass, self.coupling, self.boundary, ru, rv, int(n_rec), self.contact, out]
+        lo, hi = lattices if lattices is not None else (0, self.batch)
+        ru, rv = (rec[0][:, lo:hi], rec[1][:, lo:hi]) if rec is not None and n_rec else (self.no_record,) * 2
+        out = self.guard_out[slot if slot == 2 else slot % 2]
+        inputs = [self.x[lo:hi], self.mass[lo:hi], self.coupling[lo:hi], self.boundary, ru, rv, int(n_rec)]
+        inputs += [self.contact[lo:hi], out[lo:hi]]
         if self.layout == "block":
-            dim = (self.batch, self.block)
+            dim = (hi - lo, self.block)
             wp.launch(self.bk.guard, dim=dim, block_dim=self.block, device=self.device, inputs=inputs)
         else:
-            wp.launch(self.k.guard_kernel, dim=self.batch, device=self.device, inputs=inputs)
+            wp.launch(self.k.guard_kernel, dim=hi - lo, device=self.device, inputs=inputs)
         return out
 
     def launch_tangent(self, dx, column_base, nsteps: int, dt: float):
@@ -846,18 +971,6 @@ def simulate(
             f"no frame after t = 0 would be saved; use save_every <= {max(nsteps, 1)}"
         )
 
-    runner = _pooled_runner(meth, params, x0, Mb, Kb, device, layout)
-    wp = runner.wp
-    gpu = device != "cpu"
-    target = _prefault(x0.shape) if gpu and x0.size >= (1 << 20) else None  # the final state's host array
-    guard = _GuardReader(runner, gpu)
-    E0, finite0, contact = (a.copy() for a in guard.read(runner.guard(), 0))  # of x0, on the device
-    if not finite0.all():
-        guard.close()
-        raise ValueError(f"x0 has non-finite entries in lattice(s) {np.flatnonzero(~finite0).tolist()}")
-    trace_t, trace_E = [0.0], [E0]
-    max_err = np.zeros(batch)
-
     # chunk length: a whole number of save intervals, at least _CHUNK_WORK force evaluations of the whole
     # batch (launch, guard and transfer costs stay small against the kernel), at most 10 chunks (50 with a
     # progress bar), and, when recording, at most the frames that fit the host staging buffers
@@ -874,6 +987,24 @@ def simulate(
         first = sum(p[1] for p in plan)
         steps = min(chunk_steps, nsteps - first)
         plan.append((first, steps, steps // save_every if save_every else 0))
+
+    gpu = device != "cpu"
+    # a large batch on a GPU moves in lattice slices, overlapped with the first and the last chunk
+    sliced = bool(plan) and x0.size >= _SLICED_MIN_VALUES and (gpu or _SLICE_ON_CPU)
+    runner = _pooled_runner(meth, params, x0, Mb, Kb, device, layout, upload=not sliced)
+    wp = runner.wp
+    target = None  # the final state's host array, touched in the background once the device is busy
+    guard = _GuardReader(runner, gpu)
+    transfers = _SlicedTransfers(runner, x0, _SLICES) if sliced else None
+    if not sliced:
+        E0, finite0, contact = (a.copy() for a in guard.read(runner.guard(), 0))  # of x0, on the device
+        if not finite0.all():
+            guard.close()
+            raise ValueError(f"x0 has non-finite entries in lattice(s) {np.flatnonzero(~finite0).tolist()}")
+    else:
+        E0 = contact = None  # read with chunk 0 (the start's guard runs slice by slice before it)
+    trace_t, trace_E = [0.0], [E0]
+    max_err = np.zeros(batch)
 
     sink = None
     if save_every:
@@ -892,8 +1023,20 @@ def simulate(
     def enqueue(i):
         """Queue chunk i on the device: kernel, guard, and the copies of its scalars and frames."""
         _, steps, n_rec = plan[i]
-        runner.launch(steps, dt_used, save_every or 0, sink.rec if n_rec else None)
-        guard.enqueue(runner.guard(sink.rec if n_rec else None, n_rec, i), i)
+        rec = sink.rec if n_rec else None
+        if sliced and (i == 0 or i == len(plan) - 1):
+            for s, lattices in enumerate(transfers.slices):
+                if i == 0:
+                    transfers.upload(s)
+                    runner.guard(slot=2, lattices=lattices)  # the start: energy, finite, contact
+                runner.launch(steps, dt_used, save_every or 0, rec, lattices=lattices)
+                if i == len(plan) - 1:
+                    transfers.download(s)
+            if i == 0:
+                guard.enqueue_init(runner.guard_out[2])
+        else:
+            runner.launch(steps, dt_used, save_every or 0, rec)
+        guard.enqueue(runner.guard(rec, n_rec, i), i)
         if n_rec:
             sink.enqueue(n_rec, i)
         guard.record(i)
@@ -902,10 +1045,23 @@ def simulate(
     try:
         if plan:
             enqueue(0)
+        if gpu and x0.size >= (1 << 20):
+            target = _prefault(x0.shape)
         for i, (first, steps, n_rec) in enumerate(plan):
             if i + 1 < len(plan):
                 enqueue(i + 1)  # the device works on the next chunk while the host checks this one
+            if sliced and i == len(plan) - 1:
+                if target is not None:
+                    target.join()
+                final = target.result if target is not None else np.empty(x0.shape)
+                for s_ in range(len(transfers.slices)):
+                    transfers.take(s_, final)  # while the device finishes the later slices
             E, finite, low = guard.wait(i)
+            if sliced and i == 0:
+                E0, finite0, _ = guard.init()
+                if not finite0.all():
+                    raise ValueError(f"x0 has non-finite entries in lattice(s) {np.flatnonzero(~finite0).tolist()}")
+                trace_E[0] = E0
             done = first + steps
             t_now = done * dt_used
             err = np.where(finite, _relative_energy_error(E, E0, params.N), np.inf)
@@ -946,9 +1102,11 @@ def simulate(
         guard.close()
         if sink is not None:
             sink.close()
+        if transfers is not None:
+            transfers.close()
         if target is not None:
             target.join()
-    x = runner.download(target.result if target is not None else None)
+    x = final if sliced else runner.download(target.result if target is not None else None)
     _release_runner(runner)
     E1 = trace_E[-1]
     if save_every:
