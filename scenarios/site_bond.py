@@ -16,7 +16,8 @@ a minute). Options: ``--set KEY=VALUE`` (fields of ``Parameters``).
    K range. The square-root law is measured with ``sqrt_amplitudes``; its first points are checked for
    periodicity with scipy's DOP853.
 4. **Peierls-Nabarro barrier**: E(bond in phase) - E(site) at ``pn_K`` and at the site family's
-   points from ``pn_from_K`` on (the bond orbit solved at each of those K).
+   points from ``pn_from_K`` on (the bond orbit solved at each of those K, unless the bond family
+   has a point there).
 5. **Finite-size check** at ``finite_size_K``: the site breather re-solved on 2N - 1 sites; unstable
    multipliers that keep their modulus and are localized are intrinsic, the others finite-size.
 6. Period doubling and localized Krein collisions on the families are reported (not followed).
@@ -57,7 +58,8 @@ class Parameters(BranchParameters):
     K_end: float = PAPER_K
     ds: float = 0.15
     ds_max: float = 0.3
-    fine_from_K: float = 5.0  # above this K, steps of at most ds_fine:
+    fine_from_K: float = 5.0  # between these K, steps of at most ds_fine:
+    fine_to_K: float = 30.0  # (the exchanges located by default lie below locate_K_max)
     ds_fine: float = 0.05  # the site/bond exchanges of stability come every ~0.07-0.12 in log10 K
     resolution: float = 0.3  # no bisection: branch points are located by Brent's method instead
     bisect_krein: str = "none"  # the phonon foam is the continuation scenes' business
@@ -95,19 +97,19 @@ def _group(family: str) -> str:
     return family.replace("-", "_")
 
 
-class _FinerAbove:
-    """A continuation problem whose steps are capped at ``ds`` once K >= ``K_fine`` (every other
+class _FinerIn:
+    """A continuation problem whose steps are capped at ``ds`` while K_lo <= K < K_hi (every other
     attribute is the wrapped problem's)."""
 
-    def __init__(self, problem, K_fine: float, ds: float):
-        self._problem, self._K_fine, self._ds = problem, K_fine, ds
+    def __init__(self, problem, K_lo: float, K_hi: float, ds: float):
+        self._problem, self._K_lo, self._K_hi, self._ds = problem, K_lo, K_hi, ds
 
     def __getattr__(self, name):
         return getattr(self._problem, name)
 
     def clip_step(self, last, h: float) -> float:
         h = self._problem.clip_step(last, h)
-        return min(h, self._ds) if last.K >= self._K_fine else h
+        return min(h, self._ds) if self._K_lo <= last.K < self._K_hi else h
 
 
 def _arclength_in_K(params, omega, flow, starts, K_range, until=None) -> PseudoArclength:
@@ -133,7 +135,7 @@ def _family_branch(ctx: Context, P: Parameters, flow, family: str):
     attrs = {"family": family, "omega": P.omega, "method": P.method, "steps_per_period": P.steps_per_period}
     seed = anticontinuum_seed(params, P.omega, family, centre=params.N // 2 - (params.N % 2 == 0))
     if family != "bond-out-of-phase":  # monotonic in K; the natural parameter steps over the branch points
-        problem = NaturalParameter(params, P.omega, seed, P.K_end, flow, targets=P.pn_K + P.finite_size_K)
+        problem = NaturalParameter(params, P.omega, seed, P.K_end, flow, targets=tuple(P.pn_K) + tuple(P.finite_size_K))
         kept = f" (mirror symmetric, N = {params.N})"
         attrs.update(continuation=f"natural parameter in log10 K{kept}", coordinate="log10 K")
     else:
@@ -152,8 +154,8 @@ def _family_branch(ctx: Context, P: Parameters, flow, family: str):
         attrs.update(continuation="pseudo-arclength in (positions, log10 K)", coordinate="arclength")
     attrs["settings"] = dataclasses.asdict(settings)
     if family != "bond-out-of-phase":
-        problem = _FinerAbove(problem, P.fine_from_K, P.ds_fine)
-        attrs["fine_steps"] = {"from_K": P.fine_from_K, "ds": P.ds_fine}
+        problem = _FinerIn(problem, P.fine_from_K, P.fine_to_K, P.ds_fine)
+        attrs["fine_steps"] = {"from_K": P.fine_from_K, "to_K": P.fine_to_K, "ds": P.ds_fine}
     new = family == "site"
     return run_branch(ctx, problem, settings, params, attrs, group=_group(family), new_store=new, progress=True)
 
@@ -362,7 +364,8 @@ def run(ctx: Context) -> dict:
     for p in site_points:
         if not bond_K.min() <= p.K <= bond_K.max() or (p.K < P.pn_from_K and p.K not in P.pn_K):
             continue
-        bond = _solve_near(bond_points, p.K, P, flow)
+        same = [b for b in bond_points if abs(b.K - p.K) <= 1e-12 * p.K]  # the bond family landed on it
+        bond = same[0] if same else _solve_near(bond_points, p.K, P, flow)
         if bond is not None:
             pn_rows.append((p.K, p.energy, bond.energy))
     for K in P.pn_K:
