@@ -74,6 +74,7 @@ __all__ = [
     "pad_chain",
     "switch_branch",
     "switch_to_asymmetric",
+    "unlocated",
 ]
 
 #: a located zero of mu - 1 farther from 0 than this is a jump of the test function (the pinning mode
@@ -181,7 +182,8 @@ def switch_branch(corrector, y_star: np.ndarray, phi: np.ndarray, amplitudes=(1.
 
 def localized_real_pairs(point, parity: int | None = None) -> int:
     """How many localized real pairs (mu > 1, participation < LOCALIZED_FRACTION N) a branch point
-    has (of the given parity when not None): the detector's signature."""
+    has (of the given parity when not None). Not the detector's test (``pinning_value`` is: this count
+    also changes when a real pair's mode crosses the localization limit); kept as a cross-check."""
     return sum(
         1
         for i in point.instabilities
@@ -316,6 +318,24 @@ def suspect_steps(points, parity: int | None = None) -> list:
     return out
 
 
+def _kind(a, b, parity: int | None) -> str:
+    """The kind of branch point a localized real pair through +1 makes between branch points a and b."""
+    symmetric = is_mirror_symmetric(a.state, 1e-9) and is_mirror_symmetric(b.state, 1e-9)
+    return "symmetry_breaking_pitchfork" if symmetric and parity == -1 else "branch_point"
+
+
+def unlocated(family: str, a, b, vertex: float | None, parity: int | None = None) -> dict:
+    """The summary record of a step flagged by ``suspect_steps`` that is not located: its bracket."""
+    return {
+        "K": math.sqrt(a.K * b.K),
+        "kind": _kind(a, b, parity),
+        "family": family,
+        "bracket": sorted([a.K, b.K]),
+        "located": False,
+        "window_inside_step": vertex is not None,
+    }
+
+
 def locate_real_pair(
     family: str,
     params: ChainParams,
@@ -374,7 +394,7 @@ def locate_real_pair(
         cache[c] = (float(mu[k].real - 1.0), (res, np.real(vec[:, k]), pr, noise))
         return cache[c]
 
-    kind = "symmetry_breaking_pitchfork" if symmetric and parity == -1 else "branch_point"
+    kind = _kind(a, b, parity)
     if vertex is None:
         intervals = [(ca, cb)]
     else:
@@ -518,10 +538,8 @@ def finite_size_check(
         res = find_breather(pn, omega, guess, flow=flow, tol=tol)
         if not res.success:
             raise RuntimeError(f"finite-size check: the orbit could not be re-solved at N = {n}: {res.message}")
-        A = half_period_map(res.linearization())
-        fl = reduced_floquet(A, params.M, res.state)
-        _, vec = np.linalg.eig(reduced_matrix(A, params.M))
-        tables[n], weights[n] = _instability_table(fl, vec, params.M, energy_centre(res.state))
+        fl = reduced_floquet(half_period_map(res.linearization()), params.M, res.state)
+        tables[n], weights[n] = _instability_table(fl, fl.vectors, params.M, energy_centre(res.state))
         energies[n], states[n] = float(energy(pn, res.state)[0]), res.state
     classification = []
     for row in tables[N]:

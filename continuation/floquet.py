@@ -133,6 +133,8 @@ class FloquetResult:
         parity: parity of each mu's Floquet vector (+1, -1, 0), shape (2N,).
         participation: participation ratio (sites) of each mu's Floquet vector, shape (2N,).
         central_weight: fraction of each mu's Floquet vector on the orbit's central sites, shape (2N,).
+        vectors: the position part of each mu's Floquet vector (eigenvectors of Mu), shape (2N, 2N)
+            (reduced path; None on the full path).
         accuracy: the measured gauges (``trivial_deviation``, ``symplecticity`` or ``pairing_error``).
         path: ``"reduced"`` or ``"full"``.
         pairing_error, symplecticity_error: kept for the full path's reports (0 / gauge on the reduced).
@@ -160,6 +162,7 @@ class FloquetResult:
     wall_seconds: float
     stats: dict = dataclasses.field(default_factory=dict)
     central_weight: np.ndarray | None = None
+    vectors: np.ndarray | None = dataclasses.field(default=None, repr=False, compare=False)
 
     @property
     def nontrivial(self) -> np.ndarray:
@@ -380,6 +383,7 @@ def reduced_floquet(
         parity=parity,
         participation=pr,
         central_weight=weight,
+        vectors=vec,
         accuracy=accuracy,
         path="reduced",
         pairing_error=0.0,

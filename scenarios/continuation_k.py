@@ -18,7 +18,6 @@ such point is located by the secant on mu - 1 and marked (dashed), the others by
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import numpy as np
 
@@ -114,16 +113,7 @@ def _symmetry_breaking(ctx, P: Parameters, branch, params, flow) -> list:
                 )
             if found:
                 continue
-        out.append(
-            {
-                "K": math.sqrt(a.K * b.K),
-                "kind": "symmetry_breaking_pitchfork",
-                "family": "site",
-                "bracket": [a.K, b.K],
-                "located": False,
-                "window_inside_step": vertex is not None,
-            }
-        )
+        out.append(bf.unlocated("site", a, b, vertex, -1))
     return out
 
 

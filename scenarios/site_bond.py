@@ -244,16 +244,7 @@ def run(ctx: Context) -> dict:
             if any(abs(i - f["index"]) <= 2 or abs(j - f["index"]) <= 2 for f in family_folds):
                 continue  # a real pair through +1 at a fold in K is the fold itself (J singular there)
             if points[i].K > P.locate_K_max:
-                unlocated.append(
-                    {
-                        "K": math.sqrt(points[i].K * points[j].K),
-                        "kind": "symmetry_breaking_pitchfork" if parity == -1 else "branch_point",
-                        "family": family,
-                        "bracket": sorted([points[i].K, points[j].K]),
-                        "located": False,
-                        "window_inside_step": vertex is not None,
-                    }
-                )
+                unlocated.append(bf.unlocated(family, points[i], points[j], vertex, parity))
                 continue
             try:
                 found = bf.locate_real_pair(
@@ -304,7 +295,7 @@ def run(ctx: Context) -> dict:
 
     # 3. switch onto the asymmetric family at the site family's pitchfork
     pitchforks = [b for b in bifurcations if b.kind == "symmetry_breaking_pitchfork"]
-    asym, sqrt_rows, dop = None, [], []
+    asym, sqrt_rows, dop, reached_bond_centre = None, [], [], []
     if pitchforks:
         pf = pitchforks[0]
         params_pf = ChainParams(P.M, pf.K, P.N)
@@ -342,6 +333,7 @@ def run(ctx: Context) -> dict:
         def until(prev, point):
             a, b = energy_centre(prev.state) - bond_centre, energy_centre(point.state) - bond_centre
             if a * b <= 0:
+                reached_bond_centre.append((prev.K, point.K))
                 return f"its energy centre reached the bond centre between K = {prev.K:.10g} and {point.K:.10g}"
             return None
 
@@ -352,7 +344,7 @@ def run(ctx: Context) -> dict:
         attrs = {"family": "asymmetric", "omega": P.omega, "born_at_K": pf.K, "settings": dataclasses.asdict(settings)}
         asym = run_branch(ctx, problem, settings, params_pf, attrs, group="asymmetric", new_store=False)
         branches["asymmetric"] = asym
-    end_join = _asymmetric_end(asym, bifurcations)
+    end_join = _asymmetric_end(asym, bifurcations, bool(reached_bond_centre))
     if end_join:
         ctx.log("asymmetric family: %s", end_join["message"])
 
@@ -528,14 +520,13 @@ def run(ctx: Context) -> dict:
     return summary
 
 
-def _asymmetric_end(asym, bifurcations) -> dict | None:
+def _asymmetric_end(asym, bifurcations, joined: bool) -> dict | None:
     """Where the asymmetric family ended, and how close that is to a branch point of the bond family."""
     if asym is None or not asym.points:
         return None
     last = asym.points[-1]
     bond = [b for b in bifurcations if b.family == "bond-in-phase"]
-    joined = asym.message and "bond centre" in asym.message
-    out = {"message": asym.message, "K_end": last.K, "joins_bond_family": bool(joined)}
+    out = {"message": asym.message, "K_end": last.K, "joins_bond_family": joined}
     if bond:
         nearest = min(bond, key=lambda b: abs(b.K - last.K))
         out.update(bond_branch_point_K=nearest.K, relative_distance=abs(last.K - nearest.K) / nearest.K)
