@@ -148,6 +148,26 @@ def site_tangent_acceleration(
 
 
 @wp.func
+def site_kick(
+    pu: wp.float64,
+    pv: wp.float64,
+    a: wp.vec2d,
+    h: wp.float64,
+    lossy: int,
+    damp: wp.array3d(dtype=wp.float64),
+    b: int,
+    i: int,
+) -> wp.vec2d:
+    """Kick i of one site: w + h a without losses, else the exact damped kick E w + F a (``losses``;
+    ``damp[b, i]`` = E00, E01, E10, E11, F00, F01, F10, F11, the reference's operation order)."""
+    if lossy != 0:
+        npu = damp[b, i, 0] * pu + damp[b, i, 1] * pv + (damp[b, i, 4] * a[0] + damp[b, i, 5] * a[1])
+        npv = damp[b, i, 2] * pu + damp[b, i, 3] * pv + (damp[b, i, 6] * a[0] + damp[b, i, 7] * a[1])
+        return wp.vec2d(npu, npv)
+    return wp.vec2d(pu + h * a[0], pv + h * a[1])
+
+
+@wp.func
 def rk4_accumulate(stage: int, total: wp.vec4d, k: wp.vec4d, weights: wp.vec4d) -> wp.vec4d:
     """The weighted sum of the stage derivatives after stage ``stage`` (as kernels.rk4_advance)."""
     if stage == 0:
@@ -193,12 +213,12 @@ class BlockKernels:
             self._built[key] = self._makers[key[0]](*key[1:])
         return self._built[key]
 
-    def splitting(self, stages: int, record: bool = False, save: bool = False):
-        """Splitting kernel for ``stages`` stages; ``record``/``save`` compile in the stiffness
-        history and the field recording (left out, they cost nothing)."""
+    def splitting(self, stages: int, record: bool = False, save: bool = False, damped: bool = False):
+        """Splitting kernel for ``stages`` stages; ``record``/``save``/``damped`` compile in the stiffness
+        history, the field recording and the damped kicks (left out, they cost nothing)."""
         if not 1 <= stages <= MAX_STAGES:
             raise ValueError(f"the block kernels support 1 to {MAX_STAGES} stages, got {stages}")
-        return self._get("splitting", int(stages), bool(record), bool(save))
+        return self._get("splitting", int(stages), bool(record), bool(save), bool(damped))
 
     def splitting_tangent(self, stages: int):
         if not 1 <= stages <= MAX_STAGES:
@@ -265,7 +285,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0, lattices: int = 1) -> 
     bounds = (threads, min_blocks_per_sm) if min_blocks_per_sm else threads
     options = {"enable_backward": False, "module": "unique", "grid_stride": False, "launch_bounds": bounds}
 
-    def make_splitting(stages: int, record: bool, save: bool):
+    def make_splitting(stages: int, record: bool, save: bool, damped: bool = False):
         @wp.kernel(**options)
         def splitting(
             x: wp.array3d(dtype=wp.float64),
@@ -281,10 +301,13 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0, lattices: int = 1) -> 
             rec_v: wp.array3d(dtype=wp.float64),
             record_stiffness: int,
             hist: wp.array3d(dtype=wp.float64),
+            lossy: wp.array(dtype=wp.int32),
+            damp: wp.array3d(dtype=wp.float64),
         ):
             """``nsteps`` steps of a kick-drift splitting method; lattice b, thread j = site (one or, with
             ``lattices`` = 2, two lattices per block). hist slot 0 holds f'(z) at the start, slot
-            step*s + k + 1 after drift k of ``step``."""
+            step*s + k + 1 after drift k of ``step``. Compiled ``damped``: lattices with ``lossy[b]``
+            set take the damped kicks of ``damp`` (batch, stages + 1, 8)."""
             b, j = wp.tid()
             n = x.shape[2]
             nbr = site_neighbours(j, n, boundary)
@@ -305,6 +328,9 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0, lattices: int = 1) -> 
             pv = start[3]
             m = inv_mass[b_read]
             k = coupling[b_read]
+            loss = int(0)
+            if wp.static(damped):
+                loss = lossy[b_read]
             buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
             parity = int(0)
             nb = exchange(buf, u, parity, nbr, boundary)
@@ -314,8 +340,13 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0, lattices: int = 1) -> 
                     hist[0, b, j] = contact_stiffness(u - v)
             for step in range(nsteps):
                 h = kicks[0]  # the coefficients arrive multiplied by dt (on the host: the same product)
-                pu = pu + h * a[0]
-                pv = pv + h * a[1]
+                if wp.static(damped):
+                    w = site_kick(pu, pv, a, h, loss, damp, b_read, 0)
+                    pu = w[0]
+                    pv = w[1]
+                else:
+                    pu = pu + h * a[0]
+                    pv = pv + h * a[1]
                 for s in range(wp.static(stages)):  # unrolled: coefficients become constants
                     h = drifts[s]
                     u = u + h * pu
@@ -327,8 +358,13 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0, lattices: int = 1) -> 
                         if active:
                             hist[step * wp.static(stages) + s + 1, b, j] = contact_stiffness(u - v)
                     h = kicks[s + 1]
-                    pu = pu + h * a[0]
-                    pv = pv + h * a[1]
+                    if wp.static(damped):
+                        w = site_kick(pu, pv, a, h, loss, damp, b_read, s + 1)
+                        pu = w[0]
+                        pv = w[1]
+                    else:
+                        pu = pu + h * a[0]
+                        pv = pv + h * a[1]
                 if wp.static(save):
                     if active and (step + 1) % save_every == 0:
                         r = (step + 1) / save_every - 1

@@ -20,6 +20,7 @@ from typing import Callable
 import numpy as np
 
 from .integrators import Method, RungeKuttaMethod, SplittingMethod, get_method, steps_for
+from .losses import KICK_ENTRIES, Damping, as_damping, kick_matrices, lossless
 from .model import (
     BOUNDARY_CODES,
     ChainParams,
@@ -344,8 +345,12 @@ def _prefault(shape) -> "threading.Thread":
 
 
 def _relative_energy_error(E, E0, N):
+    return np.abs(_signed_energy_change(E, E0, N))
+
+
+def _signed_energy_change(E, E0, N):
     scale = np.maximum(np.abs(E0), 1e-14 * N)
-    return np.abs(E - E0) / scale
+    return (E - E0) / scale
 
 
 #: a chunk holds at least this many site force evaluations of the whole batch (``simulate``'s chunk count
@@ -633,19 +638,22 @@ class _BlockSplitting(_Plan):
         r = self.r
         inputs = [r.x[lo:hi], r.inv_mass[lo:hi], r.coupling[lo:hi], *self.coefficients(dt), r.boundary]
         inputs += [r.wp.float64(dt)]
-        inputs += [int(nsteps), int(save_every), *frames, int(record), r.hist]
+        inputs += [int(nsteps), int(save_every), *frames, int(record), r.hist, *r.losses(lo, hi)]
         from . import block_kernels
 
         stages = r.method.stages
+        damped = r.damped
         pairs = _PAIR_MIN_BATCH is not None and hi - lo >= _PAIR_MIN_BATCH
         pairs = pairs and block_kernels.min_blocks_per_sm(stages) == 0
         if pairs and (r.device != "cpu" or _PAIR_ON_CPU) and 2 * r.block <= block_kernels.MAX_BLOCK:
             # two lattices per block on a large batch (as the best hand-written kernel: hand-cuda-variants.txt)
-            kernel = block_kernels.block_kernels(r.block, 0, 2).splitting(stages, record=record, save=save_every > 0)
+            kernel = block_kernels.block_kernels(r.block, 0, 2).splitting(
+                stages, record=record, save=save_every > 0, damped=damped
+            )
             dim = (-(-(hi - lo) // 2), 2 * r.block)
             r.wp.launch(kernel, dim=dim, block_dim=2 * r.block, device=r.device, inputs=inputs)
             return
-        kernel = r.bk.splitting(stages, record=record, save=save_every > 0)
+        kernel = r.bk.splitting(stages, record=record, save=save_every > 0, damped=damped)
         r.wp.launch(kernel, dim=(hi - lo, r.block), block_dim=r.block, device=r.device, inputs=inputs)
 
     def tangent(self, dx, column_base, lo, hi, dt, nsteps):
@@ -691,6 +699,7 @@ class _ThreadSplitting(_Plan):
         r = self.r
         inputs = [r.x[lo:hi], self.acc[lo:hi], r.inv_mass[lo:hi], r.coupling[lo:hi], self.drifts, self.kicks]
         inputs += [r.boundary, r.wp.float64(dt), int(nsteps), int(save_every), *frames, int(record), r.hist]
+        inputs += r.losses(lo, hi)
         r.wp.launch(r.k.splitting_kernel, dim=hi - lo, device=r.device, inputs=inputs)
 
     def tangent(self, dx, column_base, lo, hi, dt, nsteps):
@@ -790,6 +799,36 @@ class _Runner:
         self.contact = wp.empty(self.batch, dtype=f64, device=device)
         self.guard_out = [wp.empty((self.batch, 3), dtype=f64, device=device) for _ in range(3)]
         self.reset_contact()
+        # losses (``losses``): per lattice a flag and the damped kicks' coefficients; none by default
+        self.lossy = wp.zeros(self.batch, dtype=wp.int32, device=device)
+        self.no_damp = wp.zeros((1, 1, KICK_ENTRIES), dtype=f64, device=device)
+        self.damp = self.no_damp
+        self.damped = False
+        self.damp_key = None
+
+    def set_damping(self, damping: Damping | None, dt: float) -> None:
+        """Upload the damped kicks' coefficients of ``damping`` for step ``dt`` (None: no losses)."""
+        wp = self.wp
+        if damping is None:
+            if self.damped:
+                self.lossy.zero_()
+            self.damped, self.damp, self.damp_key = False, self.no_damp, None
+            return
+        if not isinstance(self.method, SplittingMethod):
+            raise ValueError(
+                f"losses enter the splitting methods as an exact sub-flow; {self.method.name!r} has none: "
+                "choose a splitting method (verlet, yoshida4, kahan6, ...)"
+            )
+        coefficients = kick_matrices(self.method.kicks, dt, self.mass.numpy(), damping, self.batch)
+        self.lossy.assign((~lossless(coefficients)).astype(np.int32))
+        if self.damp.shape != coefficients.shape:
+            self.damp = wp.empty(coefficients.shape, dtype=wp.float64, device=self.device)
+        self.damp.assign(coefficients)
+        self.damped = True
+
+    def losses(self, lo: int, hi: int) -> list:
+        """The kernels' loss arguments (flags, coefficients) for lattices lo..hi."""
+        return [self.lossy[lo:hi], self.damp[lo:hi] if self.damped else self.no_damp]
 
     def upload(self, x0: np.ndarray) -> None:
         """Copy a batch state to the device (on a GPU through a pinned buffer: ~55 GB/s instead of the
@@ -919,6 +958,7 @@ def simulate(
     chunks: int | None = None,
     layout: str = "auto",
     on_chunk: Callable[[np.ndarray, np.ndarray, np.ndarray], None] | None = None,
+    damping: Damping | tuple | None = None,
 ) -> SimulationResult:
     """Integrate a batch of lattices with a float64 Warp kernel.
 
@@ -940,6 +980,9 @@ def simulate(
             lattice: the CPU path) or ``"auto"`` (block on a GPU, thread on the CPU).
         on_chunk: called after every chunk with (t, u, v) of the frames recorded in that chunk,
             shapes (n,), (n, batch, N), (n, batch, N) (the t = 0 frame comes with the first call).
+        damping: losses (``losses.Damping`` or a (contact, substrate) pair of rates, scalars or per
+            lattice), splitting methods only. Energy then decays; the guard flags a lattice whose
+            energy *grows* by more than ``max_energy_error`` (relative), which no lossy run can do.
 
     Returns:
         SimulationResult.
@@ -954,6 +997,14 @@ def simulate(
     x0 = _as_state(x0, params.N)  # the check for non-finite values runs on the device (the guard)
     batch = x0.shape[0]
     Mb, Kb = per_lattice_parameters(params, batch, M, K)
+    damping = as_damping(damping)
+    if damping is not None:
+        damping.per_lattice(batch)  # validated here, at the boundary
+        if not isinstance(meth, SplittingMethod):
+            raise ValueError(
+                f"losses enter the splitting methods as an exact sub-flow; {meth.name!r} has none: "
+                "choose a splitting method (verlet, yoshida4, kahan6, ...)"
+            )
     t_final = real_number("t_final", t_final, nonnegative=True)
     limit = _check_step(meth, params, dt, Mb, Kb, allow_unstable_step)
     dt = real_number("dt", dt, positive=True)
@@ -992,6 +1043,7 @@ def simulate(
     # a large batch on a GPU moves in lattice slices, overlapped with the first and the last chunk
     sliced = bool(plan) and x0.size >= _SLICED_MIN_VALUES and (gpu or _SLICE_ON_CPU)
     runner = _pooled_runner(meth, params, x0, Mb, Kb, device, layout, upload=not sliced)
+    runner.set_damping(damping, dt_used)
     wp = runner.wp
     target = None  # the final state's host array, touched in the background once the device is busy
     guard = _GuardReader(runner, gpu)
@@ -1064,7 +1116,10 @@ def simulate(
                 trace_E[0] = E0
             done = first + steps
             t_now = done * dt_used
-            err = np.where(finite, _relative_energy_error(E, E0, params.N), np.inf)
+            if damping is None:
+                err = np.where(finite, _relative_energy_error(E, E0, params.N), np.inf)
+            else:  # losses: only a growth of the energy is an error
+                err = np.where(finite, np.maximum(_signed_energy_change(E, E0, params.N), 0.0), np.inf)
             max_err = np.maximum(max_err, err)
             trace_t.append(t_now)
             trace_E.append(E.copy())

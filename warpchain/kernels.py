@@ -186,6 +186,51 @@ def save_positions(
 # ----------------------------------------------------------------------------- splitting methods
 
 
+@wp.func
+def damped_kick(
+    x: wp.array3d(dtype=wp.float64),
+    acc: wp.array3d(dtype=wp.float64),
+    b: int,
+    n: int,
+    damp: wp.array3d(dtype=wp.float64),
+    i: int,
+):
+    """The exact damped kick w <- E w + F a of lattice b, kick i (``losses``; the reference's order)."""
+    e0 = damp[b, i, 0]
+    e1 = damp[b, i, 1]
+    e2 = damp[b, i, 2]
+    e3 = damp[b, i, 3]
+    f0 = damp[b, i, 4]
+    f1 = damp[b, i, 5]
+    f2 = damp[b, i, 6]
+    f3 = damp[b, i, 7]
+    for j in range(n):
+        pu = x[b, 2, j]
+        pv = x[b, 3, j]
+        au = acc[b, 0, j]
+        av = acc[b, 1, j]
+        x[b, 2, j] = e0 * pu + e1 * pv + (f0 * au + f1 * av)
+        x[b, 3, j] = e2 * pu + e3 * pv + (f2 * au + f3 * av)
+
+
+@wp.func
+def any_kick(
+    x: wp.array3d(dtype=wp.float64),
+    acc: wp.array3d(dtype=wp.float64),
+    b: int,
+    n: int,
+    h: wp.float64,
+    lossy: int,
+    damp: wp.array3d(dtype=wp.float64),
+    i: int,
+):
+    """Kick i: the plain one (w += h a) for a lattice without losses, else the exact damped one."""
+    if lossy != 0:
+        damped_kick(x, acc, b, n, damp, i)
+    else:
+        kick(x, acc, b, n, h)
+
+
 @wp.kernel
 def splitting_kernel(
     x: wp.array3d(dtype=wp.float64),
@@ -202,23 +247,27 @@ def splitting_kernel(
     rec_v: wp.array3d(dtype=wp.float64),
     record_stiffness: int,
     hist: wp.array3d(dtype=wp.float64),
+    lossy: wp.array(dtype=wp.int32),
+    damp: wp.array3d(dtype=wp.float64),
 ):
     """``nsteps`` steps of a kick-drift splitting method for lattice b = tid.
 
-    hist slot 0 holds f'(z) at the start, slot step*s + k + 1 after drift k of ``step``.
+    hist slot 0 holds f'(z) at the start, slot step*s + k + 1 after drift k of ``step``. Lattices with
+    ``lossy[b]`` set take the damped kicks of ``damp`` (batch, stages + 1, 8) (``losses``).
     """
     b = wp.tid()
     n = x.shape[2]
     stages = drifts.shape[0]
     m = inv_mass[b]
     k = coupling[b]
+    loss = lossy[b]
     compute_accelerations(x, acc, b, n, boundary, m, k, hist, record_stiffness, 0)
     for step in range(nsteps):
-        kick(x, acc, b, n, kicks[0] * dt)
+        any_kick(x, acc, b, n, kicks[0] * dt, loss, damp, 0)
         for s in range(stages):
             drift(x, b, n, drifts[s] * dt)
             compute_accelerations(x, acc, b, n, boundary, m, k, hist, record_stiffness, step * stages + s + 1)
-            kick(x, acc, b, n, kicks[s + 1] * dt)
+            any_kick(x, acc, b, n, kicks[s + 1] * dt, loss, damp, s + 1)
         save_positions(x, rec_u, rec_v, b, n, step, save_every)
 
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import model
+from . import losses, model
 from .integrators import Method, SplittingMethod, get_method
 from .model import ChainParams, contact_force, contact_stiffness, laplacian
 
@@ -47,7 +47,26 @@ def _linear_accelerations(params: ChainParams, q, dq, inv_M, K):
     return out
 
 
-def step(method: Method | str, params: ChainParams, x, dt: float, M=None, K=None, dx=None, dtype=np.float64):
+def damped_kick(x, acc, coefficients) -> None:
+    """In place, the exact damped kick w <- E w + F a of every lattice (``losses``), in the kernels'
+    operation order; ``coefficients`` (batch, 8) holds E00, E01, E10, E11, F00, F01, F10, F11."""
+    e = [coefficients[:, i, None] for i in range(8)]
+    pu, pv, au, av = x[:, 2].copy(), x[:, 3].copy(), acc[:, 0], acc[:, 1]
+    x[:, 2] = e[0] * pu + e[1] * pv + (e[4] * au + e[5] * av)
+    x[:, 3] = e[2] * pu + e[3] * pv + (e[6] * au + e[7] * av)
+
+
+def step(
+    method: Method | str,
+    params: ChainParams,
+    x,
+    dt: float,
+    M=None,
+    K=None,
+    dx=None,
+    dtype=np.float64,
+    damping=None,
+):
     """Advance a batch (and optionally its tangent columns) by one step of ``method``.
 
     Args:
@@ -56,6 +75,9 @@ def step(method: Method | str, params: ChainParams, x, dt: float, M=None, K=None
         M, K: per-lattice parameters, shape (batch,), or None for ``params``' values.
         dx: tangent columns, shape (batch, ncols, 4, N), or None.
         dtype: float64 (default) or float32; coefficients and the step are rounded to it.
+        damping: ``losses.Damping`` (or a (contact, substrate) pair), splitting methods only: each
+            kick becomes the exact damped kick; lattices without losses keep the plain kick, so zero
+            damping is today's scheme bit for bit.
 
     Returns:
         the new state, or (state, tangent columns) when ``dx`` is given.
@@ -63,21 +85,47 @@ def step(method: Method | str, params: ChainParams, x, dt: float, M=None, K=None
     method = get_method(method)
     x = np.array(x, dtype=dtype, copy=True)
     batch = x.shape[0]
-    inv_M = inverse_mass(np.broadcast_to(np.asarray(params.M if M is None else M, dtype=dtype), (batch,)), dtype)
+    M_b = np.broadcast_to(np.asarray(params.M if M is None else M, dtype=dtype), (batch,))
+    inv_M = inverse_mass(M_b, dtype)
     K = np.broadcast_to(np.asarray(params.K if K is None else K, dtype=dtype), (batch,))
     dx = None if dx is None else np.array(dx, dtype=dtype, copy=True)
     dt = dtype(dt)
+    damping = losses.as_damping(damping)
+    if damping is not None:
+        if not isinstance(method, SplittingMethod):
+            raise ValueError(
+                f"losses enter the splitting methods as an exact sub-flow; {method.name!r} has none: "
+                "choose a splitting method (verlet, yoshida4, kahan6, ...)"
+            )
+        if dx is not None:
+            raise ValueError("tangent runs are for conservative orbits: run them without damping")
     if isinstance(method, SplittingMethod):
+        kicks, drifts = [dtype(k) for k in method.kicks], [dtype(c) for c in method.drifts]
+        plain = damped = None
+        if damping is not None:
+            coefficients = losses.kick_matrices(method.kicks, float(dt), M_b, damping, batch)
+            no_loss = losses.lossless(coefficients)
+            plain, damped = np.flatnonzero(no_loss), np.flatnonzero(~no_loss)
+            coefficients = coefficients[damped]
+
+        def kick(i, acc):
+            if damped is None:
+                x[:, 2:] += kicks[i] * dt * acc
+                return
+            x[plain, 2:] += kicks[i] * dt * acc[plain]  # lattices without losses: the plain kick
+            sub = x[damped]
+            damped_kick(sub, acc[damped], coefficients[:, i])
+            x[damped] = sub
+
         acc = accelerations(params, x, inv_M, K)
         dacc = None if dx is None else _linear_accelerations(params, x[:, :2], dx[:, :, :2], inv_M, K)
-        kicks, drifts = [dtype(k) for k in method.kicks], [dtype(c) for c in method.drifts]
-        x[:, 2:] += kicks[0] * dt * acc
+        kick(0, acc)
         if dx is not None:
             dx[:, :, 2:] += kicks[0] * dt * dacc
-        for c, d in zip(drifts, kicks[1:]):
+        for i, (c, d) in enumerate(zip(drifts, kicks[1:])):
             x[:, :2] += c * dt * x[:, 2:]
             acc = accelerations(params, x, inv_M, K)
-            x[:, 2:] += d * dt * acc
+            kick(i + 1, acc)
             if dx is not None:
                 dx[:, :, :2] += c * dt * dx[:, :, 2:]
                 dacc = _linear_accelerations(params, x[:, :2], dx[:, :, :2], inv_M, K)
@@ -128,8 +176,9 @@ def integrate(
     dx0=None,
     save_every: int | None = None,
     dtype=np.float64,
+    damping=None,
 ):
-    """Integrate ``nsteps`` steps with the numpy reference.
+    """Integrate ``nsteps`` steps with the numpy reference (``damping``: as in ``step``).
 
     Args:
         x0: state, shape (batch, 4, N).
@@ -145,7 +194,7 @@ def integrate(
     us, vs = ([x[:, 0].copy()], [x[:, 1].copy()]) if save_every else (None, None)
     for n in range(nsteps):
         if dx is None:
-            x = step(method, params, x, dt, M, K, dtype=dtype)
+            x = step(method, params, x, dt, M, K, dtype=dtype, damping=damping)
         else:
             x, dx = step(method, params, x, dt, M, K, dx, dtype=dtype)
         if save_every and (n + 1) % save_every == 0:

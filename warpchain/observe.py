@@ -1,0 +1,684 @@
+"""Observables reduced on the device: large ensembles where only per-lattice scalars reach the host.
+
+``observe`` integrates a batch like ``simulate`` (the same splitting schemes, losses included) but,
+instead of fields, returns per lattice and frame a few numbers computed inside the kernel. Every
+step the kernel tracks, per site, the lowest and highest relative displacement z_j = u_j - v_j
+since the last frame; at each frame (every ``frame_every`` steps) it reduces over the lattice:
+
+* ``peaks``: how many sites are *localized peaks* of the envelope env_j = max |z_j| over the frame
+  interval: env_j > ``threshold`` and env_j the largest value within ``radius`` sites (strictly
+  larger than those on its left, at least as large as those on its right, so a plateau counts once;
+  the window does not wrap around a periodic chain). A breather is such a peak; a wide hump that
+  has not broken up is one peak; a filamented spot is several.
+* ``participation``: (sum_j e_j)^2 / sum_j e_j^2 of the site energies e_j (``kernels.site_energy``):
+  about the number of sites that carry the energy.
+* ``spot_energy``: sum of e_j over |j - c| <= ``spot`` (c = N // 2, the spot's centre; ``spot`` per
+  lattice, in sites).
+* ``max_envelope``: max_j env_j.
+* ``min_contact``: min over the interval's steps and the sites of 1 + z_j (<= 0: contact lost).
+* ``energy``: sum_j e_j at the frame.
+
+The envelope profile of the last frame is kept on the device; ``observe`` reads it once
+``lag_frames`` frames before the end and once at the end, and ``peak_tracks`` turns the two into
+peak positions, amplitudes and drift velocities on the host. Frame 0 (the initial state, envelope
+|z|) is computed on the host. ``reference_observe`` is the numpy oracle of all of this (the same
+steps, the same tracking), against which the kernels are tested.
+"""
+
+import dataclasses
+import functools
+import math
+import time
+
+import numpy as np
+
+from .ensemble import (
+    IntegrationError,
+    _check_step,
+    _relative_energy_error,
+    _signed_energy_change,
+    resolve_device,
+    resolve_layout,
+)
+from .integrators import SplittingMethod, get_method, steps_for
+from .losses import KICK_ENTRIES, Damping, as_damping, kick_matrices, lossless
+from .model import (
+    BOUNDARY_CODES,
+    ChainParams,
+    as_batch,
+    contact_potential,
+    per_lattice_parameters,
+    real_number,
+    whole_number,
+)
+from .reference import inverse_mass
+
+OBSERVABLES = ("peaks", "participation", "spot_energy", "max_envelope", "min_contact", "energy")
+N_OBSERVABLES = len(OBSERVABLES)
+#: the tracked extremes of z start from these (any real displacement replaces them)
+_FAR = 1.0e300
+
+
+@dataclasses.dataclass(frozen=True)
+class Observation:
+    """What ``observe`` reduces, and how often.
+
+    Attributes:
+        frame_every: steps between frames (the envelope's interval: about a period or more).
+        threshold: envelope |z| above which a localized peak counts.
+        radius: a peak is the largest envelope value within this many sites.
+        spot: half-width in sites of the spot whose energy is reported (scalar or per lattice).
+        lag_frames: the envelope profile is also read this many frames before the end (drift velocities).
+    """
+
+    frame_every: int
+    threshold: float = 0.05
+    radius: int = 3
+    spot: float | np.ndarray = 0.0
+    lag_frames: int = 8
+
+    def validated(self, batch: int) -> "Observation":
+        whole_number("frame_every", self.frame_every, minimum=1)
+        real_number("threshold", self.threshold, nonnegative=True)
+        whole_number("radius", self.radius, minimum=1)
+        whole_number("lag_frames", self.lag_frames, minimum=1)
+        spot = np.broadcast_to(np.asarray(self.spot, dtype=np.float64), (batch,))
+        if not np.all(np.isfinite(spot)) or np.any(spot < 0):
+            raise ValueError(f"spot must be finite and >= 0, got {self.spot!r}")
+        return self
+
+
+@dataclasses.dataclass(frozen=True)
+class ObservedRun:
+    """Outcome of ``observe``.
+
+    Attributes:
+        t: frame times, shape (n_frames,) (t = 0 first).
+        values: observables, shape (n_frames, batch, len(OBSERVABLES)); ``run["peaks"]`` etc. give one.
+        envelope: envelope profile of the last frame, shape (batch, N).
+        envelope_lag: the same ``t_lag`` earlier (``lag_frames`` frames), shape (batch, N).
+        t_lag: the time of ``envelope_lag``'s frame.
+        x: final state, shape (batch, 4, N).
+        energy_initial: shape (batch,).
+        method, dt, nsteps, device, layout, wall_seconds: how it ran.
+    """
+
+    t: np.ndarray
+    values: np.ndarray
+    envelope: np.ndarray
+    envelope_lag: np.ndarray
+    t_lag: float
+    x: np.ndarray
+    energy_initial: np.ndarray
+    method: str
+    dt: float
+    nsteps: int
+    device: str
+    layout: str
+    wall_seconds: float
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        """One observable, shape (n_frames, batch)."""
+        if name not in OBSERVABLES:
+            raise KeyError(f"unknown observable {name!r}; choose one of {OBSERVABLES}")
+        return self.values[..., OBSERVABLES.index(name)]
+
+    def first_contact_loss(self) -> np.ndarray:
+        """Per lattice, the first frame time whose interval lost contact (min contact <= 0); NaN if none."""
+        lost = self["min_contact"] <= 0.0
+        first = np.argmax(lost, axis=0)
+        return np.where(lost.any(axis=0), self.t[first], np.nan)
+
+
+# ----------------------------------------------------------------------------- numpy reference
+
+
+def peak_mask(env: np.ndarray, threshold: float, radius: int) -> np.ndarray:
+    """Localized peaks of envelope profiles env (..., N): the rule of the kernels (module docstring)."""
+    env = np.asarray(env, dtype=np.float64)
+    n = env.shape[-1]
+    mask = env > threshold
+    for i in range(1, radius + 1):
+        if i >= n:
+            break
+        left = np.full_like(env, -np.inf)
+        left[..., i:] = env[..., :-i]
+        right = np.full_like(env, -np.inf)
+        right[..., :-i] = env[..., i:]
+        mask &= (env > left) & (env >= right)
+    return mask
+
+
+def site_energies(params: ChainParams, x, M, K) -> np.ndarray:
+    """e_j of ``kernels.site_energy`` for a batch (batch, 4, N): kinetic energy, the bond to the right
+    (wall bonds at fixed ends), the contact energy. Their sum is ``model.energy``."""
+    x = np.asarray(x, dtype=np.float64)
+    batch, _, n = x.shape
+    M = np.broadcast_to(np.asarray(M, dtype=np.float64), (batch,))[:, None]
+    K = np.broadcast_to(np.asarray(K, dtype=np.float64), (batch,))[:, None]
+    u, v, pu, pv = x[:, 0], x[:, 1], x[:, 2], x[:, 3]
+    bonds = np.zeros_like(u)
+    bonds[:, :-1] = (u[:, 1:] - u[:, :-1]) ** 2
+    if params.boundary == "periodic" and n > 1:
+        bonds[:, -1] = (u[:, 0] - u[:, -1]) ** 2
+    elif params.boundary == "fixed":
+        bonds[:, -1] = u[:, -1] ** 2
+        bonds[:, 0] += u[:, 0] ** 2
+    kinetic = 0.5 * M * (pu * pu) + 0.5 * (pv * pv)
+    return kinetic + 0.5 * K * bonds + contact_potential(u - v)
+
+
+def frame_observables(params, x, z_low, z_high, M, K, spot, threshold, radius) -> tuple[np.ndarray, np.ndarray]:
+    """The observables of one frame from the state x (batch, 4, N) and the interval's z extremes
+    (batch, N). Returns (values (batch, len(OBSERVABLES)), envelope (batch, N))."""
+    env = np.maximum(z_high, -z_low)
+    e = site_energies(params, x, M, K)
+    n = x.shape[-1]
+    spot = np.broadcast_to(np.asarray(spot, dtype=np.float64), (x.shape[0],))
+    inside = np.abs(np.arange(n)[None, :] - n // 2) <= spot[:, None]
+    total = e.sum(axis=-1)
+    squares = (e * e).sum(axis=-1)
+    out = np.empty((x.shape[0], N_OBSERVABLES))
+    out[:, 0] = peak_mask(env, threshold, radius).sum(axis=-1)
+    out[:, 1] = np.where(squares > 0, total * total / np.where(squares > 0, squares, 1.0), 0.0)
+    out[:, 2] = np.where(inside, e, 0.0).sum(axis=-1)
+    out[:, 3] = env.max(axis=-1)
+    out[:, 4] = (1.0 + z_low).min(axis=-1)
+    out[:, 5] = total
+    return out, env
+
+
+def reference_observe(
+    method, params: ChainParams, x0, dt: float, nsteps: int, observation: Observation, M=None, K=None, damping=None
+):
+    """``observe``'s numpy oracle: the same scheme (``reference.step``) and the same tracking.
+
+    Returns:
+        (values (n_frames, batch, len(OBSERVABLES)), envelope of the last frame (batch, N), final state).
+    """
+    from . import reference
+
+    x = np.array(x0, dtype=np.float64)
+    batch = x.shape[0]
+    Mb, Kb = per_lattice_parameters(params, batch, M, K)
+    z = x[:, 0] - x[:, 1]
+    first, env = frame_observables(params, x, z, z, Mb, Kb, observation.spot, observation.threshold, observation.radius)
+    frames = [first]
+    low = np.full_like(z, _FAR)
+    high = np.full_like(z, -_FAR)
+    for n in range(nsteps):
+        x = reference.step(method, params, x, dt, Mb, Kb, damping=damping)
+        z = x[:, 0] - x[:, 1]
+        low, high = np.minimum(low, z), np.maximum(high, z)
+        if (n + 1) % observation.frame_every == 0:
+            values, env = frame_observables(
+                params, x, low, high, Mb, Kb, observation.spot, observation.threshold, observation.radius
+            )
+            frames.append(values)
+            low = np.full_like(z, _FAR)
+            high = np.full_like(z, -_FAR)
+    return np.stack(frames), env, x
+
+
+def peak_tracks(env_lag, env_end, dt_lag: float, threshold: float, radius: int, max_speed: float):
+    """Peaks at the end, their amplitudes and drift velocities from two envelope profiles.
+
+    Each peak of ``env_end`` (positions refined by a parabola through the peak and its neighbours) is
+    matched with the nearest peak of ``env_lag`` within ``max_speed * dt_lag`` sites; velocity =
+    displacement / dt_lag (sites per unit time), NaN when there is no match.
+
+    Args:
+        env_lag, env_end: envelope profiles (batch, N), ``dt_lag`` apart in time.
+
+    Returns:
+        list (one per lattice) of arrays (n_peaks, 3): position (sites, 0-based), amplitude, velocity.
+    """
+
+    def located(env):
+        mask = peak_mask(env, threshold, radius)
+        out = []
+        for b in range(env.shape[0]):
+            idx = np.flatnonzero(mask[b])
+            pos = idx.astype(float)
+            inner = (idx > 0) & (idx < env.shape[1] - 1)
+            if inner.any():
+                i = idx[inner]
+                left, mid, right = env[b, i - 1], env[b, i], env[b, i + 1]
+                curv = left - 2 * mid + right
+                shift = np.where(curv < 0, 0.5 * (left - right) / np.where(curv < 0, curv, -1.0), 0.0)
+                pos[inner] = i + np.clip(shift, -0.5, 0.5)
+            out.append((pos, env[b, idx]))
+        return out
+
+    before, after = located(np.asarray(env_lag)), located(np.asarray(env_end))
+    tracks = []
+    for (p0, _), (p1, amp) in zip(before, after):
+        vel = np.full(p1.shape, np.nan)
+        if p0.size:
+            for k, p in enumerate(p1):
+                d = p - p0
+                j = np.argmin(np.abs(d))
+                if abs(d[j]) <= max_speed * dt_lag:
+                    vel[k] = d[j] / dt_lag
+        tracks.append(np.stack([p1, amp, vel], axis=-1) if p1.size else np.zeros((0, 3)))
+    return tracks
+
+
+# ----------------------------------------------------------------------------- kernels
+
+
+@functools.lru_cache(maxsize=None)
+def _thread_kernel():
+    import warp as wp
+
+    from .kernels import NO_CONTACT, ONE, ZERO, any_kick, compute_accelerations, drift, site_energy
+
+    @wp.kernel(enable_backward=False)
+    def observed_splitting(
+        x: wp.array3d(dtype=wp.float64),
+        acc: wp.array3d(dtype=wp.float64),
+        inv_mass: wp.array(dtype=wp.float64),
+        mass: wp.array(dtype=wp.float64),
+        coupling: wp.array(dtype=wp.float64),
+        drifts: wp.array(dtype=wp.float64),
+        kicks: wp.array(dtype=wp.float64),
+        boundary: int,
+        dt: wp.float64,
+        nsteps: int,
+        lossy: wp.array(dtype=wp.int32),
+        damp: wp.array3d(dtype=wp.float64),
+        first_step: int,
+        frame_every: int,
+        threshold: wp.float64,
+        radius: int,
+        spot: wp.array(dtype=wp.float64),
+        zext: wp.array3d(dtype=wp.float64),
+        envelope: wp.array2d(dtype=wp.float64),
+        obs: wp.array3d(dtype=wp.float64),
+    ):
+        """``kernels.splitting_kernel`` for lattice b = tid, tracking z's extremes in ``zext`` (batch, 2, N)
+        and reducing the observables into obs[frame - 1, b] at every frame (module docstring)."""
+        b = wp.tid()
+        n = x.shape[2]
+        stages = drifts.shape[0]
+        m = inv_mass[b]
+        k = coupling[b]
+        loss = lossy[b]
+        compute_accelerations(x, acc, b, n, boundary, m, k, acc, 0, 0)  # no stiffness history (acc: unused)
+        centre = n / 2
+        for step in range(nsteps):
+            any_kick(x, acc, b, n, kicks[0] * dt, loss, damp, 0)
+            for s in range(stages):
+                drift(x, b, n, drifts[s] * dt)
+                compute_accelerations(x, acc, b, n, boundary, m, k, acc, 0, 0)
+                any_kick(x, acc, b, n, kicks[s + 1] * dt, loss, damp, s + 1)
+            for j in range(n):
+                z = x[b, 0, j] - x[b, 1, j]
+                zext[b, 0, j] = wp.min(zext[b, 0, j], z)
+                zext[b, 1, j] = wp.max(zext[b, 1, j], z)
+            done = first_step + step + 1
+            if done % frame_every == 0:
+                for j in range(n):
+                    envelope[b, j] = wp.max(zext[b, 1, j], -zext[b, 0, j])
+                total = ZERO
+                squares = ZERO
+                inside = ZERO
+                top = ZERO
+                low = NO_CONTACT
+                peaks = int(0)
+                for j in range(n):
+                    e = site_energy(
+                        x[b, 0, j], x[b, 1, j], x[b, 2, j], x[b, 3, j], x[b, 0, (j + 1) % n], j, n, boundary, mass[b], k
+                    )
+                    total = total + e
+                    squares = squares + e * e
+                    if wp.abs(wp.float64(j - centre)) <= spot[b]:
+                        inside = inside + e
+                    env = envelope[b, j]
+                    top = wp.max(top, env)
+                    low = wp.min(low, ONE + zext[b, 0, j])
+                    if env > threshold:
+                        peak = int(1)
+                        for i in range(1, radius + 1):
+                            if j - i >= 0:
+                                if envelope[b, j - i] >= env:
+                                    peak = 0
+                            if j + i < n:
+                                if envelope[b, j + i] > env:
+                                    peak = 0
+                        peaks = peaks + peak
+                    zext[b, 0, j] = NO_CONTACT
+                    zext[b, 1, j] = -NO_CONTACT
+                r = done / frame_every - 1
+                obs[r, b, 0] = wp.float64(peaks)
+                pr = ZERO
+                if squares > ZERO:
+                    pr = total * total / squares
+                obs[r, b, 1] = pr
+                obs[r, b, 2] = inside
+                obs[r, b, 3] = top
+                obs[r, b, 4] = low
+                obs[r, b, 5] = total
+
+    return observed_splitting
+
+
+@functools.lru_cache(maxsize=None)
+def _block_kernel(block: int, stages: int):
+    import warp as wp
+
+    from . import block_kernels as bk
+    from .kernels import NO_CONTACT, ONE, ZERO, site_energy
+
+    halves = 2 * block
+
+    @wp.func
+    def exchange(
+        buf: wp.tile[wp.float64, halves], u: wp.float64, parity: int, nbr: wp.vec4i, boundary: int
+    ) -> wp.vec2d:
+        offset = parity * block
+        wp.tile_assign(buf, wp.tile(u), offset=(offset,))
+        left = bk.neighbour_or_wall(buf[offset + nbr[0]], u, nbr[2], boundary)
+        right = bk.neighbour_or_wall(buf[offset + nbr[1]], u, nbr[3], boundary)
+        return wp.vec2d(left, right)
+
+    options = {"enable_backward": False, "module": "unique", "grid_stride": False, "launch_bounds": block}
+
+    @wp.kernel(**options)
+    def observed_splitting(
+        x: wp.array3d(dtype=wp.float64),
+        inv_mass: wp.array(dtype=wp.float64),
+        mass: wp.array(dtype=wp.float64),
+        coupling: wp.array(dtype=wp.float64),
+        drifts: bk.coefficients,
+        kicks: bk.coefficients,
+        boundary: int,
+        nsteps: int,
+        lossy: wp.array(dtype=wp.int32),
+        damp: wp.array3d(dtype=wp.float64),
+        first_step: int,
+        frame_every: int,
+        threshold: wp.float64,
+        radius: int,
+        spot: wp.array(dtype=wp.float64),
+        zext: wp.array3d(dtype=wp.float64),
+        envelope: wp.array2d(dtype=wp.float64),
+        obs: wp.array3d(dtype=wp.float64),
+    ):
+        """``block_kernels`` splitting (damped kicks where ``lossy[b]``), a block per lattice, with the
+        z extremes in registers and the frame reductions as block reductions (module docstring)."""
+        b, j = wp.tid()
+        n = x.shape[2]
+        active = j < n
+        nbr = bk.site_neighbours(j, n, boundary)
+        start = bk.load_site(x, b, j, active)
+        u = start[0]
+        v = start[1]
+        pu = start[2]
+        pv = start[3]
+        m = inv_mass[b]
+        k = coupling[b]
+        loss = lossy[b]
+        z_low = ZERO
+        z_high = ZERO
+        if active:
+            z_low = zext[b, 0, j]
+            z_high = zext[b, 1, j]
+        half_width = spot[b]
+        centre = n / 2
+        buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
+        parity = int(0)
+        nb = exchange(buf, u, parity, nbr, boundary)
+        a = bk.site_acceleration(u, v, nb[0], nb[1], m, k)
+        for step in range(nsteps):
+            w = bk.site_kick(pu, pv, a, kicks[0], loss, damp, b, 0)
+            pu = w[0]
+            pv = w[1]
+            for s in range(wp.static(stages)):
+                h = drifts[s]
+                u = u + h * pu
+                v = v + h * pv
+                parity = 1 - parity
+                nb = exchange(buf, u, parity, nbr, boundary)
+                a = bk.site_acceleration(u, v, nb[0], nb[1], m, k)
+                w = bk.site_kick(pu, pv, a, kicks[s + 1], loss, damp, b, s + 1)
+                pu = w[0]
+                pv = w[1]
+            z = u - v
+            z_low = wp.min(z_low, z)
+            z_high = wp.max(z_high, z)
+            done = first_step + step + 1
+            if done % frame_every == 0:
+                env = wp.max(z_high, -z_low)
+                e = ZERO
+                inside = ZERO
+                low = NO_CONTACT
+                if active:
+                    e = site_energy(u, v, pu, pv, nb[1], j, n, boundary, mass[b], k)
+                    if wp.abs(wp.float64(j - centre)) <= half_width:
+                        inside = e
+                    low = ONE + z_low
+                    envelope[b, j] = env
+                # the envelope of the neighbours, through the other half of the shared tile
+                parity = 1 - parity
+                offset = parity * block
+                wp.tile_assign(buf, wp.tile(env), offset=(offset,))
+                peak = ZERO
+                if active and env > threshold:
+                    peak = ONE
+                    for i in range(1, radius + 1):
+                        if j - i >= 0:
+                            if buf[offset + j - i] >= env:
+                                peak = ZERO
+                        if j + i < n:
+                            if buf[offset + j + i] > env:
+                                peak = ZERO
+                peaks = wp.tile_sum(wp.tile(peak))
+                total = wp.tile_sum(wp.tile(e))
+                squares = wp.tile_sum(wp.tile(e * e))
+                spot_total = wp.tile_sum(wp.tile(inside))
+                top = wp.tile_max(wp.tile(env))
+                lowest = wp.tile_min(wp.tile(low))
+                if j == 0:
+                    r = done / frame_every - 1
+                    obs[r, b, 0] = peaks[0]
+                    pr = ZERO
+                    if squares[0] > ZERO:
+                        pr = total[0] * total[0] / squares[0]
+                    obs[r, b, 1] = pr
+                    obs[r, b, 2] = spot_total[0]
+                    obs[r, b, 3] = top[0]
+                    obs[r, b, 4] = lowest[0]
+                    obs[r, b, 5] = total[0]
+                z_low = NO_CONTACT
+                z_high = -NO_CONTACT
+                if not active:
+                    z_low = ZERO
+                    z_high = ZERO
+        bk.store_site(x, b, j, active, wp.vec4d(u, v, pu, pv))
+        if active:
+            zext[b, 0, j] = z_low
+            zext[b, 1, j] = z_high
+
+    return observed_splitting
+
+
+# ----------------------------------------------------------------------------- driver
+
+
+def observe(
+    params: ChainParams,
+    x0,
+    t_final: float,
+    dt: float,
+    *,
+    observation: Observation,
+    method: str = "verlet",
+    damping: Damping | tuple | None = None,
+    M=None,
+    K=None,
+    device: str | None = None,
+    layout: str = "auto",
+    chunks: int | None = None,
+    progress: bool = False,
+    max_energy_error: float | None = 0.05,
+) -> ObservedRun:
+    """Integrate a batch and reduce the observables on the device (module docstring).
+
+    Args:
+        params, x0, dt, method, M, K, device, layout: as ``simulate`` (splitting methods only).
+        t_final: final time; rounded to a whole number of frames (of ``observation.frame_every`` steps).
+        observation: what to reduce and how often.
+        damping: losses (``losses.Damping`` or a (contact, substrate) pair; per lattice allowed).
+        chunks: launches the run is split into (progress and guard points; default ~20).
+        max_energy_error: relative energy change that counts as a blow-up (growth only with losses).
+
+    Returns:
+        ObservedRun.
+
+    Raises:
+        ValueError: bad input. StepSizeError: dt above the stability limit.
+        IntegrationError: non-finite state or energy error above the bound (names method, dt, limit).
+    """
+    import warp as wp
+
+    from . import block_kernels, kernels
+    from .ensemble import _warp
+
+    _warp()
+    start = time.perf_counter()
+    meth = get_method(method)
+    if not isinstance(meth, SplittingMethod):
+        raise ValueError(f"observe runs the splitting methods; {meth.name!r} is not one (choose verlet, yoshida4, ...)")
+    x0 = as_batch(x0, params.N, "x0")
+    batch = x0.shape[0]
+    Mb, Kb = per_lattice_parameters(params, batch, M, K)
+    observation = observation.validated(batch)
+    damping = as_damping(damping)
+    limit = _check_step(meth, params, dt, Mb, Kb, False)
+    t_final = real_number("t_final", t_final, positive=True)
+    device = resolve_device(device)
+    layout = resolve_layout(layout, device, params.N)
+    fe = observation.frame_every
+    nsteps, dt_used = steps_for(t_final, dt)
+    n_frames = max(1, round(nsteps / fe))
+    nsteps = n_frames * fe
+    dt_used = t_final / nsteps
+    lag = min(observation.lag_frames, n_frames)
+
+    f64 = wp.float64
+    x = wp.array(x0, dtype=f64, device=device)
+    inv_mass = wp.array(inverse_mass(Mb), dtype=f64, device=device)
+    mass = wp.array(Mb, dtype=f64, device=device)
+    coupling = wp.array(Kb, dtype=f64, device=device)
+    if damping is not None:
+        coefficients = kick_matrices(meth.kicks, dt_used, Mb, damping, batch)
+        lossy = wp.array((~lossless(coefficients)).astype(np.int32), dtype=wp.int32, device=device)
+        damp = wp.array(coefficients, dtype=f64, device=device)
+    else:
+        lossy = wp.zeros(batch, dtype=wp.int32, device=device)
+        damp = wp.zeros((1, 1, KICK_ENTRIES), dtype=f64, device=device)
+    spot = wp.array(np.broadcast_to(np.asarray(observation.spot, dtype=np.float64), (batch,)), dtype=f64, device=device)
+    z0 = x0[:, 0] - x0[:, 1]
+    zext = wp.array(np.stack([np.full_like(z0, _FAR), np.full_like(z0, -_FAR)], axis=1), dtype=f64, device=device)
+    envelope = wp.zeros((batch, params.N), dtype=f64, device=device)
+    obs = wp.zeros((n_frames, batch, N_OBSERVABLES), dtype=f64, device=device)
+    boundary = BOUNDARY_CODES[params.boundary]
+    threshold, radius = f64(observation.threshold), int(observation.radius)
+
+    if layout == "block":
+        block = block_kernels.block_size(params.N)
+        kernel = _block_kernel(block, meth.stages)
+        drifts = block_kernels.pack_coefficients(meth.drifts, dt_used)
+        kicks = block_kernels.pack_coefficients(meth.kicks, dt_used)
+        if device == "cpu":
+            wp.config.enable_cpu_blocks = True
+
+        def launch(first, steps):
+            inputs = [x, inv_mass, mass, coupling, drifts, kicks, boundary, int(steps), lossy, damp]
+            inputs += [int(first), fe, threshold, radius, spot, zext, envelope, obs]
+            wp.launch(kernel, dim=(batch, block), block_dim=block, device=device, inputs=inputs)
+
+    else:
+        kernel = _thread_kernel()
+        acc = wp.zeros((batch, 2, params.N), dtype=f64, device=device)
+        drifts = wp.array(np.array(meth.drifts), dtype=f64, device=device)
+        kicks = wp.array(np.array(meth.kicks), dtype=f64, device=device)
+        from .ensemble import _in_parallel, _slices
+
+        def launch(first, steps):
+            def task(lo, hi):
+                inputs = [x[lo:hi], acc[lo:hi], inv_mass[lo:hi], mass[lo:hi], coupling[lo:hi], drifts, kicks]
+                inputs += [boundary, f64(dt_used), int(steps), lossy[lo:hi], damp[lo:hi] if damping else damp]
+                inputs += [int(first), fe, threshold, radius, spot[lo:hi], zext[lo:hi], envelope[lo:hi]]
+                inputs += [obs[:, lo:hi]]
+                wp.launch(kernel, dim=hi - lo, device=device, inputs=inputs)
+
+            _in_parallel([lambda lo=lo, hi=hi: task(lo, hi) for lo, hi in _slices(batch, device)])
+
+    del kernels
+    first_values, env0 = frame_observables(
+        params, x0, z0, z0, Mb, Kb, observation.spot, observation.threshold, observation.radius
+    )
+    E0 = first_values[:, 5]
+    # chunks: whole frames; the last `lag` frames form their own chunk so that the envelope is read there
+    n_chunks = chunks or 20
+    main_frames = n_frames - lag
+    bounds = [0]
+    if main_frames > 0:
+        per = max(1, math.ceil(main_frames / max(1, n_chunks - 1)))
+        bounds += list(range(per, main_frames, per)) + [main_frames]
+    bounds.append(n_frames)
+    bounds = sorted(set(bounds))
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=n_frames, desc=f"observe {meth.name} x{batch}", unit="frame", leave=False)
+    env_lag = env0 if main_frames == 0 else None
+    host_obs = np.empty((n_frames, batch, N_OBSERVABLES))
+    try:
+        for a, b in zip(bounds[:-1], bounds[1:]):
+            launch(a * fe, (b - a) * fe)
+            host_obs[a:b] = obs[a:b].numpy()
+            if b == main_frames:
+                env_lag = envelope.numpy().copy()
+            E = host_obs[b - 1, :, 5]
+            finite = np.isfinite(host_obs[a:b]).all(axis=(0, 2))
+            change = _signed_energy_change(E, E0, params.N) if damping is not None else None
+            err = np.maximum(change, 0.0) if change is not None else _relative_energy_error(E, E0, params.N)
+            bad = ~finite | ((err > max_energy_error) if max_energy_error is not None else False)
+            if np.any(bad):
+                failed = np.flatnonzero(bad).tolist()
+                t_now = b * fe * dt_used
+                raise IntegrationError(
+                    f"integration blew up ({'non-finite state' if not finite.all() else 'energy error above'} "
+                    f"{max_energy_error}) at t = {t_now:.6g} with method '{meth.name}', dt = {dt_used:.6g} "
+                    f"(linear stability limit {limit:.6g}); failing lattices: {failed[:20]}. Reduce dt.",
+                    method=meth.name,
+                    dt=dt_used,
+                    stability_limit=limit,
+                    failed=failed,
+                    t=t_now,
+                )
+            if bar is not None:
+                bar.update(b - a)
+    finally:
+        if bar is not None:
+            bar.close()
+    values = np.concatenate([first_values[None], host_obs])
+    return ObservedRun(
+        t=np.arange(n_frames + 1) * fe * dt_used,
+        values=values,
+        envelope=envelope.numpy().copy(),
+        envelope_lag=env_lag,
+        t_lag=(n_frames - lag) * fe * dt_used,
+        x=x.numpy().copy(),
+        energy_initial=E0,
+        method=meth.name,
+        dt=dt_used,
+        nsteps=nsteps,
+        device=device,
+        layout=layout,
+        wall_seconds=time.perf_counter() - start,
+    )
