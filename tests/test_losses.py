@@ -1,0 +1,141 @@
+"""Losses (exact damped kicks) and the device-side observables, against the numpy reference and DOP853."""
+
+import numpy as np
+import pytest
+
+from warpchain import ChainParams, reference, simulate
+from warpchain.losses import Damping, damping_matrix, dissipation, kick_matrices, rhs_flat
+from warpchain.observe import Observation, observe, peak_mask, peak_tracks, reference_observe
+
+N = 41
+PARAMS = ChainParams(30.0, 160.0, N)
+
+
+def _spots(batch, amplitude=0.3, width=4.0, seed=0):
+    rng = np.random.default_rng(seed)
+    j = np.arange(N)
+    x = np.zeros((batch, 4, N))
+    x[:, 2] = amplitude * np.exp(-(((j - N // 2) / width) ** 2))
+    x[:, 2] += 0.01 * rng.standard_normal((batch, N))
+    return x
+
+
+DAMPING = Damping(np.array([0.0, 0.05, 0.02, 0.0]), np.array([0.0, 0.0, 0.01, 0.03]))
+
+
+def test_kick_matrices_solve_the_damped_velocity_equation():
+    """E and F against a fine explicit integration of w' = a - G w, and the exact zero-damping form."""
+    M, gc, gs, h = 30.0, 0.2, 0.05, 0.37
+    coef = kick_matrices((1.0,), h, [M], Damping(gc, gs), 1)[0, 0]
+    E, F = coef[:4].reshape(2, 2), coef[4:].reshape(2, 2)
+    G = damping_matrix(M, gc, gs)
+    w0, a = np.array([0.3, -0.7]), np.array([1.1, 0.4])
+    w = w0.copy()
+    n = 20000
+    for _ in range(n):  # RK4, far below its error scale
+        f = lambda w: a - G @ w  # noqa: E731
+        k1 = f(w)
+        k2 = f(w + 0.5 * h / n * k1)
+        k3 = f(w + 0.5 * h / n * k2)
+        k4 = f(w + h / n * k3)
+        w = w + h / n / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    np.testing.assert_allclose(E @ w0 + F @ a, w, rtol=1e-12)
+    # d(u' - v')/dt from the losses is -gamma_c (u' - v') - gamma_s u' (so z'' = ... - gamma_c z')
+    np.testing.assert_allclose(-(G[0] - G[1]), [-gc - gs, gc], rtol=1e-14)
+    zero = kick_matrices((0.5, 0.25), 0.1, [M], Damping(0.0, 0.0), 1)[0]
+    assert np.array_equal(zero[:, :4], np.tile([1.0, 0.0, 0.0, 1.0], (2, 1)))
+    assert np.array_equal(zero[:, 4], np.array([0.5 * 0.1, 0.25 * 0.1])) and np.all(zero[:, 5:7] == 0)
+
+
+@pytest.mark.parametrize("method", ["verlet", "yoshida4", "kahan6"])
+def test_damped_schemes_keep_their_order_against_dop853(method):
+    x0 = _spots(1)
+    damping = Damping(0.05, 0.02)
+    from scipy.integrate import solve_ivp
+
+    T = 4.0
+    sol = solve_ivp(rhs_flat(PARAMS, None, None, 0.05, 0.02), (0, T), x0[0].ravel(), "DOP853", rtol=1e-13, atol=1e-14)
+    exact = sol.y[:, -1].reshape(4, N)
+    errors = [
+        np.abs(reference.integrate(method, PARAMS, x0, T / n, n, damping=damping)["x"][0] - exact).max()
+        for n in (80, 160)
+    ]
+    order = {"verlet": 2, "yoshida4": 4, "kahan6": 6}[method]
+    assert np.log2(errors[0] / errors[1]) == pytest.approx(order, abs=0.25)
+
+
+def test_energy_balance_of_a_damped_run():
+    """E(0) - E(t) equals the integrated dissipation (trapezoid over fine steps), to the scheme's accuracy."""
+    x = _spots(1)
+    damping = Damping(0.04, 0.01)
+    E0 = reference.model.energy(PARAMS, x)[0]
+    dt, n = 0.01, 400
+    lost = 0.0
+    p_prev = dissipation(x, 30.0, damping)[0]
+    for _ in range(n):
+        x = reference.step("yoshida4", PARAMS, x, dt, damping=damping)
+        p = dissipation(x, 30.0, damping)[0]
+        lost += 0.5 * dt * (p + p_prev)
+        p_prev = p
+    E = reference.model.energy(PARAMS, x)[0]
+    assert lost > 1e-3 * E0
+    assert E0 - E == pytest.approx(lost, rel=1e-4)
+
+
+@pytest.mark.parametrize("layout", ["thread", "block"])
+@pytest.mark.parametrize("method", ["verlet", "kahan6"])
+def test_damped_kernels_match_the_reference_bit_for_bit(layout, method):
+    x0 = _spots(4)
+    run = simulate(PARAMS, x0, 3.0, 0.05, method=method, device="cpu", damping=DAMPING, layout=layout)
+    ref = reference.integrate(method, PARAMS, x0, run.dt, run.nsteps, damping=DAMPING)["x"]
+    assert np.array_equal(run.x, ref)
+    lossless = simulate(PARAMS, x0, 3.0, 0.05, method=method, device="cpu", layout=layout)
+    assert np.array_equal(run.x[0], lossless.x[0])  # the lattice without losses: today's scheme, bit for bit
+    assert np.all(run.energy_final[1:] < run.energy_initial[1:])
+
+
+def test_losses_are_refused_where_they_have_no_sub_flow():
+    with pytest.raises(ValueError, match="splitting"):
+        simulate(PARAMS, _spots(1), 1.0, 0.05, method="rk4", device="cpu", damping=(0.1, 0.0))
+    with pytest.raises(ValueError, match="conservative"):
+        reference.step("verlet", PARAMS, _spots(1), 0.05, dx=np.zeros((1, 1, 4, N)), damping=(0.1, 0.0))
+    with pytest.raises(ValueError, match=">= 0"):
+        simulate(PARAMS, _spots(1), 1.0, 0.05, device="cpu", damping=(-0.1, 0.0))
+
+
+@pytest.mark.parametrize("layout", ["thread", "block"])
+def test_observables_match_the_reference(layout):
+    x0 = _spots(4)
+    obs = Observation(frame_every=10, threshold=0.02, radius=2, spot=np.array([3.0, 4.0, 5.0, 6.0]), lag_frames=3)
+    run = observe(
+        PARAMS, x0, 12.0, 0.05, observation=obs, method="verlet", damping=DAMPING, device="cpu", layout=layout
+    )
+    values, env, x = reference_observe("verlet", PARAMS, x0, run.dt, run.nsteps, obs, damping=DAMPING)
+    assert np.array_equal(run.x, x)
+    assert np.array_equal(run["peaks"], values[..., 0])
+    np.testing.assert_allclose(run.values, values, rtol=1e-12, atol=1e-13)
+    assert np.array_equal(run.envelope, env)
+    assert run["peaks"].max() >= 2  # the test spot does break up into several peaks
+    np.testing.assert_allclose(run["energy"][0], reference.model.energy(PARAMS, x0), rtol=1e-13)
+
+
+def test_zero_damping_observe_is_simulate_bit_for_bit():
+    x0 = _spots(2)
+    obs = Observation(frame_every=8, threshold=0.05)
+    run = observe(PARAMS, x0, 4.0, 0.05, observation=obs, method="yoshida4", device="cpu", damping=(0.0, 0.0))
+    plain = simulate(PARAMS, x0, run.t[-1], run.dt, method="yoshida4", device="cpu")
+    assert plain.nsteps == run.nsteps and np.array_equal(run.x, plain.x)
+
+
+def test_peaks_and_tracks():
+    env = np.zeros((1, 30))
+    env[0, 5], env[0, 6], env[0, 7] = 0.2, 0.5, 0.3  # one peak, off-centre to the left of 6.5
+    env[0, 20], env[0, 21] = 0.4, 0.4  # a plateau counts once (its left site)
+    env[0, 25] = 0.01  # below threshold
+    mask = peak_mask(env, 0.05, 2)
+    assert mask.sum() == 2 and mask[0, 6] and mask[0, 20]
+    moved = np.roll(env, 2, axis=-1)
+    tracks = peak_tracks(env, moved, 4.0, 0.05, 2, max_speed=1.0)[0]
+    assert tracks.shape == (2, 3)
+    np.testing.assert_allclose(tracks[:, 2], 0.5)  # two sites in four time units
+    assert 7.5 < tracks[0, 0] < 8.5 and tracks[0, 1] == 0.5
