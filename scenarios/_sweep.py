@@ -1,0 +1,693 @@
+"""A grid of independent tasks written into one zarr v3 group, in-process or through Dask, resumable.
+
+A sweep is described by a :class:`SweepSpec`: coordinates of every dimension, the *task dims* (one task
+per index combination of them) and the variables (each with dims that start with the task dims). For
+example ``breakup-statistics`` has dims ``(A, damping, W, realisation, frame)`` and one task per
+``(A, damping)``: a task integrates every W and realisation of its (A, damping) and returns arrays of
+shape ``(W, realisation, frame)`` (or whatever its variables hold after the task dims).
+
+Layout of the group (``spec.group`` inside the store; the root and its other groups are left alone)::
+
+    <group>/                     attrs: spec.attrs, task_dims, sweep (the grid's signature)
+      <variable>  dims as given  chunks 1 along each task dim, whole along the others; NaN fill (floats)
+      <dim>       (dim,)         one 1-D coordinate array per dim, single chunk
+      completed   task dims      int8, fill 0; 1 once the task's region is written
+
+Design:
+
+* Disjoint chunks, no locks. Each task's region of each variable is exactly one chunk, and so is its
+  ``completed`` element, so workers never touch the same chunk and write concurrently without locks.
+  The worker that runs a task writes its region itself: only a few timing numbers travel back to the
+  client, never the data.
+* ``completed`` is written last. A task sets its flag only after all its variables are written, so an
+  interrupted task (killed worker, Ctrl-C, a failure) is never counted as done; its partly written
+  chunks are overwritten whole when it runs again.
+* Resume. :func:`run_sweep` opens (or creates) the group, reads ``completed`` and runs only the tasks
+  not yet done: rerunning the same command after an interruption finishes the sweep. A group that holds
+  a different grid (coords, task dims, variables, or ``spec.attrs`` such as parameters and seeds)
+  raises :class:`SweepMismatchError` instead of mixing two grids: use a new output folder.
+* Determinism. The runner never reorders data: each task writes at its own index, and a task is expected
+  to derive its random seeds from its index (``np.random.default_rng((seed, *index.values()))``), so a
+  task gives the same bytes whichever path (in-process, any worker) runs it.
+* Devices. A task is called as ``task(index, device)``. ``device`` is ``"cpu"`` when ``gpus == 0``;
+  otherwise ``f"cuda:{k % gpus}"`` with ``k`` the ordinal of the worker running it (``LocalCluster``
+  names its workers 0..N-1; in-process runs use ``cuda:0``). With ``workers == gpus`` each worker owns
+  one GPU; with more workers than GPUs several share one. For an external cluster whose workers are
+  not named by integers, ``k`` is the worker's rank among the workers of its host (sorted by name and
+  address, taken when the sweep starts). Workers started with ``CUDA_VISIBLE_DEVICES`` set to one GPU
+  each should be given ``gpus=1`` (every worker then uses its ``cuda:0``).
+* Dask is optional (``pip install -e ".[dask]"``); importing this module never imports it and the
+  in-process path (``workers=0``, no scheduler) works without it. ``workers=N`` starts a
+  ``distributed.LocalCluster`` of N single-threaded worker processes for the sweep and closes it at the
+  end; ``scheduler="tcp://host:8786"`` uses a running cluster instead (a scene passes it through, e.g.
+  ``python -m scenarios run breakup-statistics --set scheduler=tcp://host:8786``). Workers of an
+  external cluster must see the store at the same path (shared file system) and be able to import
+  ``scenarios`` and ``warpchain`` (an editable install does it; the client's ``sys.path`` entries are
+  also appended on every worker where they exist).
+* Tasks must be picklable top-level callables; ``functools.partial(module_level_function, **params)``
+  is the expected form. The task is sent to each worker once (scattered), not once per task.
+* Consolidated metadata is written once, at the end of :func:`run_sweep`, by the client.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import logging
+import os
+import sys
+import time
+import traceback
+import warnings
+
+import numpy as np
+import zarr
+
+from warpchain.store import consolidate, jsonable
+
+COMPLETED = "completed"
+DASK_HINT = 'pip install -e ".[dask]"'
+
+
+class SweepMismatchError(ValueError):
+    """The group already holds a sweep over a different grid (or something that is not a sweep)."""
+
+
+class SweepTaskError(RuntimeError):
+    """A task failed; the message names its index. ``report`` is set when the sweep went on (fail_fast=False)."""
+
+    def __init__(self, message: str, failed=(), report=None):
+        super().__init__(message)
+        self.failed = tuple(failed)
+        self.report = report
+
+
+@dataclasses.dataclass(frozen=True)
+class Variable:
+    """One output array: dims start with the sweep's task dims; floats fill with NaN (or ``fill``),
+    integer dtypes need an explicit ``fill`` (the value a task that has not run reads as)."""
+
+    dims: tuple[str, ...]
+    dtype: str = "float64"
+    fill: float | int | None = None
+    attrs: dict = dataclasses.field(default_factory=dict)
+
+    def fill_value(self):
+        kind = np.dtype(self.dtype).kind
+        if self.fill is not None:
+            return np.dtype(self.dtype).type(self.fill).item()
+        if kind in "fc":
+            return np.nan
+        if kind == "b":
+            return False
+        raise ValueError(f"variable of dtype {self.dtype} needs an explicit fill value (Variable(fill=...))")
+
+
+@dataclasses.dataclass(frozen=True)
+class SweepSpec:
+    """The grid: coordinates of every dim, the dims tasks run over, the variables, group attributes."""
+
+    group: str
+    coords: dict[str, np.ndarray]
+    task_dims: tuple[str, ...]
+    variables: dict[str, Variable]
+    attrs: dict = dataclasses.field(default_factory=dict)
+
+    def __post_init__(self):
+        object.__setattr__(self, "task_dims", tuple(self.task_dims))
+        coords = {str(k): np.asarray(v) for k, v in self.coords.items()}
+        object.__setattr__(self, "coords", coords)
+        problems = []
+        for dim, values in coords.items():
+            if values.ndim != 1:
+                problems.append(f"coordinate {dim!r} must be 1-D, got shape {values.shape}")
+        if not self.task_dims:
+            problems.append("task_dims is empty")
+        for dim in self.task_dims:
+            if dim not in coords:
+                problems.append(f"task dim {dim!r} has no coordinate")
+        if len(set(self.task_dims)) != len(self.task_dims):
+            problems.append(f"task_dims repeat a dim: {self.task_dims}")
+        if not self.variables:
+            problems.append("no variables")
+        for name, var in self.variables.items():
+            dims = tuple(var.dims)
+            if name == COMPLETED or name in coords:
+                problems.append(f"variable name {name!r} is reserved (the completed flags or a coordinate)")
+            if dims[: len(self.task_dims)] != self.task_dims:
+                problems.append(f"variable {name!r}: dims {dims} must start with the task dims {self.task_dims}")
+            if len(set(dims)) != len(dims):
+                problems.append(f"variable {name!r}: dims {dims} repeat a dim")
+            for dim in dims:
+                if dim not in coords:
+                    problems.append(f"variable {name!r}: dim {dim!r} has no coordinate")
+            try:
+                var.fill_value()
+            except (ValueError, TypeError) as exc:
+                problems.append(f"variable {name!r}: {exc}")
+        if COMPLETED in coords:
+            problems.append(f"a dim may not be named {COMPLETED!r}")
+        if problems:
+            raise ValueError("invalid SweepSpec: " + "; ".join(problems))
+
+    @property
+    def task_shape(self) -> tuple[int, ...]:
+        return tuple(len(self.coords[d]) for d in self.task_dims)
+
+    def shape(self, name: str) -> tuple[int, ...]:
+        return tuple(len(self.coords[d]) for d in self.variables[name].dims)
+
+    def signature(self) -> dict:
+        """What must match for a stored group to be resumed (coordinate values are compared apart)."""
+        return {
+            "task_dims": list(self.task_dims),
+            "dims": {d: len(v) for d, v in self.coords.items()},
+            "variables": {
+                name: {"dims": list(v.dims), "dtype": np.dtype(v.dtype).name, "fill": jsonable(v.fill_value())}
+                for name, v in self.variables.items()
+            },
+            "attr_keys": sorted(str(k) for k in self.attrs),
+        }
+
+
+@dataclasses.dataclass(frozen=True)
+class SweepReport:
+    """What a sweep did. ``task_seconds`` (task plus writing its region, measured where it ran) and
+    ``task_indices`` cover the tasks that ran, in grid order."""
+
+    tasks: int
+    skipped: int
+    ran: int
+    workers: int
+    mode: str
+    wall_seconds: float
+    task_seconds: list[float]
+    task_indices: list[tuple[int, ...]] = dataclasses.field(default_factory=list)
+    failed: list[tuple[int, ...]] = dataclasses.field(default_factory=list)
+
+
+# --------------------------------------------------------------------------------------------- store
+
+
+def _open_root(store_path, mode: str = "a") -> zarr.Group:
+    # never from consolidated metadata (it may lag the arrays; see warpchain.store.open_store)
+    return zarr.open_group(str(store_path), mode=mode, zarr_format=3, use_consolidated=False)
+
+
+def _coord_dtype(values: np.ndarray):
+    return str if values.dtype.kind in "UO" else values.dtype
+
+
+def _same_values(a: np.ndarray, b: np.ndarray) -> bool:
+    if a.shape != b.shape:
+        return False
+    if a.dtype.kind in "fc" and b.dtype.kind in "fc":
+        return bool(np.array_equal(a, b, equal_nan=True))
+    if (a.dtype.kind in "UOT") != (b.dtype.kind in "UOT"):
+        return False
+    return bool(np.array_equal(a.astype(object) if a.dtype.kind in "UOT" else a, b))
+
+
+def _short(values: np.ndarray) -> str:
+    return np.array2string(np.asarray(values), threshold=8, precision=6, separator=", ")
+
+
+def _check_group(group: zarr.Group, spec: SweepSpec, where: str) -> None:
+    stored_attrs = dict(group.attrs)
+    hint = "write to a new output folder (or delete that group); grids are never mixed"
+    if "sweep" not in stored_attrs:
+        raise SweepMismatchError(f"{where} exists but was not written by run_sweep; {hint}")
+    problems = []
+    old, new = stored_attrs["sweep"], jsonable(spec.signature())
+    for key in ("task_dims", "dims", "variables", "attr_keys"):
+        if old.get(key) != new[key]:
+            problems.append(f"{key}: stored {old.get(key)}, asked {new[key]}")
+    members = set(group.array_keys())
+    for dim, values in spec.coords.items():
+        if dim not in members:
+            problems.append(f"coordinate {dim!r} missing")
+            continue
+        stored = group[dim][...]
+        if not _same_values(np.asarray(stored), values):
+            problems.append(f"coordinate {dim!r}: stored {_short(stored)}, asked {_short(values)}")
+    for key, value in jsonable(spec.attrs).items():
+        if stored_attrs.get(key) != value:
+            problems.append(f"attribute {key!r}: stored {stored_attrs.get(key)!r}, asked {value!r}")
+    for name in [*spec.variables, COMPLETED]:
+        if name not in members:
+            problems.append(f"array {name!r} missing")
+    if problems:
+        raise SweepMismatchError(f"{where} holds a different sweep ({'; '.join(problems)}); {hint}")
+
+
+def open_sweep(store_path, spec: SweepSpec) -> zarr.Group:
+    """Create the sweep's group (arrays, coordinates, ``completed``, attributes) or open an existing one
+    after checking it holds the same grid (raises :class:`SweepMismatchError` otherwise). The store's
+    root (attributes, other groups) is opened with mode ``"a"`` and left as it is."""
+    root = _open_root(store_path, "a")
+    where = f"group {spec.group!r} of {store_path}"
+    if spec.group in set(root.group_keys()):
+        group = root[spec.group]
+        _check_group(group, spec, where)
+        for name, var in spec.variables.items():  # descriptive attributes may be refreshed
+            if var.attrs:
+                group[name].attrs.update(jsonable(var.attrs))
+        return group
+    if spec.group in set(root.array_keys()):
+        raise SweepMismatchError(f"{where} is an array, not a group; write to a new output folder")
+    group = root.require_group(spec.group)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # zarr's notes on string dtypes not yet in the v3 spec
+        for dim, values in spec.coords.items():
+            arr = group.create_array(
+                dim,
+                shape=values.shape,
+                chunks=(max(len(values), 1),),
+                dtype=_coord_dtype(values),
+                dimension_names=(dim,),
+                overwrite=True,
+            )
+            if len(values):
+                arr[...] = values
+    for name, var in spec.variables.items():
+        shape = spec.shape(name)
+        chunks = tuple(1 if d in spec.task_dims else max(n, 1) for d, n in zip(var.dims, shape))
+        arr = group.create_array(
+            name,
+            shape=shape,
+            chunks=chunks,
+            dtype=np.dtype(var.dtype),
+            fill_value=var.fill_value(),
+            dimension_names=tuple(var.dims),
+            overwrite=True,
+        )
+        if var.attrs:
+            arr.attrs.update(jsonable(var.attrs))
+    group.create_array(
+        COMPLETED,
+        shape=spec.task_shape,
+        chunks=(1,) * len(spec.task_dims),
+        dtype="int8",
+        fill_value=0,
+        compressors=None,  # one byte per chunk file
+        dimension_names=spec.task_dims,
+        overwrite=True,
+    ).attrs.update({"description": "1 once the task's region of every variable is written"})
+    # the signature last: a group interrupted while being created is not taken for a sweep
+    group.attrs.update({**jsonable(spec.attrs), "task_dims": list(spec.task_dims), "sweep": jsonable(spec.signature())})
+    return group
+
+
+def completed(store_path, spec: SweepSpec) -> np.ndarray:
+    """Boolean array over the task dims: True where the task's region is written. All False when the
+    group does not exist yet. An unreadable flag (a worker killed while writing it) reads False."""
+    try:
+        root = _open_root(store_path, "r")
+        arr = root[spec.group][COMPLETED]
+    except (FileNotFoundError, KeyError):
+        return np.zeros(spec.task_shape, dtype=bool)
+    if tuple(arr.shape) != spec.task_shape:
+        raise SweepMismatchError(
+            f"group {spec.group!r} of {store_path}: completed flags have shape {arr.shape}, the grid "
+            f"{spec.task_shape}; write to a new output folder"
+        )
+    try:
+        return np.asarray(arr[...]) == 1
+    except Exception:
+        done = np.zeros(spec.task_shape, dtype=bool)
+        for index in np.ndindex(*spec.task_shape):
+            with contextlib.suppress(Exception):
+                done[index] = arr[index] == 1
+        return done
+
+
+# ------------------------------------------------------------------------------------------ one task
+
+
+def _layout(spec: SweepSpec) -> dict:
+    """What a worker needs to validate and write a task's result (small, sent with every task)."""
+    n_task = len(spec.task_dims)
+    return {
+        "group": spec.group,
+        "task_dims": spec.task_dims,
+        "variables": {name: (spec.shape(name)[n_task:], np.dtype(v.dtype).str) for name, v in spec.variables.items()},
+    }
+
+
+def _write_result(group: zarr.Group, layout: dict, index: tuple[int, ...], result) -> None:
+    """Checks a task's result, writes each variable's region (whole chunks), then the completed flag."""
+    if not isinstance(result, dict):
+        raise TypeError(f"the task returned {type(result).__name__}, expected a dict of arrays")
+    expected = layout["variables"]
+    missing, extra = sorted(set(expected) - set(result)), sorted(set(result) - set(expected))
+    if missing or extra:
+        raise ValueError(f"the task returned variables {sorted(result)}: missing {missing}, unexpected {extra}")
+    arrays = {}
+    for name, (shape, dtype) in expected.items():
+        value = np.asarray(result[name])
+        if value.shape != tuple(shape):
+            raise ValueError(f"variable {name!r}: the task returned shape {value.shape}, expected {tuple(shape)}")
+        try:
+            arrays[name] = value.astype(np.dtype(dtype), casting="same_kind", copy=False)
+        except TypeError as exc:
+            raise TypeError(f"variable {name!r}: cannot store {value.dtype} as {np.dtype(dtype)}") from exc
+    for name, value in arrays.items():  # all checked before any is written
+        group[name][index] = value
+    group[COMPLETED][index] = 1
+
+
+def _call_task(task, group, layout, index: tuple[int, ...], device: str) -> float:
+    t0 = time.perf_counter()
+    result = task(dict(zip(layout["task_dims"], (int(i) for i in index))), device)
+    _write_result(group, layout, index, result)
+    return time.perf_counter() - t0
+
+
+def _device(ordinal: int, gpus: int) -> str:
+    return "cpu" if gpus <= 0 else f"cuda:{int(ordinal) % int(gpus)}"
+
+
+def _int_name(name) -> int | None:
+    if isinstance(name, (int, np.integer)) and not isinstance(name, bool):
+        return int(name)
+    if isinstance(name, str) and name.isdigit():
+        return int(name)
+    return None
+
+
+def _worker_ordinals(workers: dict) -> dict[str, int]:
+    """address -> ordinal from the scheduler's worker table: the integer name when workers have one
+    (LocalCluster: 0..N-1), else the rank among the workers of the same host."""
+    ordinals, by_host = {}, {}
+    for address, info in workers.items():
+        k = _int_name(info.get("name"))
+        if k is not None:
+            ordinals[address] = k
+        else:
+            by_host.setdefault(info.get("host", ""), []).append((str(info.get("name")), address))
+    for members in by_host.values():
+        for rank, (_, address) in enumerate(sorted(members)):
+            ordinals[address] = rank
+    return ordinals
+
+
+def _run_on_worker(store_path: str, layout: dict, task, index: tuple[int, ...], gpus: int, ordinals: dict) -> dict:
+    """Runs on a Dask worker: the task, then its region written from here. Returns only timing/status."""
+    from distributed import get_worker
+
+    worker = get_worker()
+    ordinal = ordinals.get(worker.address)
+    if ordinal is None:
+        ordinal = _int_name(worker.name) or 0
+    device = _device(ordinal, gpus)
+    try:
+        group = _open_root(store_path, "r+")[layout["group"]]
+        seconds = _call_task(task, group, layout, index, device)
+        return {"index": index, "ok": True, "seconds": seconds, "worker": str(worker.name), "device": device}
+    except Exception as exc:
+        return {
+            "index": index,
+            "ok": False,
+            "error": f"{type(exc).__name__}: {exc}",
+            "traceback": traceback.format_exc(),
+            "worker": str(worker.name),
+            "device": device,
+        }
+
+
+# ------------------------------------------------------------------------------------------ the sweep
+
+
+def _index_text(spec: SweepSpec, index: tuple[int, ...]) -> str:
+    return ", ".join(f"{d}={i}" for d, i in zip(spec.task_dims, index))
+
+
+def _progress_bar(total: int, enabled: bool, desc: str):
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, disable=not enabled, desc=desc, unit="task", leave=False, dynamic_ncols=True)
+
+
+@contextlib.contextmanager
+def _quiet_distributed(level=logging.ERROR):
+    """Silences distributed's INFO/WARNING chatter (worker start/stop, closing streams) while it runs."""
+    names = ["distributed", *(n for n in logging.root.manager.loggerDict if n.startswith("distributed."))]
+    names += ["bokeh", "tornado"]
+    saved = {n: logging.getLogger(n).level for n in names}
+    for n in names:
+        logging.getLogger(n).setLevel(level)
+    try:
+        yield
+    finally:
+        for n, lvl in saved.items():
+            logging.getLogger(n).setLevel(lvl)
+
+
+def _import_distributed():
+    try:
+        import distributed
+    except ImportError as exc:
+        raise ImportError(
+            f"workers=/scheduler= run the sweep through Dask, which is not installed: {DASK_HINT}"
+        ) from exc
+    return distributed
+
+
+def _path_plugin(paths: list[str]):
+    """A worker plugin (defined here so that cloudpickle sends it by value: a worker that cannot import
+    ``scenarios`` yet can still unpickle it) appending the client's sys.path entries that exist there."""
+    from distributed.diagnostics.plugin import WorkerPlugin
+
+    class AddClientPaths(WorkerPlugin):
+        name = "warpchain-sweep-sys-path"
+
+        def __init__(self, entries):
+            self.entries = list(entries)
+
+        def setup(self, worker):
+            import os as _os
+            import sys as _sys
+
+            for entry in self.entries:
+                if entry and entry not in _sys.path and _os.path.isdir(entry):
+                    _sys.path.append(entry)
+
+    return AddClientPaths(paths)
+
+
+def run_sweep(
+    store_path,
+    spec: SweepSpec,
+    task,
+    *,
+    workers: int = 0,
+    scheduler: str | None = None,
+    gpus: int = 0,
+    progress: bool = True,
+    log=None,
+    fail_fast: bool = True,
+) -> SweepReport:
+    """Runs every task of ``spec`` not yet completed in ``store_path`` and writes its region.
+
+    Args:
+        store_path: the zarr store (a directory path); created if missing, its root left as it is.
+        spec: the grid (:class:`SweepSpec`).
+        task: ``task(index: dict[str, int], device: str) -> dict[str, np.ndarray]``; one array per
+            variable, shaped like the variable without its task dims. A picklable top-level callable
+            (``functools.partial`` of a module-level function) when run through Dask.
+        workers: 0 (with no scheduler): in-process, tasks in grid order. N: a ``distributed.LocalCluster``
+            of N single-threaded worker processes, closed at the end.
+        scheduler: address of a running Dask scheduler (``tcp://host:8786``) to use instead.
+        gpus: 0: every task gets ``"cpu"``; G: ``f"cuda:{worker ordinal % G}"`` (in-process: ``cuda:0``).
+        progress: a tqdm bar over the tasks to run.
+        log: ``log(message)`` for a start line (mode, workers, tasks to run and skipped) and an end line.
+        fail_fast: True: the first failing task raises :class:`SweepTaskError` naming its index, the
+            others are cancelled (those already written stay completed). False: every task runs, then
+            one :class:`SweepTaskError` names all that failed (its ``report`` holds the report).
+
+    Returns:
+        a :class:`SweepReport`. A rerun after an interruption or a failure runs only what is missing.
+    """
+    if workers < 0 or gpus < 0:
+        raise ValueError("workers and gpus must be >= 0")
+    if workers and scheduler:
+        raise ValueError("give workers= (a local cluster) or scheduler= (a running one), not both")
+    if not callable(task):
+        raise TypeError("task must be callable")
+    use_dask = bool(workers or scheduler)
+    if use_dask:
+        _import_distributed()  # fail before touching the store
+    say = log or (lambda message: None)
+    store_path = os.path.abspath(os.fspath(store_path))
+    t_start = time.perf_counter()
+
+    group = open_sweep(store_path, spec)
+    done = completed(store_path, spec)
+    todo = [tuple(int(i) for i in index) for index in np.ndindex(*spec.task_shape) if not done[index]]
+    n_tasks, skipped = int(done.size), int(done.sum())
+    layout = _layout(spec)
+    mode = "dask" if use_dask else "in-process"
+    seconds: dict[tuple, float] = {}
+    failures: list[tuple[tuple, str]] = []
+    n_workers = 0
+    try:
+        if not todo:
+            say(f"sweep {spec.group}: all {n_tasks} tasks already completed, nothing to run")
+        with contextlib.ExitStack() as stack:
+            if todo and use_dask:
+                n_workers, where, outcomes = _dask_outcomes(
+                    stack, store_path, task, todo, layout, workers, scheduler, gpus
+                )
+            elif todo:
+                where, outcomes = f"on {_device(0, gpus)}", _local_outcomes(task, group, layout, todo, gpus)
+            else:
+                outcomes = iter(())
+            if todo:
+                say(f"sweep {spec.group}: {mode} {where}, {len(todo)} of {n_tasks} tasks to run, {skipped} skipped")
+            bar = stack.enter_context(_progress_bar(len(todo), progress and bool(todo), spec.group))
+            for out in outcomes:
+                index = tuple(out["index"])
+                if out["ok"]:
+                    seconds[index] = out["seconds"]
+                else:
+                    where_ran = f" on worker {out['worker']} ({out['device']})" if out.get("worker") is not None else ""
+                    message = f"sweep {spec.group}: task ({_index_text(spec, index)}) failed{where_ran}: {out['error']}"
+                    if fail_fast:
+                        detail = f"\n--- worker traceback ---\n{out['traceback']}" if out.get("traceback") else ""
+                        raise SweepTaskError(message + detail, failed=[index]) from out.get("exception")
+                    failures.append((index, message))
+                    say(message)
+                bar.update()
+    finally:
+        consolidate(store_path)
+
+    ran_indices = [index for index in todo if index in seconds]
+    report = SweepReport(
+        tasks=n_tasks,
+        skipped=skipped,
+        ran=len(ran_indices),
+        workers=n_workers,
+        mode=mode,
+        wall_seconds=time.perf_counter() - t_start,
+        task_seconds=[seconds[index] for index in ran_indices],
+        task_indices=ran_indices,
+        failed=[index for index, _ in failures],
+    )
+    say(
+        f"sweep {spec.group}: {report.ran} tasks ran in {report.wall_seconds:.1f} s wall"
+        f" ({sum(report.task_seconds):.1f} s in tasks), {report.skipped} skipped, {len(failures)} failed"
+    )
+    if failures:
+        names = "; ".join(f"({_index_text(spec, index)})" for index, _ in failures)
+        raise SweepTaskError(
+            f"sweep {spec.group}: {len(failures)} of {len(todo)} tasks failed: {names}; first: {failures[0][1]}"
+            " (rerun to retry only those)",
+            failed=[index for index, _ in failures],
+            report=report,
+        )
+    return report
+
+
+def _local_outcomes(task, group, layout, todo, gpus):
+    """In-process: the tasks in grid order, each written before the next starts."""
+    device = _device(0, gpus)
+    for index in todo:
+        try:
+            yield {"index": index, "ok": True, "seconds": _call_task(task, group, layout, index, device)}
+        except Exception as exc:
+            yield {"index": index, "ok": False, "error": repr(exc), "exception": exc}
+
+
+def _dask_outcomes(stack: contextlib.ExitStack, store_path, task, todo, layout, workers, scheduler, gpus):
+    """Starts (``workers``) or connects to (``scheduler``) a cluster, registered on ``stack`` for closing,
+    submits every task and returns (number of workers, description, iterator of outcomes as they come).
+    Leaving ``stack`` cancels what has not run (fail_fast) and closes the client and the local cluster."""
+    distributed = _import_distributed()
+    stack.enter_context(_quiet_distributed())
+    if scheduler:
+        client = stack.enter_context(distributed.Client(scheduler, set_as_default=False))
+        where = f"scheduler {scheduler}"
+    else:
+        cluster = stack.enter_context(
+            distributed.LocalCluster(
+                n_workers=int(workers),
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address=None,
+                silence_logs=logging.ERROR,
+            )
+        )
+        client = stack.enter_context(distributed.Client(cluster, set_as_default=False))
+        where = "local cluster"
+        client.wait_for_workers(int(workers), timeout=120)
+    if not client.scheduler_info().get("workers"):
+        client.wait_for_workers(1, timeout=120)
+    info = client.scheduler_info().get("workers", {})
+    paths = [os.path.abspath(p) for p in sys.path if p] + [os.getcwd()]
+    client.register_plugin(_path_plugin(list(dict.fromkeys(paths))))
+    ordinals = _worker_ordinals(info)
+    devices = sorted({_device(k, gpus) for k in ordinals.values()}) or [_device(0, gpus)]
+    where = f"({where}, {len(info)} workers on {', '.join(devices)})"
+
+    task_ref = client.scatter(task, broadcast=True, hash=False)  # the task travels once per worker
+    futures = {
+        client.submit(_run_on_worker, store_path, layout, task_ref, index, gpus, ordinals, pure=False): index
+        for index in todo
+    }
+    stack.callback(client.cancel, list(futures))  # runs before the client closes (last in, first out)
+
+    def outcomes():
+        for future in distributed.as_completed(list(futures), loop=client.loop):
+            try:
+                yield future.result()
+            except Exception as exc:  # the worker died, or the task could not be unpickled there
+                yield {"index": futures[future], "ok": False, "error": repr(exc)}
+
+    return len(info), where, outcomes()
+
+
+def _demo_task(index: dict, device: str, *, n_r: int = 4, n_f: int = 5, seed: int = 12345, fail_at=None) -> dict:
+    """A deterministic numpy task for tests and examples (variables x (r, f), n (r,), y (), dev ()):
+    seeded from ``seed`` and the task index; raises at ``fail_at`` (an index tuple) to test resume."""
+    key = tuple(int(i) for i in index.values())
+    if fail_at is not None and key == tuple(fail_at):
+        raise RuntimeError(f"demo failure at {key}")
+    rng = np.random.default_rng((seed, *key))
+    x = rng.standard_normal((n_r, n_f))
+    return {
+        "x": x,
+        "n": rng.integers(0, 1000, size=n_r, dtype=np.int32),
+        "y": np.float64(x.sum()),
+        "dev": np.int8(-1 if device == "cpu" else int(device.split(":")[1])),
+    }
+
+
+def _demo_spec(
+    group: str = "observables", n_a: int = 3, n_b: int = 2, n_r: int = 4, n_f: int = 5, **attrs
+) -> SweepSpec:
+    """The grid matching :func:`_demo_task`: task dims (a, b), per task (r, f)."""
+    coords = {
+        "a": np.linspace(0.1, 0.3, n_a),
+        "b": np.arange(n_b, dtype=np.int64) * 10,
+        "r": np.arange(n_r),
+        "f": np.linspace(0.0, 1.0, n_f),
+    }
+    variables = {
+        "x": Variable(("a", "b", "r", "f"), attrs={"long_name": "demo field"}),
+        "n": Variable(("a", "b", "r"), dtype="int32", fill=-1),
+        "y": Variable(("a", "b")),
+        "dev": Variable(("a", "b"), dtype="int8", fill=-2),
+    }
+    return SweepSpec(group, coords, ("a", "b"), variables, attrs={"seed": 12345, **attrs})
+
+
+__all__ = [
+    "SweepMismatchError",
+    "SweepReport",
+    "SweepSpec",
+    "SweepTaskError",
+    "Variable",
+    "completed",
+    "open_sweep",
+    "run_sweep",
+]

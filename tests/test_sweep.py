@@ -1,0 +1,237 @@
+"""The sweep runner (scenarios/_sweep.py): in-process and Dask paths write the same bytes, resume after
+a failure or a half-written task, and refuse to mix grids."""
+
+import dataclasses
+import functools
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import zarr
+
+from scenarios._sweep import (
+    COMPLETED,
+    SweepMismatchError,
+    SweepTaskError,
+    Variable,
+    _demo_spec,
+    _demo_task,
+    completed,
+    open_sweep,
+    run_sweep,
+)
+from warpchain.store import open_store
+
+GROUP = "observables"
+
+
+def _arrays(path, group=GROUP) -> dict:
+    g = zarr.open_group(str(path), mode="r", use_consolidated=False)[group]
+    return {name: np.asarray(arr[...]) for name, arr in g.arrays()}
+
+
+def assert_same_store(a, b, group=GROUP):
+    """Array by array, bitwise (dtype, shape and bytes)."""
+    left, right = _arrays(a, group), _arrays(b, group)
+    assert sorted(left) == sorted(right)
+    for name in left:
+        assert left[name].dtype == right[name].dtype, name
+        assert left[name].shape == right[name].shape, name
+        assert left[name].tobytes() == right[name].tobytes(), name
+
+
+@pytest.fixture(scope="module")
+def clean_store(tmp_path_factory):
+    """The reference: the demo grid run in-process."""
+    path = tmp_path_factory.mktemp("clean") / "data.zarr"
+    report = run_sweep(path, _demo_spec(), _demo_task, progress=False)
+    assert report.ran == 6 and report.skipped == 0
+    return path
+
+
+def test_in_process_sweep(tmp_path):
+    xr = pytest.importorskip("xarray")
+    path = tmp_path / "data.zarr"
+    root = open_store(path, params={"N": 31}, provenance_info={"who": "test"})  # a scene's root attrs
+    root.require_group("other").attrs["keep"] = 1
+    spec = _demo_spec()
+    lines = []
+    report = run_sweep(path, spec, _demo_task, progress=False, log=lines.append)
+
+    assert (report.tasks, report.skipped, report.ran, report.workers, report.mode) == (6, 0, 6, 0, "in-process")
+    assert len(report.task_seconds) == 6 and all(s >= 0 for s in report.task_seconds)
+    assert report.task_indices == [(0, 0), (0, 1), (1, 0), (1, 1), (2, 0), (2, 1)]
+    assert report.wall_seconds >= 0 and report.failed == []
+    assert "in-process" in lines[0] and "6 of 6 tasks to run" in lines[0] and "wall" in lines[-1]
+    assert completed(path, spec).all() and completed(path, spec).shape == (3, 2)
+
+    root = zarr.open_group(str(path), mode="r", use_consolidated=False)
+    assert root.attrs["params"] == {"N": 31} and root.attrs["provenance"] == {"who": "test"}
+    assert root["other"].attrs["keep"] == 1
+    g = root[GROUP]
+    assert g["x"].chunks == (1, 1, 4, 5) and g["n"].chunks == (1, 1, 4) and g[COMPLETED].chunks == (1, 1)
+    assert g.attrs["task_dims"] == ["a", "b"] and g.attrs["seed"] == 12345
+    assert g["x"].attrs["long_name"] == "demo field"
+
+    ds = xr.open_zarr(path, group=GROUP)
+    assert dict(ds.sizes) == {"a": 3, "b": 2, "r": 4, "f": 5}
+    assert ds["x"].dims == ("a", "b", "r", "f") and ds["y"].dims == ("a", "b") and ds["n"].dims == ("a", "b", "r")
+    for dim, values in spec.coords.items():
+        np.testing.assert_array_equal(ds[dim].values, values)
+    assert ds["n"].dtype == np.int32 and ds[COMPLETED].dtype == np.int8
+    assert (ds[COMPLETED].values == 1).all() and (ds["dev"].values == -1).all()
+    # every region holds what the task gives for that index, seeded from the index alone
+    for a in range(3):
+        for b in range(2):
+            want = _demo_task({"a": a, "b": b}, "cpu")
+            np.testing.assert_array_equal(ds["x"].values[a, b], want["x"])
+            np.testing.assert_array_equal(ds["n"].values[a, b], want["n"])
+            assert ds["y"].values[a, b] == want["y"]
+    assert len({ds["x"].values[a, b].tobytes() for a in range(3) for b in range(2)}) == 6
+
+    again = run_sweep(path, spec, _demo_task, progress=False)  # nothing left to do
+    assert (again.skipped, again.ran, again.task_seconds) == (6, 0, [])
+
+
+def test_two_workers_equal_in_process(tmp_path, clean_store):
+    pytest.importorskip("distributed")
+    path = tmp_path / "data.zarr"
+    lines = []
+    report = run_sweep(
+        path, _demo_spec(), functools.partial(_demo_task, n_f=5), workers=2, progress=False, log=lines.append
+    )
+    assert (report.mode, report.workers, report.ran, report.skipped) == ("dask", 2, 6, 0)
+    assert sorted(report.task_indices) == report.task_indices and len(report.task_seconds) == 6
+    assert "dask (local cluster, 2 workers on cpu)" in lines[0]
+    assert_same_store(clean_store, path)
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None, silence_logs=50
+    ) as cl:
+        yield cl
+
+
+def test_external_scheduler_gpus_and_failure(tmp_path, cluster, clean_store):
+    """scheduler=ADDRESS: devices by worker ordinal; a failing task names its index, the rerun finishes."""
+    path = tmp_path / "data.zarr"
+    with pytest.raises(SweepTaskError, match=r"a=2, b=0.*demo failure") as err:
+        run_sweep(
+            path,
+            _demo_spec(),
+            functools.partial(_demo_task, fail_at=(2, 0)),
+            scheduler=cluster.scheduler_address,
+            gpus=2,
+            progress=False,
+        )
+    assert err.value.failed == ((2, 0),)
+    assert not completed(path, _demo_spec())[2, 0]
+    report = run_sweep(path, _demo_spec(), _demo_task, scheduler=cluster.scheduler_address, gpus=2, progress=False)
+    assert report.ran + report.skipped == 6 and report.ran >= 1 and (2, 0) in report.task_indices
+    dev = _arrays(path)["dev"]
+    assert set(np.unique(dev)) <= {0, 1}  # cuda:0 / cuda:1 by worker ordinal
+    got, want = _arrays(path), _arrays(clean_store)
+    for name in ("x", "n", "y", COMPLETED):
+        assert got[name].tobytes() == want[name].tobytes(), name
+
+
+def test_resume_after_failure(tmp_path, clean_store):
+    path = tmp_path / "data.zarr"
+    spec = _demo_spec()
+    with pytest.raises(SweepTaskError, match=r"task \(a=1, b=1\) failed.*demo failure") as err:
+        run_sweep(path, spec, functools.partial(_demo_task, fail_at=(1, 1)), progress=False)
+    assert err.value.failed == ((1, 1),)
+    done = completed(path, spec)
+    np.testing.assert_array_equal(done, [[True, True], [True, False], [False, False]])
+    stored = _arrays(path)  # tasks not run read as fill values
+    assert np.isnan(stored["x"][1, 1]).all() and np.isnan(stored["x"][2]).all() and np.isnan(stored["y"][2]).all()
+    assert (stored["n"][1, 1] == -1).all() and (stored["n"][2] == -1).all() and not np.isnan(stored["x"][1, 0]).any()
+
+    # a half-written task (data written, flag not yet set) is redone, not trusted
+    g = zarr.open_group(str(path), mode="r+", use_consolidated=False)[GROUP]
+    g["x"][2, 0] = np.full((4, 5), 7.0)
+    assert not completed(path, spec)[2, 0]
+
+    report = run_sweep(path, spec, _demo_task, progress=False)
+    assert (report.skipped, report.ran) == (3, 3)
+    assert report.task_indices == [(1, 1), (2, 0), (2, 1)]
+    assert completed(path, spec).all()
+    assert_same_store(clean_store, path)
+
+
+def test_keep_going_then_resume(tmp_path, clean_store):
+    path = tmp_path / "data.zarr"
+    spec = _demo_spec()
+    with pytest.raises(SweepTaskError, match=r"1 of 6 tasks failed: \(a=0, b=1\)") as err:
+        run_sweep(path, spec, functools.partial(_demo_task, fail_at=(0, 1)), progress=False, fail_fast=False)
+    assert err.value.report.ran == 5 and err.value.report.failed == [(0, 1)]
+    assert completed(path, spec).sum() == 5
+    report = run_sweep(path, spec, _demo_task, progress=False)
+    assert (report.skipped, report.ran, report.task_indices) == (5, 1, [(0, 1)])
+    assert_same_store(clean_store, path)
+
+
+def test_mismatched_grid_raises(tmp_path):
+    path = tmp_path / "data.zarr"
+    spec = _demo_spec()
+    run_sweep(path, spec, _demo_task, progress=False)
+    before = _arrays(path)
+
+    other_a = dataclasses.replace(spec, coords={**spec.coords, "a": np.linspace(0.1, 0.4, 3)})
+    bigger = _demo_spec(n_r=6)
+    other_seed = _demo_spec(seed=999)
+    new_param = _demo_spec(damping=0.01)
+    other_dtype = dataclasses.replace(spec, variables={**spec.variables, "y": Variable(("a", "b"), dtype="float32")})
+    other_tasks = dataclasses.replace(
+        spec, task_dims=("a",), variables={"x": Variable(("a", "b", "r", "f")), "y": Variable(("a", "b"))}
+    )
+    for bad in (other_a, bigger, other_seed, new_param, other_dtype, other_tasks):
+        with pytest.raises(SweepMismatchError, match="new output folder"):
+            run_sweep(path, bad, _demo_task, progress=False)
+    with pytest.raises(SweepMismatchError, match=r"coordinate 'a'"):
+        open_sweep(path, other_a)
+    with pytest.raises(SweepMismatchError, match=r"attribute 'seed'"):
+        open_sweep(path, other_seed)
+
+    zarr.open_group(str(path), mode="a").require_group("plain")  # a group not written by run_sweep
+    with pytest.raises(SweepMismatchError, match="not written by run_sweep"):
+        open_sweep(path, dataclasses.replace(spec, group="plain"))
+
+    after = _arrays(path)  # nothing was touched
+    assert all(before[k].tobytes() == after[k].tobytes() for k in before)
+    assert run_sweep(path, spec, _demo_task, progress=False).skipped == 6  # the same grid still resumes
+
+
+def test_bad_task_result_and_spec(tmp_path):
+    spec = _demo_spec()
+
+    def wrong_shape(index, device):
+        out = _demo_task(index, device)
+        out["x"] = out["x"][:, :3]
+        return out
+
+    with pytest.raises(SweepTaskError, match=r"a=0, b=0.*'x'.*\(4, 3\)"):
+        run_sweep(tmp_path / "d.zarr", spec, wrong_shape, progress=False)
+    assert not completed(tmp_path / "d.zarr", spec).any()
+    with pytest.raises(ValueError, match="must start with the task dims"):
+        dataclasses.replace(spec, variables={"z": Variable(("r", "a", "b"))})
+    with pytest.raises(ValueError, match="explicit fill"):
+        dataclasses.replace(spec, variables={"z": Variable(("a", "b"), dtype="int16")})
+    with pytest.raises(ValueError, match="no coordinate"):
+        dataclasses.replace(spec, variables={"z": Variable(("a", "b", "q"))})
+
+
+def test_dask_is_optional(tmp_path, monkeypatch):
+    code = (
+        "import sys, scenarios._sweep; sys.exit(any(m.split('.')[0] in ('dask', 'distributed') for m in sys.modules))"
+    )
+    assert subprocess.run([sys.executable, "-c", code]).returncode == 0
+    monkeypatch.setitem(sys.modules, "distributed", None)  # as if not installed
+    with pytest.raises(ImportError, match=r'pip install -e "\.\[dask\]"'):
+        run_sweep(tmp_path / "d.zarr", _demo_spec(), _demo_task, workers=2, progress=False)
+    assert not (tmp_path / "d.zarr").exists()
+    assert run_sweep(tmp_path / "d.zarr", _demo_spec(), _demo_task, progress=False).ran == 6
