@@ -24,6 +24,7 @@ SCENES = {
     "work-precision": "scenarios.work_precision",
     "stability-limits": "scenarios.stability_limits",
     "throughput": "scenarios.throughput",
+    "breakup-statistics": "scenarios.breakup_statistics",
 }
 #: scenes that reproduce the paper (``python -m scenarios paper``); the rest chart speed and accuracy
 PAPER_SCENES = [

@@ -106,7 +106,9 @@ def test_losses_are_refused_where_they_have_no_sub_flow():
 @pytest.mark.parametrize("layout", ["thread", "block"])
 def test_observables_match_the_reference(layout):
     x0 = _spots(4)
-    obs = Observation(frame_every=10, threshold=0.02, radius=2, spot=np.array([3.0, 4.0, 5.0, 6.0]), lag_frames=3)
+    obs = Observation(
+        frame_every=10, threshold=0.02, radius=2, contrast=0.9, spot=np.array([3.0, 4.0, 5.0, 6.0]), lag_frames=3
+    )
     run = observe(
         PARAMS, x0, 12.0, 0.05, observation=obs, method="verlet", damping=DAMPING, device="cpu", layout=layout
     )
@@ -128,14 +130,17 @@ def test_zero_damping_observe_is_simulate_bit_for_bit():
 
 
 def test_peaks_and_tracks():
-    env = np.zeros((1, 30))
+    env = np.zeros((1, 40))
     env[0, 5], env[0, 6], env[0, 7] = 0.2, 0.5, 0.3  # one peak, off-centre to the left of 6.5
     env[0, 20], env[0, 21] = 0.4, 0.4  # a plateau counts once (its left site)
     env[0, 25] = 0.01  # below threshold
-    mask = peak_mask(env, 0.05, 2)
+    env[0, 30:38] = [0.3, 0.32, 0.33, 0.34, 0.33, 0.32, 0.31, 0.3]  # a wide hump: not localized
+    mask = peak_mask(env, 0.05, 2, contrast=0.5)
     assert mask.sum() == 2 and mask[0, 6] and mask[0, 20]
+    assert peak_mask(env, 0.05, 2, contrast=1.0)[0, 33]  # without the localization test the hump counts
     moved = np.roll(env, 2, axis=-1)
-    tracks = peak_tracks(env, moved, 4.0, 0.05, 2, max_speed=1.0)[0]
+    obs = Observation(frame_every=1, threshold=0.05, radius=2, contrast=0.5)
+    tracks = peak_tracks(env, moved, 4.0, obs, max_speed=1.0)[0]
     assert tracks.shape == (2, 3)
     np.testing.assert_allclose(tracks[:, 2], 0.5)  # two sites in four time units
     assert 7.5 < tracks[0, 0] < 8.5 and tracks[0, 1] == 0.5

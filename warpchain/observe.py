@@ -6,10 +6,12 @@ step the kernel tracks, per site, the lowest and highest relative displacement z
 since the last frame; at each frame (every ``frame_every`` steps) it reduces over the lattice:
 
 * ``peaks``: how many sites are *localized peaks* of the envelope env_j = max |z_j| over the frame
-  interval: env_j > ``threshold`` and env_j the largest value within ``radius`` sites (strictly
-  larger than those on its left, at least as large as those on its right, so a plateau counts once;
-  the window does not wrap around a periodic chain). A breather is such a peak; a wide hump that
-  has not broken up is one peak; a filamented spot is several.
+  interval: env_j > ``threshold``; env_j the largest value within ``radius`` sites (strictly larger
+  than those on its left, at least as large as those on its right, so a plateau counts once); and
+  localized: on *each* side, within ``radius`` sites, the envelope falls to ``contrast`` * env_j or
+  below (sites past a chain end count as 0; the window does not wrap around a periodic chain). A
+  breather narrower than the window is such a peak; a wide hump that has not broken up (or the
+  ripples on it) is none; a filamented spot is several. ``contrast = 1`` drops the localization test.
 * ``participation``: (sum_j e_j)^2 / sum_j e_j^2 of the site energies e_j (``kernels.site_energy``):
   about the number of sites that carry the energy.
 * ``spot_energy``: sum of e_j over |j - c| <= ``spot`` (c = N // 2, the spot's centre; ``spot`` per
@@ -66,14 +68,17 @@ class Observation:
     Attributes:
         frame_every: steps between frames (the envelope's interval: about a period or more).
         threshold: envelope |z| above which a localized peak counts.
-        radius: a peak is the largest envelope value within this many sites.
+        radius: a peak is the largest envelope value within this many sites, and falls to ``contrast``
+            times its value within them on both sides.
+        contrast: the localization test's fraction (1: no test).
         spot: half-width in sites of the spot whose energy is reported (scalar or per lattice).
         lag_frames: the envelope profile is also read this many frames before the end (drift velocities).
     """
 
     frame_every: int
     threshold: float = 0.05
-    radius: int = 3
+    radius: int = 10
+    contrast: float = 0.5
     spot: float | np.ndarray = 0.0
     lag_frames: int = 8
 
@@ -81,6 +86,8 @@ class Observation:
         whole_number("frame_every", self.frame_every, minimum=1)
         real_number("threshold", self.threshold, nonnegative=True)
         whole_number("radius", self.radius, minimum=1)
+        if not 0.0 < real_number("contrast", self.contrast) <= 1.0:
+            raise ValueError(f"contrast must be in (0, 1], got {self.contrast!r}")
         whole_number("lag_frames", self.lag_frames, minimum=1)
         spot = np.broadcast_to(np.asarray(self.spot, dtype=np.float64), (batch,))
         if not np.all(np.isfinite(spot)) or np.any(spot < 0):
@@ -133,20 +140,25 @@ class ObservedRun:
 # ----------------------------------------------------------------------------- numpy reference
 
 
-def peak_mask(env: np.ndarray, threshold: float, radius: int) -> np.ndarray:
+def peak_mask(env: np.ndarray, threshold: float, radius: int, contrast: float = 1.0) -> np.ndarray:
     """Localized peaks of envelope profiles env (..., N): the rule of the kernels (module docstring)."""
     env = np.asarray(env, dtype=np.float64)
     n = env.shape[-1]
     mask = env > threshold
+    left_low = np.full_like(env, np.inf)
+    right_low = np.full_like(env, np.inf)
     for i in range(1, radius + 1):
-        if i >= n:
-            break
-        left = np.full_like(env, -np.inf)
-        left[..., i:] = env[..., :-i]
-        right = np.full_like(env, -np.inf)
-        right[..., :-i] = env[..., i:]
-        mask &= (env > left) & (env >= right)
-    return mask
+        left = np.zeros_like(env)  # past the chain's end: 0
+        right = np.zeros_like(env)
+        if i < n:
+            left[..., i:] = env[..., :-i]
+            right[..., :-i] = env[..., i:]
+            mask &= (env > np.where(np.arange(n) >= i, left, -np.inf)) & (
+                env >= np.where(np.arange(n) < n - i, right, -np.inf)
+            )
+        left_low = np.minimum(left_low, left)
+        right_low = np.minimum(right_low, right)
+    return mask & (left_low <= contrast * env) & (right_low <= contrast * env)
 
 
 def site_energies(params: ChainParams, x, M, K) -> np.ndarray:
@@ -168,18 +180,18 @@ def site_energies(params: ChainParams, x, M, K) -> np.ndarray:
     return kinetic + 0.5 * K * bonds + contact_potential(u - v)
 
 
-def frame_observables(params, x, z_low, z_high, M, K, spot, threshold, radius) -> tuple[np.ndarray, np.ndarray]:
+def frame_observables(params, x, z_low, z_high, M, K, observation: Observation) -> tuple[np.ndarray, np.ndarray]:
     """The observables of one frame from the state x (batch, 4, N) and the interval's z extremes
     (batch, N). Returns (values (batch, len(OBSERVABLES)), envelope (batch, N))."""
     env = np.maximum(z_high, -z_low)
     e = site_energies(params, x, M, K)
     n = x.shape[-1]
-    spot = np.broadcast_to(np.asarray(spot, dtype=np.float64), (x.shape[0],))
+    spot = np.broadcast_to(np.asarray(observation.spot, dtype=np.float64), (x.shape[0],))
     inside = np.abs(np.arange(n)[None, :] - n // 2) <= spot[:, None]
     total = e.sum(axis=-1)
     squares = (e * e).sum(axis=-1)
     out = np.empty((x.shape[0], N_OBSERVABLES))
-    out[:, 0] = peak_mask(env, threshold, radius).sum(axis=-1)
+    out[:, 0] = peak_mask(env, observation.threshold, observation.radius, observation.contrast).sum(axis=-1)
     out[:, 1] = np.where(squares > 0, total * total / np.where(squares > 0, squares, 1.0), 0.0)
     out[:, 2] = np.where(inside, e, 0.0).sum(axis=-1)
     out[:, 3] = env.max(axis=-1)
@@ -202,7 +214,7 @@ def reference_observe(
     batch = x.shape[0]
     Mb, Kb = per_lattice_parameters(params, batch, M, K)
     z = x[:, 0] - x[:, 1]
-    first, env = frame_observables(params, x, z, z, Mb, Kb, observation.spot, observation.threshold, observation.radius)
+    first, env = frame_observables(params, x, z, z, Mb, Kb, observation)
     frames = [first]
     low = np.full_like(z, _FAR)
     high = np.full_like(z, -_FAR)
@@ -211,16 +223,14 @@ def reference_observe(
         z = x[:, 0] - x[:, 1]
         low, high = np.minimum(low, z), np.maximum(high, z)
         if (n + 1) % observation.frame_every == 0:
-            values, env = frame_observables(
-                params, x, low, high, Mb, Kb, observation.spot, observation.threshold, observation.radius
-            )
+            values, env = frame_observables(params, x, low, high, Mb, Kb, observation)
             frames.append(values)
             low = np.full_like(z, _FAR)
             high = np.full_like(z, -_FAR)
     return np.stack(frames), env, x
 
 
-def peak_tracks(env_lag, env_end, dt_lag: float, threshold: float, radius: int, max_speed: float):
+def peak_tracks(env_lag, env_end, dt_lag: float, observation: Observation, max_speed: float):
     """Peaks at the end, their amplitudes and drift velocities from two envelope profiles.
 
     Each peak of ``env_end`` (positions refined by a parabola through the peak and its neighbours) is
@@ -235,7 +245,7 @@ def peak_tracks(env_lag, env_end, dt_lag: float, threshold: float, radius: int, 
     """
 
     def located(env):
-        mask = peak_mask(env, threshold, radius)
+        mask = peak_mask(env, observation.threshold, observation.radius, observation.contrast)
         out = []
         for b in range(env.shape[0]):
             idx = np.flatnonzero(mask[b])
@@ -291,6 +301,7 @@ def _thread_kernel():
         frame_every: int,
         threshold: wp.float64,
         radius: int,
+        contrast: wp.float64,
         spot: wp.array(dtype=wp.float64),
         zext: wp.array3d(dtype=wp.float64),
         envelope: wp.array2d(dtype=wp.float64),
@@ -339,13 +350,23 @@ def _thread_kernel():
                     low = wp.min(low, ONE + zext[b, 0, j])
                     if env > threshold:
                         peak = int(1)
+                        left_low = env
+                        right_low = env
                         for i in range(1, radius + 1):
+                            left = ZERO  # past the chain's end
+                            right = ZERO
                             if j - i >= 0:
-                                if envelope[b, j - i] >= env:
+                                left = envelope[b, j - i]
+                                if left >= env:
                                     peak = 0
                             if j + i < n:
-                                if envelope[b, j + i] > env:
+                                right = envelope[b, j + i]
+                                if right > env:
                                     peak = 0
+                            left_low = wp.min(left_low, left)
+                            right_low = wp.min(right_low, right)
+                        if left_low > contrast * env or right_low > contrast * env:
+                            peak = 0
                         peaks = peaks + peak
                     zext[b, 0, j] = NO_CONTACT
                     zext[b, 1, j] = -NO_CONTACT
@@ -400,6 +421,7 @@ def _block_kernel(block: int, stages: int):
         frame_every: int,
         threshold: wp.float64,
         radius: int,
+        contrast: wp.float64,
         spot: wp.array(dtype=wp.float64),
         zext: wp.array3d(dtype=wp.float64),
         envelope: wp.array2d(dtype=wp.float64),
@@ -466,13 +488,23 @@ def _block_kernel(block: int, stages: int):
                 peak = ZERO
                 if active and env > threshold:
                     peak = ONE
+                    left_low = env
+                    right_low = env
                     for i in range(1, radius + 1):
+                        left = ZERO  # past the chain's end
+                        right = ZERO
                         if j - i >= 0:
-                            if buf[offset + j - i] >= env:
+                            left = buf[offset + j - i]
+                            if left >= env:
                                 peak = ZERO
                         if j + i < n:
-                            if buf[offset + j + i] > env:
+                            right = buf[offset + j + i]
+                            if right > env:
                                 peak = ZERO
+                        left_low = wp.min(left_low, left)
+                        right_low = wp.min(right_low, right)
+                    if left_low > contrast * env or right_low > contrast * env:
+                        peak = ZERO
                 peaks = wp.tile_sum(wp.tile(peak))
                 total = wp.tile_sum(wp.tile(e))
                 squares = wp.tile_sum(wp.tile(e * e))
@@ -584,7 +616,7 @@ def observe(
     envelope = wp.zeros((batch, params.N), dtype=f64, device=device)
     obs = wp.zeros((n_frames, batch, N_OBSERVABLES), dtype=f64, device=device)
     boundary = BOUNDARY_CODES[params.boundary]
-    threshold, radius = f64(observation.threshold), int(observation.radius)
+    threshold, radius, contrast = f64(observation.threshold), int(observation.radius), f64(observation.contrast)
 
     if layout == "block":
         block = block_kernels.block_size(params.N)
@@ -596,7 +628,7 @@ def observe(
 
         def launch(first, steps):
             inputs = [x, inv_mass, mass, coupling, drifts, kicks, boundary, int(steps), lossy, damp]
-            inputs += [int(first), fe, threshold, radius, spot, zext, envelope, obs]
+            inputs += [int(first), fe, threshold, radius, contrast, spot, zext, envelope, obs]
             wp.launch(kernel, dim=(batch, block), block_dim=block, device=device, inputs=inputs)
 
     else:
@@ -610,16 +642,14 @@ def observe(
             def task(lo, hi):
                 inputs = [x[lo:hi], acc[lo:hi], inv_mass[lo:hi], mass[lo:hi], coupling[lo:hi], drifts, kicks]
                 inputs += [boundary, f64(dt_used), int(steps), lossy[lo:hi], damp[lo:hi] if damping else damp]
-                inputs += [int(first), fe, threshold, radius, spot[lo:hi], zext[lo:hi], envelope[lo:hi]]
+                inputs += [int(first), fe, threshold, radius, contrast, spot[lo:hi], zext[lo:hi], envelope[lo:hi]]
                 inputs += [obs[:, lo:hi]]
                 wp.launch(kernel, dim=hi - lo, device=device, inputs=inputs)
 
             _in_parallel([lambda lo=lo, hi=hi: task(lo, hi) for lo, hi in _slices(batch, device)])
 
     del kernels
-    first_values, env0 = frame_observables(
-        params, x0, z0, z0, Mb, Kb, observation.spot, observation.threshold, observation.radius
-    )
+    first_values, env0 = frame_observables(params, x0, z0, z0, Mb, Kb, observation)
     E0 = first_values[:, 5]
     # chunks: whole frames; the last `lag` frames form their own chunk so that the envelope is read there
     n_chunks = chunks or 20

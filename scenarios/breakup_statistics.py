@@ -1,0 +1,651 @@
+"""Breakup statistics: does a large impulsive spot filament into breathers, and how much loss does it survive?
+
+Command: ``python -m scenarios run breakup-statistics`` (default CPU grid, 3 000 lattices of 201 sites x
+200 periods: about 3 min on a 2-core CPU; ``--quick`` about 20 s). On GPUs the full grid (about 1e5
+lattices): ``--set grid=full``; through Dask ``--set workers=2 --set gpus=2`` (a local cluster, one
+worker per GPU) or ``--set scheduler=tcp://HOST:8786`` (a running cluster). An interrupted sweep resumes
+when the same command is run again (``--set fresh=true`` starts over).
+
+The paper's Fig. 9c: a long-wave excitation at high amplitude self-localizes and breaks up into many
+small moving breathers, proposed as the way to see breathers in experiments (excite a large spot
+impulsively, watch it filament), with the warning that losses may decide whether it works. Here each
+lattice starts with the substrate at rest in place and a Gaussian velocity impulse (or, ``impulse =
+displacement``, a displacement) of amplitude A and width W sites at the centre, the spheres at rest,
+times (1 + ``noise`` xi_j) with xi_j standard normal from ``np.random.default_rng((seed, r))`` for
+realisation r (the same draw at every A, W and damping: paired comparisons). Losses (``warpchain.losses``):
+contact damping gamma_c (a resonator rings down as exp(-gamma_c t / 2), Q = w_0 / gamma_c) and
+substrate damping gamma_s (u' decays at gamma_s: radiation into the bulk).
+
+Observables are reduced on the device (``warpchain.observe``) once per period: peaks of the
+period's |z| envelope above ``threshold`` (a peak is the largest value within ``radius`` sites),
+participation ratio, energy inside |j - c| <= W, max envelope, min contact, energy. A lattice has
+*broken up* when the median of its peak count over the last ``final_frames`` periods is >= 2; that
+median is its number of breathers. Time to breakup: the first period with two peaks or more.
+Positions, amplitudes and drift velocities of the final peaks come from the envelope profiles
+``final_frames`` periods apart.
+
+Theory compared: a wide packet z = a cos(w_0 t) at the optical band edge obeys the focusing NLS
+2 i w_0 A_T = D A_XX + G |A|^2 A (``continuation.seeds.nls_coefficients``, X = j / sqrt(K), z = 2 Re A
+e^{i w_0 t}); its modulational instability grows at most at Gamma = G |A|^2 / (2 w_0) = w_0 a^2 / 24,
+at the wavelength 2 pi sqrt(K D / (2 w_0 Gamma)) sites. If MI drives the breakup, Gamma t_breakup is
+about constant (the log of the amplitude over the seed noise) as A varies.
+
+Accuracy: velocity Verlet with 32 steps per period by default; the scene re-runs one W column with
+kahan8 (the Fig. 9 integrator) and reports how the breakup probability and the mean count change.
+Checks recorded in ``summary.json``: zero damping reproduces the direct-simulation engine
+(``simulate``) bit for bit on Fig. 9's eigenmode-high state; a damped lattice against DOP853 of the
+damped equations; halving the realisations against the error bars.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import time
+
+import numpy as np
+
+from warpchain import ChainParams, simulate
+from warpchain.losses import Damping, rhs_flat
+from warpchain.observe import OBSERVABLES, Observation, observe, peak_tracks
+from warpchain.store import FieldWriter, open_store, provenance
+
+from ._common import PAPER_K, PAPER_M, PAPER_N, PAPER_OMEGA, Context, pyplot, read_summary, save_figure
+from ._sweep import SweepSpec, Variable, run_sweep
+
+GROUP = "observables"
+#: named grids: (A values, W values, damping cases (gamma_c, gamma_s), realisations)
+GRIDS = {
+    "quick": ((0.2, 0.35, 0.5), (10.0, 30.0), ((0.0, 0.0), (1e-3, 0.0)), 4),
+    "cpu": (
+        (0.1, 0.2, 0.25, 0.3, 0.35, 0.4, 0.5, 0.6),
+        (5.0, 10.0, 20.0, 40.0),
+        ((0.0, 0.0), (1e-4, 0.0), (1e-3, 0.0), (1e-2, 0.0), (0.0, 1e-2)),
+        16,
+    ),
+    "full": (
+        (0.1, 0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5, 0.55, 0.6),
+        (5.0, 10.0, 15.0, 20.0, 30.0, 40.0),
+        ((0.0, 0.0), (1e-4, 0.0), (1e-3, 0.0), (1e-2, 0.0), (0.0, 1e-2)),
+        304,
+    ),
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class Parameters:
+    """The scene's parameters (``--set KEY=VALUE`` overrides any of them)."""
+
+    grid: str = (
+        "cpu"  # quick (--quick), cpu (default: 8 A x 4 W x 5 damping x 16 = 2 560 lattices), full (GPU: 100 320)
+    )
+    realisations: int = 0  # 0: the grid's own count
+    periods: int = 200  # of T = 2 pi / 1.01, as Fig. 9
+    steps_per_period: int = 32
+    method: str = "verlet"
+    impulse: str = "velocity"  # velocity | displacement (of the substrate)
+    noise: float = 0.02  # relative per-site perturbation of the impulse
+    seed: int = 20261122
+    threshold: float = 0.1  # envelope |z| above which a peak counts as a breather
+    radius: int = 10  # a peak is the largest envelope within this many sites, and localized within them:
+    contrast: float = 0.5  # the envelope falls to this fraction of the peak on both sides
+    final_frames: int = 10  # periods over which the final count is a median (and the drift velocities' lag)
+    max_peaks: int = 24  # peaks stored per lattice at the end
+    check_method: str = "kahan8"  # the accuracy re-run of one W column
+    fields: bool = True  # full fields of two representative lattices
+    workers: int = 0  # >0: a local Dask cluster of this many workers
+    scheduler: str = ""  # address of a running Dask scheduler
+    gpus: int = 0  # GPUs the workers share (cuda:k, k = worker ordinal mod gpus); 0 with a CUDA device: 1
+    fresh: bool = False  # start the sweep over instead of resuming
+
+
+QUICK = {"grid": "quick", "periods": 60, "final_frames": 5, "check_method": "yoshida4"}
+
+
+def grid(P: Parameters):
+    if P.grid not in GRIDS:
+        raise ValueError(f"grid must be one of {sorted(GRIDS)}, got {P.grid!r}")
+    A, W, damping, R = GRIDS[P.grid]
+    return np.array(A), np.array(W), np.array(damping, dtype=float), P.realisations or R
+
+
+def initial_states(N: int, A: float, widths, realisations: int, P: Parameters) -> np.ndarray:
+    """States (len(widths) * realisations, 4, N): W-major, realisation-minor."""
+    j = np.arange(N)
+    c = N // 2
+    row = 2 if P.impulse == "velocity" else 0
+    if P.impulse not in ("velocity", "displacement"):
+        raise ValueError(f"impulse must be velocity or displacement, got {P.impulse!r}")
+    x = np.zeros((len(widths), realisations, 4, N))
+    for r in range(realisations):
+        xi = np.random.default_rng((P.seed, r)).standard_normal(N)
+        for w, W in enumerate(widths):
+            x[w, r, row] = A * np.exp(-0.5 * ((j - c) / W) ** 2) * (1.0 + P.noise * xi)
+    return x.reshape(-1, 4, N)
+
+
+def final_counts(peaks: np.ndarray, final_frames: int) -> np.ndarray:
+    """Median peak count over the last frames: peaks (..., frame) -> (...)."""
+    return np.median(peaks[..., -final_frames:], axis=-1)
+
+
+def breakup_times(peaks: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """First frame time with >= 2 peaks (NaN if never): peaks (..., frame) -> (...)."""
+    broken = peaks >= 2
+    first = np.argmax(broken, axis=-1)
+    return np.where(broken.any(axis=-1), t[first], np.nan)
+
+
+def _task(index: dict, device: str, *, config: dict) -> dict:
+    """One (A, damping) task: every W and realisation in one launch; returns the variables' regions."""
+    P = Parameters(**config)
+    A_values, widths, damping_cases, R = grid(P)
+    gc, gs = damping_cases[index["damping"]]
+    return observe_batch(P, float(A_values[index["A"]]), widths, R, float(gc), float(gs), device)
+
+
+def observe_batch(P: Parameters, A: float, widths, R: int, gc: float, gs: float, device: str) -> dict:
+    """Every W (of ``widths``) and realisation of one (A, damping) in one ``observe`` launch; arrays shaped
+    (W, realisation, ...) for the sweep's variables."""
+    params = ChainParams(PAPER_M, PAPER_K, PAPER_N)
+    widths = np.asarray(widths, dtype=float)
+    x0 = initial_states(params.N, A, widths, R, P)
+    T = 2 * np.pi / PAPER_OMEGA
+    observation = Observation(
+        frame_every=P.steps_per_period,
+        threshold=P.threshold,
+        radius=P.radius,
+        contrast=P.contrast,
+        spot=np.repeat(widths, R),
+        lag_frames=P.final_frames,
+    )
+    run = observe(
+        params,
+        x0,
+        P.periods * T,
+        T / P.steps_per_period,
+        observation=observation,
+        method=P.method,
+        damping=Damping(gc, gs),
+        device=device,
+    )
+    shape = (len(widths), R)
+    out = {name: run[name].T.reshape(*shape, -1) for name in OBSERVABLES}
+    tracks = peak_tracks(run.envelope_lag, run.envelope, run.t[-1] - run.t_lag, observation, max_speed=1.0)
+    for k, name in enumerate(("peak_position", "peak_amplitude", "peak_velocity")):
+        arr = np.full((len(tracks), P.max_peaks), np.nan)
+        for b, tr in enumerate(tracks):
+            n = min(len(tr), P.max_peaks)
+            arr[b, :n] = tr[:n, k]
+        out[name] = arr.reshape(*shape, P.max_peaks)
+    out["contact_loss_time"] = run.first_contact_loss().reshape(shape)
+    return out
+
+
+def sweep_spec(P: Parameters) -> SweepSpec:
+    A, W, damping, R = grid(P)
+    frames = P.periods + 1
+    per_frame = ("A", "damping", "W", "realisation", "frame")
+    per_peak = ("A", "damping", "W", "realisation", "peak")
+    variables = {name: Variable(per_frame) for name in OBSERVABLES}
+    variables.update({name: Variable(per_peak) for name in ("peak_position", "peak_amplitude", "peak_velocity")})
+    variables["contact_loss_time"] = Variable(("A", "damping", "W", "realisation"))
+    coords = {
+        "A": A,
+        "damping": np.arange(len(damping)),
+        "W": W,
+        "realisation": np.arange(R),
+        "frame": np.arange(frames),
+        "peak": np.arange(P.max_peaks),
+    }
+    keep = {k: v for k, v in dataclasses.asdict(P).items() if k not in ("workers", "scheduler", "gpus", "fresh")}
+    attrs = {
+        "parameters": keep,
+        "damping_rates": damping.tolist(),
+        "period": 2 * np.pi / PAPER_OMEGA,
+        "seed_rule": "realisation r: xi = np.random.default_rng((seed, r)).standard_normal(N)",
+        "observables": list(OBSERVABLES),
+    }
+    return SweepSpec(group=GROUP, coords=coords, task_dims=("A", "damping"), variables=variables, attrs=attrs)
+
+
+def run(ctx: Context) -> dict:
+    P: Parameters = ctx.params
+    start = time.perf_counter()
+    A, W, damping, R = grid(P)
+    params = ChainParams(PAPER_M, PAPER_K, PAPER_N)
+    T = 2 * np.pi / PAPER_OMEGA
+    store = ctx.out / "data.zarr"
+    if P.fresh and store.exists():
+        import shutil
+
+        shutil.rmtree(store)
+    if not store.exists():
+        open_store(store, params=params.as_dict(), provenance_info=provenance(ctx.device))
+    gpus = P.gpus or (1 if ctx.device != "cpu" else 0)
+    n_lattices = len(A) * len(W) * len(damping) * R
+    ctx.log(
+        "%d lattices (A %d x W %d x damping %d x %d realisations) x %d periods, %s with %d steps per period",
+        n_lattices,
+        len(A),
+        len(W),
+        len(damping),
+        R,
+        P.periods,
+        P.method,
+        P.steps_per_period,
+    )
+    spec = sweep_spec(P)
+    task = functools.partial(_task, config=dataclasses.asdict(P))
+    if gpus == 0 and ctx.device != "cpu":
+        raise ValueError("gpus=0 with a CUDA device: leave gpus unset (0 means one GPU) or run --device cpu")
+    report = run_sweep(
+        store,
+        spec,
+        task,
+        workers=P.workers,
+        scheduler=P.scheduler or None,
+        gpus=gpus if ctx.device != "cpu" else 0,
+        progress=True,
+        log=ctx.log,
+    )
+    sweep_seconds = report.wall_seconds
+    ctx.log("sweep: %d tasks ran, %d skipped, %.1f s (%s)", report.ran, report.skipped, sweep_seconds, report.mode)
+
+    import xarray as xr
+
+    ds = xr.open_zarr(store, group=GROUP)
+    peaks = ds["peaks"].values  # (A, damping, W, realisation, frame)
+    t = np.arange(peaks.shape[-1]) * T
+    count = final_counts(peaks, P.final_frames)  # (A, damping, W, R)
+    broken = count >= 2
+    prob = broken.mean(axis=-1)
+    half = broken[..., : max(1, R // 2)].mean(axis=-1)
+    err = _wilson_half_width(prob, R)
+    t_break = breakup_times(peaks, t)
+    a_initial = ds["max_envelope"].values[..., 1]  # the first period's envelope: the packet's amplitude a
+    gamma = omega0() * a_initial**2 / 24.0
+    product = gamma * t_break  # (A, damping, W, R)
+    lossless = 0
+    mi = _mi_summary(A, W, product[:, lossless], t_break[:, lossless], a_initial[:, lossless])
+    amplitudes = ds["peak_amplitude"].values
+    velocities = ds["peak_velocity"].values
+    rates = damping.tolist()
+    survive = {}
+    for d, (gc, gs) in enumerate(rates):
+        survive[f"gamma_c={gc:g}, gamma_s={gs:g}"] = {
+            "breakup_probability_by_A": prob[:, d].mean(axis=-1).tolist(),
+            "mean_breathers_by_A": count[:, d].mean(axis=(-1, -2)).tolist(),
+        }
+    threshold_A = {}
+    for d, (gc, gs) in enumerate(rates):
+        for w, width in enumerate(W):
+            above = np.flatnonzero(prob[:, d, w] >= 0.5)
+            threshold_A[f"d{d}_W{width:g}"] = float(A[above[0]]) if above.size else None
+    summary = {
+        "grid": {
+            "name": P.grid,
+            "A": A.tolist(),
+            "W": W.tolist(),
+            "damping_rates": rates,
+            "realisations": R,
+            "lattices": n_lattices,
+            "periods": P.periods,
+            "period": T,
+        },
+        "parameters": dataclasses.asdict(P),
+        "seeds": {"seed": P.seed, "rule": spec.attrs["seed_rule"]},
+        "sweep": {
+            "mode": report.mode,
+            "workers": report.workers,
+            "ran": report.ran,
+            "skipped": report.skipped,
+            "wall_seconds": sweep_seconds,
+            "lattice_periods_per_second": (n_lattices * P.periods / sweep_seconds)
+            if report.ran == report.tasks
+            else None,
+            "task_seconds_median": float(np.median(report.task_seconds)) if report.task_seconds else None,
+        },
+        "breakup_probability": prob.tolist(),  # (A, damping, W)
+        "breakup_error_95": err.tolist(),
+        "mean_breathers": count.mean(axis=-1).tolist(),  # (A, damping, W)
+        "breakup_threshold_A": threshold_A,
+        "realisation_halving": {
+            "max_change": float(np.max(np.abs(half - prob))),
+            "within_error_bars": bool(np.all(np.abs(half - prob) <= err)),
+        },
+        "loss_survival": survive,
+        "modulational_instability": mi,
+        "amplitudes": _distribution(amplitudes[:, lossless]),
+        "velocities": _distribution(np.abs(velocities[:, lossless])),
+        "contact_lost_fraction": float(np.isfinite(ds["contact_loss_time"].values).mean()),
+    }
+    summary["checks"] = _checks(ctx, P, params, count, prob, err)
+    if P.fields:
+        summary["fields"] = _fields(ctx, P, params, store)
+    summary["wall_seconds"] = time.perf_counter() - start
+    ctx.log(
+        "breakup (no losses): P = %s over A (W-averaged); Gamma t_breakup median %.2f (spread %.2f)",
+        np.round(prob[:, 0].mean(axis=-1), 2).tolist(),
+        mi["gamma_t_median"] if mi["gamma_t_median"] is not None else float("nan"),
+        mi["gamma_t_iqr"] if mi["gamma_t_iqr"] is not None else float("nan"),
+    )
+    return summary
+
+
+def omega0() -> float:
+    return float(np.sqrt((PAPER_M + 1.0) / PAPER_M))
+
+
+def _wilson_half_width(p: np.ndarray, n: int, z: float = 1.96) -> np.ndarray:
+    """Half-width of the 95 % Wilson score interval of a binomial proportion p out of n."""
+    return z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+
+
+def _distribution(values: np.ndarray) -> dict:
+    v = values[np.isfinite(values)]
+    if not v.size:
+        return {"count": 0}
+    return {
+        "count": int(v.size),
+        "median": float(np.median(v)),
+        "p10": float(np.percentile(v, 10)),
+        "p90": float(np.percentile(v, 90)),
+        "max": float(v.max()),
+    }
+
+
+def _mi_summary(A, W, product, t_break, a_initial) -> dict:
+    """Gamma * t_breakup of the lossless lattices that broke up, per A and overall."""
+    finite = np.isfinite(product)
+    by_A = [float(np.median(product[i][finite[i]])) if finite[i].any() else None for i in range(len(A))]
+    t_by_A = [float(np.median(t_break[i][np.isfinite(t_break[i])])) if finite[i].any() else None for i in range(len(A))]
+    all_ = product[finite]
+    return {
+        "gamma_rule": "Gamma = w0 a^2 / 24, a = the first period's max |z| envelope",
+        "gamma_t_by_A": by_A,
+        "t_breakup_median_by_A": t_by_A,
+        "a_initial_by_A": [float(np.median(a_initial[i])) for i in range(len(A))],
+        "gamma_t_median": float(np.median(all_)) if all_.size else None,
+        "gamma_t_iqr": float(np.subtract(*np.percentile(all_, [75, 25]))) if all_.size else None,
+        "broken_lattices": int(all_.size),
+    }
+
+
+def _checks(ctx, P: Parameters, params, count, prob, err) -> dict:
+    """Zero damping = the direct-simulation engine; a damped lattice against DOP853; the step check."""
+    from .direct_simulation import initial_conditions
+    from ._common import paper_breather
+
+    T = 2 * np.pi / PAPER_OMEGA
+    out = {}
+    # (1) zero damping reproduces Fig. 9's eigenmode-high run of simulate() (kahan8, the breather's step)
+    b = paper_breather(ctx.device, log=lambda m: ctx.log(m))
+    high = initial_conditions(params, b.state)["eigenmode-high"]
+    periods = 20 if not ctx.quick else 4
+    steps = 2 * b.nsteps
+    obs = observe(
+        params,
+        high,
+        periods * b.period,
+        b.period / steps,
+        observation=Observation(frame_every=steps, threshold=P.threshold, radius=P.radius, contrast=P.contrast),
+        method=b.method,
+        damping=(0.0, 0.0),
+        device=ctx.device,
+    )
+    plain = simulate(params, high, obs.t[-1], obs.dt, method=b.method, device=ctx.device)
+    out["zero_damping_vs_simulate"] = {
+        "periods": periods,
+        "method": b.method,
+        "steps": plain.nsteps,
+        "bitwise_equal": bool(np.array_equal(obs.x, plain.x)),
+        "max_abs_difference": float(np.max(np.abs(obs.x - plain.x))),
+    }
+    ctx.log(
+        "zero damping vs simulate (eigenmode-high, %d periods): max difference %.1e",
+        periods,
+        out["zero_damping_vs_simulate"]["max_abs_difference"],
+    )
+    # (2) a damped lattice against DOP853 of the damped equations (the strongest contact damping of the grid)
+    from scipy.integrate import solve_ivp
+
+    _, W, damping, _ = grid(P)
+    gc, gs = max(damping.tolist(), key=lambda r: r[0])
+    A_check = 0.3
+    x0 = initial_states(params.N, A_check, [W[len(W) // 2]], 1, P)
+    t_end = 5 * T
+    sol = solve_ivp(rhs_flat(params, None, None, gc, gs), (0, t_end), x0[0].ravel(), "DOP853", rtol=1e-12, atol=1e-14)
+    exact = sol.y[:, -1].reshape(4, -1)
+    diffs = {}
+    for method, spp in ((P.method, P.steps_per_period), ("kahan8", 32), ("kahan8", 64)):
+        r = simulate(params, x0, t_end, T / spp, method=method, device=ctx.device, damping=(gc, gs))
+        diffs[f"{method}/{spp}"] = float(np.max(np.abs(r.x[0] - exact)) / np.max(np.abs(exact)))
+    out["damped_vs_dop853"] = {
+        "gamma_c": gc,
+        "gamma_s": gs,
+        "A": A_check,
+        "periods": 5,
+        "relative_max_difference": diffs,
+    }
+    ctx.log("damped lattice vs DOP853 (5 periods, gamma_c %g): %s", gc, diffs)
+    # (3) the step: the lossless lattices of one W column re-run with the check method (kahan8: Fig. 9's
+    # integrator, 15 force evaluations per step), every A, the same seeds
+    A, W, damping, R = grid(P)
+    w_check = len(W) // 2
+    check = dataclasses.replace(P, method=P.check_method)
+    counts = np.empty((len(A), R))
+    t0 = time.perf_counter()
+    for i in range(len(A)):
+        res = observe_batch(check, float(A[i]), [W[w_check]], R, 0.0, 0.0, ctx.device)
+        counts[i] = final_counts(res["peaks"][0], P.final_frames)
+    p_check = (counts >= 2).mean(axis=-1)
+    p_main = prob[:, 0, w_check]
+    out["step_check"] = {
+        "method": check.method,
+        "W": float(W[w_check]),
+        "damping": [0.0, 0.0],
+        "breakup_probability": p_check.tolist(),
+        "max_probability_change": float(np.max(np.abs(p_check - p_main))),
+        "max_mean_breathers_change": float(np.max(np.abs(counts.mean(axis=-1) - count[:, 0, w_check].mean(axis=-1)))),
+        "within_error_bars": bool(np.all(np.abs(p_check - p_main) <= err[:, 0, w_check] + 1e-12)),
+        "seconds": time.perf_counter() - t0,
+    }
+    ctx.log(
+        "step check (%s, W = %g): max change of P %.3f",
+        check.method,
+        W[w_check],
+        out["step_check"]["max_probability_change"],
+    )
+    return out
+
+
+def _fields(ctx, P: Parameters, params, store) -> dict:
+    """Full fields (u, v every period/4) of two representative lattices: the largest A at a middle W,
+    without losses and with the strongest contact damping of the grid."""
+    A, W, damping, _ = grid(P)
+    T = 2 * np.pi / PAPER_OMEGA
+    lossy = int(np.argmax(damping[:, 0]))
+    cases = {"lossless": (0, 0.0, 0.0), "damped": (lossy, *damping[lossy])}
+    w = len(W) // 2
+    x0 = initial_states(params.N, float(A[-1]), [W[w]], 1, P)
+    root_attrs = {}
+    for name, (d, gc, gs) in cases.items():
+        save_every = P.steps_per_period // 4
+        writer = FieldWriter(
+            open_store(store, mode="a"),
+            store,
+            f"fields_{name}",
+            {"u": (params.N,), "v": (params.N,)},
+            ("t", "site"),
+            chunk_t=64,
+            expected_frames=P.periods * 4 + 1,
+            attrs={"A": float(A[-1]), "W": float(W[w]), "gamma_c": float(gc), "gamma_s": float(gs), "realisation": 0},
+        )
+        run_ = simulate(
+            params,
+            x0,
+            P.periods * T,
+            T / P.steps_per_period,
+            method=P.method,
+            device=ctx.device,
+            save_every=save_every,
+            damping=(gc, gs),
+            on_chunk=lambda t, u, v, writer=writer: writer.append(t, u=u[:, 0], v=v[:, 0]),
+        )
+        writer.close(method=run_.method, dt=run_.dt)
+        root_attrs[name] = {
+            "group": f"fields_{name}",
+            "A": float(A[-1]),
+            "W": float(W[w]),
+            "gamma_c": gc,
+            "gamma_s": gs,
+        }
+    return root_attrs
+
+
+# ----------------------------------------------------------------------------- figures
+
+
+def plot(out) -> None:
+    import xarray as xr
+
+    s = read_summary(out)
+    plt = pyplot()
+    ds = xr.open_zarr(out / "data.zarr", group=GROUP)
+    A, W = np.array(s["grid"]["A"]), np.array(s["grid"]["W"])
+    rates = s["grid"]["damping_rates"]
+    R = s["grid"]["realisations"]
+    prob = np.array(s["breakup_probability"])
+    mean = np.array(s["mean_breathers"])
+    lossy = int(np.argmax([r[0] for r in rates]))
+    moderate = int(np.argsort([r[0] for r in rates])[-2]) if len(rates) > 2 else lossy
+
+    # (1) the (A, W) plane: breakup probability and mean breathers, without and with losses
+    shown = [0, moderate, lossy] if moderate != lossy else [0, lossy]
+    fig, axes = plt.subplots(2, len(shown), figsize=(4.2 * len(shown), 7), squeeze=False)
+    for col, d in enumerate(shown):
+        gc, gs = rates[d]
+        for row, (data, label, vmax) in enumerate(
+            ((prob[:, d], "breakup probability", 1.0), (mean[:, d], "mean number of breathers", max(1.0, mean.max())))
+        ):
+            ax = axes[row, col]
+            im = ax.pcolormesh(np.arange(len(W) + 1), np.arange(len(A) + 1), data, vmin=0, vmax=vmax, cmap="viridis")
+            ax.set_xticks(np.arange(len(W)) + 0.5, [f"{w:g}" for w in W])
+            ax.set_yticks(np.arange(len(A)) + 0.5, [f"{a:g}" for a in A])
+            ax.set_xlabel("spot width W (sites)")
+            ax.set_ylabel("impulse amplitude A")
+            ax.set_title(f"{label}\n$\\gamma_c$ = {gc:g}, $\\gamma_s$ = {gs:g}", fontsize=9)
+            for i in range(len(A)):
+                for k in range(len(W)):
+                    ax.text(k + 0.5, i + 0.5, f"{data[i, k]:.2g}", ha="center", va="center", fontsize=6, color="w")
+            fig.colorbar(im, ax=ax)
+    fig.suptitle(
+        f"{R} realisations per cell, {s['grid']['periods']} periods; broken up = median of the last "
+        f"{s['parameters']['final_frames']} periods' peak counts >= 2",
+        fontsize=9,
+    )
+    fig.tight_layout()
+    save_figure(fig, out, "breakup_plane")
+
+    # (2) amplitudes and velocities of the final breathers (no losses), and loss survival
+    fig, axes = plt.subplots(1, 3, figsize=(14, 4))
+    amp = ds["peak_amplitude"].values[:, 0]
+    vel = ds["peak_velocity"].values[:, 0]
+    for i in range(len(A))[::2]:
+        a = amp[i][np.isfinite(amp[i])]
+        if a.size:
+            axes[0].hist(a, bins=40, range=(0, float(np.nanmax(amp))), histtype="step", label=f"A = {A[i]:g}")
+        v = vel[i][np.isfinite(vel[i])]
+        if v.size:
+            axes[1].hist(v, bins=41, range=(-0.3, 0.3), histtype="step", label=f"A = {A[i]:g}")
+    axes[0].set_xlabel("final breather amplitude (max |z| over a period)")
+    axes[0].set_ylabel("count")
+    axes[0].legend(fontsize=7)
+    axes[0].set_title("amplitudes of the final peaks (no losses)", fontsize=9)
+    axes[1].set_xlabel(f"drift velocity (sites per unit time, over {s['parameters']['final_frames']} periods)")
+    axes[1].set_title("drift velocities (no losses)", fontsize=9)
+    axes[1].legend(fontsize=7)
+    for d, (gc, gs) in enumerate(rates):
+        axes[2].errorbar(
+            A,
+            prob[:, d].mean(axis=-1),
+            yerr=np.array(s["breakup_error_95"])[:, d].max(axis=-1),
+            marker="o",
+            ms=3,
+            capsize=2,
+            label=f"$\\gamma_c$={gc:g}, $\\gamma_s$={gs:g}",
+        )
+    axes[2].set_xlabel("impulse amplitude A")
+    axes[2].set_ylabel("breakup probability (mean over W)")
+    axes[2].set_title("how much loss breakup survives (bars: 95 % Wilson, worst W)", fontsize=9)
+    axes[2].legend(fontsize=7)
+    fig.tight_layout()
+    save_figure(fig, out, "breakup_distributions")
+
+    # (3) time to breakup against the modulational-instability rate
+    mi = s["modulational_instability"]
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    peaks = ds["peaks"].values[:, 0]
+    T = s["grid"]["period"]
+    t = np.arange(peaks.shape[-1]) * T
+    t_break = breakup_times(peaks, t)
+    a0 = ds["max_envelope"].values[:, 0, ..., 1]
+    gamma = omega0() * a0**2 / 24
+    for k, width in enumerate(W):
+        ok = np.isfinite(t_break[:, k])
+        if ok.any():
+            axes[0].scatter(a0[:, k][ok], t_break[:, k][ok] / T, s=6, alpha=0.5, label=f"W = {width:g}")
+            axes[1].scatter(a0[:, k][ok], (gamma * t_break)[:, k][ok], s=6, alpha=0.5, label=f"W = {width:g}")
+    if mi["gamma_t_median"] is not None:
+        a = np.linspace(np.nanmin(a0), np.nanmax(a0), 100)
+        axes[0].plot(
+            a,
+            mi["gamma_t_median"] / (omega0() * a**2 / 24) / T,
+            "k--",
+            lw=1,
+            label=f"MI: {mi['gamma_t_median']:.1f} / $\\Gamma_{{max}}$",
+        )
+        axes[1].axhline(mi["gamma_t_median"], color="k", ls="--", lw=1)
+    axes[0].set_xscale("log")
+    axes[0].set_yscale("log")
+    axes[0].set_xlabel("packet amplitude a (first period's max |z|)")
+    axes[0].set_ylabel("time to breakup (periods)")
+    axes[0].legend(fontsize=7)
+    axes[0].set_title("time to breakup (no losses)", fontsize=9)
+    axes[1].set_xlabel("packet amplitude a")
+    axes[1].set_ylabel(r"$\Gamma_{max}\, t_{breakup}$,  $\Gamma_{max} = w_0 a^2 / 24$")
+    axes[1].set_title("MI prediction: constant (log of amplitude over seed noise)", fontsize=9)
+    fig.tight_layout()
+    save_figure(fig, out, "breakup_time")
+
+    # (4) the representative lattices' envelopes
+    if "fields" in s:
+        from warpchain.store import read_group
+
+        names = list(s["fields"])
+        fig, axes = plt.subplots(1, len(names), figsize=(6 * len(names), 4), squeeze=False)
+        for ax, name in zip(axes[0], names):
+            data, attrs = read_group(out / "data.zarr", s["fields"][name]["group"])
+            rel = data["v"] - data["u"]
+            per = 4
+            n_periods = (len(rel) - 1) // per
+            env = np.abs(rel[1 : 1 + n_periods * per]).reshape(n_periods, per, -1).max(axis=1)
+            im = ax.imshow(
+                env.T,
+                aspect="auto",
+                origin="lower",
+                cmap="magma",
+                interpolation="nearest",
+                extent=[0, n_periods, data["site"][0], data["site"][-1]],
+            )
+            fig.colorbar(im, ax=ax, label="max over a period of |v - u|")
+            f = s["fields"][name]
+            ax.set_title(
+                f"A = {f['A']:g}, W = {f['W']:g}, $\\gamma_c$ = {f['gamma_c']:g}, $\\gamma_s$ = {f['gamma_s']:g}",
+                fontsize=9,
+            )
+            ax.set_xlabel("t / T")
+            ax.set_ylabel("site j")
+        fig.tight_layout()
+        save_figure(fig, out, "breakup_fields")
