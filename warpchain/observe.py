@@ -283,6 +283,78 @@ def _thread_kernel():
 
     from .kernels import NO_CONTACT, ONE, ZERO, any_kick, compute_accelerations, drift, site_energy
 
+    @wp.func
+    def frame(
+        x: wp.array3d(dtype=wp.float64),
+        b: int,
+        n: int,
+        boundary: int,
+        mass: wp.float64,
+        coupling: wp.float64,
+        half_width: wp.float64,
+        threshold: wp.float64,
+        radius: int,
+        contrast: wp.float64,
+        z_low: wp.array2d(dtype=wp.float64),
+        z_high: wp.array2d(dtype=wp.float64),
+        envelope: wp.array2d(dtype=wp.float64),
+        obs: wp.array3d(dtype=wp.float64),
+        r: int,
+    ):
+        """Frame r of lattice b: obs[r, b] from the state and the interval's z extremes, which it resets."""
+        centre = n / 2
+        for j in range(n):
+            envelope[b, j] = wp.max(z_high[b, j], -z_low[b, j])
+        total = ZERO
+        squares = ZERO
+        inside = ZERO
+        top = ZERO
+        low = NO_CONTACT
+        peaks = int(0)
+        for j in range(n):
+            e = site_energy(
+                x[b, 0, j], x[b, 1, j], x[b, 2, j], x[b, 3, j], x[b, 0, (j + 1) % n], j, n, boundary, mass, coupling
+            )
+            total = total + e
+            squares = squares + e * e
+            if wp.abs(wp.float64(j - centre)) <= half_width:
+                inside = inside + e
+            env = envelope[b, j]
+            top = wp.max(top, env)
+            low = wp.min(low, ONE + z_low[b, j])
+            if env > threshold:
+                peak = int(1)
+                left_low = env
+                right_low = env
+                for i in range(1, radius + 1):
+                    left = ZERO  # past the chain's end
+                    right = ZERO
+                    if j - i >= 0:
+                        left = envelope[b, j - i]
+                        if left >= env:
+                            peak = 0
+                    if j + i < n:
+                        right = envelope[b, j + i]
+                        if right > env:
+                            peak = 0
+                    left_low = wp.min(left_low, left)
+                    right_low = wp.min(right_low, right)
+                if left_low > contrast * env or right_low > contrast * env:
+                    peak = 0
+                peaks = peaks + peak
+        for j in range(n):
+            z_low[b, j] = NO_CONTACT
+            z_high[b, j] = -NO_CONTACT
+        obs[r, b, 0] = wp.float64(peaks)
+        pr = ZERO
+        if squares > ZERO:
+            pr = total * total / squares
+        obs[r, b, 1] = pr
+        obs[r, b, 2] = inside
+        obs[r, b, 3] = top
+        obs[r, b, 4] = low
+        obs[r, b, 5] = total
+
     @wp.kernel(enable_backward=False)
     def observed_splitting(
         x: wp.array3d(dtype=wp.float64),
@@ -303,20 +375,27 @@ def _thread_kernel():
         radius: int,
         contrast: wp.float64,
         spot: wp.array(dtype=wp.float64),
-        zext: wp.array3d(dtype=wp.float64),
+        z_low: wp.array2d(dtype=wp.float64),
+        z_high: wp.array2d(dtype=wp.float64),
         envelope: wp.array2d(dtype=wp.float64),
         obs: wp.array3d(dtype=wp.float64),
     ):
-        """``kernels.splitting_kernel`` for lattice b = tid, tracking z's extremes in ``zext`` (batch, 2, N)
-        and reducing the observables into obs[frame - 1, b] at every frame (module docstring)."""
+        """``kernels.splitting_kernel`` for lattice b = tid, tracking z's extremes in ``z_low``/``z_high``
+        (batch, N) and reducing the observables into obs[frame, b] at every frame, frame 0 (the start,
+        envelope |z|) included when ``first_step`` is 0 (module docstring)."""
         b = wp.tid()
         n = x.shape[2]
         stages = drifts.shape[0]
         m = inv_mass[b]
         k = coupling[b]
         loss = lossy[b]
+        if first_step == 0:
+            for j in range(n):
+                z = x[b, 0, j] - x[b, 1, j]
+                z_low[b, j] = z
+                z_high[b, j] = z
+            frame(x, b, n, boundary, mass[b], k, spot[b], threshold, radius, contrast, z_low, z_high, envelope, obs, 0)
         compute_accelerations(x, acc, b, n, boundary, m, k, acc, 0, 0)  # no stiffness history (acc: unused)
-        centre = n / 2
         for step in range(nsteps):
             any_kick(x, acc, b, n, kicks[0] * dt, loss, damp, 0)
             for s in range(stages):
@@ -325,61 +404,14 @@ def _thread_kernel():
                 any_kick(x, acc, b, n, kicks[s + 1] * dt, loss, damp, s + 1)
             for j in range(n):
                 z = x[b, 0, j] - x[b, 1, j]
-                zext[b, 0, j] = wp.min(zext[b, 0, j], z)
-                zext[b, 1, j] = wp.max(zext[b, 1, j], z)
+                z_low[b, j] = wp.min(z_low[b, j], z)
+                z_high[b, j] = wp.max(z_high[b, j], z)
             done = first_step + step + 1
             if done % frame_every == 0:
-                for j in range(n):
-                    envelope[b, j] = wp.max(zext[b, 1, j], -zext[b, 0, j])
-                total = ZERO
-                squares = ZERO
-                inside = ZERO
-                top = ZERO
-                low = NO_CONTACT
-                peaks = int(0)
-                for j in range(n):
-                    e = site_energy(
-                        x[b, 0, j], x[b, 1, j], x[b, 2, j], x[b, 3, j], x[b, 0, (j + 1) % n], j, n, boundary, mass[b], k
-                    )
-                    total = total + e
-                    squares = squares + e * e
-                    if wp.abs(wp.float64(j - centre)) <= spot[b]:
-                        inside = inside + e
-                    env = envelope[b, j]
-                    top = wp.max(top, env)
-                    low = wp.min(low, ONE + zext[b, 0, j])
-                    if env > threshold:
-                        peak = int(1)
-                        left_low = env
-                        right_low = env
-                        for i in range(1, radius + 1):
-                            left = ZERO  # past the chain's end
-                            right = ZERO
-                            if j - i >= 0:
-                                left = envelope[b, j - i]
-                                if left >= env:
-                                    peak = 0
-                            if j + i < n:
-                                right = envelope[b, j + i]
-                                if right > env:
-                                    peak = 0
-                            left_low = wp.min(left_low, left)
-                            right_low = wp.min(right_low, right)
-                        if left_low > contrast * env or right_low > contrast * env:
-                            peak = 0
-                        peaks = peaks + peak
-                    zext[b, 0, j] = NO_CONTACT
-                    zext[b, 1, j] = -NO_CONTACT
-                r = done / frame_every - 1
-                obs[r, b, 0] = wp.float64(peaks)
-                pr = ZERO
-                if squares > ZERO:
-                    pr = total * total / squares
-                obs[r, b, 1] = pr
-                obs[r, b, 2] = inside
-                obs[r, b, 3] = top
-                obs[r, b, 4] = low
-                obs[r, b, 5] = total
+                r = done / frame_every
+                frame(
+                    x, b, n, boundary, mass[b], k, spot[b], threshold, radius, contrast, z_low, z_high, envelope, obs, r
+                )
 
     return observed_splitting
 
@@ -403,6 +435,82 @@ def _block_kernel(block: int, stages: int):
         right = bk.neighbour_or_wall(buf[offset + nbr[1]], u, nbr[3], boundary)
         return wp.vec2d(left, right)
 
+    @wp.func
+    def frame(
+        buf: wp.tile[wp.float64, halves],
+        parity: int,
+        state: wp.vec4d,
+        right_u: wp.float64,
+        z_low: wp.float64,
+        z_high: wp.float64,
+        active: bool,
+        b: int,
+        j: int,
+        n: int,
+        boundary: int,
+        mass: wp.float64,
+        coupling: wp.float64,
+        half_width: wp.float64,
+        threshold: wp.float64,
+        radius: int,
+        contrast: wp.float64,
+        envelope: wp.array2d(dtype=wp.float64),
+        obs: wp.array3d(dtype=wp.float64),
+        r: int,
+    ):
+        """Frame r of lattice b as block reductions; the envelope is shared through half ``parity`` of the
+        tile (the caller flips parity before, as for an exchange). Idle threads contribute nothing."""
+        env = ZERO
+        e = ZERO
+        inside = ZERO
+        low = NO_CONTACT
+        centre = n / 2
+        if active:
+            env = wp.max(z_high, -z_low)
+            e = site_energy(state[0], state[1], state[2], state[3], right_u, j, n, boundary, mass, coupling)
+            if wp.abs(wp.float64(j - centre)) <= half_width:
+                inside = e
+            low = ONE + z_low
+            envelope[b, j] = env
+        offset = parity * block
+        wp.tile_assign(buf, wp.tile(env), offset=(offset,))
+        peak = ZERO
+        if active and env > threshold:
+            peak = ONE
+            left_low = env
+            right_low = env
+            for i in range(1, radius + 1):
+                left = ZERO  # past the chain's end
+                right = ZERO
+                if j - i >= 0:
+                    left = buf[offset + j - i]
+                    if left >= env:
+                        peak = ZERO
+                if j + i < n:
+                    right = buf[offset + j + i]
+                    if right > env:
+                        peak = ZERO
+                left_low = wp.min(left_low, left)
+                right_low = wp.min(right_low, right)
+            if left_low > contrast * env or right_low > contrast * env:
+                peak = ZERO
+        peaks = wp.tile_sum(wp.tile(peak))
+        total = wp.tile_sum(wp.tile(e))
+        squares = wp.tile_sum(wp.tile(e * e))
+        spot_total = wp.tile_sum(wp.tile(inside))
+        top = wp.tile_max(wp.tile(env))
+        lowest = wp.tile_min(wp.tile(low))
+        if j == 0:
+            obs[r, b, 0] = peaks[0]
+            pr = ZERO
+            if squares[0] > ZERO:
+                pr = total[0] * total[0] / squares[0]
+            obs[r, b, 1] = pr
+            obs[r, b, 2] = spot_total[0]
+            obs[r, b, 3] = top[0]
+            obs[r, b, 4] = lowest[0]
+            obs[r, b, 5] = total[0]
+
     options = {"enable_backward": False, "module": "unique", "grid_stride": False, "launch_bounds": block}
 
     @wp.kernel(**options)
@@ -423,7 +531,8 @@ def _block_kernel(block: int, stages: int):
         radius: int,
         contrast: wp.float64,
         spot: wp.array(dtype=wp.float64),
-        zext: wp.array3d(dtype=wp.float64),
+        zlo: wp.array2d(dtype=wp.float64),
+        zhi: wp.array2d(dtype=wp.float64),
         envelope: wp.array2d(dtype=wp.float64),
         obs: wp.array3d(dtype=wp.float64),
     ):
@@ -440,18 +549,44 @@ def _block_kernel(block: int, stages: int):
         pv = start[3]
         m = inv_mass[b]
         k = coupling[b]
+        mb = mass[b]
         loss = lossy[b]
-        z_low = ZERO
-        z_high = ZERO
-        if active:
-            z_low = zext[b, 0, j]
-            z_high = zext[b, 1, j]
         half_width = spot[b]
-        centre = n / 2
+        z_low = u - v
+        z_high = u - v
+        if active and first_step != 0:
+            z_low = zlo[b, j]
+            z_high = zhi[b, j]
         buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
         parity = int(0)
         nb = exchange(buf, u, parity, nbr, boundary)
         a = bk.site_acceleration(u, v, nb[0], nb[1], m, k)
+        if first_step == 0:  # frame 0: the start, envelope |z|
+            parity = 1 - parity
+            frame(
+                buf,
+                parity,
+                wp.vec4d(u, v, pu, pv),
+                nb[1],
+                z_low,
+                z_high,
+                active,
+                b,
+                j,
+                n,
+                boundary,
+                mb,
+                k,
+                half_width,
+                threshold,
+                radius,
+                contrast,
+                envelope,
+                obs,
+                0,
+            )
+            z_low = NO_CONTACT
+            z_high = -NO_CONTACT
         for step in range(nsteps):
             w = bk.site_kick(pu, pv, a, kicks[0], loss, damp, b, 0)
             pu = w[0]
@@ -471,66 +606,35 @@ def _block_kernel(block: int, stages: int):
             z_high = wp.max(z_high, z)
             done = first_step + step + 1
             if done % frame_every == 0:
-                env = wp.max(z_high, -z_low)
-                e = ZERO
-                inside = ZERO
-                low = NO_CONTACT
-                if active:
-                    e = site_energy(u, v, pu, pv, nb[1], j, n, boundary, mass[b], k)
-                    if wp.abs(wp.float64(j - centre)) <= half_width:
-                        inside = e
-                    low = ONE + z_low
-                    envelope[b, j] = env
-                # the envelope of the neighbours, through the other half of the shared tile
                 parity = 1 - parity
-                offset = parity * block
-                wp.tile_assign(buf, wp.tile(env), offset=(offset,))
-                peak = ZERO
-                if active and env > threshold:
-                    peak = ONE
-                    left_low = env
-                    right_low = env
-                    for i in range(1, radius + 1):
-                        left = ZERO  # past the chain's end
-                        right = ZERO
-                        if j - i >= 0:
-                            left = buf[offset + j - i]
-                            if left >= env:
-                                peak = ZERO
-                        if j + i < n:
-                            right = buf[offset + j + i]
-                            if right > env:
-                                peak = ZERO
-                        left_low = wp.min(left_low, left)
-                        right_low = wp.min(right_low, right)
-                    if left_low > contrast * env or right_low > contrast * env:
-                        peak = ZERO
-                peaks = wp.tile_sum(wp.tile(peak))
-                total = wp.tile_sum(wp.tile(e))
-                squares = wp.tile_sum(wp.tile(e * e))
-                spot_total = wp.tile_sum(wp.tile(inside))
-                top = wp.tile_max(wp.tile(env))
-                lowest = wp.tile_min(wp.tile(low))
-                if j == 0:
-                    r = done / frame_every - 1
-                    obs[r, b, 0] = peaks[0]
-                    pr = ZERO
-                    if squares[0] > ZERO:
-                        pr = total[0] * total[0] / squares[0]
-                    obs[r, b, 1] = pr
-                    obs[r, b, 2] = spot_total[0]
-                    obs[r, b, 3] = top[0]
-                    obs[r, b, 4] = lowest[0]
-                    obs[r, b, 5] = total[0]
+                frame(
+                    buf,
+                    parity,
+                    wp.vec4d(u, v, pu, pv),
+                    nb[1],
+                    z_low,
+                    z_high,
+                    active,
+                    b,
+                    j,
+                    n,
+                    boundary,
+                    mb,
+                    k,
+                    half_width,
+                    threshold,
+                    radius,
+                    contrast,
+                    envelope,
+                    obs,
+                    done / frame_every,
+                )
                 z_low = NO_CONTACT
                 z_high = -NO_CONTACT
-                if not active:
-                    z_low = ZERO
-                    z_high = ZERO
         bk.store_site(x, b, j, active, wp.vec4d(u, v, pu, pv))
         if active:
-            zext[b, 0, j] = z_low
-            zext[b, 1, j] = z_high
+            zlo[b, j] = z_low
+            zhi[b, j] = z_high
 
     return observed_splitting
 
@@ -611,10 +715,11 @@ def observe(
         lossy = wp.zeros(batch, dtype=wp.int32, device=device)
         damp = wp.zeros((1, 1, KICK_ENTRIES), dtype=f64, device=device)
     spot = wp.array(np.broadcast_to(np.asarray(observation.spot, dtype=np.float64), (batch,)), dtype=f64, device=device)
-    z0 = x0[:, 0] - x0[:, 1]
-    zext = wp.array(np.stack([np.full_like(z0, _FAR), np.full_like(z0, -_FAR)], axis=1), dtype=f64, device=device)
+    # the tracked z extremes (set by the kernels at frame 0), the last frame's envelope, the observables
+    zlo = wp.empty((batch, params.N), dtype=f64, device=device)
+    zhi = wp.empty((batch, params.N), dtype=f64, device=device)
     envelope = wp.zeros((batch, params.N), dtype=f64, device=device)
-    obs = wp.zeros((n_frames, batch, N_OBSERVABLES), dtype=f64, device=device)
+    obs = wp.zeros((n_frames + 1, batch, N_OBSERVABLES), dtype=f64, device=device)
     boundary = BOUNDARY_CODES[params.boundary]
     threshold, radius, contrast = f64(observation.threshold), int(observation.radius), f64(observation.contrast)
 
@@ -628,7 +733,7 @@ def observe(
 
         def launch(first, steps):
             inputs = [x, inv_mass, mass, coupling, drifts, kicks, boundary, int(steps), lossy, damp]
-            inputs += [int(first), fe, threshold, radius, contrast, spot, zext, envelope, obs]
+            inputs += [int(first), fe, threshold, radius, contrast, spot, zlo, zhi, envelope, obs]
             wp.launch(kernel, dim=(batch, block), block_dim=block, device=device, inputs=inputs)
 
     else:
@@ -642,15 +747,13 @@ def observe(
             def task(lo, hi):
                 inputs = [x[lo:hi], acc[lo:hi], inv_mass[lo:hi], mass[lo:hi], coupling[lo:hi], drifts, kicks]
                 inputs += [boundary, f64(dt_used), int(steps), lossy[lo:hi], damp[lo:hi] if damping else damp]
-                inputs += [int(first), fe, threshold, radius, contrast, spot[lo:hi], zext[lo:hi], envelope[lo:hi]]
-                inputs += [obs[:, lo:hi]]
+                inputs += [int(first), fe, threshold, radius, contrast, spot[lo:hi], zlo[lo:hi], zhi[lo:hi]]
+                inputs += [envelope[lo:hi], obs[:, lo:hi]]
                 wp.launch(kernel, dim=hi - lo, device=device, inputs=inputs)
 
             _in_parallel([lambda lo=lo, hi=hi: task(lo, hi) for lo, hi in _slices(batch, device)])
 
     del kernels
-    first_values, env0 = frame_observables(params, x0, z0, z0, Mb, Kb, observation)
-    E0 = first_values[:, 5]
     # chunks: whole frames; the last `lag` frames form their own chunk so that the envelope is read there
     n_chunks = chunks or 20
     main_frames = n_frames - lag
@@ -665,16 +768,19 @@ def observe(
         from tqdm.auto import tqdm
 
         bar = tqdm(total=n_frames, desc=f"observe {meth.name} x{batch}", unit="frame", leave=False)
-    env_lag = env0 if main_frames == 0 else None
-    host_obs = np.empty((n_frames, batch, N_OBSERVABLES))
+    env_lag = np.abs(x0[:, 0] - x0[:, 1]) if main_frames == 0 else None  # frame 0's envelope
+    values = np.empty((n_frames + 1, batch, N_OBSERVABLES))
+    E0 = None
     try:
         for a, b in zip(bounds[:-1], bounds[1:]):
-            launch(a * fe, (b - a) * fe)
-            host_obs[a:b] = obs[a:b].numpy()
+            launch(a * fe, (b - a) * fe)  # frames a + 1 .. b (and frame 0 with the first)
+            values[a : b + 1] = obs[a : b + 1].numpy()
+            if E0 is None:
+                E0 = values[0, :, 5].copy()
             if b == main_frames:
                 env_lag = envelope.numpy().copy()
-            E = host_obs[b - 1, :, 5]
-            finite = np.isfinite(host_obs[a:b]).all(axis=(0, 2))
+            E = values[b, :, 5]
+            finite = np.isfinite(values[a : b + 1]).all(axis=(0, 2))
             change = _signed_energy_change(E, E0, params.N) if damping is not None else None
             err = np.maximum(change, 0.0) if change is not None else _relative_energy_error(E, E0, params.N)
             bad = ~finite | ((err > max_energy_error) if max_energy_error is not None else False)
@@ -696,7 +802,6 @@ def observe(
     finally:
         if bar is not None:
             bar.close()
-    values = np.concatenate([first_values[None], host_obs])
     return ObservedRun(
         t=np.arange(n_frames + 1) * fe * dt_used,
         values=values,
