@@ -104,6 +104,8 @@ def main():
         cpl = wp.array(np.full(batch, 160.0), dtype=f64, device="cuda")
         rec = wp.zeros((1, 1, 1), dtype=f64, device="cuda")
         hist = wp.zeros((1, 1, 1), dtype=f64, device="cuda")
+        lossy = wp.zeros(batch, dtype=wp.int32, device="cuda")  # no losses (the kernels' damping arguments)
+        damp = wp.zeros((1, 1, 8), dtype=f64, device="cuda")
 
         def runner(kernel, m):
             step = 0.1 if m.stages == 1 else 0.5
@@ -113,7 +115,7 @@ def main():
                 dim=(batch, BLOCK),
                 block_dim=BLOCK,
                 device="cuda",
-                inputs=[x, mass, cpl, dr, ki, 0, f64(step), n, 0, rec, rec, 0, hist],
+                inputs=[x, mass, cpl, dr, ki, 0, f64(step), n, 0, rec, rec, 0, hist, lossy, damp],
             )
 
         def run_verlet(n):

@@ -20,9 +20,11 @@ Observables are reduced on the device (``warpchain.observe``) once per period: p
 period's |z| envelope above ``threshold`` (a peak is the largest value within ``radius`` sites),
 participation ratio, energy inside |j - c| <= W, max envelope, min contact, energy. A lattice has
 *broken up* when the median of its peak count over the last ``final_frames`` periods is >= 2; that
-median is its number of breathers. Time to breakup: the first period with two peaks or more.
-Positions, amplitudes and drift velocities of the final peaks come from the envelope profiles
-``final_frames`` periods apart.
+median is its number of breathers. Time to breakup: the first period that starts ``persist_frames``
+periods in a row with two peaks or more. Positions, amplitudes and drift velocities of the final
+peaks come from the envelope profiles ``velocity_lag`` periods apart (each final peak matched with
+the mutually nearest peak within ``max_speed`` x the lag). Breakup probabilities carry 95 % Wilson
+score intervals.
 
 Theory compared: a wide packet z = a cos(w_0 t) at the optical band edge obeys the focusing NLS
 2 i w_0 A_T = D A_XX + G |A|^2 A (``continuation.seeds.nls_coefficients``, X = j / sqrt(K), z = 2 Re A
@@ -94,7 +96,10 @@ class Parameters:
     threshold: float = 0.1  # envelope |z| above which a peak counts as a breather
     radius: int = 10  # a peak is the largest envelope within this many sites, and localized within them:
     contrast: float = 0.5  # the envelope falls to this fraction of the peak on both sides
-    final_frames: int = 10  # periods over which the final count is a median (and the drift velocities' lag)
+    final_frames: int = 10  # periods over which the final count is a median
+    persist_frames: int = 3  # time to breakup: the first of this many periods in a row with >= 2 peaks
+    velocity_lag: int = 4  # periods between the envelope profiles that give the drift velocities
+    max_speed: float = 0.25  # sites per unit time: the farthest a peak is matched over the lag
     max_peaks: int = 24  # peaks stored per lattice at the end
     check_method: str = "kahan8"  # the accuracy re-run of one W column (lossless) ...
     check_steps_per_period: int = 64  # ... with this many steps per period
@@ -137,11 +142,24 @@ def final_counts(peaks: np.ndarray, final_frames: int) -> np.ndarray:
     return np.median(peaks[..., -final_frames:], axis=-1)
 
 
-def breakup_times(peaks: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """First frame time with >= 2 peaks (NaN if never): peaks (..., frame) -> (...)."""
+def breakup_times(peaks: np.ndarray, t: np.ndarray, persist: int = 1) -> np.ndarray:
+    """Time of the first frame that starts ``persist`` frames in a row with >= 2 peaks (NaN if none):
+    peaks (..., frame) -> (...)."""
     broken = peaks >= 2
-    first = np.argmax(broken, axis=-1)
-    return np.where(broken.any(axis=-1), t[first], np.nan)
+    run = broken.copy()
+    for k in range(1, persist):
+        run[..., :-k] &= broken[..., k:]
+        run[..., -k:] = False
+    first = np.argmax(run, axis=-1)
+    return np.where(run.any(axis=-1), t[first], np.nan)
+
+
+def wilson_interval(p: np.ndarray, n: int, z: float = 1.96) -> tuple[np.ndarray, np.ndarray]:
+    """95 % Wilson score interval (lo, hi) of a binomial proportion p out of n trials."""
+    p = np.asarray(p, dtype=float)
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return np.clip(centre - half, 0.0, 1.0), np.clip(centre + half, 0.0, 1.0)
 
 
 def _task(index: dict, device: str, *, config: dict) -> dict:
@@ -165,7 +183,7 @@ def observe_batch(P: Parameters, A: float, widths, R: int, gc: float, gs: float,
         radius=P.radius,
         contrast=P.contrast,
         spot=np.repeat(widths, R),
-        lag_frames=P.final_frames,
+        lag_frames=P.velocity_lag,
     )
     run = observe(
         params,
@@ -179,7 +197,7 @@ def observe_batch(P: Parameters, A: float, widths, R: int, gc: float, gs: float,
     )
     shape = (len(widths), R)
     out = {name: run[name].T.reshape(*shape, -1) for name in OBSERVABLES}
-    tracks = peak_tracks(run.envelope_lag, run.envelope, run.t[-1] - run.t_lag, observation, max_speed=1.0)
+    tracks = peak_tracks(run.envelope_lag, run.envelope, run.t[-1] - run.t_lag, observation, max_speed=P.max_speed)
     for k, name in enumerate(("peak_position", "peak_amplitude", "peak_velocity")):
         arr = np.full((len(tracks), P.max_peaks), np.nan)
         for b, tr in enumerate(tracks):
@@ -269,8 +287,8 @@ def run(ctx: Context) -> dict:
     broken = count >= 2
     prob = broken.mean(axis=-1)
     half = broken[..., : max(1, R // 2)].mean(axis=-1)
-    err = _wilson_half_width(prob, R)
-    t_break = breakup_times(peaks, t)
+    lo, hi = wilson_interval(prob, R)
+    t_break = np.where(broken, breakup_times(peaks, t, P.persist_frames), np.nan)  # lattices that broke up
     a_initial = ds["max_envelope"].values[..., 1]  # the first period's envelope: the packet's amplitude a
     gamma = omega0() * a_initial**2 / 24.0
     product = gamma * t_break  # (A, damping, W, R)
@@ -317,14 +335,13 @@ def run(ctx: Context) -> dict:
             "task_seconds_median": float(np.median(report.task_seconds)) if report.task_seconds else None,
         },
         "breakup_probability": prob.tolist(),  # (A, damping, W)
-        "breakup_error_95": err.tolist(),
+        "breakup_interval_95": [lo.tolist(), hi.tolist()],  # Wilson, each (A, damping, W)
         "mean_breathers": count.mean(axis=-1).tolist(),  # (A, damping, W)
         "breakup_threshold_A": threshold_A,
         "realisation_halving": {  # the first half of the realisations against all of them, per cell
             "max_change": float(np.max(np.abs(half - prob))),
-            "cells_within_error_bars": float(np.mean(np.abs(half - prob) <= err + 1e-12)),
-            "max_change_over_error_bar": float(np.max(np.abs(half - prob) / np.maximum(err, 1e-12))),
-            "error_bar": "95 % Wilson score half-width with all realisations",
+            "cells_within_interval": float(np.mean((half >= lo - 1e-12) & (half <= hi + 1e-12))),
+            "interval": "95 % Wilson score interval of the estimate with all realisations",
         },
         "loss_survival": survive,
         "modulational_instability": mi,
@@ -333,7 +350,7 @@ def run(ctx: Context) -> dict:
         "contact_lost_fraction": float(np.isfinite(ds["contact_loss_time"].values).mean()),
     }
     if P.checks:
-        summary["checks"] = _checks(ctx, P, params, count, prob, err)
+        summary["checks"] = _checks(ctx, P, params, count, prob, (lo, hi))
     if P.fields:
         summary["fields"] = _fields(ctx, P, params, store)
     summary["wall_seconds"] = time.perf_counter() - start
@@ -348,11 +365,6 @@ def run(ctx: Context) -> dict:
 
 def omega0() -> float:
     return float(np.sqrt((PAPER_M + 1.0) / PAPER_M))
-
-
-def _wilson_half_width(p: np.ndarray, n: int, z: float = 1.96) -> np.ndarray:
-    """Half-width of the 95 % Wilson score interval of a binomial proportion p out of n."""
-    return z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
 
 
 def _distribution(values: np.ndarray) -> dict:
@@ -391,7 +403,7 @@ def _mi_summary(A, W, product, t_break, a_initial) -> dict:
     }
 
 
-def _checks(ctx, P: Parameters, params, count, prob, err) -> dict:
+def _checks(ctx, P: Parameters, params, count, prob, interval) -> dict:
     """Zero damping = the direct-simulation engine; a damped lattice against DOP853; the step check."""
     from .direct_simulation import initial_conditions
     from ._common import paper_breather
@@ -467,7 +479,9 @@ def _checks(ctx, P: Parameters, params, count, prob, err) -> dict:
         "breakup_probability": p_check.tolist(),
         "max_probability_change": float(np.max(np.abs(p_check - p_main))),
         "max_mean_breathers_change": float(np.max(np.abs(counts.mean(axis=-1) - count[:, 0, w_check].mean(axis=-1)))),
-        "within_error_bars": bool(np.all(np.abs(p_check - p_main) <= err[:, 0, w_check] + 1e-12)),
+        "within_interval": bool(
+            np.all((p_check >= interval[0][:, 0, w_check] - 1e-12) & (p_check <= interval[1][:, 0, w_check] + 1e-12))
+        ),
         "seconds": time.perf_counter() - t0,
     }
     ctx.log(
@@ -526,6 +540,12 @@ def _fields(ctx, P: Parameters, params, store) -> dict:
 # ----------------------------------------------------------------------------- figures
 
 
+def _legend(ax, **kwargs) -> None:
+    """A legend where something was drawn with a label (an empty panel gets none)."""
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(**kwargs)
+
+
 def plot(out) -> None:
     import xarray as xr
 
@@ -577,19 +597,22 @@ def plot(out) -> None:
             axes[0].hist(a, bins=40, range=(0, float(np.nanmax(amp))), histtype="step", label=f"A = {A[i]:g}")
         v = vel[i][np.isfinite(vel[i])]
         if v.size:
-            axes[1].hist(v, bins=41, range=(-0.3, 0.3), histtype="step", label=f"A = {A[i]:g}")
+            vmax = s["parameters"]["max_speed"]
+            axes[1].hist(v, bins=41, range=(-vmax, vmax), histtype="step", label=f"A = {A[i]:g}")
     axes[0].set_xlabel("final breather amplitude (max |z| over a period)")
     axes[0].set_ylabel("count")
-    axes[0].legend(fontsize=7)
+    _legend(axes[0], fontsize=7)
     axes[0].set_title("amplitudes of the final peaks (no losses)", fontsize=9)
-    axes[1].set_xlabel(f"drift velocity (sites per unit time, over {s['parameters']['final_frames']} periods)")
+    axes[1].set_xlabel(f"drift velocity (sites per unit time, over {s['parameters']['velocity_lag']} periods)")
     axes[1].set_title("drift velocities (no losses)", fontsize=9)
-    axes[1].legend(fontsize=7)
+    _legend(axes[1], fontsize=7)
     for d, (gc, gs) in enumerate(rates):
+        pooled = prob[:, d].mean(axis=-1)  # every W and realisation of the row: len(W) * R trials
+        lo, hi = wilson_interval(pooled, len(W) * R)
         axes[2].errorbar(
             A,
-            prob[:, d].mean(axis=-1),
-            yerr=np.array(s["breakup_error_95"])[:, d].max(axis=-1),
+            pooled,
+            yerr=[pooled - lo, hi - pooled],
             marker="o",
             ms=3,
             capsize=2,
@@ -597,8 +620,8 @@ def plot(out) -> None:
         )
     axes[2].set_xlabel("impulse amplitude A")
     axes[2].set_ylabel("breakup probability (mean over W)")
-    axes[2].set_title("how much loss breakup survives (bars: 95 % Wilson, worst W)", fontsize=9)
-    axes[2].legend(fontsize=7)
+    axes[2].set_title("how much loss breakup survives (bars: 95 % Wilson)", fontsize=9)
+    _legend(axes[2], fontsize=7)
     fig.tight_layout()
     save_figure(fig, out, "breakup_distributions")
 
@@ -608,7 +631,8 @@ def plot(out) -> None:
     peaks = ds["peaks"].values[:, 0]
     T = s["grid"]["period"]
     t = np.arange(peaks.shape[-1]) * T
-    t_break = breakup_times(peaks, t)
+    persist, final = s["parameters"]["persist_frames"], s["parameters"]["final_frames"]
+    t_break = np.where(final_counts(peaks, final) >= 2, breakup_times(peaks, t, persist), np.nan)
     a0 = ds["max_envelope"].values[:, 0, ..., 1]
     gamma = omega0() * a0**2 / 24
     wide_from = s["parameters"]["mi_min_width"]
@@ -631,12 +655,12 @@ def plot(out) -> None:
             f"fit: a^{mi['t_breakup_exponent']:.2f}",
         )
         axes[1].axhline(mi["gamma_t_median"], color="k", ls="--", lw=1)
-        axes[1].legend(fontsize=6)
+        _legend(axes[1], fontsize=6)
     axes[0].set_xscale("log")
     axes[0].set_yscale("log")
     axes[0].set_xlabel("packet amplitude a (first period's max |z|)")
     axes[0].set_ylabel("time to breakup (periods)")
-    axes[0].legend(fontsize=7)
+    _legend(axes[0], fontsize=7)
     axes[0].set_title("time to breakup (no losses)", fontsize=9)
     axes[1].set_xlabel("packet amplitude a")
     axes[1].set_ylabel(r"$\Gamma_{max}\, t_{breakup}$,  $\Gamma_{max} = w_0 a^2 / 24$")

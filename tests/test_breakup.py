@@ -35,7 +35,8 @@ def test_quick_scene_end_to_end(quick):
     assert checks["zero_damping_vs_simulate"]["bitwise_equal"]  # on the CPU: the direct-simulation engine exactly
     dop = checks["damped_vs_dop853"]["relative_max_difference"]
     assert dop["kahan8/64"] < 1e-8 and dop["kahan8/64"] < dop["kahan8/32"] / 50  # converges to DOP853 at order 8
-    assert {"max_probability_change", "within_error_bars"} <= set(checks["step_check"])
+    assert {"max_probability_change", "within_interval"} <= set(checks["step_check"])
+    assert 0 <= s["realisation_halving"]["cells_within_interval"] <= 1
     assert s["sweep"]["ran"] == 6 and s["seeds"]["seed"] == s["parameters"]["seed"]
     ds = xr.open_zarr(quick / "data.zarr", group="observables")
     assert ds["peaks"].dims == ("A", "damping", "W", "realisation", "frame")
@@ -46,6 +47,21 @@ def test_quick_scene_end_to_end(quick):
         assert xr.open_zarr(quick / "data.zarr", group=name["group"])["u"].dims == ("t", "site")
     for stem in ("breakup_plane", "breakup_distributions", "breakup_time", "breakup_fields"):
         assert (quick / f"{stem}.png").stat().st_size > 10_000
+
+
+def test_statistics_helpers():
+    from scenarios.breakup_statistics import breakup_times, final_counts, wilson_interval
+
+    peaks = np.array([[0, 2, 0, 2, 2, 2, 3, 2], [0, 1, 1, 1, 2, 1, 1, 1]], dtype=float)
+    t = np.arange(8.0)
+    assert breakup_times(peaks, t)[0] == 1.0  # the first frame with two peaks
+    assert breakup_times(peaks, t, persist=3)[0] == 3.0  # the flicker at frame 1 does not count
+    assert np.isnan(breakup_times(peaks, t, persist=2)[1])
+    np.testing.assert_array_equal(final_counts(peaks, 3), [2.0, 1.0])
+    lo, hi = wilson_interval(np.array([0.0, 0.5, 1.0]), 100)
+    assert lo[0] == 0.0 and 0.03 < hi[0] < 0.04  # p = 0 out of 100: [0, 0.037]
+    np.testing.assert_allclose([lo[1], hi[1]], [0.404, 0.596], atol=1e-3)
+    assert hi[2] == pytest.approx(1.0) and 0.96 < lo[2] < 0.97
 
 
 def test_reproducible_from_the_recorded_seeds(quick):

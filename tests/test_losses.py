@@ -47,7 +47,7 @@ def test_kick_matrices_solve_the_damped_velocity_equation():
     assert np.array_equal(zero[:, 4], np.array([0.5 * 0.1, 0.25 * 0.1])) and np.all(zero[:, 5:7] == 0)
 
 
-@pytest.mark.parametrize("method", ["verlet", "yoshida4", "kahan6"])
+@pytest.mark.parametrize("method", ["verlet", "yoshida4", "yoshida6", "kahan6"])
 def test_damped_schemes_keep_their_order_against_dop853(method):
     x0 = _spots(1)
     damping = Damping(0.05, 0.02)
@@ -60,7 +60,7 @@ def test_damped_schemes_keep_their_order_against_dop853(method):
         np.abs(reference.integrate(method, PARAMS, x0, T / n, n, damping=damping)["x"][0] - exact).max()
         for n in (80, 160)
     ]
-    order = {"verlet": 2, "yoshida4": 4, "kahan6": 6}[method]
+    order = {"verlet": 2, "yoshida4": 4, "yoshida6": 6, "kahan6": 6}[method]
     assert np.log2(errors[0] / errors[1]) == pytest.approx(order, abs=0.25)
 
 
@@ -121,12 +121,27 @@ def test_observables_match_the_reference(layout):
     np.testing.assert_allclose(run["energy"][0], reference.model.energy(PARAMS, x0), rtol=1e-13)
 
 
-def test_zero_damping_observe_is_simulate_bit_for_bit():
+@pytest.mark.parametrize("layout", ["thread", "block"])
+def test_zero_damping_observe_is_simulate_bit_for_bit(layout):
     x0 = _spots(2)
     obs = Observation(frame_every=8, threshold=0.05)
-    run = observe(PARAMS, x0, 4.0, 0.05, observation=obs, method="yoshida4", device="cpu", damping=(0.0, 0.0))
-    plain = simulate(PARAMS, x0, run.t[-1], run.dt, method="yoshida4", device="cpu")
+    run = observe(
+        PARAMS, x0, 4.0, 0.05, observation=obs, method="yoshida4", device="cpu", damping=(0.0, 0.0), layout=layout
+    )
+    plain = simulate(PARAMS, x0, run.t[-1], run.dt, method="yoshida4", device="cpu", layout=layout)
     assert plain.nsteps == run.nsteps and np.array_equal(run.x, plain.x)
+
+
+def test_observe_never_lengthens_the_step_and_checks_the_one_it_uses():
+    obs = Observation(frame_every=80)
+    run = observe(PARAMS, _spots(1), 10.0, 0.1, observation=obs, device="cpu")
+    assert run.dt <= 0.1 and run.nsteps % 80 == 0 and np.isclose(run.t[-1], 10.0)
+    from warpchain import StepSizeError
+
+    with pytest.raises(StepSizeError):
+        observe(PARAMS, _spots(1), 10.0, 0.5, observation=Observation(frame_every=4), device="cpu")
+    with pytest.raises(ValueError, match="chunks"):
+        observe(PARAMS, _spots(1), 1.0, 0.05, observation=Observation(frame_every=4), device="cpu", chunks=0)
 
 
 def test_peaks_and_tracks():
@@ -140,6 +155,7 @@ def test_peaks_and_tracks():
     assert peak_mask(env, 0.05, 2, contrast=1.0)[0, 33]  # without the localization test the hump counts
     moved = np.roll(env, 2, axis=-1)
     obs = Observation(frame_every=1, threshold=0.05, radius=2, contrast=0.5)
+    assert np.isnan(peak_tracks(env, moved, 4.0, obs, max_speed=0.25)[0][:, 2]).all()  # 2 sites > 0.25 x 4
     tracks = peak_tracks(env, moved, 4.0, obs, max_speed=1.0)[0]
     assert tracks.shape == (2, 3)
     np.testing.assert_allclose(tracks[:, 2], 0.5)  # two sites in four time units

@@ -15,8 +15,10 @@ from .ensemble import (
     simulate,
     stability_limit,
 )
+from .observe import Observation, ObservedRun, observe
 from .flow import Flow, Linearization, ReferenceFlow, Trajectory
-from .integrators import METHODS, Method, get_method
+from .integrators import METHODS, Method, RungeKuttaMethod, SplittingMethod, get_method
+from .losses import Damping
 from .model import (
     BOUNDARIES,
     ChainParams,
@@ -39,6 +41,11 @@ __version__ = "0.1.0"
 __all__ = [
     "BOUNDARIES",
     "ChainParams",
+    "Damping",
+    "Observation",
+    "ObservedRun",
+    "RungeKuttaMethod",
+    "SplittingMethod",
     "Flow",
     "IntegrationError",
     "Linearization",
@@ -62,6 +69,7 @@ __all__ = [
     "long_wave_speed",
     "lowest_optical_mode",
     "min_contact",
+    "observe",
     "propagate_tangent",
     "resolve_device",
     "simulate",

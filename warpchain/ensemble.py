@@ -804,7 +804,7 @@ class _Runner:
         self.no_damp = wp.zeros((1, 1, KICK_ENTRIES), dtype=f64, device=device)
         self.damp = self.no_damp
         self.damped = False
-        self.damp_key = None
+        self.lossy_host = np.zeros(self.batch, dtype=bool)
 
     def set_damping(self, damping: Damping | None, dt: float) -> None:
         """Upload the damped kicks' coefficients of ``damping`` for step ``dt`` (None: no losses)."""
@@ -812,7 +812,8 @@ class _Runner:
         if damping is None:
             if self.damped:
                 self.lossy.zero_()
-            self.damped, self.damp, self.damp_key = False, self.no_damp, None
+            self.damped, self.damp = False, self.no_damp
+            self.lossy_host = np.zeros(self.batch, dtype=bool)
             return
         if not isinstance(self.method, SplittingMethod):
             raise ValueError(
@@ -820,7 +821,8 @@ class _Runner:
                 "choose a splitting method (verlet, yoshida4, kahan6, ...)"
             )
         coefficients = kick_matrices(self.method.kicks, dt, self.mass.numpy(), damping, self.batch)
-        self.lossy.assign((~lossless(coefficients)).astype(np.int32))
+        self.lossy_host = ~lossless(coefficients)
+        self.lossy.assign(self.lossy_host.astype(np.int32))
         if self.damp.shape != coefficients.shape:
             self.damp = wp.empty(coefficients.shape, dtype=wp.float64, device=self.device)
         self.damp.assign(coefficients)
@@ -1116,10 +1118,9 @@ def simulate(
                 trace_E[0] = E0
             done = first + steps
             t_now = done * dt_used
-            if damping is None:
-                err = np.where(finite, _relative_energy_error(E, E0, params.N), np.inf)
-            else:  # losses: only a growth of the energy is an error
-                err = np.where(finite, np.maximum(_signed_energy_change(E, E0, params.N), 0.0), np.inf)
+            change = _signed_energy_change(E, E0, params.N)  # lattices with losses: only growth is an error
+            err = np.where(runner.lossy_host, np.maximum(change, 0.0), np.abs(change))
+            err = np.where(finite, err, np.inf)
             max_err = np.maximum(max_err, err)
             trace_t.append(t_now)
             trace_E.append(E.copy())

@@ -8,8 +8,9 @@ Equations (our notation, ``DESIGN.md`` section 1, with mu = M / (M + 1) the pair
 
 * ``gamma_c`` (contact): dissipation at the contact, on the relative velocity z' = u' - v'. The
   relative coordinate then obeys z'' = ... - gamma_c z' (the force is mu gamma_c z' and
-  1/M + 1 = 1/mu), so a resonator on a still substrate rings down as exp(-gamma_c t / 2) in
-  amplitude: its quality factor is Q_c = w_0 / gamma_c with w_0 = sqrt((M + 1) / M).
+  1/M + 1 = 1/mu), so an isolated pair (K = 0, or the uniform optical mode: centre of mass at rest)
+  rings down as exp(-gamma_c t / 2) in amplitude: its quality factor is Q_c = w_0 / gamma_c with
+  w_0 = sqrt((M + 1) / M). (A resonator on a substrate held still decays at mu gamma_c instead.)
 * ``gamma_s`` (substrate): u'' = ... - gamma_s u', standing for radiation into the bulk (a free
   substrate velocity decays as exp(-gamma_s t)).
 
@@ -84,6 +85,10 @@ def as_damping(damping) -> Damping | None:
         except (TypeError, ValueError):
             raise ValueError(f"damping must be a Damping or a (contact, substrate) pair, got {damping!r}") from None
         damping = Damping(contact, substrate)
+    if np.ndim(damping.contact) or np.ndim(damping.substrate):  # lists and arrays: per lattice
+        damping = Damping(
+            np.asarray(damping.contact, dtype=np.float64), np.asarray(damping.substrate, dtype=np.float64)
+        )
     if not isinstance(damping.contact, np.ndarray):
         real_number("damping.contact", damping.contact, nonnegative=True)
     if not isinstance(damping.substrate, np.ndarray):
@@ -146,7 +151,8 @@ def _kick_rows(kicks: tuple, dt: float, M: float, gamma_c: float, gamma_s: float
 
 
 def lossless(coefficients: np.ndarray) -> np.ndarray:
-    """Per lattice, whether its kick coefficients are the plain kick (E = I, F = h I): shape (batch,)."""
+    """Per lattice, whether its kick coefficients are the plain kick (E = I, F = h I, F's off-diagonal
+    zero and its diagonal equal): shape (batch,)."""
     E = coefficients[..., :4]
     F = coefficients[..., 4:]
     eye = np.array([1.0, 0.0, 0.0, 1.0])

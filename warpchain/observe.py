@@ -23,8 +23,8 @@ since the last frame; at each frame (every ``frame_every`` steps) it reduces ove
 The envelope profile of the last frame is kept on the device; ``observe`` reads it once
 ``lag_frames`` frames before the end and once at the end, and ``peak_tracks`` turns the two into
 peak positions, amplitudes and drift velocities on the host. Frame 0 (the initial state, envelope
-|z|) is computed on the host. ``reference_observe`` is the numpy oracle of all of this (the same
-steps, the same tracking), against which the kernels are tested.
+|z|) is reduced by the kernels too, at the start of the first launch. ``reference_observe`` is the
+numpy oracle of all of this (the same steps, the same tracking), against which the kernels are tested.
 """
 
 import dataclasses
@@ -37,7 +37,6 @@ import numpy as np
 from .ensemble import (
     IntegrationError,
     _check_step,
-    _relative_energy_error,
     _signed_energy_change,
     resolve_device,
     resolve_layout,
@@ -234,8 +233,9 @@ def peak_tracks(env_lag, env_end, dt_lag: float, observation: Observation, max_s
     """Peaks at the end, their amplitudes and drift velocities from two envelope profiles.
 
     Each peak of ``env_end`` (positions refined by a parabola through the peak and its neighbours) is
-    matched with the nearest peak of ``env_lag`` within ``max_speed * dt_lag`` sites; velocity =
-    displacement / dt_lag (sites per unit time), NaN when there is no match.
+    matched with the nearest peak of ``env_lag`` when they are each other's nearest and at most
+    ``max_speed * dt_lag`` sites apart; velocity = displacement / dt_lag (sites per unit time), NaN when
+    there is no such match (a peak born, merged or gone within the lag).
 
     Args:
         env_lag, env_end: envelope profiles (batch, N), ``dt_lag`` apart in time.
@@ -264,12 +264,13 @@ def peak_tracks(env_lag, env_end, dt_lag: float, observation: Observation, max_s
     tracks = []
     for (p0, _), (p1, amp) in zip(before, after):
         vel = np.full(p1.shape, np.nan)
-        if p0.size:
-            for k, p in enumerate(p1):
-                d = p - p0
-                j = np.argmin(np.abs(d))
-                if abs(d[j]) <= max_speed * dt_lag:
-                    vel[k] = d[j] / dt_lag
+        if p0.size and p1.size:
+            gap = np.abs(p1[:, None] - p0[None, :])  # (end peaks, lag peaks)
+            nearest_lag = np.argmin(gap, axis=1)
+            nearest_end = np.argmin(gap, axis=0)
+            for k, j in enumerate(nearest_lag):
+                if nearest_end[j] == k and gap[k, j] <= max_speed * dt_lag:
+                    vel[k] = (p1[k] - p0[j]) / dt_lag
         tracks.append(np.stack([p1, amp, vel], axis=-1) if p1.size else np.zeros((0, 3)))
     return tracks
 
@@ -663,10 +664,11 @@ def observe(
 
     Args:
         params, x0, dt, method, M, K, device, layout: as ``simulate`` (splitting methods only).
-        t_final: final time; rounded to a whole number of frames (of ``observation.frame_every`` steps).
+        t_final: final time, kept; the step is shortened (never lengthened) so that t_final is a whole
+            number of frames of ``observation.frame_every`` steps (the result reports the step used).
         observation: what to reduce and how often.
         damping: losses (``losses.Damping`` or a (contact, substrate) pair; per lattice allowed).
-        chunks: launches the run is split into (progress and guard points; default ~20).
+        chunks: launches the run is split into (progress and guard points; default 20).
         max_energy_error: relative energy change that counts as a blow-up (growth only with losses).
 
     Returns:
@@ -691,15 +693,19 @@ def observe(
     Mb, Kb = per_lattice_parameters(params, batch, M, K)
     observation = observation.validated(batch)
     damping = as_damping(damping)
-    limit = _check_step(meth, params, dt, Mb, Kb, False)
     t_final = real_number("t_final", t_final, positive=True)
+    if chunks is not None:
+        chunks = whole_number("chunks", chunks, minimum=1)
+    if max_energy_error is not None:
+        max_energy_error = real_number("max_energy_error", max_energy_error, positive=True)
     device = resolve_device(device)
     layout = resolve_layout(layout, device, params.N)
     fe = observation.frame_every
-    nsteps, dt_used = steps_for(t_final, dt)
-    n_frames = max(1, round(nsteps / fe))
+    nsteps, dt_used = steps_for(t_final, real_number("dt", dt, positive=True))
+    n_frames = max(1, math.ceil(nsteps / fe - 1e-9))  # whole frames, the step no longer than asked
     nsteps = n_frames * fe
     dt_used = t_final / nsteps
+    limit = _check_step(meth, params, dt_used, Mb, Kb, False)
     lag = min(observation.lag_frames, n_frames)
 
     f64 = wp.float64
@@ -709,9 +715,11 @@ def observe(
     coupling = wp.array(Kb, dtype=f64, device=device)
     if damping is not None:
         coefficients = kick_matrices(meth.kicks, dt_used, Mb, damping, batch)
-        lossy = wp.array((~lossless(coefficients)).astype(np.int32), dtype=wp.int32, device=device)
+        lossy_host = ~lossless(coefficients)
+        lossy = wp.array(lossy_host.astype(np.int32), dtype=wp.int32, device=device)
         damp = wp.array(coefficients, dtype=f64, device=device)
     else:
+        lossy_host = np.zeros(batch, dtype=bool)
         lossy = wp.zeros(batch, dtype=wp.int32, device=device)
         damp = wp.zeros((1, 1, KICK_ENTRIES), dtype=f64, device=device)
     spot = wp.array(np.broadcast_to(np.asarray(observation.spot, dtype=np.float64), (batch,)), dtype=f64, device=device)
@@ -781,15 +789,16 @@ def observe(
                 env_lag = envelope.numpy().copy()
             E = values[b, :, 5]
             finite = np.isfinite(values[a : b + 1]).all(axis=(0, 2))
-            change = _signed_energy_change(E, E0, params.N) if damping is not None else None
-            err = np.maximum(change, 0.0) if change is not None else _relative_energy_error(E, E0, params.N)
+            change = _signed_energy_change(E, E0, params.N)  # lattices with losses: only growth is an error
+            err = np.where(lossy_host, np.maximum(change, 0.0), np.abs(change))
+            err = np.where(finite, err, np.inf)
             bad = ~finite | ((err > max_energy_error) if max_energy_error is not None else False)
             if np.any(bad):
                 failed = np.flatnonzero(bad).tolist()
                 t_now = b * fe * dt_used
+                what = "non-finite state" if not finite.all() else f"energy error above {max_energy_error:g}"
                 raise IntegrationError(
-                    f"integration blew up ({'non-finite state' if not finite.all() else 'energy error above'} "
-                    f"{max_energy_error}) at t = {t_now:.6g} with method '{meth.name}', dt = {dt_used:.6g} "
+                    f"integration blew up ({what}) at t = {t_now:.6g} with method '{meth.name}', dt = {dt_used:.6g} "
                     f"(linear stability limit {limit:.6g}); failing lattices: {failed[:20]}. Reduce dt.",
                     method=meth.name,
                     dt=dt_used,
