@@ -129,11 +129,10 @@ def initial_states(N: int, A: float, widths, realisations: int, P: Parameters) -
     row = 2 if P.impulse == "velocity" else 0
     if P.impulse not in ("velocity", "displacement"):
         raise ValueError(f"impulse must be velocity or displacement, got {P.impulse!r}")
+    xi = np.stack([np.random.default_rng((P.seed, r)).standard_normal(N) for r in range(realisations)])
+    profiles = A * np.exp(-0.5 * ((j[None, :] - c) / np.asarray(widths, dtype=float)[:, None]) ** 2)  # (W, N)
     x = np.zeros((len(widths), realisations, 4, N))
-    for r in range(realisations):
-        xi = np.random.default_rng((P.seed, r)).standard_normal(N)
-        for w, W in enumerate(widths):
-            x[w, r, row] = A * np.exp(-0.5 * ((j - c) / W) ** 2) * (1.0 + P.noise * xi)
+    x[:, :, row] = profiles[:, None, :] * (1.0 + P.noise * xi[None, :, :])
     return x.reshape(-1, 4, N)
 
 
@@ -197,13 +196,11 @@ def observe_batch(P: Parameters, A: float, widths, R: int, gc: float, gs: float,
     )
     shape = (len(widths), R)
     out = {name: run[name].T.reshape(*shape, -1) for name in OBSERVABLES}
-    tracks = peak_tracks(run.envelope_lag, run.envelope, run.t[-1] - run.t_lag, observation, max_speed=P.max_speed)
-    for k, name in enumerate(("peak_position", "peak_amplitude", "peak_velocity")):
-        arr = np.full((len(tracks), P.max_peaks), np.nan)
-        for b, tr in enumerate(tracks):
-            n = min(len(tr), P.max_peaks)
-            arr[b, :n] = tr[:n, k]
-        out[name] = arr.reshape(*shape, P.max_peaks)
+    tracks = peak_tracks(
+        run.envelope_lag, run.envelope, run.t[-1] - run.t_lag, observation, P.max_speed, max_peaks=P.max_peaks
+    )
+    for name, values in zip(("peak_position", "peak_amplitude", "peak_velocity"), tracks):
+        out[name] = values.reshape(*shape, P.max_peaks)
     out["contact_loss_time"] = run.first_contact_loss().reshape(shape)
     return out
 

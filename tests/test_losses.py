@@ -155,8 +155,13 @@ def test_peaks_and_tracks():
     assert peak_mask(env, 0.05, 2, contrast=1.0)[0, 33]  # without the localization test the hump counts
     moved = np.roll(env, 2, axis=-1)
     obs = Observation(frame_every=1, threshold=0.05, radius=2, contrast=0.5)
-    assert np.isnan(peak_tracks(env, moved, 4.0, obs, max_speed=0.25)[0][:, 2]).all()  # 2 sites > 0.25 x 4
-    tracks = peak_tracks(env, moved, 4.0, obs, max_speed=1.0)[0]
-    assert tracks.shape == (2, 3)
-    np.testing.assert_allclose(tracks[:, 2], 0.5)  # two sites in four time units
-    assert 7.5 < tracks[0, 0] < 8.5 and tracks[0, 1] == 0.5
+    assert np.isnan(peak_tracks(env, moved, 4.0, obs, max_speed=0.25)[2]).all()  # 2 sites > 0.25 x 4
+    position, amplitude, velocity = (v[0] for v in peak_tracks(env, moved, 4.0, obs, max_speed=1.0, max_peaks=4))
+    assert np.isfinite(position).sum() == 2 and np.isnan(position[2:]).all()
+    np.testing.assert_allclose(velocity[:2], 0.5)  # two sites in four time units
+    assert 7.5 < position[0] < 8.5 and amplitude[0] == 0.5
+    # a peak that appears within the lag is not given a neighbour's motion
+    born = moved.copy()
+    born[0, 12] = 0.45
+    p, _, v = (a[0] for a in peak_tracks(env, born, 4.0, obs, max_speed=1.0, max_peaks=4))
+    assert np.isfinite(p).sum() == 3 and np.isnan(v[1])  # the new peak at 12 has no mutual match

@@ -140,24 +140,26 @@ class ObservedRun:
 
 
 def peak_mask(env: np.ndarray, threshold: float, radius: int, contrast: float = 1.0) -> np.ndarray:
-    """Localized peaks of envelope profiles env (..., N): the rule of the kernels (module docstring)."""
+    """Localized peaks of envelope profiles env (..., N): the rule of the kernels (module docstring).
+    Running extremes over ``radius`` sites on each side, in place (past the chain's ends: -inf for the
+    largest-value test, 0 for the localization test)."""
     env = np.asarray(env, dtype=np.float64)
     n = env.shape[-1]
-    mask = env > threshold
-    left_low = np.full_like(env, np.inf)
-    right_low = np.full_like(env, np.inf)
-    for i in range(1, radius + 1):
-        left = np.zeros_like(env)  # past the chain's end: 0
-        right = np.zeros_like(env)
-        if i < n:
-            left[..., i:] = env[..., :-i]
-            right[..., :-i] = env[..., i:]
-            mask &= (env > np.where(np.arange(n) >= i, left, -np.inf)) & (
-                env >= np.where(np.arange(n) < n - i, right, -np.inf)
-            )
-        left_low = np.minimum(left_low, left)
-        right_low = np.minimum(right_low, right)
-    return mask & (left_low <= contrast * env) & (right_low <= contrast * env)
+    r = min(int(radius), n)
+    j = np.arange(n)
+    left_max = np.full_like(env, -np.inf)
+    right_max = np.full_like(env, -np.inf)
+    left_min = np.broadcast_to(np.where(j < r, 0.0, np.inf), env.shape).copy()  # a window past an end holds 0
+    right_min = np.broadcast_to(np.where(j >= n - r, 0.0, np.inf), env.shape).copy()
+    for i in range(1, r + 1):
+        if i >= n:
+            break
+        np.maximum(left_max[..., i:], env[..., :-i], out=left_max[..., i:])
+        np.maximum(right_max[..., :-i], env[..., i:], out=right_max[..., :-i])
+        np.minimum(left_min[..., i:], env[..., :-i], out=left_min[..., i:])
+        np.minimum(right_min[..., :-i], env[..., i:], out=right_min[..., :-i])
+    mask = (env > threshold) & (env > left_max) & (env >= right_max)
+    return mask & (left_min <= contrast * env) & (right_min <= contrast * env)
 
 
 def site_energies(params: ChainParams, x, M, K) -> np.ndarray:
@@ -229,8 +231,9 @@ def reference_observe(
     return np.stack(frames), env, x
 
 
-def peak_tracks(env_lag, env_end, dt_lag: float, observation: Observation, max_speed: float):
-    """Peaks at the end, their amplitudes and drift velocities from two envelope profiles.
+def peak_tracks(env_lag, env_end, dt_lag: float, observation: Observation, max_speed: float, max_peaks: int = 32):
+    """Peaks at the end, their amplitudes and drift velocities from two envelope profiles (vectorised
+    over the batch: no Python loop per lattice).
 
     Each peak of ``env_end`` (positions refined by a parabola through the peak and its neighbours) is
     matched with the nearest peak of ``env_lag`` when they are each other's nearest and at most
@@ -239,40 +242,50 @@ def peak_tracks(env_lag, env_end, dt_lag: float, observation: Observation, max_s
 
     Args:
         env_lag, env_end: envelope profiles (batch, N), ``dt_lag`` apart in time.
+        max_peaks: columns of the result; a lattice's peaks past it (in site order) are dropped. Peaks
+            are ``radius`` sites apart or more, so N / radius + 1 columns always suffice.
 
     Returns:
-        list (one per lattice) of arrays (n_peaks, 3): position (sites, 0-based), amplitude, velocity.
+        (position, amplitude, velocity), each (batch, max_peaks), peaks in site order, NaN padded;
+        positions in sites (0-based).
     """
 
     def located(env):
+        env = np.asarray(env, dtype=np.float64)
+        batch, n = env.shape
         mask = peak_mask(env, observation.threshold, observation.radius, observation.contrast)
-        out = []
-        for b in range(env.shape[0]):
-            idx = np.flatnonzero(mask[b])
-            pos = idx.astype(float)
-            inner = (idx > 0) & (idx < env.shape[1] - 1)
-            if inner.any():
-                i = idx[inner]
-                left, mid, right = env[b, i - 1], env[b, i], env[b, i + 1]
-                curv = left - 2 * mid + right
-                shift = np.where(curv < 0, 0.5 * (left - right) / np.where(curv < 0, curv, -1.0), 0.0)
-                pos[inner] = i + np.clip(shift, -0.5, 0.5)
-            out.append((pos, env[b, idx]))
-        return out
+        b, j = np.nonzero(mask)  # row-major: lattice by lattice, in site order
+        slot = np.arange(b.size) - np.searchsorted(b, b)  # the peak's rank within its lattice
+        keep = slot < max_peaks
+        b, j, slot = b[keep], j[keep], slot[keep]
+        pos = j.astype(float)
+        inner = (j > 0) & (j < n - 1)
+        left = env[b, np.maximum(j - 1, 0)]
+        mid = env[b, j]
+        right = env[b, np.minimum(j + 1, n - 1)]
+        curv = left - 2 * mid + right
+        ok = inner & (curv < 0)
+        shift = np.zeros_like(pos)
+        shift[ok] = 0.5 * (left[ok] - right[ok]) / curv[ok]
+        pos = pos + np.clip(shift, -0.5, 0.5)
+        positions = np.full((batch, max_peaks), np.nan)
+        amplitudes = np.full((batch, max_peaks), np.nan)
+        positions[b, slot] = pos
+        amplitudes[b, slot] = mid
+        return positions, amplitudes
 
-    before, after = located(np.asarray(env_lag)), located(np.asarray(env_end))
-    tracks = []
-    for (p0, _), (p1, amp) in zip(before, after):
-        vel = np.full(p1.shape, np.nan)
-        if p0.size and p1.size:
-            gap = np.abs(p1[:, None] - p0[None, :])  # (end peaks, lag peaks)
-            nearest_lag = np.argmin(gap, axis=1)
-            nearest_end = np.argmin(gap, axis=0)
-            for k, j in enumerate(nearest_lag):
-                if nearest_end[j] == k and gap[k, j] <= max_speed * dt_lag:
-                    vel[k] = (p1[k] - p0[j]) / dt_lag
-        tracks.append(np.stack([p1, amp, vel], axis=-1) if p1.size else np.zeros((0, 3)))
-    return tracks
+    p0, _ = located(env_lag)
+    p1, amp = located(env_end)
+    gap = np.abs(p1[:, :, None] - p0[:, None, :])  # (batch, end peaks, lag peaks)
+    gap = np.where(np.isnan(gap), np.inf, gap)
+    nearest_lag = np.argmin(gap, axis=2)  # (batch, end peaks)
+    nearest_end = np.argmin(gap, axis=1)  # (batch, lag peaks)
+    back = np.take_along_axis(nearest_end, nearest_lag, axis=1)  # the lag peak's nearest end peak
+    d = np.take_along_axis(gap, nearest_lag[:, :, None], axis=2)[..., 0]
+    matched = (back == np.arange(p1.shape[1])[None, :]) & (d <= max_speed * dt_lag) & np.isfinite(d)
+    start = np.take_along_axis(p0, nearest_lag, axis=1)
+    velocity = np.where(matched, (p1 - start) / dt_lag, np.nan)
+    return p1, amp, velocity
 
 
 # ----------------------------------------------------------------------------- kernels
