@@ -205,6 +205,23 @@ def observe_batch(P: Parameters, A: float, widths, R: int, gc: float, gs: float,
     return out
 
 
+#: parameters that change how the sweep runs or what is made of the store, not what it holds: a stored sweep
+#: resumes whatever they are (the others must match, or the runner refuses the store)
+NOT_IN_THE_STORE = {
+    "workers",
+    "scheduler",
+    "gpus",
+    "fresh",
+    "checks",
+    "fields",
+    "check_method",
+    "check_steps_per_period",
+    "mi_min_width",
+    "persist_frames",
+    "final_frames",
+}
+
+
 def sweep_spec(P: Parameters) -> SweepSpec:
     A, W, damping, R = grid(P)
     frames = P.periods + 1
@@ -221,7 +238,7 @@ def sweep_spec(P: Parameters) -> SweepSpec:
         "frame": np.arange(frames),
         "peak": np.arange(P.max_peaks),
     }
-    keep = {k: v for k, v in dataclasses.asdict(P).items() if k not in ("workers", "scheduler", "gpus", "fresh")}
+    keep = {k: v for k, v in dataclasses.asdict(P).items() if k not in NOT_IN_THE_STORE}
     attrs = {
         "parameters": keep,
         "damping_rates": damping.tolist(),
@@ -260,8 +277,6 @@ def run(ctx: Context) -> dict:
     )
     spec = sweep_spec(P)
     task = functools.partial(_task, config=dataclasses.asdict(P))
-    if gpus == 0 and ctx.device != "cpu":
-        raise ValueError("gpus=0 with a CUDA device: leave gpus unset (0 means one GPU) or run --device cpu")
     report = run_sweep(
         store,
         spec,
