@@ -403,23 +403,25 @@ def _thread_kernel():
         m = inv_mass[b]
         k = coupling[b]
         loss = lossy[b]
+        first = int(0)
         if first_step == 0:
+            first = -1  # an extra pass without a step: frame 0, the start (envelope |z|)
             for j in range(n):
                 z = x[b, 0, j] - x[b, 1, j]
                 z_low[b, j] = z
                 z_high[b, j] = z
-            frame(x, b, n, boundary, mass[b], k, spot[b], threshold, radius, contrast, z_low, z_high, envelope, obs, 0)
         compute_accelerations(x, acc, b, n, boundary, m, k, acc, 0, 0)  # no stiffness history (acc: unused)
-        for step in range(nsteps):
-            any_kick(x, acc, b, n, kicks[0] * dt, loss, damp, 0)
-            for s in range(stages):
-                drift(x, b, n, drifts[s] * dt)
-                compute_accelerations(x, acc, b, n, boundary, m, k, acc, 0, 0)
-                any_kick(x, acc, b, n, kicks[s + 1] * dt, loss, damp, s + 1)
-            for j in range(n):
-                z = x[b, 0, j] - x[b, 1, j]
-                z_low[b, j] = wp.min(z_low[b, j], z)
-                z_high[b, j] = wp.max(z_high[b, j], z)
+        for step in range(first, nsteps):
+            if step >= 0:
+                any_kick(x, acc, b, n, kicks[0] * dt, loss, damp, 0)
+                for s in range(stages):
+                    drift(x, b, n, drifts[s] * dt)
+                    compute_accelerations(x, acc, b, n, boundary, m, k, acc, 0, 0)
+                    any_kick(x, acc, b, n, kicks[s + 1] * dt, loss, damp, s + 1)
+                for j in range(n):
+                    z = x[b, 0, j] - x[b, 1, j]
+                    z_low[b, j] = wp.min(z_low[b, j], z)
+                    z_high[b, j] = wp.max(z_high[b, j], z)
             done = first_step + step + 1
             if done % frame_every == 0:
                 r = done / frame_every
@@ -575,56 +577,35 @@ def _block_kernel(block: int, stages: int):
         parity = int(0)
         nb = exchange(buf, u, parity, nbr, boundary)
         a = bk.site_acceleration(u, v, nb[0], nb[1], m, k)
-        if first_step == 0:  # frame 0: the start, envelope |z|
-            parity = 1 - parity
-            frame(
-                buf,
-                parity,
-                wp.vec4d(u, v, pu, pv),
-                nb[1],
-                z_low,
-                z_high,
-                active,
-                b,
-                j,
-                n,
-                boundary,
-                mb,
-                k,
-                half_width,
-                threshold,
-                radius,
-                contrast,
-                envelope,
-                obs,
-                0,
-            )
-            z_low = NO_CONTACT
-            z_high = -NO_CONTACT
-        for step in range(nsteps):
-            w = bk.site_kick(pu, pv, a, kicks[0], loss, damp, b, 0)
-            pu = w[0]
-            pv = w[1]
-            for s in range(wp.static(stages)):
-                h = drifts[s]
-                u = u + h * pu
-                v = v + h * pv
-                parity = 1 - parity
-                nb = exchange(buf, u, parity, nbr, boundary)
-                a = bk.site_acceleration(u, v, nb[0], nb[1], m, k)
-                w = bk.site_kick(pu, pv, a, kicks[s + 1], loss, damp, b, s + 1)
+        first = int(0)
+        if first_step == 0:
+            first = -1  # an extra pass without a step: frame 0, the start (envelope |z|)
+        for step in range(first, nsteps):
+            if step >= 0:
+                w = bk.site_kick(pu, pv, a, kicks[0], loss, damp, b, 0)
                 pu = w[0]
                 pv = w[1]
-            z = u - v
-            z_low = wp.min(z_low, z)
-            z_high = wp.max(z_high, z)
+                for s in range(wp.static(stages)):
+                    h = drifts[s]
+                    u = u + h * pu
+                    v = v + h * pv
+                    parity = 1 - parity
+                    nb = exchange(buf, u, parity, nbr, boundary)
+                    a = bk.site_acceleration(u, v, nb[0], nb[1], m, k)
+                    w = bk.site_kick(pu, pv, a, kicks[s + 1], loss, damp, b, s + 1)
+                    pu = w[0]
+                    pv = w[1]
+                z = u - v
+                z_low = wp.min(z_low, z)
+                z_high = wp.max(z_high, z)
             done = first_step + step + 1
             if done % frame_every == 0:
                 parity = 1 - parity
+                state = wp.vec4d(u, v, pu, pv)
                 frame(
                     buf,
                     parity,
-                    wp.vec4d(u, v, pu, pv),
+                    state,
                     nb[1],
                     z_low,
                     z_high,
