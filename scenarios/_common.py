@@ -96,6 +96,17 @@ def save_figure(fig, out: Path, stem: str) -> list[Path]:
     return paths
 
 
+def period_envelope(field, frames_per_period: int):
+    """max over each period of |field|: frames (n, N) with frame 0 at t = 0 -> (periods, N). Drawing the raw
+    field would show the carrier (a stripe pair per period, blended by the renderer) and, sampled a few
+    times per period, beats between the frame rate and the mode's own frequency (aliasing)."""
+    import numpy as np
+
+    per = int(frames_per_period)
+    n_periods = (len(field) - 1) // per
+    return np.abs(field[1 : 1 + n_periods * per]).reshape(n_periods, per, -1).max(axis=1)
+
+
 def pyplot():
     import matplotlib
 

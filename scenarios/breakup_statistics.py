@@ -57,7 +57,17 @@ from warpchain.losses import Damping, rhs_flat
 from warpchain.observe import OBSERVABLES, Observation, observe, peak_tracks
 from warpchain.store import FieldWriter, open_store, provenance
 
-from ._common import PAPER_K, PAPER_M, PAPER_N, PAPER_OMEGA, Context, pyplot, read_summary, save_figure
+from ._common import (
+    PAPER_K,
+    PAPER_M,
+    PAPER_N,
+    PAPER_OMEGA,
+    Context,
+    period_envelope,
+    pyplot,
+    read_summary,
+    save_figure,
+)
 from ._sweep import SweepSpec, Variable, run_sweep
 
 GROUP = "observables"
@@ -688,10 +698,8 @@ def plot(out) -> None:
         fig, axes = plt.subplots(1, len(names), figsize=(6 * len(names), 4), squeeze=False)
         for ax, name in zip(axes[0], names):
             data, attrs = read_group(out / "data.zarr", s["fields"][name]["group"])
-            rel = data["v"] - data["u"]
-            per = 4
-            n_periods = (len(rel) - 1) // per
-            env = np.abs(rel[1 : 1 + n_periods * per]).reshape(n_periods, per, -1).max(axis=1)
+            env = period_envelope(data["v"] - data["u"], 4)  # frames every quarter period
+            n_periods = len(env)
             im = ax.imshow(
                 env.T,
                 aspect="auto",

@@ -27,7 +27,17 @@ from continuation import eigenmode_seed
 from warpchain import ChainParams, simulate
 from warpchain.store import FieldWriter, open_store, provenance, read_group
 
-from ._common import PAPER_K, PAPER_M, PAPER_N, Context, paper_breather, pyplot, read_summary, save_figure
+from ._common import (
+    PAPER_K,
+    PAPER_M,
+    PAPER_N,
+    Context,
+    paper_breather,
+    period_envelope,
+    pyplot,
+    read_summary,
+    save_figure,
+)
 
 CASES = ("eigenmode-low", "breather-low", "eigenmode-high", "breather-high")  # Fig. 9 (a)-(d)
 
@@ -162,12 +172,9 @@ def plot(out) -> None:
         rel = data["v"] - data["u"]
         ax = axes[k // 2, 2 * (k % 2)]
         side = axes[k // 2, 2 * (k % 2) + 1]
-        # the envelope: max over each period of |v_j - u_j|. Drawing the raw field would show the
-        # carrier (one stripe pair per period, blended by the renderer) and, sampled a few times per
-        # period, beat patterns between the frame rate and the mode's own frequency (aliasing).
         per = int(s["frames_per_period"])
-        n_periods = (len(rel) - 1) // per
-        envelope = np.abs(rel[1 : 1 + n_periods * per]).reshape(n_periods, per, -1).max(axis=1)
+        envelope = period_envelope(rel, per)  # max over each period of |v_j - u_j| (why: _common)
+        n_periods = len(envelope)
         im = ax.imshow(
             envelope.T,
             aspect="auto",
