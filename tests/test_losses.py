@@ -119,6 +119,11 @@ def test_observables_match_the_reference(layout):
     assert np.array_equal(run.envelope, env)
     assert run["peaks"].max() >= 2  # the test spot does break up into several peaks
     np.testing.assert_allclose(run["energy"][0], reference.model.energy(PARAMS, x0), rtol=1e-13)
+    lost = run["dissipated"][-1]
+    assert lost[0] == 0 and np.all(lost[1:] > 1e-3 * run["energy"][0, 1:])  # lattice 0 has no losses
+    # energy plus what the losses took stays the initial energy, to the scheme's accuracy (what the guard checks)
+    total = run["energy"] + run["dissipated"]
+    np.testing.assert_allclose(total, np.broadcast_to(total[0], total.shape), rtol=2e-4)
 
 
 @pytest.mark.parametrize("layout", ["thread", "block"])

@@ -176,6 +176,13 @@ def dissipation(x, M, damping: Damping) -> np.ndarray:
     return M * gamma_s * np.sum(pu * pu, axis=-1) + mu * gamma_c * np.sum((pu - pv) ** 2, axis=-1)
 
 
+def power_coefficients(M, damping: Damping, batch: int) -> np.ndarray:
+    """(M gamma_s, mu gamma_c) per lattice, shape (batch, 2): P = c_s u'^2 + c_c (u' - v')^2 per site."""
+    gamma_c, gamma_s = damping.per_lattice(batch)
+    M = np.broadcast_to(np.asarray(M, dtype=np.float64), (batch,))
+    return np.stack([M * gamma_s, M / (M + 1.0) * gamma_c], axis=1)
+
+
 def rhs_flat(params, M, K, gamma_c: float, gamma_s: float):
     """Right-hand side f(t, y) of one damped lattice, y the flattened (4, N) state (for scipy's
     DOP853: the independent check of the damped schemes)."""

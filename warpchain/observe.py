@@ -19,6 +19,9 @@ since the last frame; at each frame (every ``frame_every`` steps) it reduces ove
 * ``max_envelope``: max_j env_j.
 * ``min_contact``: min over the interval's steps and the sites of 1 + z_j (<= 0: contact lost).
 * ``energy``: sum_j e_j at the frame.
+* ``dissipated``: energy lost to damping since t = 0 (the trapezoid rule over every damped kick, per
+  site; ``reference.step(dissipated=...)``), so that ``energy + dissipated`` stays the initial energy to
+  the scheme's accuracy: that is what the guard checks for lattices with losses.
 
 The envelope profile of the last frame is kept on the device; ``observe`` reads it once
 ``lag_frames`` frames before the end and once at the end, and ``peak_tracks`` turns the two into
@@ -42,7 +45,7 @@ from .ensemble import (
     resolve_layout,
 )
 from .integrators import SplittingMethod, get_method, steps_for
-from .losses import KICK_ENTRIES, Damping, as_damping, kick_matrices, lossless
+from .losses import KICK_ENTRIES, Damping, as_damping, kick_matrices, lossless, power_coefficients
 from .model import (
     BOUNDARY_CODES,
     ChainParams,
@@ -54,7 +57,7 @@ from .model import (
 )
 from .reference import inverse_mass
 
-OBSERVABLES = ("peaks", "participation", "spot_energy", "max_envelope", "min_contact", "energy")
+OBSERVABLES = ("peaks", "participation", "spot_energy", "max_envelope", "min_contact", "energy", "dissipated")
 N_OBSERVABLES = len(OBSERVABLES)
 #: the tracked extremes of z start from these (any real displacement replaces them)
 _FAR = 1.0e300
@@ -181,9 +184,12 @@ def site_energies(params: ChainParams, x, M, K) -> np.ndarray:
     return kinetic + 0.5 * K * bonds + contact_potential(u - v)
 
 
-def frame_observables(params, x, z_low, z_high, M, K, observation: Observation) -> tuple[np.ndarray, np.ndarray]:
-    """The observables of one frame from the state x (batch, 4, N) and the interval's z extremes
-    (batch, N). Returns (values (batch, len(OBSERVABLES)), envelope (batch, N))."""
+def frame_observables(
+    params, x, z_low, z_high, M, K, observation: Observation, dissipated=0.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """The observables of one frame from the state x (batch, 4, N), the interval's z extremes
+    (batch, N) and the energy dissipated so far (batch,). Returns (values (batch, len(OBSERVABLES)),
+    envelope (batch, N))."""
     env = np.maximum(z_high, -z_low)
     e = site_energies(params, x, M, K)
     n = x.shape[-1]
@@ -198,6 +204,7 @@ def frame_observables(params, x, z_low, z_high, M, K, observation: Observation) 
     out[:, 3] = env.max(axis=-1)
     out[:, 4] = (1.0 + z_low).min(axis=-1)
     out[:, 5] = total
+    out[:, 6] = dissipated
     return out, env
 
 
@@ -214,17 +221,18 @@ def reference_observe(
     x = np.array(x0, dtype=np.float64)
     batch = x.shape[0]
     Mb, Kb = per_lattice_parameters(params, batch, M, K)
+    lost = np.zeros(batch)
     z = x[:, 0] - x[:, 1]
     first, env = frame_observables(params, x, z, z, Mb, Kb, observation)
     frames = [first]
     low = np.full_like(z, _FAR)
     high = np.full_like(z, -_FAR)
     for n in range(nsteps):
-        x = reference.step(method, params, x, dt, Mb, Kb, damping=damping)
+        x = reference.step(method, params, x, dt, Mb, Kb, damping=damping, dissipated=lost)
         z = x[:, 0] - x[:, 1]
         low, high = np.minimum(low, z), np.maximum(high, z)
         if (n + 1) % observation.frame_every == 0:
-            values, env = frame_observables(params, x, low, high, Mb, Kb, observation)
+            values, env = frame_observables(params, x, low, high, Mb, Kb, observation, lost.copy())
             frames.append(values)
             low = np.full_like(z, _FAR)
             high = np.full_like(z, -_FAR)
@@ -295,7 +303,7 @@ def peak_tracks(env_lag, env_end, dt_lag: float, observation: Observation, max_s
 def _thread_kernel():
     import warp as wp
 
-    from .kernels import NO_CONTACT, ONE, ZERO, any_kick, compute_accelerations, drift, site_energy
+    from .kernels import HALF, NO_CONTACT, ONE, ZERO, any_kick, compute_accelerations, drift, site_energy
 
     @wp.func
     def frame(
@@ -314,6 +322,7 @@ def _thread_kernel():
         envelope: wp.array2d(dtype=wp.float64),
         obs: wp.array3d(dtype=wp.float64),
         r: int,
+        dissipated: wp.float64,
     ):
         """Frame r of lattice b: obs[r, b] from the state and the interval's z extremes, which it resets."""
         centre = n / 2
@@ -368,6 +377,38 @@ def _thread_kernel():
         obs[r, b, 3] = top
         obs[r, b, 4] = low
         obs[r, b, 5] = total
+        obs[r, b, 6] = dissipated
+
+    @wp.func
+    def lattice_power(x: wp.array3d(dtype=wp.float64), b: int, n: int, cs: wp.float64, cc: wp.float64) -> wp.float64:
+        """Power lost by lattice b, sum_j cs u_j'^2 + cc (u_j' - v_j')^2 (``reference._power``)."""
+        total = ZERO
+        for j in range(n):
+            pu = x[b, 2, j]
+            rel = pu - x[b, 3, j]
+            total = total + (cs * (pu * pu) + cc * (rel * rel))
+        return total
+
+    @wp.func
+    def lossy_kick(
+        x: wp.array3d(dtype=wp.float64),
+        acc: wp.array3d(dtype=wp.float64),
+        b: int,
+        n: int,
+        h: wp.float64,
+        loss: int,
+        damp: wp.array3d(dtype=wp.float64),
+        i: int,
+        cs: wp.float64,
+        cc: wp.float64,
+    ) -> wp.float64:
+        """Kick i (``kernels.any_kick``); returns the energy it dissipates (trapezoid over the kick)."""
+        if loss == 0:
+            any_kick(x, acc, b, n, h, loss, damp, i)
+            return ZERO
+        before = lattice_power(x, b, n, cs, cc)
+        any_kick(x, acc, b, n, h, loss, damp, i)
+        return h * HALF * (before + lattice_power(x, b, n, cs, cc))
 
     @wp.kernel(enable_backward=False)
     def observed_splitting(
@@ -383,6 +424,7 @@ def _thread_kernel():
         nsteps: int,
         lossy: wp.array(dtype=wp.int32),
         damp: wp.array3d(dtype=wp.float64),
+        power: wp.array2d(dtype=wp.float64),
         first_step: int,
         frame_every: int,
         threshold: wp.float64,
@@ -391,6 +433,7 @@ def _thread_kernel():
         spot: wp.array(dtype=wp.float64),
         z_low: wp.array2d(dtype=wp.float64),
         z_high: wp.array2d(dtype=wp.float64),
+        lost: wp.array2d(dtype=wp.float64),
         envelope: wp.array2d(dtype=wp.float64),
         obs: wp.array3d(dtype=wp.float64),
     ):
@@ -403,6 +446,11 @@ def _thread_kernel():
         m = inv_mass[b]
         k = coupling[b]
         loss = lossy[b]
+        cs = power[b, 0]
+        cc = power[b, 1]
+        dissipated = ZERO
+        if first_step != 0:
+            dissipated = lost[b, 0]
         first = int(0)
         if first_step == 0:
             first = -1  # an extra pass without a step: frame 0, the start (envelope |z|)
@@ -413,11 +461,12 @@ def _thread_kernel():
         compute_accelerations(x, acc, b, n, boundary, m, k, acc, 0, 0)  # no stiffness history (acc: unused)
         for step in range(first, nsteps):
             if step >= 0:
-                any_kick(x, acc, b, n, kicks[0] * dt, loss, damp, 0)
+                dissipated = dissipated + lossy_kick(x, acc, b, n, kicks[0] * dt, loss, damp, 0, cs, cc)
                 for s in range(stages):
                     drift(x, b, n, drifts[s] * dt)
                     compute_accelerations(x, acc, b, n, boundary, m, k, acc, 0, 0)
-                    any_kick(x, acc, b, n, kicks[s + 1] * dt, loss, damp, s + 1)
+                    h = kicks[s + 1] * dt
+                    dissipated = dissipated + lossy_kick(x, acc, b, n, h, loss, damp, s + 1, cs, cc)
                 for j in range(n):
                     z = x[b, 0, j] - x[b, 1, j]
                     z_low[b, j] = wp.min(z_low[b, j], z)
@@ -426,8 +475,10 @@ def _thread_kernel():
             if done % frame_every == 0:
                 r = done / frame_every
                 frame(
-                    x, b, n, boundary, mass[b], k, spot[b], threshold, radius, contrast, z_low, z_high, envelope, obs, r
-                )
+                    x, b, n, boundary, mass[b], k, spot[b], threshold, radius, contrast, z_low, z_high, envelope, obs,
+                    r, dissipated,
+                )  # fmt: skip
+        lost[b, 0] = dissipated
 
     return observed_splitting
 
@@ -437,7 +488,7 @@ def _block_kernel(block: int, stages: int):
     import warp as wp
 
     from . import block_kernels as bk
-    from .kernels import NO_CONTACT, ONE, ZERO, site_energy
+    from .kernels import HALF, NO_CONTACT, ONE, ZERO, site_energy
 
     halves = 2 * block
 
@@ -450,6 +501,11 @@ def _block_kernel(block: int, stages: int):
         left = bk.neighbour_or_wall(buf[offset + nbr[0]], u, nbr[2], boundary)
         right = bk.neighbour_or_wall(buf[offset + nbr[1]], u, nbr[3], boundary)
         return wp.vec2d(left, right)
+
+    @wp.func
+    def site_power(pu: wp.float64, pv: wp.float64, cs: wp.float64, cc: wp.float64) -> wp.float64:
+        rel = pu - pv
+        return cs * (pu * pu) + cc * (rel * rel)
 
     @wp.func
     def frame(
@@ -473,6 +529,7 @@ def _block_kernel(block: int, stages: int):
         envelope: wp.array2d(dtype=wp.float64),
         obs: wp.array3d(dtype=wp.float64),
         r: int,
+        lost_site: wp.float64,
     ):
         """Frame r of lattice b as block reductions; the envelope is shared through half ``parity`` of the
         tile (the caller flips parity before, as for an exchange). Idle threads contribute nothing."""
@@ -510,6 +567,10 @@ def _block_kernel(block: int, stages: int):
                 right_low = wp.min(right_low, right)
             if left_low > contrast * env or right_low > contrast * env:
                 peak = ZERO
+        mine = ZERO  # idle threads run a fake dynamics (never stored): they dissipate nothing real
+        if active:
+            mine = lost_site
+        lost_total = wp.tile_sum(wp.tile(mine))
         peaks = wp.tile_sum(wp.tile(peak))
         total = wp.tile_sum(wp.tile(e))
         squares = wp.tile_sum(wp.tile(e * e))
@@ -526,6 +587,7 @@ def _block_kernel(block: int, stages: int):
             obs[r, b, 3] = top[0]
             obs[r, b, 4] = lowest[0]
             obs[r, b, 5] = total[0]
+            obs[r, b, 6] = lost_total[0]
 
     options = {"enable_backward": False, "module": "unique", "grid_stride": False, "launch_bounds": block}
 
@@ -541,6 +603,7 @@ def _block_kernel(block: int, stages: int):
         nsteps: int,
         lossy: wp.array(dtype=wp.int32),
         damp: wp.array3d(dtype=wp.float64),
+        power: wp.array2d(dtype=wp.float64),
         first_step: int,
         frame_every: int,
         threshold: wp.float64,
@@ -549,6 +612,7 @@ def _block_kernel(block: int, stages: int):
         spot: wp.array(dtype=wp.float64),
         zlo: wp.array2d(dtype=wp.float64),
         zhi: wp.array2d(dtype=wp.float64),
+        lost: wp.array2d(dtype=wp.float64),
         envelope: wp.array2d(dtype=wp.float64),
         obs: wp.array3d(dtype=wp.float64),
     ):
@@ -568,11 +632,15 @@ def _block_kernel(block: int, stages: int):
         mb = mass[b]
         loss = lossy[b]
         half_width = spot[b]
+        cs = power[b, 0]
+        cc = power[b, 1]
+        lost_site = ZERO  # energy this site has dissipated (trapezoid over each damped kick)
         z_low = u - v
         z_high = u - v
         if active and first_step != 0:
             z_low = zlo[b, j]
             z_high = zhi[b, j]
+            lost_site = lost[b, j]
         buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
         parity = int(0)
         nb = exchange(buf, u, parity, nbr, boundary)
@@ -583,6 +651,9 @@ def _block_kernel(block: int, stages: int):
         for step in range(first, nsteps):
             if step >= 0:
                 w = bk.site_kick(pu, pv, a, kicks[0], loss, damp, b, 0)
+                if loss != 0:
+                    spent = site_power(pu, pv, cs, cc) + site_power(w[0], w[1], cs, cc)
+                    lost_site = lost_site + kicks[0] * HALF * spent
                 pu = w[0]
                 pv = w[1]
                 for s in range(wp.static(stages)):
@@ -593,6 +664,9 @@ def _block_kernel(block: int, stages: int):
                     nb = exchange(buf, u, parity, nbr, boundary)
                     a = bk.site_acceleration(u, v, nb[0], nb[1], m, k)
                     w = bk.site_kick(pu, pv, a, kicks[s + 1], loss, damp, b, s + 1)
+                    if loss != 0:
+                        h = kicks[s + 1]
+                        lost_site = lost_site + h * HALF * (site_power(pu, pv, cs, cc) + site_power(w[0], w[1], cs, cc))
                     pu = w[0]
                     pv = w[1]
                 z = u - v
@@ -623,6 +697,7 @@ def _block_kernel(block: int, stages: int):
                     envelope,
                     obs,
                     done / frame_every,
+                    lost_site,
                 )
                 z_low = NO_CONTACT
                 z_high = -NO_CONTACT
@@ -630,6 +705,7 @@ def _block_kernel(block: int, stages: int):
         if active:
             zlo[b, j] = z_low
             zhi[b, j] = z_high
+            lost[b, j] = lost_site
 
     return observed_splitting
 
@@ -663,7 +739,7 @@ def observe(
         observation: what to reduce and how often.
         damping: losses (``losses.Damping`` or a (contact, substrate) pair; per lattice allowed).
         chunks: launches the run is split into (progress and guard points; default 20).
-        max_energy_error: relative energy change that counts as a blow-up (growth only with losses).
+        max_energy_error: relative change of energy + dissipated energy that counts as a blow-up.
 
     Returns:
         ObservedRun.
@@ -709,17 +785,19 @@ def observe(
     coupling = wp.array(Kb, dtype=f64, device=device)
     if damping is not None:
         coefficients = kick_matrices(meth.kicks, dt_used, Mb, damping, batch)
-        lossy_host = ~lossless(coefficients)
-        lossy = wp.array(lossy_host.astype(np.int32), dtype=wp.int32, device=device)
+        lossy = wp.array((~lossless(coefficients)).astype(np.int32), dtype=wp.int32, device=device)
         damp = wp.array(coefficients, dtype=f64, device=device)
     else:
-        lossy_host = np.zeros(batch, dtype=bool)
         lossy = wp.zeros(batch, dtype=wp.int32, device=device)
         damp = wp.zeros((1, 1, KICK_ENTRIES), dtype=f64, device=device)
+    power_host = power_coefficients(Mb, damping, batch) if damping is not None else np.zeros((batch, 2))
+    power = wp.array(power_host, dtype=f64, device=device)
     spot = wp.array(np.broadcast_to(np.asarray(observation.spot, dtype=np.float64), (batch,)), dtype=f64, device=device)
     # the tracked z extremes (set by the kernels at frame 0), the last frame's envelope, the observables
     zlo = wp.empty((batch, params.N), dtype=f64, device=device)
     zhi = wp.empty((batch, params.N), dtype=f64, device=device)
+    # the energy dissipated so far: per site (block layout) or per lattice (thread layout), across launches
+    lost = wp.zeros((batch, params.N if layout == "block" else 1), dtype=f64, device=device)
     envelope = wp.zeros((batch, params.N), dtype=f64, device=device)
     obs = wp.zeros((n_frames + 1, batch, N_OBSERVABLES), dtype=f64, device=device)
     boundary = BOUNDARY_CODES[params.boundary]
@@ -734,8 +812,8 @@ def observe(
             wp.config.enable_cpu_blocks = True
 
         def launch(first, steps):
-            inputs = [x, inv_mass, mass, coupling, drifts, kicks, boundary, int(steps), lossy, damp]
-            inputs += [int(first), fe, threshold, radius, contrast, spot, zlo, zhi, envelope, obs]
+            inputs = [x, inv_mass, mass, coupling, drifts, kicks, boundary, int(steps), lossy, damp, power]
+            inputs += [int(first), fe, threshold, radius, contrast, spot, zlo, zhi, lost, envelope, obs]
             wp.launch(kernel, dim=(batch, block), block_dim=block, device=device, inputs=inputs)
 
     else:
@@ -749,8 +827,8 @@ def observe(
             def task(lo, hi):
                 inputs = [x[lo:hi], acc[lo:hi], inv_mass[lo:hi], mass[lo:hi], coupling[lo:hi], drifts, kicks]
                 inputs += [boundary, f64(dt_used), int(steps), lossy[lo:hi], damp[lo:hi] if damping else damp]
-                inputs += [int(first), fe, threshold, radius, contrast, spot[lo:hi], zlo[lo:hi], zhi[lo:hi]]
-                inputs += [envelope[lo:hi], obs[:, lo:hi]]
+                inputs += [power[lo:hi], int(first), fe, threshold, radius, contrast, spot[lo:hi], zlo[lo:hi]]
+                inputs += [zhi[lo:hi], lost[lo:hi], envelope[lo:hi], obs[:, lo:hi]]
                 wp.launch(kernel, dim=hi - lo, device=device, inputs=inputs)
 
             _in_parallel([lambda lo=lo, hi=hi: task(lo, hi) for lo, hi in _slices(batch, device)])
@@ -781,11 +859,9 @@ def observe(
                 E0 = values[0, :, 5].copy()
             if b == main_frames:
                 env_lag = envelope.numpy().copy()
-            E = values[b, :, 5]
+            E = values[b, :, 5] + values[b, :, 6]  # energy plus what the losses took: E(0) to the scheme's accuracy
             finite = np.isfinite(values[a : b + 1]).all(axis=(0, 2))
-            change = _signed_energy_change(E, E0, params.N)  # lattices with losses: only growth is an error
-            err = np.where(lossy_host, np.maximum(change, 0.0), np.abs(change))
-            err = np.where(finite, err, np.inf)
+            err = np.where(finite, np.abs(_signed_energy_change(E, E0, params.N)), np.inf)
             bad = ~finite | ((err > max_energy_error) if max_energy_error is not None else False)
             if np.any(bad):
                 failed = np.flatnonzero(bad).tolist()
