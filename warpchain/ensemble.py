@@ -20,7 +20,7 @@ from typing import Callable
 import numpy as np
 
 from .integrators import Method, RungeKuttaMethod, SplittingMethod, get_method, steps_for
-from .losses import KICK_ENTRIES, Damping, as_damping, kick_matrices, lossless
+from .losses import KICK_ENTRIES, Damping, as_damping, kick_matrices, lossless, require_splitting
 from .model import (
     BOUNDARY_CODES,
     ChainParams,
@@ -815,11 +815,6 @@ class _Runner:
             self.damped, self.damp = False, self.no_damp
             self.lossy_host = np.zeros(self.batch, dtype=bool)
             return
-        if not isinstance(self.method, SplittingMethod):
-            raise ValueError(
-                f"losses enter the splitting methods as an exact sub-flow; {self.method.name!r} has none: "
-                "choose a splitting method (verlet, yoshida4, kahan6, ...)"
-            )
         coefficients = kick_matrices(self.method.kicks, dt, self.mass.numpy(), damping, self.batch)
         self.lossy_host = ~lossless(coefficients)
         self.lossy.assign(self.lossy_host.astype(np.int32))
@@ -1002,11 +997,7 @@ def simulate(
     damping = as_damping(damping)
     if damping is not None:
         damping.per_lattice(batch)  # validated here, at the boundary
-        if not isinstance(meth, SplittingMethod):
-            raise ValueError(
-                f"losses enter the splitting methods as an exact sub-flow; {meth.name!r} has none: "
-                "choose a splitting method (verlet, yoshida4, kahan6, ...)"
-            )
+        require_splitting(meth)
     t_final = real_number("t_final", t_final, nonnegative=True)
     limit = _check_step(meth, params, dt, Mb, Kb, allow_unstable_step)
     dt = real_number("dt", dt, positive=True)

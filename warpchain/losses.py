@@ -96,6 +96,17 @@ def as_damping(damping) -> Damping | None:
     return damping if damping.any() else None
 
 
+def require_splitting(method) -> None:
+    """Raise unless ``method`` is a splitting method: losses enter only those, as an exact sub-flow."""
+    from .integrators import SplittingMethod
+
+    if not isinstance(method, SplittingMethod):
+        raise ValueError(
+            f"losses enter the splitting methods as an exact sub-flow; {method.name!r} has none: "
+            "choose a splitting method (verlet, yoshida4, kahan6, ...)"
+        )
+
+
 def damping_matrix(M: float, gamma_c: float, gamma_s: float) -> np.ndarray:
     """G of one lattice (2 x 2, on w = (u', v'))."""
     mu = M / (M + 1.0)
@@ -168,12 +179,15 @@ def dissipation(x, M, damping: Damping) -> np.ndarray:
         x: states, shape (batch, 4, N).
     """
     x = np.asarray(x, dtype=np.float64)
-    batch = x.shape[0]
-    gamma_c, gamma_s = damping.per_lattice(batch)
-    M = np.broadcast_to(np.asarray(M, dtype=np.float64), (batch,))
-    mu = M / (M + 1.0)
+    return power(x, power_coefficients(M, damping, x.shape[0]))
+
+
+def power(x, coefficients) -> np.ndarray:
+    """Power lost per lattice, sum_j c_s u_j'^2 + c_c (u_j' - v_j')^2, from ``power_coefficients``
+    (batch, 2) and states x (batch, 4, N); the per-site arithmetic of ``observe``'s kernels."""
     pu, pv = x[:, 2], x[:, 3]
-    return M * gamma_s * np.sum(pu * pu, axis=-1) + mu * gamma_c * np.sum((pu - pv) ** 2, axis=-1)
+    rel = pu - pv
+    return np.sum(coefficients[:, 0:1] * (pu * pu) + coefficients[:, 1:2] * (rel * rel), axis=-1)
 
 
 def power_coefficients(M, damping: Damping, batch: int) -> np.ndarray:

@@ -59,6 +59,7 @@ from .reference import inverse_mass
 
 OBSERVABLES = ("peaks", "participation", "spot_energy", "max_envelope", "min_contact", "energy", "dissipated")
 N_OBSERVABLES = len(OBSERVABLES)
+_ENERGY, _DISSIPATED = OBSERVABLES.index("energy"), OBSERVABLES.index("dissipated")
 #: the tracked extremes of z start from these (any real displacement replaces them)
 _FAR = 1.0e300
 
@@ -508,6 +509,27 @@ def _block_kernel(block: int, stages: int):
         return cs * (pu * pu) + cc * (rel * rel)
 
     @wp.func
+    def kick_with_loss(
+        pu: wp.float64,
+        pv: wp.float64,
+        a: wp.vec2d,
+        h: wp.float64,
+        loss: int,
+        damp: wp.array3d(dtype=wp.float64),
+        b: int,
+        i: int,
+        cs: wp.float64,
+        cc: wp.float64,
+    ) -> wp.vec3d:
+        """``block_kernels.site_kick`` and the energy it dissipates at this site (trapezoid over the kick):
+        (u', v', lost)."""
+        w = bk.site_kick(pu, pv, a, h, loss, damp, b, i)
+        spent = ZERO
+        if loss != 0:
+            spent = h * HALF * (site_power(pu, pv, cs, cc) + site_power(w[0], w[1], cs, cc))
+        return wp.vec3d(w[0], w[1], spent)
+
+    @wp.func
     def frame(
         buf: wp.tile[wp.float64, halves],
         parity: int,
@@ -650,12 +672,10 @@ def _block_kernel(block: int, stages: int):
             first = -1  # an extra pass without a step: frame 0, the start (envelope |z|)
         for step in range(first, nsteps):
             if step >= 0:
-                w = bk.site_kick(pu, pv, a, kicks[0], loss, damp, b, 0)
-                if loss != 0:
-                    spent = site_power(pu, pv, cs, cc) + site_power(w[0], w[1], cs, cc)
-                    lost_site = lost_site + kicks[0] * HALF * spent
+                w = kick_with_loss(pu, pv, a, kicks[0], loss, damp, b, 0, cs, cc)
                 pu = w[0]
                 pv = w[1]
+                lost_site = lost_site + w[2]
                 for s in range(wp.static(stages)):
                     h = drifts[s]
                     u = u + h * pu
@@ -663,12 +683,10 @@ def _block_kernel(block: int, stages: int):
                     parity = 1 - parity
                     nb = exchange(buf, u, parity, nbr, boundary)
                     a = bk.site_acceleration(u, v, nb[0], nb[1], m, k)
-                    w = bk.site_kick(pu, pv, a, kicks[s + 1], loss, damp, b, s + 1)
-                    if loss != 0:
-                        h = kicks[s + 1]
-                        lost_site = lost_site + h * HALF * (site_power(pu, pv, cs, cc) + site_power(w[0], w[1], cs, cc))
+                    w = kick_with_loss(pu, pv, a, kicks[s + 1], loss, damp, b, s + 1, cs, cc)
                     pu = w[0]
                     pv = w[1]
+                    lost_site = lost_site + w[2]
                 z = u - v
                 z_low = wp.min(z_low, z)
                 z_high = wp.max(z_high, z)
@@ -856,10 +874,12 @@ def observe(
             launch(a * fe, (b - a) * fe)  # frames a + 1 .. b (and frame 0 with the first)
             values[a : b + 1] = obs[a : b + 1].numpy()
             if E0 is None:
-                E0 = values[0, :, 5].copy()
+                E0 = values[0, :, _ENERGY].copy()
             if b == main_frames:
                 env_lag = envelope.numpy().copy()
-            E = values[b, :, 5] + values[b, :, 6]  # energy plus what the losses took: E(0) to the scheme's accuracy
+            E = (
+                values[b, :, _ENERGY] + values[b, :, _DISSIPATED]
+            )  # plus what the losses took: E(0), to the scheme's accuracy
             finite = np.isfinite(values[a : b + 1]).all(axis=(0, 2))
             err = np.where(finite, np.abs(_signed_energy_change(E, E0, params.N)), np.inf)
             bad = ~finite | ((err > max_energy_error) if max_energy_error is not None else False)

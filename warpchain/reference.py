@@ -56,12 +56,6 @@ def damped_kick(x, acc, coefficients) -> None:
     x[:, 3] = e[2] * pu + e[3] * pv + (e[6] * au + e[7] * av)
 
 
-def _power(x, power) -> np.ndarray:
-    """Power lost per lattice, sum_j c_s u_j'^2 + c_c (u_j' - v_j')^2, with (c_s, c_c) = power (batch, 2)."""
-    pu, pv = x[:, 2], x[:, 3]
-    return np.sum(power[:, 0:1] * (pu * pu) + power[:, 1:2] * ((pu - pv) * (pu - pv)), axis=-1)
-
-
 def step(
     method: Method | str,
     params: ChainParams,
@@ -102,11 +96,7 @@ def step(
     dt = dtype(dt)
     damping = losses.as_damping(damping)
     if damping is not None:
-        if not isinstance(method, SplittingMethod):
-            raise ValueError(
-                f"losses enter the splitting methods as an exact sub-flow; {method.name!r} has none: "
-                "choose a splitting method (verlet, yoshida4, kahan6, ...)"
-            )
+        losses.require_splitting(method)
         if dx is not None:
             raise ValueError("tangent runs are for conservative orbits: run them without damping")
     if isinstance(method, SplittingMethod):
@@ -125,11 +115,11 @@ def step(
                 return
             x[plain, 2:] += kicks[i] * dt * acc[plain]  # lattices without losses: the plain kick
             sub = x[damped]
-            before = _power(sub, power[damped]) if dissipated is not None else None
+            before = losses.power(sub, power[damped]) if dissipated is not None else None
             damped_kick(sub, acc[damped], coefficients[:, i])
             x[damped] = sub
             if dissipated is not None:
-                dissipated[damped] += (kicks[i] * dt) * 0.5 * (before + _power(sub, power[damped]))
+                dissipated[damped] += (kicks[i] * dt) * 0.5 * (before + losses.power(sub, power[damped]))
 
         acc = accelerations(params, x, inv_M, K)
         dacc = None if dx is None else _linear_accelerations(params, x[:, :2], dx[:, :, :2], inv_M, K)
