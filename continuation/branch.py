@@ -145,11 +145,11 @@ class NaturalParameter(_JacobianMemory):
             guess = last.state
         return self._solve(K_new, guess, s_new, self._settings.max_newton, self._settings.newton_tol, self.hint(last))
 
-    def between(self, a: BranchPoint, b: BranchPoint):
-        s = 0.5 * (self.coord(a.K) + self.coord(b.K))
+    def between(self, a: BranchPoint, b: BranchPoint, t: float = 0.5):
+        s = (1.0 - t) * self.coord(a.K) + t * self.coord(b.K)
         return self._solve(
             self.inverse(s),
-            0.5 * (a.state + b.state),
+            (1.0 - t) * a.state + t * b.state,
             s,
             self._settings.max_newton,
             self._settings.newton_tol,
@@ -441,11 +441,13 @@ class PseudoArclength(_JacobianMemory):
             self.corrector.correct(y1 + h * tau, tau, self.hint(points[-1])), points[-1].s + h
         )
 
-    def between(self, a: BranchPoint, b: BranchPoint):
+    def between(self, a: BranchPoint, b: BranchPoint, t: float = 0.5):
         ya, yb = self._y(a), self._y(b)
         d = yb - ya
         tau = d / self._norm(d)
-        return self.corrector.solution(self.corrector.correct(0.5 * (ya + yb), tau, self.hint(a)), 0.5 * (a.s + b.s))
+        return self.corrector.solution(
+            self.corrector.correct((1.0 - t) * ya + t * yb, tau, self.hint(a)), (1.0 - t) * a.s + t * b.s
+        )
 
     def is_between(self, a, m, b) -> bool:
         ya, ym, yb = (self._y(p) for p in (a, m, b))

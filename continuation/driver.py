@@ -22,14 +22,20 @@ the hook through which a caller records points (``on_point``: continuation itsel
 3. A step across which elliptic multipliers of opposite Krein signature passed each other (the Krein
    order of ``events`` changed) with no instability at either end is where a bubble could hide. When
    a localized mode (participation below ``floquet.LOCALIZED_FRACTION`` N: an internal mode of the
-   breather) took part, the step is bisected like a stability change (``settings.bisect_krein =
-   "localized"``, the default); passes among extended phonon multipliers only are recorded as
-   ``krein_crossing`` events. Those cannot all be bisected: the finite chain's phonon multipliers
-   crowd near +-1 at the band edges, where they pass each other every step (measured on the paper
-   chain: 35 passes in the first 7e-4 of the frequency branch), and the bubbles they can make
-   shrink with the chain length (finite-size resonances). ``"all"`` bisects them too. The stated
-   limit: a bubble narrower than the local step between two phonon multipliers can go unseen;
-   ``benchmarks/branch_check.py`` compares a branch with a dense fixed-step scan.
+   breather) took part, the step is bisected like a stability change (``settings.bisect_krein`` =
+   ``"localized"`` or ``"predict"``). Passes among extended phonon multipliers cannot all be bisected:
+   the finite chain's phonon multipliers crowd near +-1 at the band edges, where they pass each other
+   every step (measured on the paper chain: ~10 passes per step of the frequency branch at N = 201),
+   and the bubbles they can make shrink with the chain length (finite-size resonances). With
+   ``"predict"`` (the default above AUTO_ALL_SITES sites) every step with both ends stable is
+   screened by ``continuation.bubbles``, which predicts each bubble's centre, width and strength from
+   the reduced matrices at the two ends (no solve); the driver solves at the centre of each predicted
+   bubble at least ``settings.bubble_width`` wide and, if the solve is unstable, just outside both
+   predicted edges, then bisects the stability changes this exposes as usual. A prediction that the
+   solve does not confirm is re-screened on the two shorter steps it made (twice at most). ``"all"``
+   bisects every pass (the default up to AUTO_ALL_SITES sites). The stated limit: a bubble narrower
+   than ``bubble_width``, or one the first-order model misplaces by more than its width, can go
+   unseen; ``benchmarks/branch_check.py`` compares a branch with a dense fixed-step scan.
 4. Branches stop on physics by default (end parameter, contact lost) or on a stated number of
    points; a time budget is opt-in (``settings.max_seconds``).
 """
@@ -46,6 +52,7 @@ import numpy as np
 from warpchain import ChainParams, energy
 from warpchain.model import real_number, whole_number
 
+from . import bubbles
 from . import events as ev
 from .events import StopReason
 from .floquet import FloquetResult, half_period_map, reduced_floquet
@@ -58,6 +65,14 @@ from .shooting import frequency_report
 #: change) and 33 s for K = 0.01 .. 160 (1524 points, 152 changes; "localized": 464 points, 76); at
 #: N = 201 the passes number ~1000-1500 per branch (minutes on an H200), so "localized" is used there.
 AUTO_ALL_SITES = 64
+
+KREIN_MODES = ("auto", "localized", "predict", "all", "none")
+
+#: ``bubble_width`` defaults to resolution / BUBBLE_FRACTION. On the paper's frequency branch
+#: (resolution 1e-3 in arclength, ~2e-5 in w_b) that solves for the ~20 predicted bubbles wider than
+#: ~2e-6 in w_b in the stable stretches; the ~270 narrower ones (down to 1e-12) would each be hit by a
+#: 1e-4 scan with a chance below 2 %.
+BUBBLE_FRACTION = 10.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -73,9 +88,14 @@ class ContinuationSettings:
         resolution: smallest bracket of a located change, in the continuation coordinate.
         bisect_krein: which passes of elliptic multipliers of opposite Krein signature (with no
             instability at either end) are bisected: ``"all"``, ``"localized"`` (those where a
-            localized mode took part), ``"none"``, or ``"auto"`` (default: ``"all"`` for chains of at
-            most AUTO_ALL_SITES sites, where it is affordable, ``"localized"`` above). The others are
-            recorded as ``krein_crossing`` events.
+            localized mode took part), ``"predict"`` (``"localized"``, and in every step with both
+            ends stable the bubbles that ``continuation.bubbles`` predicts are solved for), ``"none"``,
+            or ``"auto"`` (default: ``"all"`` for chains of at most AUTO_ALL_SITES sites, where it is
+            affordable, ``"predict"`` above). Passes not bisected are recorded as ``krein_crossing``
+            events.
+        bubble_width: with ``"predict"``, predicted bubbles at least this wide (in the continuation
+            coordinate) are solved for (default: resolution / BUBBLE_FRACTION); narrower ones are
+            counted in the branch's ``stats`` (``bubbles_below_width``).
         chord: start each corrector with chord steps on the neighbouring point's Jacobian (from its
             Floquet analysis), forming true Jacobians only when they converge slowly.
         bisect_counts: also bisect steps across which only the number of unstable multipliers of
@@ -95,6 +115,7 @@ class ContinuationSettings:
     multiplier_floor: float = 0.05
     resolution: float = 1e-3
     bisect_krein: str = "auto"
+    bubble_width: float | None = None
     bisect_counts: bool = False
     chord: bool = True
     floquet: bool = True
@@ -112,8 +133,10 @@ class ContinuationSettings:
             "resolution",
         ):
             real_number(name, getattr(self, name), positive=True)
-        if self.bisect_krein not in ("auto", "localized", "all", "none"):
-            raise ValueError(f"bisect_krein must be 'auto', 'localized', 'all' or 'none', got {self.bisect_krein!r}")
+        if self.bisect_krein not in KREIN_MODES:
+            raise ValueError(f"bisect_krein must be one of {', '.join(KREIN_MODES)}; got {self.bisect_krein!r}")
+        if self.bubble_width is not None:
+            real_number("bubble_width", self.bubble_width, positive=True)
         if not self.ds_min <= self.ds <= self.ds_max:
             raise ValueError(f"need ds_min <= ds <= ds_max, got {self.ds_min}, {self.ds}, {self.ds_max}")
         if self.grow < 1:
@@ -241,8 +264,11 @@ class Branch:
         ]
 
 
-def analyse(solution: Solution, with_floquet: bool = True) -> BranchPoint:
-    """Energy, multipliers (reduced Floquet on the solution's own linearization), harmonics."""
+def analyse(solution: Solution, with_floquet: bool = True, spectra: dict | None = None) -> BranchPoint:
+    """Energy, multipliers (reduced Floquet on the solution's own linearization), harmonics.
+
+    ``spectra``: where to keep the point's reduced matrix and eigenvectors (``floquet.SpectralData``),
+    keyed by id(point), for predicting bubbles in the steps next to it."""
     params, lin = solution.params, solution.linearization
     if with_floquet:
         fl: FloquetResult = reduced_floquet(half_period_map(lin), params.M, solution.state)
@@ -272,7 +298,7 @@ def analyse(solution: Solution, with_floquet: bool = True) -> BranchPoint:
             stable=False,
             instabilities=(),
         )
-    return BranchPoint(
+    point = BranchPoint(
         K=float(params.K),
         omega=float(solution.omega),
         state=np.array(solution.state),
@@ -284,6 +310,9 @@ def analyse(solution: Solution, with_floquet: bool = True) -> BranchPoint:
         s=float(solution.s),
         **fields,
     )
+    if with_floquet and spectra is not None:
+        spectra[id(point)] = (point, fl.spectral)
+    return point
 
 
 # ----------------------------------------------------------------------------- spectral step bound
@@ -365,11 +394,17 @@ def continuation(
 
     def accept(point):
         points.append(point)
+        if walk_point:
+            walk.append(point)
         if on_point:
             on_point(point)
 
+    # id(point) -> (point, SpectralData) of the points analysed since the last step was finished (its
+    # refinement needs them all); cleared down to the last point after each step
+    spectra: dict = {}
+
     def analysed(solution):
-        point = analyse(solution, settings.floquet)
+        point = analyse(solution, settings.floquet, spectra)
         if settings.floquet and settings.chord and hasattr(problem, "remember"):  # next corrector's chord Jacobian
             n2 = 2 * solution.params.N
             problem.remember(point, solution.linearization.unit_columns("positions")[n2:, :])
@@ -384,13 +419,20 @@ def continuation(
         return analysed(out)
 
     points: list = []
+    # the walk: the points the driver stepped to (not the ones bisection and bubble solves put between
+    # them), whose secant sets the next predictor, so that refinement never steers the branch
+    walk: list = []
+    walk_point = True
     problem.prepare(settings, resume)
     if settings.bisect_krein == "auto":
-        settings = settings.replace(bisect_krein="all" if problem.params.N <= AUTO_ALL_SITES else "localized")
+        settings = settings.replace(bisect_krein="all" if problem.params.N <= AUTO_ALL_SITES else "predict")
+    bubble_width = settings.bubble_width or settings.resolution / BUBBLE_FRACTION
+    stats.update(bubbles_predicted=0, bubbles_below_width=0, bubble_solves=0, bubbles_confirmed=0)
     if resume:
         if len(resume) < 2 and problem.parameter == "omega":
             raise ValueError("resuming a frequency branch needs at least two stored points (they set the tangent)")
         points.extend(resume)
+        walk.extend(resume)
     else:
         for sol in problem.start():
             if isinstance(sol, Failure):
@@ -405,9 +447,59 @@ def continuation(
             stats["solves"] += 1
             accept(analysed(sol))
 
-    def refine(a, b, h, depth=0):
+    def chase_bubbles(a, b, h, depth, misses):
+        """Solve inside a step with both ends stable where ``bubbles`` predicts an instability
+        bubble at least ``bubble_width`` wide; None when nothing is predicted there."""
+        sa, sb = spectra.get(id(a)), spectra.get(id(b))
+        if sa is None or sb is None or sa[0] is not a or sb[0] is not b:
+            return None
+        predicted = bubbles.predict(a, b, sa[1], sb[1])
+        stats["bubbles_predicted"] += len(predicted)
+        plan = bubbles.chase_fractions(predicted, h, bubble_width)
+        stats["bubbles_below_width"] += len(predicted) - sum(2 * x.half_width * h >= bubble_width for x in predicted)
+        if not plan:
+            return None
+        inner = []  # (fraction, point)
+        confirmed = 0
+        for centre, (lo, hi) in plan:
+            stats["bubble_solves"] += 1
+            m = solve(problem.between, a, b, centre)
+            if isinstance(m, Failure) or not problem.is_between(a, m, b):
+                continue
+            inner.append((centre, m))
+            unstable = not m.stable
+            confirmed += unstable
+            note(ev.bubble_event(a, b, centre, m, par, predicted=[x for x in predicted if lo <= x.t <= hi]))
+            if unstable:  # its edges: one solve just outside each predicted edge, then bisection
+                for t in (lo, hi):
+                    stats["bubble_solves"] += 1
+                    e = solve(problem.between, a, b, t)
+                    if not isinstance(e, Failure) and problem.is_between(a, e, b):
+                        inner.append((t, e))
+        stats["bubbles_confirmed"] += confirmed
+        if not inner:
+            return None
+        inner.sort(key=lambda x: x[0])
+        chain = [(0.0, a)] + inner + [(1.0, b)]
+        out = []
+        for (t0, x), (t1, y) in zip(chain[:-1], chain[1:]):
+            out += refine(x, y, h * (t1 - t0), depth + 1, misses + (confirmed == 0))
+        return out
+
+    def refine(a, b, h, depth=0, misses=0):
         """Points strictly after a up to b, bisecting while a change sits in a bracket > resolution."""
         what = ev.changed(a, b) if settings.floquet else None
+        if (
+            settings.bisect_krein == "predict"
+            and what in (None, "krein")
+            and a.stable
+            and b.stable
+            and misses < 2
+            and depth <= 40
+        ):
+            chased = chase_bubbles(a, b, h, depth, misses)
+            if chased is not None:
+                return chased
         if what is None:
             return [b]
         if what == "count" and not settings.bisect_counts:
@@ -415,7 +507,7 @@ def continuation(
             return [b]
         if what == "krein" and not (
             settings.bisect_krein == "all"
-            or (settings.bisect_krein == "localized" and ev.localized_krein_crossings(a, b))
+            or (settings.bisect_krein in ("localized", "predict") and ev.localized_krein_crossings(a, b))
         ):
             note(ev.krein_event(a, b, par, bisected=False))
             return [b]
@@ -431,7 +523,7 @@ def continuation(
             )
             note(e)
             return [b]
-        return refine(a, m, 0.5 * h, depth + 1) + refine(m, b, 0.5 * h, depth + 1)
+        return refine(a, m, 0.5 * h, depth + 1, misses) + refine(m, b, 0.5 * h, depth + 1, misses)
 
     bar = None
     if progress:
@@ -477,8 +569,8 @@ def continuation(
                 message = f"after {settings.max_seconds:g} s at {par} = {getattr(last, par):.8g}"
                 break
             h_try = problem.clip_step(last, h)
-            new = solve(problem.step, points, h_try)
-            if isinstance(new, Failure) or not problem.is_forward(points, new):
+            new = solve(problem.step, walk, h_try)
+            if isinstance(new, Failure) or not problem.is_forward(walk, new):
                 if not isinstance(new, Failure):
                     stats["rejected_backwards"] += 1
                 h *= 0.5
@@ -494,7 +586,13 @@ def continuation(
                 if settings.max_points is not None and len(points) >= settings.max_points:
                     break  # a stated point count is exact, even inside a bisected step
                 note(ev.harmonic_event(points[-1], p, par))
+                walk_point = p is new
                 accept(p)
+                walk_point = True
+            kept = spectra.get(id(points[-1]))
+            spectra.clear()
+            if kept is not None:
+                spectra[id(points[-1])] = kept
             # next step: grow after an easy solve, bounded by the multipliers' motion and ds_max
             h_next = h_try * (settings.grow if new.iterations <= 3 else 1.0)
             if settings.floquet:

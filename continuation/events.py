@@ -203,6 +203,28 @@ def krein_event(a, b, parameter: str, bisected: bool = True) -> dict:
     }
 
 
+def bubble_event(a, b, fraction: float, m, parameter: str, predicted=()) -> dict:
+    """A solve inside the step (a, b) where ``continuation.bubbles`` predicted an instability bubble:
+    what was predicted (strongest member of the group), and what the solve at its centre ``m`` found."""
+    pa, pb, at = getattr(a, parameter), getattr(b, parameter), getattr(m, parameter)
+    best = max(predicted, key=lambda x: x.modulus) if predicted else None
+    confirmed = not m.stable
+    return {
+        "type": "bubble_probe",
+        "parameter": parameter,
+        "bracket": [pa, pb],
+        "at": at,
+        "fraction": float(fraction),
+        "predicted_modulus": None if best is None else best.modulus,
+        "predicted_width": None if best is None else 2.0 * best.half_width * abs(pb - pa),
+        "confirmed": confirmed,
+        "modulus": float(m.max_modulus),
+        "message": f"predicted instability bubble at {parameter} = {at:.8g}"
+        + ("" if best is None else f" (|l| ~ {best.modulus:.6f})")
+        + (f": confirmed, max|l| = {m.max_modulus:.6f}" if confirmed else ": not seen there (stable)"),
+    }
+
+
 def contact_event(prev, point, parameter: str) -> dict:
     a, b = getattr(prev, parameter), getattr(point, parameter)
     ca, cb = prev.min_contact, point.min_contact

@@ -59,6 +59,7 @@ tol = max(10 * pairing error, 1e-12) on ||l| - 1|.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 import warnings
 
@@ -135,6 +136,8 @@ class FloquetResult:
         central_weight: fraction of each mu's Floquet vector on the orbit's central sites, shape (2N,).
         vectors: the position part of each mu's Floquet vector (eigenvectors of Mu), shape (2N, 2N)
             (reduced path; None on the full path).
+        spectral: Mu and its eigenvectors per parity block (reduced path), for predicting what happens
+            between two analysed orbits (``continuation.bubbles``).
         accuracy: the measured gauges (``trivial_deviation``, ``symplecticity`` or ``pairing_error``).
         path: ``"reduced"`` or ``"full"``.
         pairing_error, symplecticity_error: kept for the full path's reports (0 / gauge on the reduced).
@@ -163,6 +166,7 @@ class FloquetResult:
     stats: dict = dataclasses.field(default_factory=dict)
     central_weight: np.ndarray | None = None
     vectors: np.ndarray | None = dataclasses.field(default=None, repr=False, compare=False)
+    spectral: "SpectralData | None" = dataclasses.field(default=None, repr=False, compare=False)
 
     @property
     def nontrivial(self) -> np.ndarray:
@@ -178,6 +182,27 @@ class FloquetResult:
     @property
     def kinds(self) -> tuple:
         return tuple(k for k in KINDS if self.unstable_counts[k])
+
+
+@dataclasses.dataclass(frozen=True)
+class SpectralData:
+    """The reduced matrix of an orbit and its eigenvectors, per parity block.
+
+    Attributes:
+        Mu: the reduced matrix (2N x 2N).
+        blocks: (parity, basis, eigenvectors) per block in the order of the result's ``mu``: parity +1
+            / -1 with ``basis`` from ``_parity_basis`` and eigenvectors in that basis, or a single
+            (0, None, eigenvectors of the whole Mu) when the orbit is not mirror-symmetric.
+    """
+
+    Mu: np.ndarray = dataclasses.field(repr=False)
+    blocks: tuple = dataclasses.field(repr=False)
+
+    def block_matrix(self, k: int, matrix: np.ndarray | None = None) -> np.ndarray:
+        """Block k of ``matrix`` (default: this Mu) in block k's basis."""
+        X = self.Mu if matrix is None else matrix
+        basis = self.blocks[k][1]
+        return X if basis is None else _apply_left(_apply_right(X, basis), basis)
 
 
 # ----------------------------------------------------------------------------- building blocks
@@ -304,6 +329,85 @@ def vector_parity(vectors: np.ndarray, threshold: float = 0.9) -> np.ndarray:
     return np.where(p > threshold, 1, np.where(p < -threshold, -1, 0)).astype(int)
 
 
+#: an orbit whose positions equal their reflection to this relative accuracy (the symmetry-projected
+#: branches: exactly) has its reduced matrix split into even and odd blocks (``parity_blocks``)
+SYMMETRIC_RTOL = 1e-9
+
+#: the parity split is used when the coupling between the even and odd blocks of Mu is below this
+#: fraction of Mu's largest entry (it is ~1e-16 on a projected orbit); otherwise the whole Mu is solved
+PARITY_COUPLING_RTOL = 1e-11
+
+
+@functools.lru_cache(maxsize=8)
+def _parity_basis(n: int) -> tuple:
+    """Orthonormal even and odd bases of R^(2n) (u then v, each reflected j -> n - 1 - j). Basis vector
+    k of each is w1[k] e[i1[k]] + w2[k] e[i2[k]]; returned as (i1, i2, w1, w2) per basis, so that it is
+    applied by gathering rows or columns (no dense products). Even: 2 ceil(n/2) vectors, odd: 2 floor(n/2)."""
+    half = n // 2
+    r = np.sqrt(0.5)
+    out = []
+    for sign in (1.0, -1.0):
+        i1, i2, w1, w2 = [], [], [], []
+        for field in (0, 1):
+            o = field * n
+            for j in range(half):
+                i1.append(o + j), i2.append(o + n - 1 - j), w1.append(r), w2.append(sign * r)
+            if n % 2 and sign > 0:
+                i1.append(o + half), i2.append(o + half), w1.append(1.0), w2.append(0.0)
+        out.append((np.array(i1), np.array(i2), np.array(w1), np.array(w2)))
+    return tuple(out)
+
+
+def _apply_right(X: np.ndarray, basis) -> np.ndarray:
+    """X @ S for a basis S from ``_parity_basis``."""
+    i1, i2, w1, w2 = basis
+    return X[:, i1] * w1 + X[:, i2] * w2
+
+
+def _apply_left(X: np.ndarray, basis) -> np.ndarray:
+    """S^T @ X."""
+    i1, i2, w1, w2 = basis
+    return X[i1] * w1[:, None] + X[i2] * w2[:, None]
+
+
+def _expand(Y: np.ndarray, basis, n2: int) -> np.ndarray:
+    """S @ Y: vectors in the basis back to the 2N coordinates."""
+    i1, i2, w1, w2 = basis
+    out = np.zeros((n2, Y.shape[1]), dtype=Y.dtype)
+    np.add.at(out, i1, Y * w1[:, None])
+    np.add.at(out, i2, Y * w2[:, None])
+    return out
+
+
+def parity_blocks(Mu: np.ndarray):
+    """Eigen-decomposition of Mu (2N x 2N) of a mirror-symmetric orbit from its even and odd blocks.
+
+    The reflection commutes with the orbit's half-period map, so in an orthonormal basis of even and
+    odd vectors Mu is block-diagonal: two eigenproblems of about N each instead of one of 2N (about 4x
+    less work), and every eigenvector's parity is exact instead of read off with a threshold (which
+    leaves near-degenerate even/odd pairs mixed, parity 0).
+
+    Returns:
+        (mu (2N,), vectors (2N, 2N) in the original coordinates, parity (2N,) of +1/-1, blocks), blocks
+        being (parity, basis, eigenvectors in the basis) for the even and the odd block (in the order of
+        mu); or None when the blocks are coupled by more than PARITY_COUPLING_RTOL of Mu's size (not a
+        symmetric orbit).
+    """
+    n2 = Mu.shape[0]
+    even, odd = _parity_basis(n2 // 2)
+    Me, Mo = _apply_right(Mu, even), _apply_right(Mu, odd)
+    scale = max(float(np.max(np.abs(Mu))), 1e-300)
+    coupling = max(float(np.max(np.abs(_apply_left(Me, odd)))), float(np.max(np.abs(_apply_left(Mo, even)))))
+    if coupling > PARITY_COUPLING_RTOL * scale:
+        return None
+    mu_e, ve = np.linalg.eig(_apply_left(Me, even))
+    mu_o, vo = np.linalg.eig(_apply_left(Mo, odd))
+    mu = np.concatenate([mu_e, mu_o])
+    vec = np.hstack([_expand(ve, even, n2), _expand(vo, odd, n2)])
+    parity = np.concatenate([np.ones(len(mu_e), int), -np.ones(len(mu_o), int)])
+    return mu, vec, parity, ((1, even, ve), (-1, odd, vo))
+
+
 # ----------------------------------------------------------------------------- the two paths
 
 
@@ -334,7 +438,14 @@ def reduced_floquet(
     N = n2 // 2
     m = _masses(M, N)
     Mu = reduced_matrix(A, M)
-    mu, vec = np.linalg.eig(Mu)
+    blocks = parity_blocks(Mu) if state is not None and mirror_symmetric(state, SYMMETRIC_RTOL) else None
+    if blocks is None:
+        mu, vec = np.linalg.eig(Mu)
+        parity = vector_parity(vec) if state is not None and mirror_symmetric(state) else np.zeros(len(mu), int)
+        spectral = SpectralData(Mu, ((0, None, vec),))
+    else:
+        mu, vec, parity, parts = blocks
+        spectral = SpectralData(Mu, parts)
     trivial = int(np.argmin(np.abs(mu - 1.0)))
     sympl = half_map_symplecticity(A, M)
     accuracy = {"trivial_deviation": float(abs(mu[trivial] - 1.0)), "symplecticity": sympl}
@@ -347,7 +458,6 @@ def reduced_floquet(
     act = np.sum((A[:n2, :n2] @ a) * m[:, None] * (A[n2:, :n2] @ a), axis=0)
     signature = np.where(kinds == "elliptic", -np.sign(act), 0).astype(int)
     signature[trivial] = 0
-    parity = vector_parity(vec) if state is not None and mirror_symmetric(state) else np.zeros(len(mu), int)
     pr = participation(vec, M)
     weight = central_weight(vec, M, energy_centre(state)) if state is not None else np.full(len(mu), np.nan)
     modulus = outer_modulus(mu)
@@ -384,6 +494,7 @@ def reduced_floquet(
         participation=pr,
         central_weight=weight,
         vectors=vec,
+        spectral=spectral,
         accuracy=accuracy,
         path="reduced",
         pairing_error=0.0,

@@ -88,3 +88,23 @@ def test_a_non_symplectic_map_gives_no_verdict_unless_asked(breather):
     with pytest.warns(RuntimeWarning, match="re-converged"):
         coarse = ct.floquet(breather, method="rk4", tolerance=2.0)  # explicitly accepted
     assert coarse.path == "full" and coarse.tolerance == 2.0
+
+
+def test_parity_blocks_split_the_reduced_problem_exactly(breather):
+    from continuation.floquet import half_period_map, parity_blocks, vector_parity
+
+    fl = ct.floquet(breather)
+    Mu = reduced_matrix(half_period_map(breather.linearization(breather.flow)), breather.params.M)
+    mu, vec, parity, blocks = parity_blocks(Mu)
+    full = np.linalg.eigvals(Mu)
+    r, c = linear_sum_assignment(np.abs(mu[:, None] - full[None, :]))
+    assert np.max(np.abs(mu[r] - full[c])) < 1e-11
+    # each eigenvector is exactly even or odd, and an eigenvector of Mu
+    assert np.array_equal(vector_parity(vec, threshold=1 - 1e-12), parity)
+    assert np.max(np.abs(Mu @ vec - vec * mu)) < 1e-11
+    assert [b[0] for b in blocks] == [1, -1] and sum(b[2].shape[1] for b in blocks) == len(mu)
+    # the Floquet result uses them: parity known for every multiplier of a symmetric orbit
+    assert np.all(fl.parity != 0) and fl.spectral is not None and len(fl.spectral.blocks) == 2
+    # an orbit that is not mirror-symmetric: no split
+    rng = np.random.default_rng(1)
+    assert parity_blocks(Mu + 1e-6 * rng.standard_normal(Mu.shape)) is None

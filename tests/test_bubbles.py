@@ -1,0 +1,71 @@
+"""The bubble predictor (``continuation.bubbles``) against closed forms, and on a branch."""
+
+import types
+
+import numpy as np
+import pytest
+
+from continuation import bubbles
+from continuation.floquet import SpectralData
+
+
+def _point(Mu, signature, tolerance=1e-12):
+    """A stand-in for an analysed branch point: Mu, its eigen-decomposition and signatures."""
+    mu, R = np.linalg.eig(Mu)
+    order = np.argsort(mu.real)
+    mu, R = mu[order], R[:, order]
+    return types.SimpleNamespace(
+        spectral=SpectralData(Mu, ((0, None, R),)), mu=mu, signature=np.asarray(signature), tolerance=tolerance
+    )
+
+
+def _predict(a, b):
+    return bubbles.predict(a, b, a.spectral, b.spectral)
+
+
+def test_a_krein_collision_of_a_linear_family_is_predicted_exactly():
+    # Mu(t) = diag(m) + t D with a 2 x 2 coupling of opposite sign (what opposite signatures allow)
+    # between two multipliers that pass each other, and a third far away
+    m = np.array([0.30, 0.50, -0.70])
+    D = np.array([[0.4, 0.02, 0.0], [-0.03, -0.2, 0.0], [0.0, 0.0, 0.1]])
+    a, b = _point(np.diag(m), [1, -1, 1]), _point(np.diag(m) + D, [1, -1, 1])
+    # Points a is sorted by mu: -0.7 (+1), 0.3 (+1), 0.5 (-1)
+    a.signature = np.array([1, 1, -1])
+    found = _predict(a, b)
+    assert len(found) == 1
+    x = found[0]
+    d0, d1, c = 0.3 - 0.5, 0.4 + 0.2, 0.02 * -0.03
+    q = d1 * d1 + 4 * c
+    assert x.t == pytest.approx(-d0 * d1 / q, rel=1e-12)
+    assert x.half_width == pytest.approx(abs(d0) * np.sqrt(-4 * c) / q, rel=1e-12)
+    # the exact eigenvalues of Mu(t) at the predicted centre: the same complex pair
+    exact = np.linalg.eigvals(np.diag(m) + x.t * D)
+    assert np.max(exact.imag) == pytest.approx(x.mu.imag, rel=1e-12)
+    assert x.mu.real == pytest.approx(exact[np.argmax(exact.imag)].real, rel=1e-12)
+    # the bubble's edges: real eigenvalues just outside, complex just inside
+    for t, inside in ((x.t - 0.99 * x.half_width, True), (x.t - 1.01 * x.half_width, False)):
+        assert (np.max(np.abs(np.linalg.eigvals(np.diag(m) + t * D).imag)) > 0) == inside
+
+
+def test_equal_signatures_pass_through_and_nothing_is_predicted():
+    m = np.array([0.30, 0.50])
+    D = np.array([[0.4, 0.02], [0.03, -0.2]])  # same-sign coupling: real eigenvalues throughout
+    a, b = _point(np.diag(m), [1, 1]), _point(np.diag(m) + D, [1, 1])
+    assert _predict(a, b) == []
+    a.signature = np.array([1, -1])  # opposite signatures with a coupling that cannot make a bubble
+    assert _predict(a, b) == []
+
+
+def test_chase_plan_keeps_wide_bubbles_and_a_point_between_neighbours():
+    B = bubbles.Bubble
+    found = [
+        B(0.30, 0.01, 0.9 + 1e-4j, 1.001, 1),
+        B(0.305, 0.01, 0.9 + 2e-4j, 1.002, 1),  # the same bubble from another pair: counted once
+        B(0.34, 0.02, 0.9 + 1e-4j, 1.001, 1),  # a neighbour whose margin overlaps
+        B(0.7, 1e-6, 0.5j, 1.1, 1),  # too narrow
+    ]
+    plan = bubbles.chase_fractions(found, step=1.0, min_width=1e-3)
+    assert [c for c, _ in plan] == [0.305, 0.34]
+    (_, (lo1, hi1)), (_, (lo2, hi2)) = plan
+    assert 0.0 < lo1 < 0.305 and hi1 == pytest.approx(0.32) and 0.34 < hi2 < 1
+    assert lo2 == pytest.approx(0.3225)  # not past the middle between the two centres
