@@ -20,6 +20,8 @@ from.
 from __future__ import annotations
 
 import json
+import queue
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -153,8 +155,53 @@ class BranchStore:
     def n_points(self) -> int:
         return int(self.group.attrs.get("n_points", 0))
 
+    # ------------------------------------------------------------------ writing behind the computation
+    def background(self) -> "BranchStore":
+        """Write appended points on a thread of their own from now on, so that the next point is computed
+        while this one is written (an append is ~50 ms of zarr work per point at N = 201, 1/3 of a
+        point's time on an H200). ``flush``, ``finish`` and ``interrupted`` wait until every queued
+        point is written; an error on the thread is raised there (and by the next ``append``)."""
+        if getattr(self, "_thread", None) is None:
+            self._queue: queue.Queue = queue.Queue()
+            self._error = None
+            self._thread = threading.Thread(target=self._drain, name=f"store {self.group_name}", daemon=True)
+            self._thread.start()
+        return self
+
+    def _drain(self) -> None:
+        while True:
+            point = self._queue.get()
+            if point is None:
+                return
+            if self._error is None:
+                try:
+                    self._write(point)
+                except BaseException as exc:  # raised to the caller by append/flush
+                    self._error = exc
+
+    def flush(self) -> None:
+        """Wait until every queued point is written (no-op without ``background``)."""
+        thread = getattr(self, "_thread", None)
+        if thread is not None:
+            self._queue.put(None)
+            thread.join()
+            self._thread = None
+        self._raise_error()
+
+    def _raise_error(self) -> None:
+        if getattr(self, "_error", None) is not None:
+            raise StoreError(f"{self.path}/{self.group_name}: writing a point failed: {self._error!r}") from self._error
+
     def append(self, point: BranchPoint) -> None:
-        """Write one point; ``n_points`` is raised only after every array holds it."""
+        """Write one point (queued when ``background`` is on); ``n_points`` is raised only after every
+        array holds it."""
+        self._raise_error()
+        if getattr(self, "_thread", None) is not None:
+            self._queue.put(point)
+        else:
+            self._write(point)
+
+    def _write(self, point: BranchPoint) -> None:
         n = self.n_points
         N2 = 2 * self.params.N
         inst = list(point.instabilities)[:MAX_INSTABILITIES]
@@ -206,6 +253,7 @@ class BranchStore:
             consolidate(self.path)
 
     def finish(self, branch: Branch) -> None:
+        self.flush()
         self.group.attrs.update(
             {
                 "complete": True,
@@ -218,6 +266,7 @@ class BranchStore:
         consolidate(self.path)
 
     def interrupted(self, why: str) -> None:
+        self.flush()
         self.group.attrs.update({"complete": False, "stop_reason": "interrupted", "message": why})
         consolidate(self.path)
 

@@ -90,7 +90,7 @@ def run_branch(
         resume=bool(resume),
         device=ctx.device,
         new_store=new_store,
-    )
+    ).background()  # points are written while the next one is computed
     from tqdm.contrib.logging import logging_redirect_tqdm
 
     try:
@@ -100,6 +100,9 @@ def run_branch(
             )
     except KeyboardInterrupt:
         store.interrupted("interrupted by the user (Ctrl-C); the stored points are complete: resume with --resume")
+        raise
+    except Exception as exc:
+        store.interrupted(f"stopped by {type(exc).__name__}: {exc}; the stored points are complete")
         raise
     store.finish(branch)
     ctx.log(

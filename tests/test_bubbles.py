@@ -69,3 +69,26 @@ def test_chase_plan_keeps_wide_bubbles_and_a_point_between_neighbours():
     (_, (lo1, hi1)), (_, (lo2, hi2)) = plan
     assert 0.0 < lo1 < 0.305 and hi1 == pytest.approx(0.32) and 0.34 < hi2 < 1
     assert lo2 == pytest.approx(0.3225)  # not past the middle between the two centres
+
+
+def test_predicted_bubbles_match_bisecting_every_pass_at_a_fraction_of_the_solves():
+    # the paper chain at N = 41, where bisecting every opposite-signature pass ("all") is affordable
+    # and finds every bubble wider than the resolution: the frequency branch from the optical band edge
+    # into the gap (1.0165 -> 1.009) crosses nine stability changes (a period-doubling window and bubbles)
+    from continuation.branch import continue_in_frequency
+    from continuation.driver import ContinuationSettings
+    from warpchain import ChainParams, Flow
+
+    p = ChainParams(30.0, 160.0, 41)
+    runs = {}
+    for mode in ("all", "predict"):
+        s = ContinuationSettings(ds=0.05, ds_min=1e-4, ds_max=0.6, grow=1.3, resolution=1e-3, bisect_krein=mode)
+        runs[mode] = continue_in_frequency(p, None, omega_min=1.009, flow=Flow("kahan8", 32, "cpu"), settings=s)
+    every, predicted = ([c for c in runs[m].stability_changes() if min(c["bracket"]) > 1.009] for m in runs)
+    assert len(every) >= 9
+    for change in every:  # each change is found, its bracket within a few resolutions (2e-5 in w_b each)
+        centre = np.mean(change["bracket"])
+        assert min(abs(np.mean(c["bracket"]) - centre) for c in predicted) < 1e-5, centre
+        assert any(c["from_stable"] == change["from_stable"] for c in predicted)
+    assert runs["predict"].stats["bubbles_confirmed"] >= 4
+    assert runs["predict"].stats["solves"] < 0.5 * runs["all"].stats["solves"]

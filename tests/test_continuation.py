@@ -192,3 +192,21 @@ def test_a_branch_without_floquet_is_stored_and_read_back(tmp_path):
     store.finish(branch)
     _, points, _ = load_branch(tmp_path / "nf.zarr", "branch")
     assert len(points) == len(branch.points) and all(q.mu is None and not q.stable for q in points)
+
+
+def test_a_store_written_in_the_background_equals_one_written_inline(k_branch, tmp_path):
+    _, branch = k_branch
+    points = branch.points[:12]
+    p = ChainParams(30.0, points[0].K, 41)
+    inline = BranchStore(tmp_path / "a.zarr", "branch", p, {"omega": 1.01})
+    behind = BranchStore(tmp_path / "b.zarr", "branch", p, {"omega": 1.01}).background()
+    for q in points:
+        inline.append(q)
+        behind.append(q)
+    inline.finish(branch)
+    behind.finish(branch)  # waits for the queue
+    _, a, _ = load_branch(tmp_path / "a.zarr", "branch")
+    _, b, _ = load_branch(tmp_path / "b.zarr", "branch")
+    assert len(a) == len(b) == 12
+    for x, y in zip(a, b):
+        assert np.array_equal(x.state, y.state) and x.K == y.K and np.array_equal(x.mu, y.mu, equal_nan=True)
