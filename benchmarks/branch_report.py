@@ -27,6 +27,23 @@ def _interval(iv: dict, fmt: str) -> str:
     )
 
 
+def _bubbles(wide: list, narrow: list) -> str:
+    """Bubbles of a stable stretch: the wide ones listed, the narrow ones counted with their range."""
+    parts = [_interval(iv, ".6f") for iv in wide]
+    if narrow:
+        lo = min(min(iv["start"], iv["end"]) for iv in narrow)
+        hi = max(max(iv["start"], iv["end"]) for iv in narrow)
+        width = max(abs(iv["start"] - iv["end"]) for iv in narrow)
+        top = max(iv["max_modulus"] - 1 for iv in narrow)
+        kinds = sorted({k for iv in narrow for k in iv["kinds"]})
+        parts.append(
+            f"{len(narrow)} narrower bubbles between w_b = {lo:.6f} and {hi:.6f} (each < {width:.1e} wide; "
+            f"{'/'.join(k.replace('_', ' ') for k in kinds)}; max |l| - 1 <= {top:.1e}; localized: "
+            f"{', '.join(sorted({k for iv in narrow for k in iv.get('localized_kinds', [])})) or 'none'})"
+        )
+    return "; ".join(parts) if parts else "nothing"
+
+
 def report(root: Path, flat: bool = False) -> str:
     k = _load(root, "continuation-k", flat)
     w = _load(root, "continuation-omega", flat)
@@ -48,18 +65,20 @@ def report(root: Path, flat: bool = False) -> str:
         + "."
     )
     wivs = w["unstable_intervals"]
+    # bubbles inside the stable stretch: listed when wider than 1e-4 in w_b, else counted
+    inner = wivs[:-1]
+    wide_w = [iv for iv in inner if abs(iv["start"] - iv["end"]) >= 1e-4]
+    narrow_w = [iv for iv in inner if abs(iv["start"] - iv["end"]) < 1e-4]
     lines.append(
         f"- **Continuation in frequency** (`continuation-omega`, N = {w['N']}): {len(w['points'])} points from "
         f"w_b = {w['omega_range'][1]:.6f} until contact is lost (stop: `{w['stop_reason']}`; "
         f"{w['message'].split(': ')[-1]}); energy monotonic in w_b across the gap: "
         f"{w['energy_monotonic_in_frequency_in_gap']}; E(w_b = 1.01) = {w['energy_at_omega_1_01']:.10f}. "
-        f"Stability changes at w_b in "
-        + ", ".join(
-            f"[{c['bracket'][1]:.6f}, {c['bracket'][0]:.6f}] ({'lost' if c['from_stable'] else 'regained'})"
-            for c in w["stability_changes"]
-        )
+        f"{len(w['stability_changes'])} stability changes, each bracketed to the resolution. Stable from "
+        f"w_b = {w['omega_range'][1]:.6f} down to {wivs[-1]['start']:.6f} except for "
+        + _bubbles(wide_w, narrow_w)
         + "; unstable "
-        + "; ".join(_interval(iv, ".6f") for iv in wivs)
+        + "; ".join(_interval(iv, ".6f") for iv in wivs[-1:])
         + "."
     )
     for s, name in ((k, "K"), (w, "frequency")):
@@ -68,7 +87,10 @@ def report(root: Path, flat: bool = False) -> str:
             f"  - {name} branch: {st['points']} points, {st['solves']} solves ({st['bisection_solves']} in "
             f"bisections, {st['failed_solves']} failed), {st['wall_seconds']:.1f} s "
             f"({st['seconds_per_point']:.2f} s per point); {s['krein_crossings_recorded']} steps with "
-            f"unbisected Krein passes of phonon multipliers."
+            f"unbisected Krein passes of phonon multipliers; {st.get('bubbles_predicted', 0)} bubbles predicted "
+            f"in stable steps, {st.get('bubble_solves', 0)} solves for the "
+            f"{st.get('bubbles_predicted', 0) - st.get('bubbles_below_width', 0)} wider than the chase width, "
+            f"{st.get('bubbles_confirmed', 0)} confirmed."
         )
     return "\n".join(lines)
 

@@ -472,6 +472,8 @@ def continuation(
             note(ev.bubble_event(a, b, centre, m, par, predicted=[x for x in predicted if lo <= x.t <= hi]))
             if unstable:  # its edges: one solve just outside each predicted edge, then bisection
                 for t in (lo, hi):
+                    if any(abs(t - f) < 1e-9 for f, _ in inner):  # a neighbour's edge at the same place
+                        continue
                     stats["bubble_solves"] += 1
                     e = solve(problem.between, a, b, t)
                     if not isinstance(e, Failure) and problem.is_between(a, e, b):

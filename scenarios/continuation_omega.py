@@ -135,9 +135,34 @@ def plot(out) -> None:
     fig = plt.figure(figsize=(12, 7.5))
     ax = fig.add_subplot(2, 1, 1)
     ax.axvspan(s["band_acoustic_top"], s["band_optical_bottom"], **gap)
-    ax.plot(w, E, "-", color="0.6", lw=0.8)
-    ax.plot(w[stable], E[stable], "o", ms=2.5, color="tab:blue", label="stable")
-    ax.plot(w[~stable], E[~stable], "o", ms=2.5, mfc="none", color="tab:red", label="unstable")
+    # the curve coloured by stability (a segment is stable or unstable where both its ends are); the
+    # bubbles narrower than a line width are ticks under the curve, so that none hides and none covers
+    # the stable stretch around it
+    ax.plot(w, E, "-", color="0.75", lw=0.8)
+    for flag, colour, label in ((False, "tab:red", "unstable"), (True, "tab:blue", "stable")):
+        both = (stable[:-1] == flag) & (stable[1:] == flag)
+        seg = np.where(both[:, None], np.stack([w[:-1], w[1:]], 1), np.nan)
+        segE = np.where(both[:, None], np.stack([E[:-1], E[1:]], 1), np.nan)
+        ax.plot(
+            np.column_stack([seg, np.full(len(seg), np.nan)]).ravel(),
+            np.column_stack([segE, np.full(len(seg), np.nan)]).ravel(),
+            "-",
+            lw=2.2,
+            color=colour,
+            label=label,
+        )
+    narrow = [iv for iv in s["unstable_intervals"] if abs(iv["start"] - iv["end"]) < 2e-4]
+    floor = E.min() / 2.0
+    if narrow:
+        ax.plot(
+            [0.5 * (iv["start"] + iv["end"]) for iv in narrow],
+            np.full(len(narrow), floor),
+            "|",
+            ms=14,
+            color="tab:red",
+            label=f"{len(narrow)} instability bubbles < 2e-4 wide",
+        )
+    ax.set_ylim(floor / 1.6, E.max() * 2.0)
     for n, i in zip(names, labels):
         ax.annotate(f"({n})", (w[i], E[i]), textcoords="offset points", xytext=(4, 6))
     if s.get("energy_at_omega_1_01"):

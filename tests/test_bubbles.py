@@ -91,4 +91,6 @@ def test_predicted_bubbles_match_bisecting_every_pass_at_a_fraction_of_the_solve
         assert min(abs(np.mean(c["bracket"]) - centre) for c in predicted) < 1e-5, centre
         assert any(c["from_stable"] == change["from_stable"] for c in predicted)
     assert runs["predict"].stats["bubbles_confirmed"] >= 4
+    omega = runs["predict"].column("omega")
+    assert np.all(np.diff(omega) < 0)  # every solve a new point, in order along the branch
     assert runs["predict"].stats["solves"] < 0.5 * runs["all"].stats["solves"]
