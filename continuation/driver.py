@@ -63,15 +63,15 @@ from .shooting import frequency_report
 #: the paper's M = 30 chain, w_b = 1.01 / K = 160, 2-core CPU: at N = 41 "all" costs 12 s for the
 #: frequency branch to contact loss (517 points, 15 stability changes; "localized": 71 points, 1
 #: change) and 33 s for K = 0.01 .. 160 (1524 points, 152 changes; "localized": 464 points, 76); at
-#: N = 201 the passes number ~1000-1500 per branch (minutes on an H200), so "localized" is used there.
+#: N = 201 the passes number ~1000-1500 per branch (minutes on an H200), so "predict" is used there.
 AUTO_ALL_SITES = 64
 
 KREIN_MODES = ("auto", "localized", "predict", "all", "none")
 
 #: ``bubble_width`` defaults to resolution / BUBBLE_FRACTION. On the paper's frequency branch
-#: (resolution 1e-3 in arclength, ~2e-5 in w_b) that solves for the ~20 predicted bubbles wider than
-#: ~2e-6 in w_b in the stable stretches; the ~270 narrower ones (down to 1e-12) would each be hit by a
-#: 1e-4 scan with a chance below 2 %.
+#: (resolution 1e-3 in arclength, ~2e-5 in w_b) 46 of the 594 bubbles predicted in its stable steps are
+#: that wide (~2e-6 in w_b or more) and are solved for (29 confirmed); each narrower one would be hit by
+#: a 1e-4 scan with a chance below 2 %.
 BUBBLE_FRACTION = 10.0
 
 
