@@ -92,7 +92,10 @@ def predict(a, b, sa, sb) -> list:
         if not (len(ip) and len(jm)):
             continue
         change = sa.block_matrix(k, sb.Mu) - sa.block_matrix(k)
-        D = np.linalg.solve(R, change @ R)
+        try:
+            D = np.linalg.solve(R, change @ R)
+        except np.linalg.LinAlgError:  # a defective Mu_a (exactly colliding mu): no eigenbasis to expand in
+            continue
         diag = np.real(np.diag(D))
         mr = np.real(mu)
         d0 = mr[ip][:, None] - mr[jm][None, :]
