@@ -115,15 +115,19 @@ def predict(a, b, sa, sb) -> list:
     return out
 
 
+def wide(bubbles, step: float, min_width: float) -> list:
+    """The bubbles at least ``min_width`` wide (in the continuation coordinate) in a step of length ``step``."""
+    return [x for x in bubbles if 2.0 * x.half_width * step >= min_width]
+
+
 def chase_fractions(bubbles, step: float, min_width: float, margin: float = 1.5) -> list:
     """Where to solve for the bubbles at least ``min_width`` wide (in the continuation coordinate) in a
     step of length ``step``: per bubble its centre, and points ``margin`` half-widths out on either
     side (never past the middle to a neighbouring bubble's centre, so that a stable gap between two
     bubbles keeps a point). Predictions of one bubble by several pairs (centres within each other's
     half-width) count once, by the strongest. Returns a list of (centre, (outer_low, outer_high))."""
-    wide = sorted((x for x in bubbles if 2.0 * x.half_width * step >= min_width), key=lambda x: x.t)
     kept: list = []
-    for x in wide:
+    for x in sorted(wide(bubbles, step, min_width), key=lambda x: x.t):
         if kept and x.t - kept[-1].t < min(x.half_width, kept[-1].half_width):
             if x.modulus > kept[-1].modulus:
                 kept[-1] = x

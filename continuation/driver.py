@@ -392,9 +392,9 @@ def continuation(
         if log and event.get("message"):
             log(event["message"])
 
-    def accept(point):
+    def accept(point, on_walk=True):
         points.append(point)
-        if walk_point:
+        if on_walk:
             walk.append(point)
         if on_point:
             on_point(point)
@@ -422,7 +422,6 @@ def continuation(
     # the walk: the points the driver stepped to (not the ones bisection and bubble solves put between
     # them), whose secant sets the next predictor, so that refinement never steers the branch
     walk: list = []
-    walk_point = True
     problem.prepare(settings, resume)
     if settings.bisect_krein == "auto":
         settings = settings.replace(bisect_krein="all" if problem.params.N <= AUTO_ALL_SITES else "predict")
@@ -456,7 +455,7 @@ def continuation(
         predicted = bubbles.predict(a, b, sa[1], sb[1])
         stats["bubbles_predicted"] += len(predicted)
         plan = bubbles.chase_fractions(predicted, h, bubble_width)
-        stats["bubbles_below_width"] += len(predicted) - sum(2 * x.half_width * h >= bubble_width for x in predicted)
+        stats["bubbles_below_width"] += len(predicted) - len(bubbles.wide(predicted, h, bubble_width))
         if not plan:
             return None
         inner = []  # (fraction, point)
@@ -588,9 +587,7 @@ def continuation(
                 if settings.max_points is not None and len(points) >= settings.max_points:
                     break  # a stated point count is exact, even inside a bisected step
                 note(ev.harmonic_event(points[-1], p, par))
-                walk_point = p is new
-                accept(p)
-                walk_point = True
+                accept(p, on_walk=p is new)
             kept = spectra.get(id(points[-1]))
             spectra.clear()
             if kept is not None:

@@ -105,6 +105,9 @@ class BranchStore:
         new_store: bool = True,
     ):
         self.path, self.group_name, self.params, self.max_newton = Path(path), group, params, int(max_newton)
+        self._thread: threading.Thread | None = None  # the background writer (``background``)
+        self._queue: queue.Queue = queue.Queue()
+        self._error: BaseException | None = None
         N = params.N
         root = open_store(
             self.path,
@@ -161,9 +164,7 @@ class BranchStore:
         while this one is written (an append is ~50 ms of zarr work per point at N = 201, 1/3 of a
         point's time on an H200). ``flush``, ``finish`` and ``interrupted`` wait until every queued
         point is written; an error on the thread is raised there (and by the next ``append``)."""
-        if getattr(self, "_thread", None) is None:
-            self._queue: queue.Queue = queue.Queue()
-            self._error = None
+        if self._thread is None:
             self._thread = threading.Thread(target=self._drain, name=f"store {self.group_name}", daemon=True)
             self._thread.start()
         return self
@@ -181,22 +182,21 @@ class BranchStore:
 
     def flush(self) -> None:
         """Wait until every queued point is written (no-op without ``background``)."""
-        thread = getattr(self, "_thread", None)
-        if thread is not None:
+        if self._thread is not None:
             self._queue.put(None)
-            thread.join()
+            self._thread.join()
             self._thread = None
         self._raise_error()
 
     def _raise_error(self) -> None:
-        if getattr(self, "_error", None) is not None:
+        if self._error is not None:
             raise StoreError(f"{self.path}/{self.group_name}: writing a point failed: {self._error!r}") from self._error
 
     def append(self, point: BranchPoint) -> None:
         """Write one point (queued when ``background`` is on); ``n_points`` is raised only after every
         array holds it."""
         self._raise_error()
-        if getattr(self, "_thread", None) is not None:
+        if self._thread is not None:
             self._queue.put(point)
         else:
             self._write(point)
