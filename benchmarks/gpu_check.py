@@ -19,6 +19,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from warpchain import METHODS, ChainParams, propagate_tangent, reference, simulate  # noqa: E402
+from warpchain.integrators import SplittingMethod  # noqa: E402
 
 
 def localized(n, amplitude, batch, seed):
@@ -49,6 +50,19 @@ def main(argv=None):
             err = float(np.max(np.abs(run.x - ref)) / np.max(np.abs(ref)))
             out["ensemble"][f"{method}/{layout}"] = err
             print(f"ensemble {method:9s} {layout:6s} rel diff {err:.2e}", flush=True)
+        if isinstance(
+            METHODS[method], SplittingMethod
+        ):  # splitting methods: also a warp per lattice (7 sites per thread)
+            from warpchain import ensemble
+
+            ensemble._SITES_FORCED = 7
+            try:
+                run = simulate(p, x0, 1000 * dt, dt, method=method, device=args.device, M=M, K=K, layout="block")
+            finally:
+                ensemble._SITES_FORCED = None
+            err = float(np.max(np.abs(run.x - ref)) / np.max(np.abs(ref)))
+            out["ensemble"][f"{method}/block-7-sites"] = err
+            print(f"ensemble {method:9s} 7 sites/thread rel diff {err:.2e}", flush=True)
     q = ChainParams(3.0, 4.0, 9)
     xt = localized(q.N, 0.7, 2, 5)
     n = 4 * q.N

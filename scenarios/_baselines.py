@@ -108,6 +108,67 @@ extern "C" __global__ void BOUNDS verlet(double* __restrict__ x, const int batch
 }
 """
 
+_CUDA_SITES_SOURCE = r"""
+// Velocity Verlet, float64, fixed ends, one thread block per lattice, WC_S consecutive sites per thread
+// (WC_T threads, a whole number of warps, WC_T * WC_S >= WC_N). Each thread keeps its run of sites in
+// registers and takes interior neighbours from them; only its first and last u cross threads, as one
+// double2 per thread in a shared row with zero wall entries at both ends (ping-pong: one barrier per step).
+// Slots past the lattice's end get 1/M = 0, so they stay at rest without a branch. Tricks as ``verlet``.
+extern "C" __global__ void __launch_bounds__(WC_T) verlet_sites(double* __restrict__ x, const int batch,
+                                                                const int nsteps, const double dt,
+                                                                const double inv_m, const double K) {
+    __shared__ double2 se[2][WC_T + 2];
+    const int t = threadIdx.x, b = blockIdx.x;
+    double* xb = x + (size_t)b * 4 * WC_N;
+    double u[WC_S], v[WC_S], du[WC_S], dv[WC_S], m[WC_S], au[WC_S], av[WC_S];
+#pragma unroll
+    for (int s = 0; s < WC_S; ++s) {
+        const int j = t * WC_S + s;
+        const bool a = j < WC_N;
+        u[s] = a ? xb[j] : 0.0; v[s] = a ? xb[WC_N + j] : 0.0;
+        du[s] = a ? xb[2 * WC_N + j] : 0.0; dv[s] = a ? xb[3 * WC_N + j] : 0.0;
+        m[s] = a ? inv_m : 0.0;
+    }
+    if (t < 2) { se[t][0] = make_double2(0.0, 0.0); se[t][WC_T + 1] = make_double2(0.0, 0.0); }
+    const double hdt = 0.5 * dt, c23 = 2.0 / 3.0;
+    se[0][t + 1] = make_double2(u[0], u[WC_S - 1]);
+    __syncthreads();
+    double L = se[0][t].y, R = se[0][t + 2].x;
+#pragma unroll
+    for (int s = 0; s < WC_S; ++s) {
+        const double l = s == 0 ? L : u[s > 0 ? s - 1 : 0], r = s == WC_S - 1 ? R : u[s < WC_S - 1 ? s + 1 : 0];
+        const double q = fmax(1.0 + u[s] - v[s], 0.0);
+        av[s] = c23 * (q * sqrt(q) - 1.0);
+        au[s] = -(K * ((u[s] - l) + (u[s] - r)) + av[s]) * m[s];
+    }
+    int p = 1;
+    for (int step = 0; step < nsteps; ++step) {
+#pragma unroll
+        for (int s = 0; s < WC_S; ++s) {
+            du[s] += hdt * au[s]; dv[s] += hdt * av[s];
+            u[s] += dt * du[s]; v[s] += dt * dv[s];
+        }
+        se[p][t + 1] = make_double2(u[0], u[WC_S - 1]);
+        __syncthreads();
+        L = se[p][t].y; R = se[p][t + 2].x;
+#pragma unroll
+        for (int s = 0; s < WC_S; ++s) {
+            const double l = s == 0 ? L : u[s > 0 ? s - 1 : 0], r = s == WC_S - 1 ? R : u[s < WC_S - 1 ? s + 1 : 0];
+            const double q = fmax(1.0 + u[s] - v[s], 0.0);
+            av[s] = c23 * (q * sqrt(q) - 1.0);
+            au[s] = -(K * ((u[s] - l) + (u[s] - r)) + av[s]) * m[s];
+            du[s] += hdt * au[s]; dv[s] += hdt * av[s];
+        }
+        p ^= 1;
+    }
+#pragma unroll
+    for (int s = 0; s < WC_S; ++s) {
+        const int j = t * WC_S + s;
+        if (j < WC_N) { xb[j] = u[s]; xb[WC_N + j] = v[s]; xb[2 * WC_N + j] = du[s]; xb[3 * WC_N + j] = dv[s]; }
+    }
+}
+"""
+
 #: the variant the throughput scene runs (``benchmarks/hand_cuda_variants.py`` measured them on the H200)
 #: "lattices_per_block": "auto" takes 2 lattices per block from AUTO_TWO_PER_BLOCK lattices on, else 1 (the
 #: variants study on the H200: 2 per block is ~4 % faster at 4096 and 32768 lattices, 7 % slower at 805)
@@ -132,12 +193,14 @@ def cupy_verlet_runner(
     min_blocks: int | None = None,
     threads: int | None = None,
     idle_zero: bool | None = None,
+    sites: int = 1,
 ):
     """Returns run(x0, nsteps, dt) -> (x_final, seconds) with the hand-written kernel, or None.
 
     The kernel is compiled per lattice length (``N``, threads per lattice rounded up to whole warps);
     ``lattices_per_block`` (an int or "auto"), ``min_blocks``, ``threads`` and ``idle_zero`` pick the
-    variant (defaults: ``DEFAULT_VARIANT``)."""
+    variant (defaults: ``DEFAULT_VARIANT``); ``sites`` > 1 runs ``verlet_sites`` instead (that many consecutive
+    sites per thread, one lattice per block)."""
     try:
         import cupy as cp
 
@@ -151,6 +214,12 @@ def cupy_verlet_runner(
     kernels = {}
 
     def kernel_for(n, lpb):
+        if sites > 1:  # several sites per thread: one lattice per block
+            if (n, "sites") not in kernels:
+                threads = ((-(-n // sites)) + 31) // 32 * 32
+                options = (f"-DWC_N={n}", f"-DWC_T={threads}", f"-DWC_S={int(sites)}")
+                kernels[n, "sites"] = (cp.RawKernel(_CUDA_SITES_SOURCE, "verlet_sites", options=options), threads)
+            return kernels[n, "sites"]
         if (n, lpb) not in kernels:
             threads = max(int(fixed_threads or 0), ((n + 31) // 32) * 32)
             options = (f"-DWC_N={n}", f"-DWC_T={threads}", f"-DWC_LPB={lpb}", f"-DWC_MINB={minb}")
@@ -163,7 +232,9 @@ def cupy_verlet_runner(
         follows an untimed one with no host transfer in between; ``run.wall_seconds`` is the same
         launch timed on the host, as ``time_steps`` times Warp's)."""
         batch, _, n = x0.shape
-        if lpb_choice == "auto":
+        if sites > 1:
+            lpb = 1
+        elif lpb_choice == "auto":
             lpb = 2 if batch >= AUTO_TWO_PER_BLOCK else 1
         else:
             lpb = int(lpb_choice)

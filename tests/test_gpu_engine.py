@@ -216,3 +216,45 @@ def test_two_lattices_per_block_bit_for_bit(boundary, monkeypatch):
         run = simulate(p, x0, 80 * 0.05, 0.05, method=method, device="cpu", K=K, layout="block", save_every=20)
         ref = reference.integrate(method, p, x0, 0.05, 80, K=K, save_every=20)
         assert np.array_equal(run.x, ref["x"]) and np.array_equal(run.u, ref["u"]), method
+
+
+@pytest.mark.parametrize("boundary", ["fixed", "free", "periodic"])
+@pytest.mark.parametrize("sites", [2, 7])
+def test_several_sites_per_thread_bit_for_bit(boundary, sites, monkeypatch):
+    """``block_kernels.site_group_kernels`` (each thread owns a run of sites; the GPU's large-batch path),
+    forced on the CPU: identical to the reference with per-lattice M and K, a lattice length that leaves
+    idle slots, frames recorded; with losses; and the stiffness history of a tangent base run."""
+    from warpchain import ensemble
+    from warpchain.losses import Damping
+
+    monkeypatch.setattr(ensemble, "_SITES_FORCED", sites)
+    p = ChainParams(3.0, 4.0, 37, boundary)
+    x0 = localized_state(p.N, amplitude=0.7, batch=3, seed=9)
+    M, K = np.array([3.0, 2.0, 5.0]), np.array([4.0, 1.0, 6.0])
+    for method in ("verlet", "yoshida4"):
+        run = simulate(p, x0, 80 * 0.05, 0.05, method=method, device="cpu", M=M, K=K, layout="block", save_every=20)
+        ref = reference.integrate(method, p, x0, 0.05, 80, M=M, K=K, save_every=20)
+        assert np.array_equal(run.x, ref["x"]) and np.array_equal(run.u, ref["u"]), method
+        assert np.array_equal(run.v, ref["v"]), method
+    damping = Damping(np.array([0.0, 0.05, 0.02]), 0.01)
+    run = simulate(p, x0, 1.0, 0.05, method="kahan6", device="cpu", damping=damping, layout="block")
+    ref = reference.integrate("kahan6", p, x0, run.dt, run.nsteps, damping=damping)["x"]
+    assert np.array_equal(run.x, ref)
+    histories = {}
+    for forced in (None, sites):
+        monkeypatch.setattr(ensemble, "_SITES_FORCED", forced)
+        runner = _Runner(get_method("yoshida4"), p, x0, M, K, "cpu", record_stiffness_steps=6, layout="block")
+        runner.launch(6, 0.05, record_stiffness=True)
+        histories[forced] = (runner.hist.numpy().copy(), runner.x.numpy().copy())
+    assert np.array_equal(histories[None][0], histories[sites][0])
+    assert np.array_equal(histories[None][1], histories[sites][1])
+
+
+def test_sites_per_thread_policy():
+    from warpchain import block_kernels
+    from warpchain.ensemble import sites_per_thread
+
+    assert sites_per_thread(1, 201, 1, "cpu") == 1  # the CPU default path is the thread layout anyway
+    assert block_kernels.group_threads(201, 7) == 32 and block_kernels.group_threads(201, 2) == 128
+    with pytest.raises(ValueError, match="sites per thread"):
+        block_kernels.site_group_kernels(32, 9, 0)

@@ -72,6 +72,10 @@ class SimulationResult:
             shapes (n_chunks + 1,) and (n_chunks + 1, batch) (the t = 0 value first).
         method, dt, nsteps, t_final, device, wall_seconds: how it ran (dt is the step used).
         layout: the kernel layout that ran (``"block"`` or ``"thread"``).
+        stats: where the wall time went, host clock (seconds): ``setup`` (checks, buffers, the start's
+            upload, until the first chunk is queued), ``waiting`` (the host blocked on the device's
+            chunks), ``frames`` (recorded frames copied into ``u`` and ``v``), ``final`` (the final
+            state copied into ``x``), and ``chunks``, ``sites_per_thread`` (block layout).
     """
 
     x: np.ndarray
@@ -92,6 +96,7 @@ class SimulationResult:
     device: str
     wall_seconds: float
     layout: str = "thread"
+    stats: dict = dataclasses.field(default_factory=dict)
 
 
 # ----------------------------------------------------------------------------- devices
@@ -282,6 +287,9 @@ def resolve_layout(layout: str, device: str, n_sites: int) -> str:
     return layout
 
 
+#: ``simulate`` touches the final state's host array on background threads while the device runs from this
+#: many values up (fresh memory fills at ~3 GB/s per thread: 0.9 ms for the 805-lattice state)
+_PREFAULT_MIN_VALUES = 1 << 16
 #: ``simulate`` moves the state in lattice slices (overlapped with the kernels) from this many values up
 _SLICED_MIN_VALUES = 1 << 24
 _SLICES = 4
@@ -292,6 +300,31 @@ _SLICE_ON_CPU = False  # tests set it to run the sliced path on the CPU
 #: although two per block is what makes the hand-written CUDA kernel faster there.
 _PAIR_MIN_BATCH = None
 _PAIR_ON_CPU = False  # tests set it to run the two-per-block kernels on the CPU
+#: sites per thread of the block splitting kernels (``block_kernels.site_group_kernels``), forced for every
+#: batch (None: ``sites_per_thread`` chooses); tests set it to run the site-group kernels on the CPU
+_SITES_FORCED: int | None = None
+
+
+#: from this many lattices a GPU launch of a splitting method gives each thread a run of sites (one warp per
+#: lattice up to 256 sites): measured on the H200 (``benchmarks/sites_per_thread.py``, N = 201, Verlet)
+_SITES_MIN_BATCH = 2048
+#: benchmarks set it to run the one-site-per-thread launch with ``site_group_kernels(.., sites=1)``
+_GROUP_ONE_SITE = False
+
+
+def sites_per_thread(batch: int, n_sites: int, stages: int, device: str) -> int:
+    """Sites each thread of a block splitting launch owns: 1 (``block_kernels``: a thread per site) on the
+    CPU and for batches below ``_SITES_MIN_BATCH``, else ceil(N / 32) (at most ``MAX_SITES_PER_THREAD``), so
+    that a lattice of up to 256 sites is one warp."""
+    from .block_kernels import MAX_SITES_PER_THREAD, WARP_LANES
+
+    if _SITES_FORCED is not None:
+        return _SITES_FORCED
+    if device == "cpu" or batch < _SITES_MIN_BATCH:
+        return 1
+    return max(1, min(MAX_SITES_PER_THREAD, -(-int(n_sites) // WARP_LANES)))
+
+
 _RUNNER_POOL: dict = {}
 _RUNNER_POOL_SIZE = 4
 
@@ -393,8 +426,8 @@ def _copy(dst: np.ndarray, src: np.ndarray) -> None:
     17-35 GB/s on the H200 host)."""
     global _COPY_POOL
     d, s_ = dst.reshape(-1), src.reshape(-1)
-    workers = min(16, os.cpu_count() or 1)
-    if d.size < (1 << 19) or workers == 1:
+    workers = _workers(d.size)
+    if workers == 1:
         np.copyto(d, s_)
         return
     _copy_pool(workers)
@@ -404,11 +437,21 @@ def _copy(dst: np.ndarray, src: np.ndarray) -> None:
         job.result()
 
 
+def _workers(values: int) -> int:
+    """Threads for a host copy of this many float64 values: one per _COPY_SLICE values (handing a piece to
+    a pool thread costs ~50 us, the copy of 8 MB ~1 ms on one thread), at most 16 and the CPU count."""
+    return max(1, min(16, os.cpu_count() or 1, int(values) // _COPY_SLICE))
+
+
+#: values per host copy thread (``_workers``)
+_COPY_SLICE = 1 << 20
+
+
 def _fill_zero(arr: np.ndarray) -> None:
     """arr[...] = 0 in pieces on the copy threads (touches fresh memory in parallel)."""
     flat = arr.reshape(-1)
-    workers = min(16, os.cpu_count() or 1)
-    if flat.size < (1 << 19) or workers == 1:
+    workers = _workers(flat.size)
+    if workers == 1:
         flat.fill(0.0)
         return
     _copy_pool(workers)
@@ -653,6 +696,13 @@ class _BlockSplitting(_Plan):
             dim = (-(-(hi - lo) // 2), 2 * r.block)
             r.wp.launch(kernel, dim=dim, block_dim=2 * r.block, device=r.device, inputs=inputs)
             return
+        sites = sites_per_thread(hi - lo, r.N, stages, r.device)
+        if sites > 1 or _GROUP_ONE_SITE:
+            threads = block_kernels.group_threads(r.N, sites)
+            group = block_kernels.site_group_kernels(threads, sites, r.boundary)
+            kernel = group.splitting(stages, record=record, save=save_every > 0, damped=damped)
+            r.wp.launch(kernel, dim=(hi - lo, threads), block_dim=threads, device=r.device, inputs=inputs)
+            return
         kernel = r.bk.splitting(stages, record=record, save=save_every > 0, damped=damped)
         r.wp.launch(kernel, dim=(hi - lo, r.block), block_dim=r.block, device=r.device, inputs=inputs)
 
@@ -827,20 +877,30 @@ class _Runner:
         """The kernels' loss arguments (flags, coefficients) for lattices lo..hi."""
         return [self.lossy[lo:hi], self.damp[lo:hi] if self.damped else self.no_damp]
 
+    def _pinned(self, name: str):
+        """This runner's own pinned host buffer ``name`` of the state's size (made once: the runner is
+        pooled, so later calls on the same batch shape reuse it), after any copy from it has finished."""
+        buf = getattr(self, name, None)
+        if buf is None:
+            buf = self.wp.empty(self.x.size, dtype=self.wp.float64, device="cpu", pinned=True)
+            setattr(self, name, buf)
+            setattr(self, name + "_done", None)
+        done = getattr(self, name + "_done")
+        if done is not None:
+            self.wp.synchronize_event(done)
+        return buf
+
     def upload(self, x0: np.ndarray) -> None:
-        """Copy a batch state to the device (on a GPU through a pinned buffer: ~55 GB/s instead of the
-        ~15 GB/s of pageable memory)."""
+        """Copy a batch state to the device (on a GPU through this runner's pinned buffer: ~55 GB/s instead
+        of the ~15 GB/s of pageable memory). Asynchronous: kernels queued after it see the new state."""
         wp = self.wp
         if self.device == "cpu" or x0.size < (1 << 16):
             self.x.assign(np.ascontiguousarray(x0, dtype=np.float64))
             return
-        buf = _take_buffer(wp, self.device, x0.size, True)
-        try:
-            _copy(buf.numpy()[: x0.size], np.ascontiguousarray(x0, dtype=np.float64))
-            wp.copy(self.x, buf, count=x0.size)
-            wp.synchronize_device(self.device)
-        finally:
-            _give_buffer(self.device, True, buf)
+        buf = self._pinned("_pinned_up")
+        _copy(buf.numpy(), np.ascontiguousarray(x0, dtype=np.float64))
+        wp.copy(self.x, buf, count=x0.size)
+        self._pinned_up_done = wp.get_stream(self.device).record_event()
 
     def download(self, out: np.ndarray | None = None) -> np.ndarray:
         """The batch state as a new host array (on a GPU through a pinned buffer, then a few threads
@@ -851,14 +911,11 @@ class _Runner:
             return self.x.numpy()  # on the CPU a view of the device buffer
         if self.x.size < (1 << 16):
             return self.x.numpy()
-        buf = _take_buffer(wp, self.device, self.x.size, True)
-        try:
-            wp.copy(buf, self.x, count=self.x.size)
-            wp.synchronize_device(self.device)
-            out = np.empty(self.x.shape) if out is None else out
-            _copy(out, buf.numpy()[: self.x.size])
-        finally:
-            _give_buffer(self.device, True, buf)
+        buf = self._pinned("_pinned_down")
+        wp.copy(buf, self.x, count=self.x.size)
+        wp.synchronize_device(self.device)
+        out = np.empty(self.x.shape) if out is None else out
+        _copy(out, buf.numpy())
         return out
 
     def load(self, x0: np.ndarray, M, K, upload: bool = True) -> None:
@@ -1041,13 +1098,15 @@ def simulate(
     target = None  # the final state's host array, touched in the background once the device is busy
     guard = _GuardReader(runner, gpu)
     transfers = _SlicedTransfers(runner, x0, _SLICES) if sliced else None
-    if not sliced:
+    if not plan:
         E0, finite0, contact = (a.copy() for a in guard.read(runner.guard(), 0))  # of x0, on the device
         if not finite0.all():
             guard.close()
             raise ValueError(f"x0 has non-finite entries in lattice(s) {np.flatnonzero(~finite0).tolist()}")
     else:
-        E0 = contact = None  # read with chunk 0 (the start's guard runs slice by slice before it)
+        # the start's guard (energy, finite flag, contact of x0) is queued with chunk 0 and read after it,
+        # so the host never waits for the device before the first kernel runs
+        E0 = contact = None
     trace_t, trace_E = [0.0], [E0]
     max_err = np.zeros(batch)
 
@@ -1080,6 +1139,9 @@ def simulate(
             if i == 0:
                 guard.enqueue_init(runner.guard_out[2])
         else:
+            if i == 0:
+                runner.guard(slot=2)
+                guard.enqueue_init(runner.guard_out[2])
             runner.launch(steps, dt_used, save_every or 0, rec)
         guard.enqueue(runner.guard(rec, n_rec, i), i)
         if n_rec:
@@ -1087,10 +1149,14 @@ def simulate(
         guard.record(i)
 
     saved = 1
+    stats = {"chunks": len(plan), "waiting": 0.0, "frames": 0.0, "final": 0.0}
+    if runner.layout == "block" and isinstance(meth, SplittingMethod):
+        stats["sites_per_thread"] = sites_per_thread(batch, params.N, meth.stages, device)
     try:
         if plan:
             enqueue(0)
-        if gpu and x0.size >= (1 << 20):
+        stats["setup"] = time.perf_counter() - start
+        if gpu and x0.size >= _PREFAULT_MIN_VALUES:
             target = _prefault(x0.shape)
         for i, (first, steps, n_rec) in enumerate(plan):
             if i + 1 < len(plan):
@@ -1099,10 +1165,14 @@ def simulate(
                 if target is not None:
                     target.join()
                 final = target.result if target is not None else np.empty(x0.shape)
+                t0 = time.perf_counter()
                 for s_ in range(len(transfers.slices)):
                     transfers.take(s_, final)  # while the device finishes the later slices
+                stats["final"] += time.perf_counter() - t0
+            t0 = time.perf_counter()
             E, finite, low = guard.wait(i)
-            if sliced and i == 0:
+            stats["waiting"] += time.perf_counter() - t0
+            if i == 0:
                 E0, finite0, _ = guard.init()
                 if not finite0.all():
                     raise ValueError(f"x0 has non-finite entries in lattice(s) {np.flatnonzero(~finite0).tolist()}")
@@ -1134,7 +1204,9 @@ def simulate(
                 )
             contact = low.copy()
             if n_rec:
+                t0 = time.perf_counter()
                 sink.take(i, saved, n_rec)
+                stats["frames"] += time.perf_counter() - t0
                 if on_chunk is not None:
                     ts = (np.arange(1, n_rec + 1) * save_every + first) * dt_used
                     on_chunk(ts, *sink.view(saved, saved + n_rec))
@@ -1153,7 +1225,9 @@ def simulate(
             transfers.close()
         if target is not None:
             target.join()
+    t0 = time.perf_counter()
     x = final if sliced else runner.download(target.result if target is not None else None)
+    stats["final"] += time.perf_counter() - t0
     _release_runner(runner)
     E1 = trace_E[-1]
     if save_every:
@@ -1180,6 +1254,7 @@ def simulate(
         device=device,
         wall_seconds=time.perf_counter() - start,
         layout=runner.layout,
+        stats=stats,
     )
 
 
