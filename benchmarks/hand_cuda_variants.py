@@ -30,7 +30,7 @@ def main():
     variants += [(1, 0, 256, False), (1, 0, None, True), (1, 6, None, True), (1, 0, 256, True)]
     for lpb, minb, threads, idle_zero in variants:
         run = cupy_verlet_runner(
-            p.M, p.K, lattices_per_block=lpb, min_blocks=minb, threads=threads, idle_zero=idle_zero
+            p.M, p.K, lattices_per_block=lpb, min_blocks=minb, threads=threads, idle_zero=idle_zero, sites=1
         )
         err = float(np.max(np.abs(run(check, 500, 0.1)[0] - ref)))
         for batch in (1, 805, 4096, 32768):

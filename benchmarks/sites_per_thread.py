@@ -66,7 +66,7 @@ def main():
                 flush=True,
             )
     ensemble._SITES_FORCED = None
-    ensemble._GROUP_ONE_SITE = False
+    ensemble._GROUP_ONE_SITE = None
     for method in ("yoshida4", "kahan8"):  # many-stage methods: one site per thread against a warp per lattice
         for label in (1, 7):
             ensemble._SITES_FORCED = label

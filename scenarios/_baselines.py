@@ -172,8 +172,12 @@ extern "C" __global__ void __launch_bounds__(WC_T) verlet_sites(double* __restri
 #: the variant the throughput scene runs (``benchmarks/hand_cuda_variants.py`` measured them on the H200)
 #: "lattices_per_block": "auto" takes 2 lattices per block from AUTO_TWO_PER_BLOCK lattices on, else 1 (the
 #: variants study on the H200: 2 per block is ~4 % faster at 4096 and 32768 lattices, 7 % slower at 805)
-DEFAULT_VARIANT = {"lattices_per_block": "auto", "min_blocks": 0, "threads": None, "idle_zero": False}
+#: "sites": "auto" runs ``verlet_sites`` with ceil(N / 32) sites per thread (a warp per lattice) from
+#: AUTO_SITES_BATCH lattices on, else ``verlet`` (``benchmarks/sites_per_thread.py`` on the H200: 3.99e11 against
+#: 3.78e11 site-steps/s at 4096 lattices, 4.31e11 against 3.91e11 at 32768; at 2400 one site per thread is faster)
+DEFAULT_VARIANT = {"lattices_per_block": "auto", "min_blocks": 0, "threads": None, "idle_zero": False, "sites": "auto"}
 AUTO_TWO_PER_BLOCK = 4096
+AUTO_SITES_BATCH = 4096
 
 
 def cupy_variant() -> dict:
@@ -182,7 +186,9 @@ def cupy_variant() -> dict:
         **DEFAULT_VARIANT,
         "tricks": "1/M precomputed and multiplied (no division), N and block shape compile-time constants, "
         "state in registers, fixed walls as zero padding of the shared row (no boundary branch), idle threads "
-        "write a dummy slot by a select, ping-pong shared rows: one barrier per step",
+        "write a dummy slot by a select, ping-pong shared rows: one barrier per step; from 4096 lattices a warp "
+        "per lattice (ceil(N / 32) consecutive sites per thread, neighbours from registers, only the ends of "
+        "each thread's run through shared memory, idle slots held by 1/M = 0)",
     }
 
 
@@ -193,7 +199,7 @@ def cupy_verlet_runner(
     min_blocks: int | None = None,
     threads: int | None = None,
     idle_zero: bool | None = None,
-    sites: int = 1,
+    sites: int | str | None = None,
 ):
     """Returns run(x0, nsteps, dt) -> (x_final, seconds) with the hand-written kernel, or None.
 
@@ -211,15 +217,17 @@ def cupy_verlet_runner(
     minb = DEFAULT_VARIANT["min_blocks"] if min_blocks is None else int(min_blocks)
     fixed_threads = DEFAULT_VARIANT.get("threads") if threads is None else threads
     zero = int(DEFAULT_VARIANT.get("idle_zero", False) if idle_zero is None else idle_zero)
+    sites_choice = DEFAULT_VARIANT["sites"] if sites is None else sites
     kernels = {}
 
-    def kernel_for(n, lpb):
+    def kernel_for(n, lpb, sites):
         if sites > 1:  # several sites per thread: one lattice per block
-            if (n, "sites") not in kernels:
+            if (n, "sites", sites) not in kernels:
                 threads = ((-(-n // sites)) + 31) // 32 * 32
                 options = (f"-DWC_N={n}", f"-DWC_T={threads}", f"-DWC_S={int(sites)}")
-                kernels[n, "sites"] = (cp.RawKernel(_CUDA_SITES_SOURCE, "verlet_sites", options=options), threads)
-            return kernels[n, "sites"]
+                kernel = cp.RawKernel(_CUDA_SITES_SOURCE, "verlet_sites", options=options)
+                kernels[n, "sites", sites] = (kernel, threads)
+            return kernels[n, "sites", sites]
         if (n, lpb) not in kernels:
             threads = max(int(fixed_threads or 0), ((n + 31) // 32) * 32)
             options = (f"-DWC_N={n}", f"-DWC_T={threads}", f"-DWC_LPB={lpb}", f"-DWC_MINB={minb}")
@@ -232,6 +240,11 @@ def cupy_verlet_runner(
         follows an untimed one with no host transfer in between; ``run.wall_seconds`` is the same
         launch timed on the host, as ``time_steps`` times Warp's)."""
         batch, _, n = x0.shape
+        if sites_choice == "auto":
+            sites = min(8, -(-n // 32)) if batch >= AUTO_SITES_BATCH else 1
+        else:
+            sites = int(sites_choice)
+        run.sites = sites
         if sites > 1:
             lpb = 1
         elif lpb_choice == "auto":
@@ -239,7 +252,7 @@ def cupy_verlet_runner(
         else:
             lpb = int(lpb_choice)
         run.lattices_per_block = lpb
-        kernel, threads = kernel_for(n, lpb)
+        kernel, threads = kernel_for(n, lpb, sites)
         grid = (-(-batch // lpb),)
         args = (np.int32(batch), np.int32(nsteps), np.float64(dt), np.float64(1.0 / M), np.float64(K))
         x = cp.asarray(x0)

@@ -34,7 +34,8 @@ import time
 import numpy as np
 
 from warpchain import METHODS, ChainParams, lowest_optical_mode, propagate_tangent, reference, simulate
-from warpchain.ensemble import cpu_threads, time_steps
+from warpchain.ensemble import cpu_threads, sites_per_thread, time_steps
+from warpchain.integrators import SplittingMethod
 from warpchain.store import device_description, open_store, provenance, read_group, write_table
 
 from ._baselines import cupy_variant, cupy_verlet_runner, jax_verlet_runner
@@ -109,7 +110,7 @@ def _ensemble(ctx, P: Parameters, params, one, gpu):
     seconds = P.seconds
     results = []
 
-    def record(impl, method, batch, steps, sec, evals=1):
+    def record(impl, method, batch, steps, sec, evals=1, sites=None):
         rate = batch * params.N * steps / sec
         results.append(
             {
@@ -121,9 +122,18 @@ def _ensemble(ctx, P: Parameters, params, one, gpu):
                 "site_steps_per_second": rate,
                 "force_evals_per_second": rate * evals,
                 "ns_per_step": 1e9 * sec / steps,
+                "sites_per_thread": sites,
             }
         )
-        ctx.log("%-11s %-8s batch %6d: %.3g site-steps/s (%.3g ns/step)", impl, method, batch, rate, 1e9 * sec / steps)
+        ctx.log(
+            "%-11s %-8s batch %6d: %.3g site-steps/s (%.3g ns/step%s)",
+            impl,
+            method,
+            batch,
+            rate,
+            1e9 * sec / steps,
+            f", {sites} sites per thread" if sites else "",
+        )
 
     jax_run = jax_verlet_runner(PAPER_M, PAPER_K) if gpu else None
     cupy_run = cupy_verlet_runner(PAPER_M, PAPER_K) if gpu else None
@@ -145,7 +155,10 @@ def _ensemble(ctx, P: Parameters, params, one, gpu):
                     )
 
                 steps, sec = _measure(warp_run, seconds, P.max_steps)
-                record(f"warp-{layout}", name, batch, steps, sec, METHODS[name].force_evaluations)
+                sites = None
+                if layout == "block" and isinstance(METHODS[name], SplittingMethod):
+                    sites = sites_per_thread(batch, params.N, METHODS[name].stages, ctx.device)
+                record(f"warp-{layout}", name, batch, steps, sec, METHODS[name].force_evaluations, sites)
         if batch <= P.numpy_max_batch:
 
             def numpy_run(n):
@@ -160,7 +173,7 @@ def _ensemble(ctx, P: Parameters, params, one, gpu):
                 steps, sec = _measure(
                     lambda n: min(runner(x0, n, P.dt)[1] for _ in range(P.repeats)), seconds, P.max_steps
                 )
-                record(impl, "verlet", batch, steps, sec)
+                record(impl, "verlet", batch, steps, sec, sites=getattr(runner, "sites", None))
     for batch in batches:
         same = [r for r in results if r["batch"] == batch and r["method"] == "verlet"]
         best = max(r["site_steps_per_second"] for r in same)

@@ -219,7 +219,7 @@ def test_two_lattices_per_block_bit_for_bit(boundary, monkeypatch):
 
 
 @pytest.mark.parametrize("boundary", ["fixed", "free", "periodic"])
-@pytest.mark.parametrize("sites", [2, 7])
+@pytest.mark.parametrize("sites", [1, 2, 7])
 def test_several_sites_per_thread_bit_for_bit(boundary, sites, monkeypatch):
     """``block_kernels.site_group_kernels`` (each thread owns a run of sites; the GPU's large-batch path),
     forced on the CPU: identical to the reference with per-lattice M and K, a lattice length that leaves
@@ -228,6 +228,7 @@ def test_several_sites_per_thread_bit_for_bit(boundary, sites, monkeypatch):
     from warpchain.losses import Damping
 
     monkeypatch.setattr(ensemble, "_SITES_FORCED", sites)
+    monkeypatch.setattr(ensemble, "_GROUP_ONE_SITE", True)  # sites = 1: the site-group kernel, not block_kernels'
     p = ChainParams(3.0, 4.0, 37, boundary)
     x0 = localized_state(p.N, amplitude=0.7, batch=3, seed=9)
     M, K = np.array([3.0, 2.0, 5.0]), np.array([4.0, 1.0, 6.0])
@@ -243,6 +244,7 @@ def test_several_sites_per_thread_bit_for_bit(boundary, sites, monkeypatch):
     histories = {}
     for forced in (None, sites):
         monkeypatch.setattr(ensemble, "_SITES_FORCED", forced)
+        monkeypatch.setattr(ensemble, "_GROUP_ONE_SITE", forced is not None)
         runner = _Runner(get_method("yoshida4"), p, x0, M, K, "cpu", record_stiffness_steps=6, layout="block")
         runner.launch(6, 0.05, record_stiffness=True)
         histories[forced] = (runner.hist.numpy().copy(), runner.x.numpy().copy())
@@ -254,7 +256,15 @@ def test_sites_per_thread_policy():
     from warpchain import block_kernels
     from warpchain.ensemble import sites_per_thread
 
+    from warpchain.ensemble import site_group_launch
+
     assert sites_per_thread(1, 201, 1, "cpu") == 1  # the CPU default path is the thread layout anyway
+    assert sites_per_thread(32768, 201, 1, "cpu") == 1
+    assert sites_per_thread(32768, 201, 1, "cuda") == 7 and sites_per_thread(32768, 201, 3, "cuda") == 7
+    assert sites_per_thread(805, 201, 1, "cuda") == 1 and sites_per_thread(32768, 201, 15, "cuda") == 1
+    assert sites_per_thread(32768, 1001, 1, "cuda") == 8 and sites_per_thread(32768, 41, 1, "cuda") == 2
+    assert site_group_launch(1, 1, "cuda") and not site_group_launch(1, 15, "cuda")
+    assert not site_group_launch(1, 1, "cpu") and site_group_launch(7, 1, "cpu")
     assert block_kernels.group_threads(201, 7) == 32 and block_kernels.group_threads(201, 2) == 128
     with pytest.raises(ValueError, match="sites per thread"):
         block_kernels.site_group_kernels(32, 9, 0)

@@ -305,24 +305,43 @@ _PAIR_ON_CPU = False  # tests set it to run the two-per-block kernels on the CPU
 _SITES_FORCED: int | None = None
 
 
-#: from this many lattices a GPU launch of a splitting method gives each thread a run of sites (one warp per
-#: lattice up to 256 sites): measured on the H200 (``benchmarks/sites_per_thread.py``, N = 201, Verlet)
+#: from this many lattices a GPU launch of a splitting method with at most _SITES_MAX_STAGES stages gives each
+#: thread a run of sites (one warp per lattice up to 256 sites). H200, N = 201 (``benchmarks/sites_per_thread.py``,
+#: ``benchmarks/h200-2026-11-22e``): Verlet 3.28e11 site-steps/s at 2400 lattices with 7 sites per thread against
+#: 3.19e11 with one, 4.40e11 against 3.75e11 at 32768; yoshida4 1.50e11 against 1.20e11 at 32768; kahan8 (15
+#: stages) is slower that way at every batch (1.98e10 against 2.46e10 at 32768), so it keeps one site per thread.
 _SITES_MIN_BATCH = 2048
-#: benchmarks set it to run the one-site-per-thread launch with ``site_group_kernels(.., sites=1)``
-_GROUP_ONE_SITE = False
+_SITES_MAX_STAGES = 4
 
 
 def sites_per_thread(batch: int, n_sites: int, stages: int, device: str) -> int:
-    """Sites each thread of a block splitting launch owns: 1 (``block_kernels``: a thread per site) on the
-    CPU and for batches below ``_SITES_MIN_BATCH``, else ceil(N / 32) (at most ``MAX_SITES_PER_THREAD``), so
-    that a lattice of up to 256 sites is one warp."""
+    """Sites each thread of a block splitting launch owns: ceil(N / 32) (at most ``MAX_SITES_PER_THREAD``, so
+    that a lattice of up to 256 sites is one warp) on a GPU from ``_SITES_MIN_BATCH`` lattices for methods
+    of at most ``_SITES_MAX_STAGES`` stages, else 1."""
     from .block_kernels import MAX_SITES_PER_THREAD, WARP_LANES
 
     if _SITES_FORCED is not None:
         return _SITES_FORCED
-    if device == "cpu" or batch < _SITES_MIN_BATCH:
+    if device == "cpu" or batch < _SITES_MIN_BATCH or stages > _SITES_MAX_STAGES:
         return 1
     return max(1, min(MAX_SITES_PER_THREAD, -(-int(n_sites) // WARP_LANES)))
+
+
+def site_group_launch(sites: int, stages: int, device: str) -> bool:
+    """Whether a block splitting launch with this many sites per thread runs ``site_group_kernels``: always
+    for several sites, and on a GPU for one site per thread and few stages too (its walls compiled in and no
+    acceleration carried across steps: one lattice 170 ns per Verlet step against 202 ns, 2.58e11 against
+    2.51e11 site-steps/s at 805 lattices, H200); the many-stage methods keep ``block_kernels``' register-capped
+    kernel. ``_GROUP_ONE_SITE`` (tests, benchmarks) forces it."""
+    if sites > 1:
+        return True
+    if _GROUP_ONE_SITE is not None:
+        return _GROUP_ONE_SITE
+    return device != "cpu" and stages <= _SITES_MAX_STAGES
+
+
+#: None: ``site_group_launch`` decides; True/False force the one-site launch's kernel (tests, benchmarks)
+_GROUP_ONE_SITE: bool | None = None
 
 
 _RUNNER_POOL: dict = {}
@@ -439,12 +458,12 @@ def _copy(dst: np.ndarray, src: np.ndarray) -> None:
 
 def _workers(values: int) -> int:
     """Threads for a host copy of this many float64 values: one per _COPY_SLICE values (handing a piece to
-    a pool thread costs ~50 us, the copy of 8 MB ~1 ms on one thread), at most 16 and the CPU count."""
+    a pool thread costs tens of us, one thread copies 1 MB in ~0.1 ms), at most 16 and the CPU count."""
     return max(1, min(16, os.cpu_count() or 1, int(values) // _COPY_SLICE))
 
 
-#: values per host copy thread (``_workers``)
-_COPY_SLICE = 1 << 20
+#: values per host copy thread (``_workers``): 1 MB
+_COPY_SLICE = 1 << 17
 
 
 def _fill_zero(arr: np.ndarray) -> None:
@@ -697,7 +716,7 @@ class _BlockSplitting(_Plan):
             r.wp.launch(kernel, dim=dim, block_dim=2 * r.block, device=r.device, inputs=inputs)
             return
         sites = sites_per_thread(hi - lo, r.N, stages, r.device)
-        if sites > 1 or _GROUP_ONE_SITE:
+        if site_group_launch(sites, stages, r.device):
             threads = block_kernels.group_threads(r.N, sites)
             group = block_kernels.site_group_kernels(threads, sites, r.boundary)
             kernel = group.splitting(stages, record=record, save=save_every > 0, damped=damped)
