@@ -65,11 +65,31 @@ def main():
                 f" max |x - reference| after 400 steps {err:.2g}",
                 flush=True,
             )
+    for min_blocks in (6, 7, 8):  # one site per thread, registers capped so that 805 lattices need fewer waves
+        ensemble._SITES_FORCED, ensemble._GROUP_ONE_SITE = 1, True
+        ensemble._GROUP_MIN_BLOCKS = {1: min_blocks}
+        run = simulate(p, check, 400 * dt, dt, device=args.device, layout="block", max_energy_error=None)
+        err = float(np.max(np.abs(run.x - ref)))
+        for batch in (1, 805, 1600):
+            x0 = np.repeat(one[None], batch, 0)
+            steps = 20000 if batch <= 64 else 2000
+            best = time_steps(p, x0, steps, dt, device=args.device, layout="block")
+            rate = batch * p.N * steps / best
+            label = f"1g-minb{min_blocks}"
+            rows.append(
+                {"impl": "warp", "sites": label, "batch": batch, "rate": rate, "ns_per_step": 1e9 * best / steps}
+            )
+            print(
+                f"warp sites/thread {label} batch {batch:6d}: {rate:.3g} site-steps/s; max |x - ref| {err:.2g}",
+                flush=True,
+            )
+    ensemble._GROUP_MIN_BLOCKS = {}
     ensemble._SITES_FORCED = None
     ensemble._GROUP_ONE_SITE = None
     for method in ("yoshida4", "kahan8"):  # many-stage methods: one site per thread against a warp per lattice
-        for label in (1, 7):
-            ensemble._SITES_FORCED = label
+        for label in (1, "1g", 7):
+            ensemble._SITES_FORCED = 1 if label == "1g" else label
+            ensemble._GROUP_ONE_SITE = label == "1g"
             for batch in (805, 4096, 32768):
                 x0 = np.repeat(one[None], batch, 0)
                 steps = 400 if batch < 32768 else 200
@@ -78,6 +98,7 @@ def main():
                 rows.append({"impl": f"warp-{method}", "sites": label, "batch": batch, "rate": rate})
                 print(f"warp {method} sites/thread {label} batch {batch:6d}: {rate:.3g} site-steps/s", flush=True)
     ensemble._SITES_FORCED = None
+    ensemble._GROUP_ONE_SITE = None
     for sites in HAND_SITES:
         run = cupy_verlet_runner(p.M, p.K, sites=sites)
         if run is None:

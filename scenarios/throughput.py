@@ -336,13 +336,18 @@ def _kernel_properties(ctx, params):
         min_blocks = block_kernels.min_blocks_per_sm(method.stages)
         for key, kernel in block_kernels.block_kernels(block, min_blocks).built().items():
             built["/".join(str(part) for part in key) + f" (min blocks {min_blocks})"] = kernel
+    blocks = dict.fromkeys(built, (block, 2 * block * 8))  # threads, shared bytes (two halves of a float64 row)
+    for (threads, sites, _, min_blocks), group in block_kernels.SITE_GROUPS.items():
+        for key, kernel in group.built().items():
+            name = "/".join(str(part) for part in key) + f" ({sites} sites/thread, min blocks {min_blocks})"
+            built[name], blocks[name] = kernel, (threads, 2 * (threads + 2) * 16)
     for name, kernel in sorted(built.items()):
+        block, smem = blocks[name]
         try:
             props = wp.get_cuda_kernel_properties(kernel, ctx.device, block_dim=block)
         except Exception as exc:  # not loaded in this run, or the query is unsupported
             ctx.log("kernel properties of %s unavailable: %s", name, exc)
             continue
-        smem = 2 * block * 8
         rows.append(
             {
                 "kernel": f"block/{name}",

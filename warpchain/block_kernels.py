@@ -577,8 +577,12 @@ def group_threads(n_sites: int, sites: int) -> int:
 MAX_SITES_PER_THREAD = 8
 
 
+#: the site-group kernels built so far, by (threads, sites, boundary, min blocks per SM)
+SITE_GROUPS: dict = {}
+
+
 @functools.lru_cache(maxsize=None)
-def site_group_kernels(threads: int, sites: int, boundary: int) -> BlockKernels:
+def site_group_kernels(threads: int, sites: int, boundary: int, min_blocks_per_sm: int = 0) -> BlockKernels:
     """Block kernels in which each of ``threads`` threads owns ``sites`` consecutive sites of one lattice.
 
     Why: with one site per thread every force evaluation pays a shared-memory round trip and a block
@@ -599,6 +603,9 @@ def site_group_kernels(threads: int, sites: int, boundary: int) -> BlockKernels:
     the results are the same bit for bit on the CPU. The kick that ends one step and the kick that starts
     the next use the same accelerations; they are applied one after the other inside the step, as the
     reference does, so no acceleration is carried across iterations (fewer live registers).
+
+    ``min_blocks_per_sm`` goes to ``__launch_bounds__`` (0: none), capping registers so that this many
+    blocks fit on one SM.
 
     Launch with ``dim=(lattices, threads), block_dim=threads``.
     """
@@ -650,7 +657,8 @@ def site_group_kernels(threads: int, sites: int, boundary: int) -> BlockKernels:
                 right = wp.where(j == n - 1, e[3], right)
         return wp.vec2d(left, right)
 
-    options = {"enable_backward": False, "module": "unique", "grid_stride": False, "launch_bounds": threads}
+    bounds = (threads, min_blocks_per_sm) if min_blocks_per_sm else threads
+    options = {"enable_backward": False, "module": "unique", "grid_stride": False, "launch_bounds": bounds}
 
     def make_splitting(stages: int, record: bool, save: bool, damped: bool = False):
         @wp.kernel(**options)
@@ -771,4 +779,6 @@ def site_group_kernels(threads: int, sites: int, boundary: int) -> BlockKernels:
 
         return splitting
 
-    return BlockKernels({"splitting": make_splitting})
+    group = BlockKernels({"splitting": make_splitting})
+    SITE_GROUPS[threads, sites, boundary, min_blocks_per_sm] = group
+    return group

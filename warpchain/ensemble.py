@@ -344,6 +344,8 @@ def site_group_launch(sites: int, stages: int, device: str) -> bool:
 
 #: None: ``site_group_launch`` decides; True/False force the one-site launch's kernel (tests, benchmarks)
 _GROUP_ONE_SITE: bool | None = None
+#: ``__launch_bounds__`` minimum blocks per SM of the site-group kernels, by sites per thread (absent: none)
+_GROUP_MIN_BLOCKS: dict = {}
 
 
 _RUNNER_POOL: dict = {}
@@ -762,7 +764,7 @@ class _BlockSplitting(_Plan):
         sites = sites_per_thread(hi - lo, r.N, stages, r.device)
         if site_group_launch(sites, stages, r.device):
             threads = block_kernels.group_threads(r.N, sites)
-            group = block_kernels.site_group_kernels(threads, sites, r.boundary)
+            group = block_kernels.site_group_kernels(threads, sites, r.boundary, _GROUP_MIN_BLOCKS.get(sites, 0))
             kernel = group.splitting(stages, record=record, save=save_every > 0, damped=damped)
             r.wp.launch(kernel, dim=(hi - lo, threads), block_dim=threads, device=r.device, inputs=inputs)
             return
