@@ -896,6 +896,8 @@ class _Runner:
         self.serial = self.layout == "block" and device == "cpu"
         self.boundary = BOUNDARY_CODES[params.boundary]
         f64 = wp.float64
+        # pinned host staging of the state (made on first use), and the event after the last copy from each
+        self._pinned_up = self._pinned_down = self._pinned_up_done = self._pinned_down_done = None
         self.x = wp.empty(x0.shape, dtype=f64, device=device)
         if upload:
             self.upload(x0)
@@ -903,8 +905,6 @@ class _Runner:
         self.inv_mass = wp.array(inverse_mass(M), dtype=f64, device=device)  # the kernels multiply by 1/M
         self.coupling = wp.array(K, dtype=f64, device=device)
         self._parameters_held = (np.array(M, dtype=np.float64), np.array(K, dtype=np.float64))  # what M, K hold
-        # pinned host staging of the state (made on first use), and the event after the last copy from each
-        self._pinned_up = self._pinned_down = self._pinned_up_done = self._pinned_down_done = None
         self.plan = _plan_for(self.layout, method)(self)
         self.no_record = wp.zeros((1, 1, 1), dtype=f64, device=device)
         if record_stiffness_steps:
