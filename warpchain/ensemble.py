@@ -12,7 +12,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-import sys
 import threading
 import time
 import warnings
@@ -443,42 +442,6 @@ def _give_buffer(device: str, pinned: bool, buf) -> None:
             del free[0]
 
 
-#: Linux (>= 5.14) madvise advice that makes a range's pages present and writable in one system call
-_MADV_POPULATE_WRITE = 23
-_LIBC = []
-
-
-def _populate(arr: np.ndarray) -> None:
-    """Make the pages of a host array present before it is written (Linux ``MADV_POPULATE_WRITE``): a fresh
-    array otherwise takes one page fault per 4 kB on first write, which caps a copy into it at ~3 GB/s per
-    thread on the H200 host and ~0.3 GB/s on this project's 2-core VM (populated first: 8 GB/s there). On
-    pages already present it only walks the page table. A no-op where the call is not available."""
-    if arr.nbytes < (1 << 16) or not arr.flags.c_contiguous:
-        return
-    if not _LIBC:
-        try:
-            import ctypes
-
-            libc = ctypes.CDLL(None, use_errno=True)
-            libc.madvise.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int]
-            _LIBC.append(libc)
-        except (OSError, AttributeError):
-            _LIBC.append(None)
-    libc = _LIBC[0]
-    if libc is None or not sys.platform.startswith("linux"):
-        return
-    page = 4096
-    start = -(-arr.ctypes.data // page) * page
-    end = (arr.ctypes.data + arr.nbytes) // page * page
-    if end > start:
-        libc.madvise(start, end - start, _MADV_POPULATE_WRITE)  # failure (old kernel): pages fault in as before
-
-
-def _copy_piece(dst: np.ndarray, src: np.ndarray) -> None:
-    _populate(dst)
-    np.copyto(dst, src)
-
-
 def _copy(dst: np.ndarray, src: np.ndarray) -> None:
     """dst[...] = src for large contiguous arrays, in pieces on a few threads (numpy releases the GIL;
     one thread moves ~10 GB/s, and into memory it touches first ~3 GB/s (page faults); eight threads
@@ -487,23 +450,24 @@ def _copy(dst: np.ndarray, src: np.ndarray) -> None:
     d, s_ = dst.reshape(-1), src.reshape(-1)
     workers = _workers(d.size)
     if workers == 1:
-        _copy_piece(d, s_)
+        np.copyto(d, s_)
         return
     _copy_pool(workers)
     bounds = np.linspace(0, d.size, workers + 1).astype(int)
-    jobs = [_COPY_POOL.submit(_copy_piece, d[a:b], s_[a:b]) for a, b in zip(bounds[:-1], bounds[1:])]
+    jobs = [_COPY_POOL.submit(np.copyto, d[a:b], s_[a:b]) for a, b in zip(bounds[:-1], bounds[1:])]
     for job in jobs:
         job.result()
 
 
 def _workers(values: int) -> int:
     """Threads for a host copy of this many float64 values: one per _COPY_SLICE values (handing a piece to
-    a pool thread costs tens of us, one thread copies 1 MB in ~0.1 ms), at most 16 and the CPU count."""
+    a pool thread costs tens of us), at most 16 and the CPU count."""
     return max(1, min(16, os.cpu_count() or 1, int(values) // _COPY_SLICE))
 
 
-#: values per host copy thread (``_workers``): 1 MB
-_COPY_SLICE = 1 << 17
+#: values per host copy thread (``_workers``): 8 MB (H200 host: with 1 MB per thread, and with the pages of the
+#: destination populated by madvise first, simulate() got slower: 68 against 56 ms at 32768 lattices)
+_COPY_SLICE = 1 << 20
 
 
 def _fill_zero(arr: np.ndarray) -> None:
@@ -511,17 +475,11 @@ def _fill_zero(arr: np.ndarray) -> None:
     flat = arr.reshape(-1)
     workers = _workers(flat.size)
     if workers == 1:
-        _populate(flat)
         flat.fill(0.0)
         return
     _copy_pool(workers)
     bounds = np.linspace(0, flat.size, workers + 1).astype(int)
-
-    def fill(piece):
-        _populate(piece)
-        piece.fill(0.0)
-
-    jobs = [_COPY_POOL.submit(fill, flat[a:b]) for a, b in zip(bounds[:-1], bounds[1:])]
+    jobs = [_COPY_POOL.submit(flat[a:b].fill, 0.0) for a, b in zip(bounds[:-1], bounds[1:])]
     for job in jobs:
         job.result()
 
