@@ -14,6 +14,11 @@ def rate(results, impl, batch, method="verlet"):
     return hit[0]["site_steps_per_second"] if hit else None
 
 
+def sites_per_thread(results, impl, batch, method="verlet"):
+    hit = [r for r in results if r["implementation"] == impl and r["batch"] == batch and r["method"] == method]
+    return hit[0].get("sites_per_thread") if hit else None
+
+
 def fmt(value, spec=".3g", missing="-"):
     return missing if value is None else format(value, spec)
 
@@ -63,14 +68,16 @@ def main(path):
         return
     lines = [
         "| batch | Warp block verlet | Warp block kahan8 | Warp thread verlet | JAX | hand CUDA (CuPy) "
-        "| Warp block / hand | Warp block / JAX |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- |",
+        "| sites per thread (Warp, hand) | Warp block / hand | Warp block / JAX |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for b in batches:
         w, hand, jax = rate(results, "warp-block", b), rate(results, "cupy", b), rate(results, "jax", b)
+        sites = [sites_per_thread(results, impl, b) for impl in ("warp-block", "cupy")]
         lines.append(
             f"| {b} | {fmt(w, '.3e')} | {fmt(rate(results, 'warp-block', b, 'kahan8'), '.3e')} "
             f"| {fmt(rate(results, 'warp-thread', b), '.3e')} | {fmt(jax, '.3e')} | {fmt(hand, '.3e')} "
+            f"| {fmt(sites[0], 'd')}, {fmt(sites[1], 'd')} "
             f"| {fmt(w / hand if w and hand else None, '.2f')} | {fmt(w / jax if w and jax else None, '.0f')}x |"
         )
     print("\n".join(lines))
