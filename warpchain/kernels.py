@@ -6,6 +6,12 @@ long run costs one launch per chunk of many steps, never one per step. All per-s
 lives in ``@wp.func`` helpers that take (lattice, site) indices, so that a later kernel where a
 thread block owns a lattice (one thread per site) can reuse them unchanged.
 
+The splitting kernels (and their tangent kernel) take a fast path where a lattice's rows are contiguous
+(always, as ``ensemble`` allocates them): each stage is one pass over the sites (``fused_stage``) through
+1-D row views (``row``), whose compile-time unit stride lets the CPU compiler vectorise the pass. Every
+value is computed by the same operations in the same order as the per-pass helpers below, which remain
+the path for lattices with losses, strided arrays and N = 1.
+
 Accelerations multiply by a precomputed 1/M (``inv_mass`` arrays, rounded once on the host, as the numpy
 reference does): no division in any time loop.
 
@@ -183,6 +189,207 @@ def save_positions(
                 rec_v[r, b, j] = x[b, 1, j]
 
 
+# ----------------------------------------------------------------------------- row views (fused sweeps)
+
+
+@wp.func_native("return (wp::uint64)(&wp::index(x, i, r, 0));")
+def _row_address(x: wp.array3d(dtype=wp.float64), i: int, r: int) -> wp.uint64: ...
+
+
+@wp.func_native("return x.strides[2] == (int)sizeof(wp::float64) ? 1 : 0;")
+def unit_stride(x: wp.array3d(dtype=wp.float64)) -> int:
+    """1 when the last axis of x is contiguous (what ``row`` needs), else 0."""
+
+
+@wp.func
+def row(x: wp.array3d(dtype=wp.float64), i: int, r: int) -> wp.array(dtype=wp.float64):
+    """x[i, r, :] as a 1-D array of unit stride (only where ``unit_stride(x)``). Its stride is a compile-time
+    constant, so that the compiler can vectorise a loop over sites; through the 3-D array's runtime
+    strides it cannot (on the project's AVX-512 CPU the fused sweep runs 8 sites per instruction)."""
+    return wp.array(ptr=_row_address(x, i, r), shape=(x.shape[2],), dtype=wp.float64)
+
+
+@wp.func
+def site_acceleration(
+    left: wp.float64, u: wp.float64, right: wp.float64, v: wp.float64, inv_mass: wp.float64, coupling: wp.float64
+) -> wp.vec2d:
+    """(u_j'', v_j'') from u_j, v_j and the u of both neighbours (or the wall values): the arithmetic of
+    ``acceleration_at`` (and ``laplacian_at``), operation for operation."""
+    force = contact_force(u - v)
+    au = -(coupling * ((u - left) + (u - right)) + force) * inv_mass
+    return wp.vec2d(au, force)
+
+
+@wp.func
+def advance_site(
+    u: wp.array(dtype=wp.float64),
+    v: wp.array(dtype=wp.float64),
+    pu: wp.array(dtype=wp.float64),
+    pv: wp.array(dtype=wp.float64),
+    au: wp.array(dtype=wp.float64),
+    av: wp.array(dtype=wp.float64),
+    j: int,
+    pre: int,
+    h_pre: wp.float64,
+    c: wp.float64,
+) -> wp.vec4d:
+    """Site j's kick with the stored accelerations (when ``pre``; as ``kick``) and its drift (as ``drift``):
+    returns (u, v, u', v') after them, not yet stored. A select, not a branch: a branch here keeps the
+    compiler from vectorising the sweep (2.8 against 0.7 ns per site-step)."""
+    qu = wp.where(pre != 0, pu[j] + h_pre * au[j], pu[j])
+    qv = wp.where(pre != 0, pv[j] + h_pre * av[j], pv[j])
+    return wp.vec4d(u[j] + c * qu, v[j] + c * qv, qu, qv)
+
+
+@wp.func
+def finish_site(
+    u: wp.array(dtype=wp.float64),
+    v: wp.array(dtype=wp.float64),
+    pu: wp.array(dtype=wp.float64),
+    pv: wp.array(dtype=wp.float64),
+    au: wp.array(dtype=wp.float64),
+    av: wp.array(dtype=wp.float64),
+    j: int,
+    left: wp.float64,
+    site: wp.vec4d,
+    right: wp.float64,
+    inv_mass: wp.float64,
+    coupling: wp.float64,
+    h: wp.float64,
+    record: int,
+    stiffness: wp.array(dtype=wp.float64),
+):
+    """Site j (``site``: from ``advance_site``) between neighbours at u = left and right: its acceleration
+    (and f'(z) when ``record``), the kick with it, and the stores."""
+    a = site_acceleration(left, site[0], right, site[1], inv_mass, coupling)
+    u[j] = site[0]
+    v[j] = site[1]
+    au[j] = a[0]
+    av[j] = a[1]
+    pu[j] = site[2] + h * a[0]
+    pv[j] = site[3] + h * a[1]
+    if record != 0:
+        stiffness[j] = contact_stiffness(site[0] - site[1])
+
+
+@wp.func
+def fused_stage(
+    u: wp.array(dtype=wp.float64),
+    v: wp.array(dtype=wp.float64),
+    pu: wp.array(dtype=wp.float64),
+    pv: wp.array(dtype=wp.float64),
+    au: wp.array(dtype=wp.float64),
+    av: wp.array(dtype=wp.float64),
+    n: int,
+    boundary: int,
+    inv_mass: wp.float64,
+    coupling: wp.float64,
+    pre: int,
+    h_pre: wp.float64,
+    c: wp.float64,
+    h: wp.float64,
+    record: int,
+    stiffness: wp.array(dtype=wp.float64),
+):
+    """One stage of a splitting step on one lattice's rows (n >= 2) in a single pass over the sites: the
+    kick h_pre (when ``pre``: the step's first), the drift c, the accelerations (f'(z) into ``stiffness``
+    when ``record``) and the kick h. Each value is computed as by ``kick``, ``drift`` and
+    ``compute_accelerations`` one after the other (same operations, same order): site j + 1 is drifted
+    just before site j's acceleration needs it, the sites at both ends first (a periodic wall needs
+    them), so that the loop over the interior has no branch."""
+    first = advance_site(u, v, pu, pv, au, av, 0, pre, h_pre, c)
+    last = advance_site(u, v, pu, pv, au, av, n - 1, pre, h_pre, c)
+    left = ZERO  # fixed walls
+    right = ZERO
+    if boundary == BOUNDARY_FREE:
+        left = first[0]
+        right = last[0]
+    elif boundary == BOUNDARY_PERIODIC:
+        left = last[0]
+        right = first[0]
+    here = first
+    j = wp.int32(0)
+    while j < n - 2:
+        nxt = advance_site(u, v, pu, pv, au, av, j + 1, pre, h_pre, c)
+        finish_site(u, v, pu, pv, au, av, j, left, here, nxt[0], inv_mass, coupling, h, record, stiffness)
+        left = here[0]
+        here = nxt
+        j += 1
+    finish_site(u, v, pu, pv, au, av, n - 2, left, here, last[0], inv_mass, coupling, h, record, stiffness)
+    finish_site(u, v, pu, pv, au, av, n - 1, here[0], last, right, inv_mass, coupling, h, record, stiffness)
+
+
+@wp.func
+def finish_tangent_site(
+    du: wp.array(dtype=wp.float64),
+    dv: wp.array(dtype=wp.float64),
+    dpu: wp.array(dtype=wp.float64),
+    dpv: wp.array(dtype=wp.float64),
+    dau: wp.array(dtype=wp.float64),
+    dav: wp.array(dtype=wp.float64),
+    j: int,
+    left: wp.float64,
+    site: wp.vec4d,
+    right: wp.float64,
+    inv_mass: wp.float64,
+    coupling: wp.float64,
+    h: wp.float64,
+    stiffness: wp.array(dtype=wp.float64),
+):
+    """``finish_site`` of a tangent column: the linear acceleration (``tangent_acceleration_at``'s
+    arithmetic) with the recorded f'(z) of site j."""
+    dz = site[0] - site[1]
+    force = stiffness[j] * dz
+    a = -(coupling * ((site[0] - left) + (site[0] - right)) + force) * inv_mass
+    du[j] = site[0]
+    dv[j] = site[1]
+    dau[j] = a
+    dav[j] = force
+    dpu[j] = site[2] + h * a
+    dpv[j] = site[3] + h * force
+
+
+@wp.func
+def fused_tangent_stage(
+    du: wp.array(dtype=wp.float64),
+    dv: wp.array(dtype=wp.float64),
+    dpu: wp.array(dtype=wp.float64),
+    dpv: wp.array(dtype=wp.float64),
+    dau: wp.array(dtype=wp.float64),
+    dav: wp.array(dtype=wp.float64),
+    n: int,
+    boundary: int,
+    inv_mass: wp.float64,
+    coupling: wp.float64,
+    pre: int,
+    h_pre: wp.float64,
+    c: wp.float64,
+    h: wp.float64,
+    stiffness: wp.array(dtype=wp.float64),
+):
+    """``fused_stage`` of a tangent column (n >= 2), with the base trajectory's f'(z) of this stage."""
+    first = advance_site(du, dv, dpu, dpv, dau, dav, 0, pre, h_pre, c)
+    last = advance_site(du, dv, dpu, dpv, dau, dav, n - 1, pre, h_pre, c)
+    left = ZERO
+    right = ZERO
+    if boundary == BOUNDARY_FREE:
+        left = first[0]
+        right = last[0]
+    elif boundary == BOUNDARY_PERIODIC:
+        left = last[0]
+        right = first[0]
+    here = first
+    j = wp.int32(0)
+    while j < n - 2:
+        nxt = advance_site(du, dv, dpu, dpv, dau, dav, j + 1, pre, h_pre, c)
+        finish_tangent_site(du, dv, dpu, dpv, dau, dav, j, left, here, nxt[0], inv_mass, coupling, h, stiffness)
+        left = here[0]
+        here = nxt
+        j += 1
+    finish_tangent_site(du, dv, dpu, dpv, dau, dav, n - 2, left, here, last[0], inv_mass, coupling, h, stiffness)
+    finish_tangent_site(du, dv, dpu, dpv, dau, dav, n - 1, here[0], last, right, inv_mass, coupling, h, stiffness)
+
+
 # ----------------------------------------------------------------------------- splitting methods
 
 
@@ -262,13 +469,33 @@ def splitting_kernel(
     k = coupling[b]
     loss = lossy[b]
     compute_accelerations(x, acc, b, n, boundary, m, k, hist, record_stiffness, 0)
-    for step in range(nsteps):
-        any_kick(x, acc, b, n, kicks[0] * dt, loss, damp, 0)
-        for s in range(stages):
-            drift(x, b, n, drifts[s] * dt)
-            compute_accelerations(x, acc, b, n, boundary, m, k, hist, record_stiffness, step * stages + s + 1)
-            any_kick(x, acc, b, n, kicks[s + 1] * dt, loss, damp, s + 1)
-        save_positions(x, rec_u, rec_v, b, n, step, save_every)
+    record = wp.where(record_stiffness != 0, 1, 0)
+    rows = unit_stride(x) * unit_stride(acc) * wp.where(record != 0, unit_stride(hist), 1)
+    if loss == 0 and n >= 2 and rows != 0:
+        # the fast path: a stage in one pass over contiguous rows (``fused_stage``)
+        u = row(x, b, 0)
+        v = row(x, b, 1)
+        pu = row(x, b, 2)
+        pv = row(x, b, 3)
+        au = row(acc, b, 0)
+        av = row(acc, b, 1)
+        for step in range(nsteps):
+            for s in range(stages):
+                stiffness = row(hist, (step * stages + s + 1) * record, b * record)
+                pre = wp.where(s == 0, 1, 0)
+                c = drifts[s] * dt
+                fused_stage(
+                    u, v, pu, pv, au, av, n, boundary, m, k, pre, kicks[0] * dt, c, kicks[s + 1] * dt, record, stiffness
+                )
+            save_positions(x, rec_u, rec_v, b, n, step, save_every)
+    else:
+        for step in range(nsteps):
+            any_kick(x, acc, b, n, kicks[0] * dt, loss, damp, 0)
+            for s in range(stages):
+                drift(x, b, n, drifts[s] * dt)
+                compute_accelerations(x, acc, b, n, boundary, m, k, hist, record_stiffness, step * stages + s + 1)
+                any_kick(x, acc, b, n, kicks[s + 1] * dt, loss, damp, s + 1)
+            save_positions(x, rec_u, rec_v, b, n, step, save_every)
 
 
 @wp.kernel
@@ -293,12 +520,29 @@ def splitting_tangent_kernel(
     m = inv_mass[base]
     k = coupling[base]
     compute_tangent_accelerations(dx, dacc, c, base, n, boundary, m, k, hist, 0)
-    for step in range(nsteps):
-        kick(dx, dacc, c, n, kicks[0] * dt)
-        for s in range(stages):
-            drift(dx, c, n, drifts[s] * dt)
-            compute_tangent_accelerations(dx, dacc, c, base, n, boundary, m, k, hist, step * stages + s + 1)
-            kick(dx, dacc, c, n, kicks[s + 1] * dt)
+    if n >= 2 and unit_stride(dx) * unit_stride(dacc) * unit_stride(hist) != 0:
+        # the fast path, as in ``splitting_kernel``
+        du = row(dx, c, 0)
+        dv = row(dx, c, 1)
+        dpu = row(dx, c, 2)
+        dpv = row(dx, c, 3)
+        dau = row(dacc, c, 0)
+        dav = row(dacc, c, 1)
+        for step in range(nsteps):
+            for s in range(stages):
+                pre = wp.where(s == 0, 1, 0)
+                stiffness = row(hist, step * stages + s + 1, base)
+                h = kicks[s + 1] * dt
+                fused_tangent_stage(
+                    du, dv, dpu, dpv, dau, dav, n, boundary, m, k, pre, kicks[0] * dt, drifts[s] * dt, h, stiffness
+                )
+    else:
+        for step in range(nsteps):
+            kick(dx, dacc, c, n, kicks[0] * dt)
+            for s in range(stages):
+                drift(dx, c, n, drifts[s] * dt)
+                compute_tangent_accelerations(dx, dacc, c, base, n, boundary, m, k, hist, step * stages + s + 1)
+                kick(dx, dacc, c, n, kicks[s + 1] * dt)
 
 
 # ----------------------------------------------------------------------------- classical RK4
