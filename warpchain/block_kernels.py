@@ -423,15 +423,14 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0, lattices: int = 1) -> 
                 dpu = dpu + h * a[0]
                 dpv = dpv + h * a[1]
                 for s in range(wp.static(stages)):
-                    # the base trajectory's stiffness is read before the barrier, so the load's latency
-                    # overlaps the drift and the wait (the compiler does not move loads across a barrier)
-                    stiffness = hist[step * wp.static(stages) + s + 1, base, jj]
                     h = drifts[s]
                     du = du + h * dpu
                     dv = dv + h * dpv
                     parity = 1 - parity
                     nb = exchange(buf, du, parity, nbr, boundary)
-                    a = site_tangent_acceleration(du, dv, nb[0], nb[1], m, k, stiffness)
+                    a = site_tangent_acceleration(
+                        du, dv, nb[0], nb[1], m, k, hist[step * wp.static(stages) + s + 1, base, jj]
+                    )
                     h = kicks[s + 1]
                     dpu = dpu + h * a[0]
                     dpv = dpv + h * a[1]
