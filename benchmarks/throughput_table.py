@@ -30,14 +30,23 @@ def print_simulate(s):
         print()
         print(
             f"| batch | kernel (`time_steps`) | `simulate()` default | `simulate(save_every={every})` "
-            "| frames to host |"
+            "| frames to host | same into reused `frames_out` |"
         )
-        print("| --- | --- | --- | --- | --- |")
+        print("| --- | --- | --- | --- | --- | --- |")
         for r in sim:
+            reused = r.get("recording_reused_seconds")
+            reused = (
+                "-"
+                if reused is None
+                else (
+                    f"{r['recording_reused_rate']:.2e} ({r['recording_reused_over_kernel']:.2f}x), "
+                    f"{r['recording_reused_gb_per_second']:.1f} GB/s"
+                )
+            )
             print(
                 f"| {r['batch']} | {r['kernel_rate']:.2e} | {r['default_rate']:.2e} ({r['default_over_kernel']:.2f}x) "
                 f"| {r['recording_rate']:.2e} ({r['recording_over_kernel']:.2f}x) "
-                f"| {r['recording_gb_per_second']:.1f} GB/s |"
+                f"| {r['recording_gb_per_second']:.1f} GB/s | {reused} |"
             )
 
 

@@ -268,3 +268,21 @@ def test_sites_per_thread_policy():
     assert block_kernels.group_threads(201, 7) == 32 and block_kernels.group_threads(201, 2) == 128
     with pytest.raises(ValueError, match="sites per thread"):
         block_kernels.site_group_kernels(32, 9, 0)
+
+
+def test_frames_out_receives_the_recording(small_chain):
+    """Frames recorded into the caller's arrays (allocated once by an ensemble study) equal a plain run's,
+    and the result's u and v are those arrays; misuse is refused at the boundary."""
+    p = small_chain
+    x0 = localized_state(p.N, amplitude=0.7, batch=3, seed=2)
+    plain = simulate(p, x0, 40 * 0.05, 0.05, device="cpu", save_every=10)
+    u, v = np.full_like(plain.u, np.nan), np.full_like(plain.v, np.nan)
+    run = simulate(p, x0, 40 * 0.05, 0.05, device="cpu", save_every=10, frames_out=(u, v))
+    assert run.u is u and run.v is v
+    assert np.array_equal(u, plain.u) and np.array_equal(v, plain.v) and np.array_equal(run.x, plain.x)
+    with pytest.raises(ValueError, match="give save_every"):
+        simulate(p, x0, 1.0, 0.05, device="cpu", frames_out=(u, v))
+    with pytest.raises(ValueError, match=r"shape \(5, 3, "):
+        simulate(p, x0, 40 * 0.05, 0.05, device="cpu", save_every=10, frames_out=(u[:4], v))
+    with pytest.raises(ValueError, match="share memory"):
+        simulate(p, x0, 40 * 0.05, 0.05, device="cpu", save_every=10, frames_out=(u, u))

@@ -399,6 +399,24 @@ def _prefault(shape) -> "threading.Thread":
     return holder
 
 
+def _check_frames_out(frames_out, save_every, nsteps: int, batch: int, n_sites: int):
+    """``simulate``'s ``frames_out``, checked once at the boundary: (u, v) host arrays of the frames' shape."""
+    if save_every is None:
+        raise ValueError("frames_out receives recorded frames: give save_every too")
+    if not isinstance(frames_out, (tuple, list)) or len(frames_out) != 2:
+        raise ValueError("frames_out must be a pair (u, v) of arrays")
+    shape = (1 + nsteps // save_every, batch, n_sites)
+    for name, arr in zip("uv", frames_out):
+        if not isinstance(arr, np.ndarray) or arr.dtype != np.float64 or arr.shape != shape:
+            got = f"{type(arr).__name__} {getattr(arr, 'dtype', '')} {getattr(arr, 'shape', '')}"
+            raise ValueError(f"frames_out {name} must be a float64 numpy array of shape {shape}, got {got}")
+        if not (arr.flags.c_contiguous and arr.flags.writeable):
+            raise ValueError(f"frames_out {name} must be C-contiguous and writeable")
+    if np.shares_memory(frames_out[0], frames_out[1]):
+        raise ValueError("frames_out u and v must not share memory")
+    return tuple(frames_out)
+
+
 def _relative_energy_error(E, E0, N):
     return np.abs(_signed_energy_change(E, E0, N))
 
@@ -623,12 +641,15 @@ class _FrameSink:
     writes a chunk's frames into device buffers, which are copied (asynchronously, on a GPU into pinned
     host staging buffers, two slots) and then, by a few host threads, into the preallocated results."""
 
-    def __init__(self, runner, n_saved: int, max_frames: int, gpu: bool):
+    def __init__(self, runner, n_saved: int, max_frames: int, gpu: bool, out=None):
         wp = runner.wp
         self.wp, self.runner, self.gpu = wp, runner, gpu
         self.batch, self.N = runner.batch, runner.N
-        self.u = np.empty((n_saved, self.batch, self.N))
-        self.v = np.empty((n_saved, self.batch, self.N))
+        if out is None:
+            self.u = np.empty((n_saved, self.batch, self.N))
+            self.v = np.empty((n_saved, self.batch, self.N))
+        else:  # the caller's arrays (``simulate(frames_out=...)``), checked at the boundary
+            self.u, self.v = out
         self.frame = self.batch * self.N
         cached = getattr(runner, "_sink_frames", None)
         if cached is None or cached[0] < max(max_frames, 1):
@@ -1043,6 +1064,7 @@ def simulate(
     layout: str = "auto",
     on_chunk: Callable[[np.ndarray, np.ndarray, np.ndarray], None] | None = None,
     damping: Damping | tuple | None = None,
+    frames_out: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> SimulationResult:
     """Integrate a batch of lattices with a float64 Warp kernel.
 
@@ -1064,6 +1086,11 @@ def simulate(
             lattice: the CPU path) or ``"auto"`` (block on a GPU, thread on the CPU).
         on_chunk: called after every chunk with (t, u, v) of the frames recorded in that chunk,
             shapes (n,), (n, batch, N), (n, batch, N) (the t = 0 frame comes with the first call).
+        frames_out: with ``save_every``, two host arrays (u, v) of shape (n_saved, batch, N), float64,
+            C-contiguous, that receive the recorded frames (and become the result's ``u`` and ``v``)
+            instead of new arrays. An ensemble study that records run after run can allocate them once:
+            writing into memory already touched is several times faster than into fresh pages, which is
+            what bounds recording (``benchmarks/h200-2026-11-22e``).
         damping: losses (``losses.Damping`` or a (contact, substrate) pair of rates, scalars or per
             lattice), splitting methods only. Energy then decays; the guard flags a lattice whose
             energy *grows* by more than ``max_energy_error`` (relative), which no lossy run can do.
@@ -1096,6 +1123,8 @@ def simulate(
         chunks = whole_number("chunks", chunks, minimum=1)
     device = resolve_device(device)
     nsteps, dt_used = steps_for(t_final, dt)
+    if frames_out is not None:
+        frames_out = _check_frames_out(frames_out, save_every, nsteps, batch, params.N)
     if save_every is not None and save_every > max(nsteps, 1):
         raise ValueError(
             f"save_every = {save_every} is larger than the run ({nsteps} steps of {dt_used:.6g}): "
@@ -1145,7 +1174,7 @@ def simulate(
     sink = None
     if save_every:
         n_saved = 1 + nsteps // save_every
-        sink = _FrameSink(runner, n_saved, max(p[2] for p in plan) if plan else 0, gpu)
+        sink = _FrameSink(runner, n_saved, max(p[2] for p in plan) if plan else 0, gpu, out=frames_out)
         sink.put_initial(x0)
         if on_chunk is not None:
             on_chunk(np.array([0.0]), *sink.view(0, 1))
