@@ -1,7 +1,7 @@
-"""The thread-per-lattice splitting kernel's fused sweep (``kernels.fused_stage``: a stage in one pass over
-contiguous rows) against the numpy reference, bit for bit, where its edges are: the shortest lattices (the
-sites at both ends are taken out of the loop), every boundary, recorded frames and stiffness history, and
-the generic path it falls back to (strided rows, N = 1)."""
+"""The thread-per-lattice kernels' fused sweeps (``kernels.fused_stage``, ``rk4_fused_stage``: a stage in one
+pass over contiguous rows) against the numpy reference, bit for bit, where their edges are: the shortest
+lattices (the sites at both ends are taken out of the loop), every boundary, recorded frames and stiffness
+history, and the generic path they fall back to (strided rows, N = 1)."""
 
 import numpy as np
 import pytest
@@ -15,7 +15,7 @@ from warpchain.reference import inverse_mass
 
 @pytest.mark.parametrize("boundary", ["fixed", "free", "periodic"])
 @pytest.mark.parametrize("n_sites", [1, 2, 3, 4, 11])
-@pytest.mark.parametrize("method", ["verlet", "yoshida4"])
+@pytest.mark.parametrize("method", ["verlet", "yoshida4", "rk4"])
 def test_short_lattices_every_boundary_bit_for_bit(method, n_sites, boundary):
     p = ChainParams(3.0, 4.0, n_sites, boundary)
     x0 = localized_state(n_sites, amplitude=0.9, batch=3, centre=n_sites // 3, seed=n_sites)
@@ -28,7 +28,8 @@ def test_short_lattices_every_boundary_bit_for_bit(method, n_sites, boundary):
 
 @pytest.mark.parametrize("boundary", ["fixed", "free", "periodic"])
 @pytest.mark.parametrize("n_sites", [1, 2, 3, 6])
-def test_tangent_columns_of_short_lattices_bit_for_bit(n_sites, boundary):
+@pytest.mark.parametrize("method", ["yoshida4", "rk4"])
+def test_tangent_columns_of_short_lattices_bit_for_bit(method, n_sites, boundary):
     """The base run records f'(z) in the fused sweep, the tangent kernel's own fused sweep reads it: the
     columns match the reference's bit for bit."""
     p = ChainParams(3.0, 4.0, n_sites, boundary)
@@ -37,8 +38,8 @@ def test_tangent_columns_of_short_lattices_bit_for_bit(n_sites, boundary):
     eye = np.eye(ncols).reshape(ncols, 4, n_sites)
     dx0 = np.concatenate([eye, eye])
     base = np.repeat([0, 1], ncols)
-    tan = propagate_tangent(p, x0, dx0, 30, 0.05, method="yoshida4", column_base=base, device="cpu", layout="thread")
-    ref = reference.integrate("yoshida4", p, x0, 0.05, 30, dx0=dx0.reshape(2, ncols, 4, n_sites))
+    tan = propagate_tangent(p, x0, dx0, 30, 0.05, method=method, column_base=base, device="cpu", layout="thread")
+    ref = reference.integrate(method, p, x0, 0.05, 30, dx0=dx0.reshape(2, ncols, 4, n_sites))
     assert np.array_equal(tan.x, ref["x"])
     assert np.array_equal(tan.columns, ref["dx"].reshape(2 * ncols, 4, n_sites))
 
@@ -53,18 +54,24 @@ def _strided(values: np.ndarray):
     return owner, view
 
 
-def test_strided_rows_take_the_generic_path():
+@pytest.mark.parametrize("method", ["verlet", "rk4"])
+def test_strided_rows_take_the_generic_path(method):
     """Rows that are not contiguous (never built by ``ensemble``) run the per-pass loops, same results."""
     p = ChainParams(3.0, 4.0, 9, "periodic")
     x0 = localized_state(p.N, amplitude=0.9, batch=2, seed=2)
     M, K_ = np.array([3.0, 5.0]), np.array([4.0, 1.0])
     owner, x = _strided(x0)
-    acc = wp.zeros((2, 2, p.N), dtype=wp.float64, device="cpu")
     f64, none = wp.float64, wp.zeros((1, 1, 1), dtype=wp.float64, device="cpu")
-    inputs = [x, acc, wp.array(inverse_mass(M), dtype=f64), wp.array(K_, dtype=f64)]
-    inputs += [wp.array(np.array([1.0]), dtype=f64), wp.array(np.array([0.5, 0.5]), dtype=f64)]
-    inputs += [K.BOUNDARY_PERIODIC, f64(0.05), 40, 0, none, none, 0, none]
-    inputs += [wp.zeros(2, dtype=wp.int32), none]
-    wp.launch(K.splitting_kernel, dim=2, inputs=inputs, device="cpu")
-    ref = reference.integrate("verlet", p, x0, 0.05, 40, M=M, K=K_)["x"]
+    params = [wp.array(inverse_mass(M), dtype=f64), wp.array(K_, dtype=f64)]
+    if method == "verlet":
+        acc = wp.zeros((2, 2, p.N), dtype=f64, device="cpu")
+        inputs = [x, acc, *params, wp.array(np.array([1.0]), dtype=f64), wp.array(np.array([0.5, 0.5]), dtype=f64)]
+        inputs += [K.BOUNDARY_PERIODIC, f64(0.05), 40, 0, none, none, 0, none, wp.zeros(2, dtype=wp.int32), none]
+        wp.launch(K.splitting_kernel, dim=2, inputs=inputs, device="cpu")
+    else:
+        scratch = [wp.zeros((2, 4, p.N), dtype=f64, device="cpu") for _ in range(3)]
+        tableau = [wp.vec4d(0.5, 0.5, 1.0, 6.0), wp.vec4d(1.0, 2.0, 2.0, 1.0)]
+        inputs = [x, *scratch, *params, *tableau, K.BOUNDARY_PERIODIC, f64(0.05), 40, 0, none, none, 0, none]
+        wp.launch(K.rk4_kernel, dim=2, inputs=inputs, device="cpu")
+    ref = reference.integrate(method, p, x0, 0.05, 40, M=M, K=K_)["x"]
     assert np.array_equal(owner.numpy()[..., ::2], ref)

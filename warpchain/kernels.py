@@ -6,11 +6,12 @@ long run costs one launch per chunk of many steps, never one per step. All per-s
 lives in ``@wp.func`` helpers that take (lattice, site) indices, so that a later kernel where a
 thread block owns a lattice (one thread per site) can reuse them unchanged.
 
-The splitting kernels (and their tangent kernel) take a fast path where a lattice's rows are contiguous
-(always, as ``ensemble`` allocates them): each stage is one pass over the sites (``fused_stage``) through
-1-D row views (``row``), whose compile-time unit stride lets the CPU compiler vectorise the pass. Every
-value is computed by the same operations in the same order as the per-pass helpers below, which remain
-the path for lattices with losses, strided arrays and N = 1.
+The splitting and Runge-Kutta kernels (and the splitting tangent kernel) take a fast path where a
+lattice's rows are contiguous (always, as ``ensemble`` allocates them): each stage is one pass over the
+sites (``fused_stage``, ``rk4_fused_stage``) through 1-D row views (``row``), whose compile-time unit
+stride lets the CPU compiler vectorise the pass. Every value is computed by the same operations in the
+same order as the per-pass helpers below, which remain the path for strided arrays and, in the splitting
+kernels, for lattices with losses and N = 1.
 
 Accelerations multiply by a precomputed 1/M (``inv_mass`` arrays, rounded once on the host, as the numpy
 reference does): no division in any time loop.
@@ -635,6 +636,115 @@ def rk4_finish(
             x[b, i, j] = x[b, i, j] + (dt / divisor) * total[b, i, j]
 
 
+@wp.struct
+class Rows:
+    """The rows (u, v, u', v') of one lattice of a state array as unit-stride views (``row``)."""
+
+    u: wp.array(dtype=wp.float64)
+    v: wp.array(dtype=wp.float64)
+    pu: wp.array(dtype=wp.float64)
+    pv: wp.array(dtype=wp.float64)
+
+
+@wp.func
+def rows_of(x: wp.array3d(dtype=wp.float64), b: int) -> Rows:
+    r = Rows()
+    r.u = row(x, b, 0)
+    r.v = row(x, b, 1)
+    r.pu = row(x, b, 2)
+    r.pv = row(x, b, 3)
+    return r
+
+
+@wp.func
+def rk4_site(
+    x: Rows,
+    s: Rows,
+    y: Rows,
+    t: Rows,
+    j: int,
+    left: wp.float64,
+    u: wp.float64,
+    right: wp.float64,
+    inv_mass: wp.float64,
+    coupling: wp.float64,
+    first: int,
+    weight: wp.float64,
+    ah: wp.float64,
+    record: int,
+    stiffness: wp.array(dtype=wp.float64),
+):
+    """Site j of a Runge-Kutta stage at the state s (u: s.u[j], read before y may overwrite it) between
+    neighbours at u = left and right: the derivative k = (u', v', a) (``rk4_stage_derivative``), its
+    weighted sum into t and the next stage state y = x + ah k (``rk4_advance``; ah = a dt)."""
+    v = s.v[j]
+    pu = s.pu[j]
+    pv = s.pv[j]
+    a = site_acceleration(left, u, right, v, inv_mass, coupling)
+    t.u[j] = wp.where(first != 0, weight * pu, t.u[j] + weight * pu)
+    t.v[j] = wp.where(first != 0, weight * pv, t.v[j] + weight * pv)
+    t.pu[j] = wp.where(first != 0, weight * a[0], t.pu[j] + weight * a[0])
+    t.pv[j] = wp.where(first != 0, weight * a[1], t.pv[j] + weight * a[1])
+    y.u[j] = x.u[j] + ah * pu
+    y.v[j] = x.v[j] + ah * pv
+    y.pu[j] = x.pu[j] + ah * a[0]
+    y.pv[j] = x.pv[j] + ah * a[1]
+    if record != 0:
+        stiffness[j] = contact_stiffness(u - v)
+
+
+@wp.func
+def rk4_fused_stage(
+    x: Rows,
+    s: Rows,
+    y: Rows,
+    t: Rows,
+    n: int,
+    boundary: int,
+    inv_mass: wp.float64,
+    coupling: wp.float64,
+    first: int,
+    weight: wp.float64,
+    ah: wp.float64,
+    record: int,
+    stiffness: wp.array(dtype=wp.float64),
+):
+    """One Runge-Kutta stage on one lattice's rows in a single pass over the sites: the derivative at the
+    stage state s (x itself for the first stage), its weighted sum into the total t (set by the ``first``
+    stage) and the next stage state y = x + ah k. Site j's u is carried to site j + 1 in a register and
+    the wall values are read first, so that y may be s itself (``rk4_kernel`` keeps them apart, which lets
+    the compiler vectorise the pass)."""
+    left = ZERO  # fixed walls
+    right = ZERO
+    if boundary == BOUNDARY_FREE:
+        left = s.u[0]
+        right = s.u[n - 1]
+    elif boundary == BOUNDARY_PERIODIC:
+        left = s.u[n - 1]
+        right = s.u[0]
+    here = s.u[0]
+    j = wp.int32(0)
+    while j < n - 1:
+        nxt = s.u[j + 1]
+        rk4_site(x, s, y, t, j, left, here, nxt, inv_mass, coupling, first, weight, ah, record, stiffness)
+        left = here
+        here = nxt
+        j += 1
+    rk4_site(x, s, y, t, n - 1, left, here, right, inv_mass, coupling, first, weight, ah, record, stiffness)
+
+
+@wp.func
+def rk4_fused_finish(x: Rows, t: Rows, n: int, dt: wp.float64, divisor: wp.float64):
+    """``rk4_finish`` on rows."""
+    j = wp.int32(0)
+    while j < n:
+        x.u[j] = x.u[j] + (dt / divisor) * t.u[j]
+        x.v[j] = x.v[j] + (dt / divisor) * t.v[j]
+        x.pu[j] = x.pu[j] + (dt / divisor) * t.pu[j]
+        x.pv[j] = x.pv[j] + (dt / divisor) * t.pv[j]
+        j += 1
+
+
 @wp.kernel
 def rk4_kernel(
     x: wp.array3d(dtype=wp.float64),
@@ -660,14 +770,38 @@ def rk4_kernel(
     n = x.shape[2]
     m = inv_mass[b]
     cpl = coupling[b]
-    for step in range(nsteps):
-        rk4_stage_derivative(x, k, b, n, boundary, m, cpl, record_stiffness, hist, 4 * step)
-        rk4_advance(x, y, k, total, b, n, 0, dt, tableau, weights)
-        for stage in range(1, 4):
-            rk4_stage_derivative(y, k, b, n, boundary, m, cpl, record_stiffness, hist, 4 * step + stage)
-            rk4_advance(x, y, k, total, b, n, stage, dt, tableau, weights)
-        rk4_finish(x, total, b, n, dt, tableau[3])
-        save_positions(x, rec_u, rec_v, b, n, step, save_every)
+    record = wp.where(record_stiffness != 0, 1, 0)
+    rows = unit_stride(x) * unit_stride(y) * unit_stride(k) * unit_stride(total)
+    rows = rows * wp.where(record != 0, unit_stride(hist), 1)
+    if rows != 0:
+        # the fast path: a stage in one pass over contiguous rows (``rk4_fused_stage``). The stage states
+        # alternate between the scratch arrays y and k (k itself is not stored), so that no stage writes
+        # the rows it reads (the last stage's next state, which nothing reads, goes to k)
+        xr = rows_of(x, b)
+        yr = rows_of(y, b)
+        kr = rows_of(k, b)
+        tr = rows_of(total, b)
+        for step in range(nsteps):
+            slot = 4 * step
+            s0 = row(hist, slot * record, b * record)
+            s1 = row(hist, (slot + 1) * record, b * record)
+            s2 = row(hist, (slot + 2) * record, b * record)
+            s3 = row(hist, (slot + 3) * record, b * record)
+            rk4_fused_stage(xr, xr, yr, tr, n, boundary, m, cpl, 1, weights[0], tableau[0] * dt, record, s0)
+            rk4_fused_stage(xr, yr, kr, tr, n, boundary, m, cpl, 0, weights[1], tableau[1] * dt, record, s1)
+            rk4_fused_stage(xr, kr, yr, tr, n, boundary, m, cpl, 0, weights[2], tableau[2] * dt, record, s2)
+            rk4_fused_stage(xr, yr, kr, tr, n, boundary, m, cpl, 0, weights[3], tableau[2] * dt, record, s3)
+            rk4_fused_finish(xr, tr, n, dt, tableau[3])
+            save_positions(x, rec_u, rec_v, b, n, step, save_every)
+    else:
+        for step in range(nsteps):
+            rk4_stage_derivative(x, k, b, n, boundary, m, cpl, record_stiffness, hist, 4 * step)
+            rk4_advance(x, y, k, total, b, n, 0, dt, tableau, weights)
+            for stage in range(1, 4):
+                rk4_stage_derivative(y, k, b, n, boundary, m, cpl, record_stiffness, hist, 4 * step + stage)
+                rk4_advance(x, y, k, total, b, n, stage, dt, tableau, weights)
+            rk4_finish(x, total, b, n, dt, tableau[3])
+            save_positions(x, rec_u, rec_v, b, n, step, save_every)
 
 
 @wp.kernel
