@@ -35,7 +35,9 @@ from .kernels import (
     contact_force,
     contact_stiffness,
     finite_state,
+    site_acceleration,
     site_energy,
+    site_tangent_acceleration,
 )
 
 #: Largest block Warp launches (CUDA's limit); longer lattices use the thread-per-lattice kernels.
@@ -123,17 +125,6 @@ def store_site(x: wp.array3d(dtype=wp.float64), b: int, j: int, active: bool, st
 
 
 @wp.func
-def site_acceleration(
-    u: wp.float64, v: wp.float64, left: wp.float64, right: wp.float64, inv_mass: wp.float64, coupling: wp.float64
-) -> wp.vec2d:
-    """(u'', v'') of one site from its positions and its neighbours' u (same order as the
-    thread-per-lattice ``acceleration_at`` and the numpy reference; multiplied by 1/M)."""
-    force = contact_force(u - v)
-    au = -(coupling * ((u - left) + (u - right)) + force) * inv_mass
-    return wp.vec2d(au, force)
-
-
-@wp.func
 def site_acceleration_times(
     u: wp.float64, v: wp.float64, left: wp.float64, right: wp.float64, minus_inv_mass: wp.float64, coupling: wp.float64
 ) -> wp.vec2d:
@@ -142,21 +133,6 @@ def site_acceleration_times(
     force = contact_force(u - v)
     au = (coupling * ((u - left) + (u - right)) + force) * minus_inv_mass
     return wp.vec2d(au, force)
-
-
-@wp.func
-def site_tangent_acceleration(
-    du: wp.float64,
-    dv: wp.float64,
-    left: wp.float64,
-    right: wp.float64,
-    inv_mass: wp.float64,
-    coupling: wp.float64,
-    stiffness: wp.float64,
-) -> wp.vec2d:
-    dz = du - dv
-    au = -(coupling * ((du - left) + (du - right)) + stiffness * dz) * inv_mass
-    return wp.vec2d(au, stiffness * dz)
 
 
 @wp.func
@@ -672,6 +648,24 @@ def site_group_kernels(threads: int, sites: int, boundary: int, min_blocks_per_s
     options = {"enable_backward": False, "module": "unique", "grid_stride": False, "launch_bounds": bounds}
 
     def make_splitting(stages: int, record: bool, save: bool, damped: bool = False):
+        @wp.func
+        def kick(
+            pu: wp.float64,
+            pv: wp.float64,
+            au: wp.float64,
+            av: wp.float64,
+            h: wp.float64,
+            loss: int,
+            damp: wp.array3d(dtype=wp.float64),
+            b: int,
+            i: int,
+        ) -> wp.vec2d:
+            """Kick i of one slot: the plain kick, or compiled ``damped``, ``site_kick``'s damped one."""
+            if wp.static(damped):
+                return site_kick(pu, pv, wp.vec2d(au, av), h, loss, damp, b, i)
+            else:
+                return wp.vec2d(pu + h * au, pv + h * av)
+
         @wp.kernel(**options)
         def splitting(
             x: wp.array3d(dtype=wp.float64),
@@ -730,13 +724,9 @@ def site_group_kernels(threads: int, sites: int, boundary: int, min_blocks_per_s
             # step's last kick (same accelerations), inside the loop
             if nsteps > 0:
                 for s in range(wp.static(sites)):
-                    if wp.static(damped):
-                        w = site_kick(pu[s], pv[s], wp.vec2d(au[s], av[s]), kicks[0], loss, damp, b, 0)
-                        pu[s] = w[0]
-                        pv[s] = w[1]
-                    else:
-                        pu[s] = pu[s] + kicks[0] * au[s]
-                        pv[s] = pv[s] + kicks[0] * av[s]
+                    w = kick(pu[s], pv[s], au[s], av[s], kicks[0], loss, damp, b, 0)
+                    pu[s] = w[0]
+                    pv[s] = w[1]
             for step in range(nsteps):
                 for stage in range(wp.static(stages)):  # unrolled: coefficients become constants
                     h = drifts[stage]
@@ -757,13 +747,9 @@ def site_group_kernels(threads: int, sites: int, boundary: int, min_blocks_per_s
                                 )
                     h = kicks[stage + 1]
                     for s in range(wp.static(sites)):
-                        if wp.static(damped):
-                            w = site_kick(pu[s], pv[s], wp.vec2d(au[s], av[s]), h, loss, damp, b, stage + 1)
-                            pu[s] = w[0]
-                            pv[s] = w[1]
-                        else:
-                            pu[s] = pu[s] + h * au[s]
-                            pv[s] = pv[s] + h * av[s]
+                        w = kick(pu[s], pv[s], au[s], av[s], h, loss, damp, b, stage + 1)
+                        pu[s] = w[0]
+                        pv[s] = w[1]
                 if wp.static(save):
                     if (step + 1) % save_every == 0:
                         r = (step + 1) / save_every - 1
@@ -773,13 +759,9 @@ def site_group_kernels(threads: int, sites: int, boundary: int, min_blocks_per_s
                                 rec_v[r, b, first + s] = v[s]
                 if step + 1 < nsteps:  # the next step's first kick
                     for s in range(wp.static(sites)):
-                        if wp.static(damped):
-                            w = site_kick(pu[s], pv[s], wp.vec2d(au[s], av[s]), kicks[0], loss, damp, b, 0)
-                            pu[s] = w[0]
-                            pv[s] = w[1]
-                        else:
-                            pu[s] = pu[s] + kicks[0] * au[s]
-                            pv[s] = pv[s] + kicks[0] * av[s]
+                        w = kick(pu[s], pv[s], au[s], av[s], kicks[0], loss, damp, b, 0)
+                        pu[s] = w[0]
+                        pv[s] = w[1]
             for s in range(wp.static(sites)):
                 j = first + s
                 if j < n:

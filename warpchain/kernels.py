@@ -212,13 +212,31 @@ def row(x: wp.array3d(dtype=wp.float64), i: int, r: int) -> wp.array(dtype=wp.fl
 
 @wp.func
 def site_acceleration(
-    left: wp.float64, u: wp.float64, right: wp.float64, v: wp.float64, inv_mass: wp.float64, coupling: wp.float64
+    u: wp.float64, v: wp.float64, left: wp.float64, right: wp.float64, inv_mass: wp.float64, coupling: wp.float64
 ) -> wp.vec2d:
     """(u_j'', v_j'') from u_j, v_j and the u of both neighbours (or the wall values): the arithmetic of
-    ``acceleration_at`` (and ``laplacian_at``), operation for operation."""
+    ``acceleration_at`` (and ``laplacian_at``) and of the numpy reference, operation for operation,
+    multiplied by 1/M. Shared by the thread kernels' fused sweep and the block kernels."""
     force = contact_force(u - v)
     au = -(coupling * ((u - left) + (u - right)) + force) * inv_mass
     return wp.vec2d(au, force)
+
+
+@wp.func
+def site_tangent_acceleration(
+    du: wp.float64,
+    dv: wp.float64,
+    left: wp.float64,
+    right: wp.float64,
+    inv_mass: wp.float64,
+    coupling: wp.float64,
+    stiffness: wp.float64,
+) -> wp.vec2d:
+    """The linear accelerations of a tangent (du, dv) at a site whose base has f'(z) = ``stiffness``
+    (``tangent_acceleration_at``'s arithmetic)."""
+    dz = du - dv
+    au = -(coupling * ((du - left) + (du - right)) + stiffness * dz) * inv_mass
+    return wp.vec2d(au, stiffness * dz)
 
 
 @wp.func
@@ -262,7 +280,7 @@ def finish_site(
 ):
     """Site j (``site``: from ``advance_site``) between neighbours at u = left and right: its acceleration
     (and f'(z) when ``record``), the kick with it, and the stores."""
-    a = site_acceleration(left, site[0], right, site[1], inv_mass, coupling)
+    a = site_acceleration(site[0], site[1], left, right, inv_mass, coupling)
     u[j] = site[0]
     v[j] = site[1]
     au[j] = a[0]
@@ -339,15 +357,13 @@ def finish_tangent_site(
 ):
     """``finish_site`` of a tangent column: the linear acceleration (``tangent_acceleration_at``'s
     arithmetic) with the recorded f'(z) of site j."""
-    dz = site[0] - site[1]
-    force = stiffness[j] * dz
-    a = -(coupling * ((site[0] - left) + (site[0] - right)) + force) * inv_mass
+    a = site_tangent_acceleration(site[0], site[1], left, right, inv_mass, coupling, stiffness[j])
     du[j] = site[0]
     dv[j] = site[1]
-    dau[j] = a
-    dav[j] = force
-    dpu[j] = site[2] + h * a
-    dpv[j] = site[3] + h * force
+    dau[j] = a[0]
+    dav[j] = a[1]
+    dpu[j] = site[2] + h * a[0]
+    dpv[j] = site[3] + h * a[1]
 
 
 @wp.func
@@ -680,7 +696,7 @@ def rk4_site(
     v = s.v[j]
     pu = s.pu[j]
     pv = s.pv[j]
-    a = site_acceleration(left, u, right, v, inv_mass, coupling)
+    a = site_acceleration(u, v, left, right, inv_mass, coupling)
     t.u[j] = wp.where(first != 0, weight * pu, t.u[j] + weight * pu)
     t.v[j] = wp.where(first != 0, weight * pv, t.v[j] + weight * pv)
     t.pu[j] = wp.where(first != 0, weight * a[0], t.pu[j] + weight * a[0])
