@@ -45,60 +45,43 @@ def main():
     ref = reference.integrate("verlet", p, check, dt, 400)["x"]
     batches = (1, 805, 32768) if args.quick else (1, 64, 805, 1600, 2400, 4096, 32768)
     rows = []
-    for label in WARP_SITES:
-        sites = 1 if label == "1g" else label
-        ensemble._SITES_FORCED = sites
+
+    def use(label, min_blocks=0):
+        """Force the Warp variant ``label``: 1, 2, 4, 7 sites per thread, or "1g" (one site per thread through
+        the site-group kernels), with ``min_blocks`` blocks per SM as their launch bound; its error against
+        the reference after 400 steps."""
+        ensemble._SITES_FORCED = 1 if label == "1g" else label
         ensemble._GROUP_ONE_SITE = label == "1g"
+        ensemble._GROUP_MIN_BLOCKS = {1: min_blocks} if min_blocks else {}
         run = simulate(p, check, 400 * dt, dt, device=args.device, layout="block", max_energy_error=None)
-        err = float(np.max(np.abs(run.x - ref)))
+        return float(np.max(np.abs(run.x - ref)))
+
+    def measure(name, batch, steps, method="verlet", err=None):
+        x0 = np.repeat(one[None], batch, 0)
+        best = time_steps(p, x0, steps, dt, method=method, device=args.device, layout="block")
+        rate = batch * p.N * steps / best
+        impl = "warp" if method == "verlet" else f"warp-{method}"
+        rows.append({"impl": impl, "sites": name, "batch": batch, "rate": rate, "ns_per_step": 1e9 * best / steps})
+        line = (
+            f"{impl} sites/thread {name} batch {batch:6d}: {rate:.3g} site-steps/s ({1e9 * best / steps:.1f} ns/step)"
+        )
+        print(line + (f"; max |x - reference| after 400 steps {err:.2g}" if err is not None else ""), flush=True)
+
+    for label in WARP_SITES:
+        err = use(label)
         for batch in batches:
-            x0 = np.repeat(one[None], batch, 0)
-            steps = 20000 if batch <= 64 else 2000 if batch < 32768 else 4000
-            best = time_steps(p, x0, steps, dt, device=args.device, layout="block")
-            rate = batch * p.N * steps / best
-            rows.append(
-                {"impl": "warp", "sites": sites, "batch": batch, "rate": rate, "ns_per_step": 1e9 * best / steps}
-            )
-            print(
-                f"warp sites/thread {label} batch {batch:6d}: {rate:.3g} site-steps/s "
-                f"({1e9 * best / steps:.1f} ns/step);"
-                f" max |x - reference| after 400 steps {err:.2g}",
-                flush=True,
-            )
+            measure(label, batch, 20000 if batch <= 64 else 2000 if batch < 32768 else 4000, err=err)
     for min_blocks in (6, 7, 8):  # one site per thread, registers capped so that 805 lattices need fewer waves
-        ensemble._SITES_FORCED, ensemble._GROUP_ONE_SITE = 1, True
-        ensemble._GROUP_MIN_BLOCKS = {1: min_blocks}
-        run = simulate(p, check, 400 * dt, dt, device=args.device, layout="block", max_energy_error=None)
-        err = float(np.max(np.abs(run.x - ref)))
+        err = use("1g", min_blocks)
         for batch in (1, 805, 1600):
-            x0 = np.repeat(one[None], batch, 0)
-            steps = 20000 if batch <= 64 else 2000
-            best = time_steps(p, x0, steps, dt, device=args.device, layout="block")
-            rate = batch * p.N * steps / best
-            label = f"1g-minb{min_blocks}"
-            rows.append(
-                {"impl": "warp", "sites": label, "batch": batch, "rate": rate, "ns_per_step": 1e9 * best / steps}
-            )
-            print(
-                f"warp sites/thread {label} batch {batch:6d}: {rate:.3g} site-steps/s; max |x - ref| {err:.2g}",
-                flush=True,
-            )
-    ensemble._GROUP_MIN_BLOCKS = {}
-    ensemble._SITES_FORCED = None
-    ensemble._GROUP_ONE_SITE = None
+            measure(f"1g-minb{min_blocks}", batch, 20000 if batch <= 64 else 2000, err=err)
     for method in ("yoshida4", "kahan8"):  # many-stage methods: one site per thread against a warp per lattice
         for label in (1, "1g", 7):
-            ensemble._SITES_FORCED = 1 if label == "1g" else label
-            ensemble._GROUP_ONE_SITE = label == "1g"
+            use(label)
             for batch in (805, 4096, 32768):
-                x0 = np.repeat(one[None], batch, 0)
-                steps = 400 if batch < 32768 else 200
-                best = time_steps(p, x0, steps, dt, method=method, device=args.device, layout="block")
-                rate = batch * p.N * steps / best
-                rows.append({"impl": f"warp-{method}", "sites": label, "batch": batch, "rate": rate})
-                print(f"warp {method} sites/thread {label} batch {batch:6d}: {rate:.3g} site-steps/s", flush=True)
-    ensemble._SITES_FORCED = None
-    ensemble._GROUP_ONE_SITE = None
+                measure(label, batch, 400 if batch < 32768 else 200, method=method)
+    ensemble._SITES_FORCED = ensemble._GROUP_ONE_SITE = None
+    ensemble._GROUP_MIN_BLOCKS = {}
     for sites in HAND_SITES:
         run = cupy_verlet_runner(p.M, p.K, sites=sites)
         if run is None:

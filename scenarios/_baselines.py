@@ -241,18 +241,18 @@ def cupy_verlet_runner(
         launch timed on the host, as ``time_steps`` times Warp's)."""
         batch, _, n = x0.shape
         if sites_choice == "auto":
-            sites = min(8, -(-n // 32)) if batch >= AUTO_SITES_BATCH else 1
+            per_thread = min(8, -(-n // 32)) if batch >= AUTO_SITES_BATCH else 1
         else:
-            sites = int(sites_choice)
-        run.sites = sites
-        if sites > 1:
+            per_thread = int(sites_choice)
+        run.sites = per_thread
+        if per_thread > 1:
             lpb = 1
         elif lpb_choice == "auto":
             lpb = 2 if batch >= AUTO_TWO_PER_BLOCK else 1
         else:
             lpb = int(lpb_choice)
         run.lattices_per_block = lpb
-        kernel, threads = kernel_for(n, lpb, sites)
+        kernel, threads = kernel_for(n, lpb, per_thread)
         grid = (-(-batch // lpb),)
         args = (np.int32(batch), np.int32(nsteps), np.float64(dt), np.float64(1.0 / M), np.float64(K))
         x = cp.asarray(x0)
