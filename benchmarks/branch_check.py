@@ -4,7 +4,10 @@ Runs a branch (K or frequency) of the paper chain with the default continuation 
 dense scan at fixed parameter steps inside the given windows (fixed-parameter Newton from the
 nearest branch point, reduced Floquet), and reports every scan point whose verdict disagrees with
 the branch's (the verdict between two branch points is theirs when they agree; scan points inside a
-located bracket are skipped as undecided at the branch's resolution).
+located bracket are skipped as undecided at the branch's resolution). Inside a stretch of unresolved
+bubbles (``Branch.unresolved_bubbles``: bubbles predicted narrower than the chase width) the branch
+states a predicted unstable fraction instead of a verdict: the scan's unstable fraction there is
+reported beside it, per stretch, and those points are not counted as disagreements.
 
     python benchmarks/branch_check.py omega --window 1.0125 1.0166 --step 1e-4 --out results/check
     python benchmarks/branch_check.py K --window 1.9 4.2 --step 2e-3 --out results/check
@@ -28,6 +31,14 @@ import continuation as ct  # noqa: E402
 from continuation.branch import continue_in_coupling, continue_in_frequency  # noqa: E402
 from warpchain import ChainParams, Flow  # noqa: E402
 from warpchain.store import jsonable  # noqa: E402
+
+
+def in_foam(foam, value):
+    """The index of the unresolved-bubble stretch (``Branch.unresolved_bubbles``) holding ``value``, or None."""
+    for k, st in enumerate(foam):
+        if min(st["start"], st["end"]) <= value <= max(st["start"], st["end"]):
+            return k
+    return None
 
 
 def branch_verdict(points, par, value):
@@ -76,12 +87,15 @@ def main(argv=None):
     branch_seconds = time.perf_counter() - t0
     log(f"branch: {br.message}; {br.stats}")
     par = args.parameter
-    disagreements, scanned = [], 0
+    disagreements, scanned, scan = [], 0, []
     vals = np.array([getattr(q, par) for q in br.points])
+    foam = br.unresolved_bubbles()
+    foam_scan = [{"scanned": 0, "unstable": 0} for _ in foam]
     for lo, hi in args.window:
         for value in np.arange(lo, hi + 0.5 * args.step, args.step):
             verdict = branch_verdict(br.points, par, value)
-            if verdict in (None, "outside"):
+            stretch = in_foam(foam, value)
+            if verdict == "outside" or (verdict is None and stretch is None):
                 continue
             near = br.points[int(np.argmin(np.abs(vals - value)))]
             pr = p.replace(K=float(value)) if par == "K" else p
@@ -92,6 +106,11 @@ def main(argv=None):
                 continue
             fl = ct.floquet(res)
             scanned += 1
+            scan.append({"value": float(value), "stable": fl.stable, "max_modulus": fl.max_modulus})
+            if stretch is not None:
+                foam_scan[stretch]["scanned"] += 1
+                foam_scan[stretch]["unstable"] += int(not fl.stable)
+                continue
             if fl.stable != verdict:
                 disagreements.append(
                     {
@@ -117,10 +136,25 @@ def main(argv=None):
         "windows": args.window,
         "scanned": scanned,
         "disagreements": disagreements,
+        "unresolved_bubbles": [dict(st, scan=sc) for st, sc in zip(foam, foam_scan)],
+        "foam_steps": [
+            {k: e[k] for k in ("bracket", "predicted", "unstable_fraction", "max_modulus", "widest")}
+            for e in br.events
+            if e["type"] == "bubble_foam"
+        ],
+        "scan": scan,
+        "points": [{par: getattr(q, par), "stable": q.stable, "max_modulus": q.max_modulus} for q in br.points],
         "scan_seconds": time.perf_counter() - t0 - branch_seconds,
     }
     (args.out / f"check-{par}.json").write_text(json.dumps(jsonable(out), indent=1))
-    log(f"scan: {scanned} points, {len(disagreements)} disagreements")
+    log(f"scan: {scanned} points, {len(disagreements)} disagreements outside unresolved-bubble stretches")
+    for st, sc in zip(foam, foam_scan):
+        if sc["scanned"]:
+            log(
+                f"  unresolved bubbles in [{st['start']:.6g}, {st['end']:.6g}]: {st['predicted']} predicted, "
+                f"predicted unstable fraction {st['unstable_fraction']:.3f}; scan {sc['unstable']} of "
+                f"{sc['scanned']} unstable ({sc['unstable'] / sc['scanned']:.3f})"
+            )
 
 
 if __name__ == "__main__":

@@ -44,6 +44,26 @@ def _bubbles(wide: list, narrow: list) -> str:
     return "; ".join(parts) if parts else "nothing"
 
 
+def _unresolved(s: dict, symbol: str, fmt: str) -> str:
+    """The stretches where bubbles were predicted too narrow to chase, in one sentence."""
+    st = s.get("unresolved_bubbles", [])
+    if not st:
+        return ""
+    lo = min(min(x["start"], x["end"]) for x in st)
+    hi = max(max(x["start"], x["end"]) for x in st)
+    span = sum(abs(x["end"] - x["start"]) for x in st)
+    frac = sum(x["unstable_fraction"] * abs(x["end"] - x["start"]) for x in st) / span if span else 0.0
+    big = max(st, key=lambda x: abs(x["end"] - x["start"]))
+    return (
+        f" Bubbles predicted narrower than the chase width were not solved for in {len(st)} stretches between "
+        f"{symbol} = {lo:{fmt}} and {hi:{fmt}} ({sum(x['predicted'] for x in st)} bubbles, each < "
+        f"{max(x['widest'] for x in st):.1e} wide in the continuation coordinate, predicted max |l| - 1 = "
+        f"{max(x['max_predicted_modulus'] for x in st) - 1:.1e}, covering a predicted {frac:.1%} of them; the "
+        f"longest [{big['start']:{fmt}}, {big['end']:{fmt}}], {big['unstable_fraction']:.1%}): there the branch "
+        f"states that fraction, not a verdict."
+    )
+
+
 def report(root: Path, flat: bool = False) -> str:
     k = _load(root, "continuation-k", flat)
     w = _load(root, "continuation-omega", flat)
@@ -63,6 +83,7 @@ def report(root: Path, flat: bool = False) -> str:
         f"{max((iv['end'] for iv in short), default=float('nan')):.4g}, and unstable "
         + "; ".join(_interval(iv, ".4g") for iv in long_)
         + "."
+        + _unresolved(k, "K", ".4g")
     )
     wivs = w["unstable_intervals"]
     # bubbles inside the stable stretch: listed when wider than 1e-4 in w_b, else counted
@@ -80,6 +101,7 @@ def report(root: Path, flat: bool = False) -> str:
         + "; unstable "
         + "; ".join(_interval(iv, ".6f") for iv in wivs[-1:])
         + "."
+        + _unresolved(w, "w_b", ".6f")
     )
     for s, name in ((k, "K"), (w, "frequency")):
         st = s["branch_stats"]

@@ -120,6 +120,19 @@ def wide(bubbles, step: float, min_width: float) -> list:
     return [x for x in bubbles if 2.0 * x.half_width * step >= min_width]
 
 
+def covered_fraction(bubbles) -> float:
+    """Fraction of the step inside the union of the bubbles' predicted extents [t - w/2, t + w/2]
+    (clipped to the step): the share of the step the model predicts unstable."""
+    spans = sorted((max(x.t - x.half_width, 0.0), min(x.t + x.half_width, 1.0)) for x in bubbles)
+    total, end = 0.0, 0.0
+    for lo, hi in spans:
+        lo = max(lo, end)
+        if hi > lo:
+            total += hi - lo
+            end = hi
+    return float(min(total, 1.0))
+
+
 def chase_fractions(bubbles, step: float, min_width: float, margin: float = 1.5) -> list:
     """Where to solve for the bubbles at least ``min_width`` wide (in the continuation coordinate) in a
     step of length ``step``: per bubble its centre, and points ``margin`` half-widths out on either

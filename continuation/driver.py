@@ -256,6 +256,10 @@ class Branch:
     def unstable_intervals(self) -> list:
         return ev.unstable_intervals(list(self.points), self.parameter)
 
+    def unresolved_bubbles(self) -> list:
+        """Stretches with predicted bubbles too narrow to chase (``events.unresolved_bubbles``)."""
+        return ev.unresolved_bubbles(list(self.points), self.events, self.parameter)
+
     def stability_changes(self) -> list:
         return [
             {"bracket": e["bracket"], "from_stable": e["from_stable"], "kinds": e["kinds"], "localized": e["localized"]}
@@ -426,7 +430,8 @@ def continuation(
     if settings.bisect_krein == "auto":
         settings = settings.replace(bisect_krein="all" if problem.params.N <= AUTO_ALL_SITES else "predict")
     bubble_width = settings.bubble_width or settings.resolution / BUBBLE_FRACTION
-    stats.update(bubbles_predicted=0, bubbles_below_width=0, bubble_solves=0, bubbles_confirmed=0)
+    stats.update(bubbles_predicted=0, bubbles_below_width=0, bubble_solves=0, bubbles_confirmed=0, foam_steps=0)
+    predictions: dict = {}  # (id(a), id(b)) -> predicted bubbles, for the step's chase and its record
     if resume:
         if len(resume) < 2 and problem.parameter == "omega":
             raise ValueError("resuming a frequency branch needs at least two stored points (they set the tangent)")
@@ -446,13 +451,31 @@ def continuation(
             stats["solves"] += 1
             accept(analysed(sol))
 
+    def predicted_in(a, b):
+        """The bubbles ``continuation.bubbles`` predicts in the step (a, b); None without spectra."""
+        key = (id(a), id(b))
+        if key not in predictions:
+            sa, sb = spectra.get(id(a)), spectra.get(id(b))
+            if sa is None or sb is None or sa[0] is not a or sb[0] is not b:
+                return None
+            predictions[key] = bubbles.predict(a, b, sa[1], sb[1])
+        return predictions[key]
+
+    def leaf(a, b, h):
+        """A final step (a, b) of length h: record the predicted bubbles in it too narrow to chase."""
+        if settings.bisect_krein == "predict":
+            narrow = [x for x in predicted_in(a, b) or () if 2.0 * x.half_width * h < bubble_width]
+            if narrow:
+                stats["foam_steps"] += 1
+                note(ev.foam_event(a, b, par, narrow, h))
+        return [b]
+
     def chase_bubbles(a, b, h, depth, misses):
         """Solve inside a step with both ends stable where ``bubbles`` predicts an instability
         bubble at least ``bubble_width`` wide; None when nothing is predicted there."""
-        sa, sb = spectra.get(id(a)), spectra.get(id(b))
-        if sa is None or sb is None or sa[0] is not a or sb[0] is not b:
+        predicted = predicted_in(a, b)
+        if predicted is None:
             return None
-        predicted = bubbles.predict(a, b, sa[1], sb[1])
         stats["bubbles_predicted"] += len(predicted)
         plan = bubbles.chase_fractions(predicted, h, bubble_width)
         stats["bubbles_below_width"] += len(predicted) - len(bubbles.wide(predicted, h, bubble_width))
@@ -502,19 +525,19 @@ def continuation(
             if chased is not None:
                 return chased
         if what is None:
-            return [b]
+            return leaf(a, b, h)
         if what == "count" and not settings.bisect_counts:
             note(ev.stability_change_event(a, b, par))
-            return [b]
+            return leaf(a, b, h)
         if what == "krein" and not (
             settings.bisect_krein == "all"
             or (settings.bisect_krein in ("localized", "predict") and ev.localized_krein_crossings(a, b))
         ):
             note(ev.krein_event(a, b, par, bisected=False))
-            return [b]
+            return leaf(a, b, h)
         if h <= settings.resolution or depth > 40:
             note(ev.krein_event(a, b, par) if what == "krein" else ev.stability_change_event(a, b, par))
-            return [b]
+            return leaf(a, b, h)
         stats["bisection_solves"] += 1
         m = solve(problem.between, a, b)
         if isinstance(m, Failure) or not problem.is_between(a, m, b):
@@ -523,7 +546,7 @@ def continuation(
                 "did not converge)" if isinstance(m, Failure) else "fell outside the bracket)"
             )
             note(e)
-            return [b]
+            return leaf(a, b, h)
         return refine(a, m, 0.5 * h, depth + 1, misses) + refine(m, b, 0.5 * h, depth + 1, misses)
 
     bar = None
@@ -590,6 +613,7 @@ def continuation(
                 accept(p, on_walk=p is new)
             kept = spectra.get(id(points[-1]))
             spectra.clear()
+            predictions.clear()
             if kept is not None:
                 spectra[id(points[-1])] = kept
             # next step: grow after an easy solve, bounded by the multipliers' motion and ds_max

@@ -13,6 +13,10 @@ bracket is below the settings' resolution.
   instability bubble and is bisected like a stability change. Same-signature crossings cannot.
 * **Contact**: min over the orbit of 1 + u - v <= 0 stops a branch.
 * **Harmonics**: n w_b entering a phonon band (flagged; resonances of the breather with phonons).
+* **Unresolved bubbles**: a final step of the branch in which ``continuation.bubbles`` predicts
+  bubbles narrower than the driver's chase width, which nobody solved for (``bubble_foam``).
+  ``unresolved_bubbles`` merges such steps into stretches, where the branch's verdict between its
+  points is "stable outside bubbles covering the predicted fraction", not "stable".
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ import enum
 
 import numpy as np
 
+from .bubbles import covered_fraction
 from .floquet import KINDS
 
 
@@ -223,6 +228,83 @@ def bubble_event(a, b, fraction: float, m, parameter: str, predicted=()) -> dict
         + ("" if best is None else f" (|l| ~ {best.modulus:.6f})")
         + (f": confirmed, max|l| = {m.max_modulus:.6f}" if confirmed else ": not seen there (stable)"),
     }
+
+
+def foam_event(a, b, parameter: str, narrow, step: float) -> dict:
+    """The bubbles predicted in the final step (a, b) that are narrower than the chase width
+    (``narrow``: ``continuation.bubbles.Bubble``; ``step``: the step's length in the continuation
+    coordinate, which their widths are fractions of)."""
+    pa, pb = getattr(a, parameter), getattr(b, parameter)
+    widest = max(narrow, key=lambda x: x.half_width)
+    return {
+        "type": "bubble_foam",
+        "parameter": parameter,
+        "bracket": [pa, pb],
+        "predicted": len(narrow),
+        "unstable_fraction": covered_fraction(narrow),
+        "max_modulus": float(max(x.modulus for x in narrow)),
+        "widest": float(2.0 * widest.half_width * step),
+        "message": None,
+    }
+
+
+def _weak_extended(point) -> bool:
+    """Unstable only through weak instabilities of extended (phonon) Floquet vectors."""
+    return (not point.stable) and _weak(point) and not any(i.localized for i in point.instabilities)
+
+
+def unresolved_bubbles(points, events, parameter: str) -> list:
+    """Stretches of the branch where bubbles narrower than the chase width were predicted and not
+    solved for: maximal runs of consecutive steps carrying a ``bubble_foam`` event, joined across steps
+    whose two ends are both weakly unstable through extended vectors (the foam's own bubbles caught by
+    a branch point; a stable window between two of them is as likely as in the rest of the foam).
+
+    Returns a list of ``{start, end, steps, predicted, unstable_fraction, max_predicted_modulus,
+    widest, points, unstable_points, max_modulus}``: ``unstable_fraction`` is the share of the foam
+    steps that the predicted bubbles cover (length-weighted), ``widest`` the widest predicted bubble
+    (continuation coordinate), ``points``/``unstable_points`` the solved points inside the stretch.
+    """
+    foam = {tuple(e["bracket"]): e for e in events if e.get("type") == "bubble_foam"}
+    if not foam or len(points) < 2:
+        return []
+    vals = [getattr(p, parameter) for p in points]
+    n = len(points) - 1
+    kind = [foam.get((vals[i], vals[i + 1])) for i in range(n)]
+    member = [k is not None for k in kind]
+    weak = [_weak_extended(points[i]) and _weak_extended(points[i + 1]) for i in range(n)]
+    for order in (range(n), range(n - 1, -1, -1)):  # spread into weakly unstable steps next to foam
+        prev = False
+        for i in order:
+            member[i] = member[i] or (weak[i] and prev)
+            prev = member[i]
+    out, i = [], 0
+    while i < n:
+        if not member[i]:
+            i += 1
+            continue
+        j = i
+        while j + 1 < n and member[j + 1]:
+            j += 1
+        found = [kind[k] for k in range(i, j + 1) if kind[k] is not None]
+        lengths = np.array([abs(vals[k + 1] - vals[k]) for k in range(i, j + 1) if kind[k] is not None])
+        fractions = np.array([e["unstable_fraction"] for e in found])
+        inside = points[i : j + 2]
+        out.append(
+            {
+                "start": vals[i],
+                "end": vals[j + 1],
+                "steps": j - i + 1,
+                "predicted": int(sum(e["predicted"] for e in found)),
+                "unstable_fraction": float(fractions @ lengths / lengths.sum()) if lengths.sum() > 0 else 0.0,
+                "max_predicted_modulus": float(max(e["max_modulus"] for e in found)),
+                "widest": float(max(e["widest"] for e in found)),
+                "points": len(inside),
+                "unstable_points": int(sum(not p.stable for p in inside)),
+                "max_modulus": float(max(p.max_modulus for p in inside)),
+            }
+        )
+        i = j + 1
+    return out
 
 
 def contact_event(prev, point, parameter: str) -> dict:

@@ -263,6 +263,34 @@ def reduced_matrix(A: np.ndarray, M: float) -> np.ndarray:
     return ((A22.T * m) @ A11 + (A12.T * m) @ A21) / m[:, None]
 
 
+def reduced_products(A: np.ndarray, M: float) -> tuple:
+    """Mu, the symplecticity gauge and P = A11^T Mm A21 from four products of size 2N instead of ten.
+
+    In (q, p) coordinates W11 = A11, W12 = A12 Mm^-1, W21 = Mm A21, W22 = Mm A22 Mm^-1, so with
+    X = W22^T W11 and Y = W12^T W21: Mu = X + Y, and the blocks of W^T J W - J are
+    S12 = (X - Y)^T - I, S11 = P - P^T with P = W11^T W21, S22 = Q - Q^T with Q = W12^T W22. P also
+    gives the Krein signature: (A11 a)^T Mm (A21 a) = a^T P a. Same values as ``reduced_matrix`` and
+    ``half_map_symplecticity`` (up to round-off in the order of the sums).
+
+    Returns:
+        (Mu (2N, 2N), symplecticity (float), P (2N, 2N)).
+    """
+    n2 = A.shape[0] // 2
+    m = _masses(M, n2 // 2)
+    A11, A12, A21, A22 = A[:n2, :n2], A[:n2, n2:], A[n2:, :n2], A[n2:, n2:]
+    C = A12.T * m
+    X = (A22.T * m) @ A11  # Mm X
+    Y = C @ A21  # Mm Y
+    P = (A11.T * m) @ A21
+    Z = C @ A22  # Mm Q Mm
+    Mu = (X + Y) / m[:, None]
+    S12 = (X - Y) / m[:, None]
+    S12[np.diag_indices(n2)] -= 1.0
+    S22 = (Z - Z.T) / m[:, None] / m[None, :]
+    sympl = max(float(np.max(np.abs(S12))), float(np.max(np.abs(P - P.T))), float(np.max(np.abs(S22))))
+    return Mu, sympl, P
+
+
 def multipliers_from_mu(mu: np.ndarray) -> np.ndarray:
     """The pair (l, 1/l) of each mu, |l| >= 1 first: shape (2 * len(mu),)."""
     mu = np.asarray(mu, dtype=complex)
@@ -371,11 +399,12 @@ def _apply_left(X: np.ndarray, basis) -> np.ndarray:
 
 
 def _expand(Y: np.ndarray, basis, n2: int) -> np.ndarray:
-    """S @ Y: vectors in the basis back to the 2N coordinates."""
+    """S @ Y: vectors in the basis back to the 2N coordinates (i1 and i2 each hold distinct indices,
+    so plain fancy-index assignment adds nothing twice; np.add.at was 1 s of a branch)."""
     i1, i2, w1, w2 = basis
     out = np.zeros((n2, Y.shape[1]), dtype=Y.dtype)
-    np.add.at(out, i1, Y * w1[:, None])
-    np.add.at(out, i2, Y * w2[:, None])
+    out[i1] += Y * w1[:, None]
+    out[i2] += Y * w2[:, None]
     return out
 
 
@@ -434,10 +463,8 @@ def reduced_floquet(
         tolerance: override of the measured tolerance (in mu).
     """
     start = time.perf_counter()
-    n2 = A.shape[0] // 2
-    N = n2 // 2
-    m = _masses(M, N)
-    Mu = reduced_matrix(A, M)
+    N = A.shape[0] // 4
+    Mu, sympl, P = reduced_products(A, M)
     blocks = parity_blocks(Mu) if state is not None and mirror_symmetric(state, SYMMETRIC_RTOL) else None
     if blocks is None:
         mu, vec = np.linalg.eig(Mu)
@@ -447,15 +474,14 @@ def reduced_floquet(
         mu, vec, parity, parts = blocks
         spectral = SpectralData(Mu, parts)
     trivial = int(np.argmin(np.abs(mu - 1.0)))
-    sympl = half_map_symplecticity(A, M)
     accuracy = {"trivial_deviation": float(abs(mu[trivial] - 1.0)), "symplecticity": sympl}
     tol = 10.0 * max(accuracy["trivial_deviation"], sympl, 1e-13) if tolerance is None else float(tolerance)
     if tol < 0:
         raise ValueError(f"tolerance must be >= 0, got {tolerance!r}")
     kinds = mu_kind(mu, tol)
-    # Krein signature of elliptic mu: -sign((A11 a)^T Mm (A21 a)) (real eigenvectors for real mu)
+    # Krein signature of elliptic mu: -sign((A11 a)^T Mm (A21 a)) = -sign(a^T P a) (real eigenvectors for real mu)
     a = np.real(vec)
-    act = np.sum((A[:n2, :n2] @ a) * m[:, None] * (A[n2:, :n2] @ a), axis=0)
+    act = np.sum(a * (P @ a), axis=0)
     signature = np.where(kinds == "elliptic", -np.sign(act), 0).astype(int)
     signature[trivial] = 0
     pr = participation(vec, M)

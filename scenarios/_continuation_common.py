@@ -126,16 +126,28 @@ def branch_summary(branch: Branch, parameter: str) -> dict:
         "ended_on_physics": branch.stop_reason.physical,
         "unstable_intervals": branch.unstable_intervals(),
         "stability_changes": branch.stability_changes(),
+        "unresolved_bubbles": branch.unresolved_bubbles(),
         "krein_crossings_recorded": sum(1 for e in events if e["type"] == "krein_crossing"),
-        "events": [e for e in events if e["type"] != "krein_crossing"],
+        "events": [e for e in events if e["type"] not in ("krein_crossing", "bubble_foam")],
         "branch_stats": branch.stats,
         "branch_seconds": branch.wall_seconds,
     }
 
 
-def stability_strip(ax, points, parameter: str, log: bool = False) -> None:
-    """max |l| - 1 along the branch on a log axis, coloured by the leading instability's kind."""
+def stability_strip(ax, points, parameter: str, log: bool = False, unresolved=()) -> None:
+    """max |l| - 1 along the branch on a log axis, coloured by the leading instability's kind;
+    ``unresolved``: the summary's ``unresolved_bubbles`` stretches, shaded (predicted bubbles too narrow
+    to chase, where the branch states a predicted unstable fraction instead of a verdict)."""
     x = np.array([getattr(p, parameter) for p in points])
+    for n, st in enumerate(unresolved):
+        ax.axvspan(
+            min(st["start"], st["end"]),
+            max(st["start"], st["end"]),
+            color="tab:orange",
+            alpha=0.2,
+            lw=0,
+            label="bubbles below the chase width (predicted, not solved)" if n == 0 else None,
+        )
     dev = np.array([p.max_modulus - 1.0 for p in points])
     floor = 1e-9
     ax.plot(x, np.maximum(dev, floor), "-", color="0.75", lw=0.8)

@@ -149,7 +149,9 @@ def plot(out) -> None:
     stop = s["stop_reason"].replace("_", " ")
     ax.set_title(f"continuation in K: M = {s['M']:g}, $\\omega_b$ = {s['omega']}, N = {s['N']} (stopped: {stop})")
     ax.legend(fontsize=8, loc="upper left")
-    stability_strip(fig.add_subplot(gs[1, :], sharex=ax), points, "K", log=True)
+    stability_strip(
+        fig.add_subplot(gs[1, :], sharex=ax), points, "K", log=True, unresolved=s.get("unresolved_bubbles", ())
+    )
     for col, comp in enumerate(("u", "v")):
         a = fig.add_subplot(gs[2, col])
         for lab, k in zip(("I", "II", "III"), profile_K):

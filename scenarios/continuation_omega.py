@@ -188,7 +188,7 @@ def plot(out) -> None:
     fig = plt.figure(figsize=(12, 7))
     ax = fig.add_subplot(2, 1, 1)
     ax.axvspan(s["band_acoustic_top"], s["band_optical_bottom"], **gap)
-    stability_strip(ax, points, "omega")
+    stability_strip(ax, points, "omega", unresolved=s.get("unresolved_bubbles", ()))
     ax.set_title(r"largest nontrivial Floquet multiplier along the branch (kind of the leading instability)")
     th = np.linspace(0, 2 * np.pi, 2000)
     for k, (n, i) in enumerate(zip(names, labels)):

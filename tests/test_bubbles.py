@@ -94,3 +94,51 @@ def test_predicted_bubbles_match_bisecting_every_pass_at_a_fraction_of_the_solve
     omega = runs["predict"].column("omega")
     assert np.all(np.diff(omega) < 0)  # every solve a new point, in order along the branch
     assert runs["predict"].stats["solves"] < 0.5 * runs["all"].stats["solves"]
+    # bubbles too narrow to chase are recorded per final step and merged into stretches on the branch
+    foam = [e for e in runs["predict"].events if e["type"] == "bubble_foam"]
+    assert len(foam) == runs["predict"].stats["foam_steps"]
+    assert all(tuple(e["bracket"]) in set(zip(omega[:-1], omega[1:])) for e in foam)
+    for stretch in runs["predict"].unresolved_bubbles():
+        lo, hi = sorted((stretch["start"], stretch["end"]))
+        assert omega.min() <= lo and hi <= omega.max()
+        assert 0.0 <= stretch["unstable_fraction"] <= 1.0 and stretch["predicted"] >= 1
+
+
+def test_covered_fraction_is_the_union_of_predicted_extents_clipped_to_the_step():
+    B = bubbles.Bubble
+    found = [B(0.2, 0.05, 0.5 + 1e-4j, 1.0001, 1), B(0.22, 0.05, 0.5 + 1e-4j, 1.0001, 1), B(0.99, 0.05, 0j, 1.0, 1)]
+    # [0.15, 0.27] merged from the two overlapping ones, [0.94, 1.0] clipped at the step's end
+    assert bubbles.covered_fraction(found) == pytest.approx(0.12 + 0.06)
+    assert bubbles.covered_fraction([]) == 0.0
+
+
+def _branch_point(K, stable, modulus=1.0, localized=False):
+    inst = () if stable else (types.SimpleNamespace(localized=localized, kind="complex_quadruplet", mu=0.5 + 1e-5j),)
+    return types.SimpleNamespace(K=K, stable=stable, max_modulus=modulus, instabilities=inst)
+
+
+def test_unresolved_bubble_stretches_join_foam_steps_across_weakly_unstable_points_only():
+    from continuation import events as ev
+
+    B = bubbles.Bubble
+    pts = [
+        _branch_point(1.0, True),
+        _branch_point(2.0, True),
+        _branch_point(3.0, False, 1.00002),  # a foam bubble caught by a branch point
+        _branch_point(4.0, False, 1.00003),
+        _branch_point(5.0, True),
+        _branch_point(6.0, True),
+        _branch_point(7.0, False, 1.00002, localized=True),  # a localized instability is not foam
+        _branch_point(8.0, False, 1.00002, localized=True),
+    ]
+    narrow = [B(0.5, 0.1, 0.5 + 1e-5j, 1.00001, 1)]
+    events = [ev.foam_event(pts[i], pts[i + 1], "K", narrow, 1.0) for i in (1, 4, 5)]
+    events.append({"type": "stability_change", "bracket": [2.0, 3.0]})
+    out = ev.unresolved_bubbles(pts, events, "K")
+    # steps 2-3 (foam) and 3-4 (both ends weakly unstable, extended) join; 4-5 ends stable; 7-8 is localized
+    assert [(s["start"], s["end"]) for s in out] == [(2.0, 4.0), (5.0, 7.0)]
+    first = out[0]
+    assert first["steps"] == 2 and first["predicted"] == 1
+    assert first["unstable_fraction"] == pytest.approx(0.2)  # weighted over the predicted steps only
+    assert first["unstable_points"] == 2 and first["max_modulus"] == pytest.approx(1.00003)
+    assert out[1]["steps"] == 2 and out[1]["predicted"] == 2

@@ -108,3 +108,19 @@ def test_parity_blocks_split_the_reduced_problem_exactly(breather):
     # an orbit that is not mirror-symmetric: no split
     rng = np.random.default_rng(1)
     assert parity_blocks(Mu + 1e-6 * rng.standard_normal(Mu.shape)) is None
+
+
+def test_fused_products_equal_the_separate_reduced_matrix_symplecticity_and_signature(breather):
+    from continuation.floquet import half_map_symplecticity, half_period_map, reduced_products
+
+    A = half_period_map(breather.linearization(breather.flow))
+    M = breather.params.M
+    Mu, sympl, P = reduced_products(A, M)
+    ref = reduced_matrix(A, M)
+    assert np.max(np.abs(Mu - ref)) <= 1e-13 * np.max(np.abs(ref))
+    assert sympl == pytest.approx(half_map_symplecticity(A, M), rel=0.2, abs=1e-15)  # a max of round-off
+    n2 = A.shape[0] // 2
+    m = np.concatenate([np.full(n2 // 2, M), np.ones(n2 // 2)])
+    a = np.random.default_rng(0).standard_normal((n2, 5))
+    act = np.sum((A[:n2, :n2] @ a) * m[:, None] * (A[n2:, :n2] @ a), axis=0)
+    assert np.allclose(np.sum(a * (P @ a), axis=0), act, rtol=1e-10, atol=1e-12 * np.max(np.abs(act)))
