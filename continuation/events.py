@@ -248,7 +248,7 @@ def foam_event(a, b, parameter: str, narrow, step: float) -> dict:
     }
 
 
-def _weak_extended(point) -> bool:
+def weak_extended(point) -> bool:
     """Unstable only through weak instabilities of extended (phonon) Floquet vectors."""
     return (not point.stable) and _weak(point) and not any(i.localized for i in point.instabilities)
 
@@ -271,7 +271,7 @@ def unresolved_bubbles(points, events, parameter: str) -> list:
     n = len(points) - 1
     kind = [foam.get((vals[i], vals[i + 1])) for i in range(n)]
     member = [k is not None for k in kind]
-    weak = [_weak_extended(points[i]) and _weak_extended(points[i + 1]) for i in range(n)]
+    weak = [weak_extended(points[i]) and weak_extended(points[i + 1]) for i in range(n)]
     for order in (range(n), range(n - 1, -1, -1)):  # spread into weakly unstable steps next to foam
         prev = False
         for i in order:
