@@ -35,7 +35,11 @@ the hook through which a caller records points (``on_point``: continuation itsel
    solve does not confirm is re-screened on the two shorter steps it made (twice at most). ``"all"``
    bisects every pass (the default up to AUTO_ALL_SITES sites). The stated limit: a bubble narrower
    than ``bubble_width``, or one the first-order model misplaces by more than its width, can go
-   unseen; ``benchmarks/branch_check.py`` compares a branch with a dense fixed-step scan.
+   unseen; ``benchmarks/branch_check.py`` compares a branch with a dense fixed-step scan. What is
+   predicted but too narrow to chase is not dropped: each final step with such bubbles (and a stable
+   end, or weakly unstable extended ends) records a ``bubble_foam`` event with their predicted
+   unstable fraction, and ``Branch.unresolved_bubbles()`` merges them into the stretches where the
+   branch states that fraction instead of a verdict.
 4. Branches stop on physics by default (end parameter, contact lost) or on a stated number of
    points; a time budget is opt-in (``settings.max_seconds``).
 """
