@@ -466,7 +466,9 @@ def continuation(
         return predictions[key]
 
     def leaf(a, b, h):
-        """A final step (a, b) of length h: record the predicted bubbles in it too narrow to chase."""
+        """A final step (a, b) of length h: record the predicted bubbles in it too narrow to chase, and
+        where the phonon-phonon parametric resonances that make them possible open or close."""
+        note(ev.parametric_event(a, b, par, problem.params.M))
         # a step that is unstable at both ends through anything but weak extended vectors has a verdict
         # that narrow bubbles cannot change: no screening there (it was ~10 ms per step in the acoustic band)
         if settings.bisect_krein == "predict" and (

@@ -25,6 +25,8 @@ import enum
 
 import numpy as np
 
+from warpchain.model import band_edges
+
 from .bubbles import covered_fraction
 from .floquet import KINDS
 
@@ -248,6 +250,53 @@ def foam_event(a, b, parameter: str, narrow, step: float) -> dict:
     }
 
 
+#: orders n of the parametric resonances w_k + w_k' = n w_b that ``parametric_orders`` looks for
+PARAMETRIC_ORDERS = 6
+
+
+def parametric_orders(M: float, K: float, omega: float, n_max: int = PARAMETRIC_ORDERS) -> frozenset:
+    """The orders n <= n_max for which two phonons of the infinite chain can be in parametric resonance
+    through the breather, w_k + w_k' = n w_b, with w_k and w_k' in the acoustic [0, top] or optical
+    [bottom, top] bands: n w_b inside one of the sum sets A + A, A + O, O + O.
+
+    That is the condition for two extended Floquet multipliers of opposite Krein signature to meet
+    (e^{i w_k T} = e^{-i w_k' T}), i.e. for the finite chain's phonon-phonon bubbles (the foam) to be
+    possible at all. Closed form, no solve: e.g. at w_b = 1.01, M = 30 the first order (two acoustic
+    phonons at w_b / 2) opens where the acoustic top passes w_b / 2, K = 1.99827. Returns the orders as
+    (n, bands) pairs, bands among "AA", "AO", "OO"."""
+    e = band_edges(M, K)
+    ac, op = (0.0, e["acoustic_top"]), (e["optical_bottom"], e["optical_top"])
+    sums = {"AA": (2 * ac[0], 2 * ac[1]), "AO": (ac[0] + op[0], ac[1] + op[1]), "OO": (2 * op[0], 2 * op[1])}
+    return frozenset((n, name) for n in range(1, n_max + 1) for name, (lo, hi) in sums.items() if lo < n * omega < hi)
+
+
+def parametric_event(a, b, parameter: str, M: float) -> dict | None:
+    """Where the parametric-resonance orders (``parametric_orders``) change inside the step (a, b),
+    located by bisection on the straight line between the two points' (K, w_b) (closed form, no solve)."""
+    oa, ob = (parametric_orders(M, p.K, p.omega) for p in (a, b))
+    if oa == ob:
+        return None
+    lo, hi = 0.0, 1.0
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        om = parametric_orders(M, a.K + mid * (b.K - a.K), a.omega + mid * (b.omega - a.omega))
+        lo, hi = (mid, hi) if om == oa else (lo, mid)
+    pa, pb = getattr(a, parameter), getattr(b, parameter)
+    at = pa + 0.5 * (lo + hi) * (pb - pa)
+    opened, closed = sorted(ob - oa), sorted(oa - ob)
+    words = [f"n = {n} ({bands}) opened" for n, bands in opened] + [f"n = {n} ({bands}) closed" for n, bands in closed]
+    return {
+        "type": "parametric_resonance",
+        "parameter": parameter,
+        "bracket": [pa, pb],
+        "at": at,
+        "opened": [list(x) for x in opened],
+        "closed": [list(x) for x in closed],
+        "message": f"phonon-phonon parametric resonance w_k + w_k' = n w_b: {', '.join(words)} "
+        f"at {parameter} = {at:.8g}",
+    }
+
+
 def weak_extended(point) -> bool:
     """Unstable only through weak instabilities of extended (phonon) Floquet vectors."""
     return (not point.stable) and _weak(point) and not any(i.localized for i in point.instabilities)
@@ -257,14 +306,21 @@ def unresolved_bubbles(points, events, parameter: str) -> list:
     """Stretches of the branch where bubbles narrower than the chase width were predicted and not
     solved for: maximal runs of consecutive steps carrying a ``bubble_foam`` event, joined across steps
     whose two ends are both weakly unstable through extended vectors (the foam's own bubbles caught by
-    a branch point; a stable window between two of them is as likely as in the rest of the foam).
+    a branch point; a stable window between two of them is as likely as in the rest of the foam). A
+    stretch whose preceding step holds a ``parametric_resonance`` event that opened an order starts
+    there (``onset``): phonon-phonon bubbles become possible at that parameter, and the first-order
+    model, over a step that long, does not see the first of them.
 
-    Returns a list of ``{start, end, steps, predicted, unstable_fraction, max_predicted_modulus,
+    Returns a list of ``{start, end, onset, steps, predicted, unstable_fraction, max_predicted_modulus,
     widest, points, unstable_points, max_modulus}``: ``unstable_fraction`` is the share of the foam
     steps that the predicted bubbles cover (length-weighted), ``widest`` the widest predicted bubble
     (continuation coordinate), ``points``/``unstable_points`` the solved points inside the stretch.
     """
     foam = {tuple(e["bracket"]): e for e in events if e.get("type") == "bubble_foam"}
+    resonances: dict = {}
+    for e in events:
+        if e.get("type") == "parametric_resonance":
+            resonances.setdefault(tuple(e["bracket"]), []).append(e)
     if not foam or len(points) < 2:
         return []
     vals = [getattr(p, parameter) for p in points]
@@ -285,14 +341,20 @@ def unresolved_bubbles(points, events, parameter: str) -> list:
         j = i
         while j + 1 < n and member[j + 1]:
             j += 1
+        start, onset = vals[i], None
+        if i > 0 and not member[i - 1]:  # the foam's first bubbles can sit before the first step that shows them
+            opened = [e for e in resonances.get((vals[i - 1], vals[i]), ()) if e["opened"]]
+            if opened:
+                start, onset = opened[-1]["at"], opened[-1]["message"]
         found = [kind[k] for k in range(i, j + 1) if kind[k] is not None]
         lengths = np.array([abs(vals[k + 1] - vals[k]) for k in range(i, j + 1) if kind[k] is not None])
         fractions = np.array([e["unstable_fraction"] for e in found])
         inside = points[i : j + 2]
         out.append(
             {
-                "start": vals[i],
+                "start": start,
                 "end": vals[j + 1],
+                "onset": onset,
                 "steps": j - i + 1,
                 "predicted": int(sum(e["predicted"] for e in found)),
                 "unstable_fraction": float(fractions @ lengths / lengths.sum()) if lengths.sum() > 0 else 0.0,

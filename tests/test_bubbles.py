@@ -142,3 +142,23 @@ def test_unresolved_bubble_stretches_join_foam_steps_across_weakly_unstable_poin
     assert first["unstable_fraction"] == pytest.approx(0.2)  # weighted over the predicted steps only
     assert first["unstable_points"] == 2 and first["max_modulus"] == pytest.approx(1.00003)
     assert out[1]["steps"] == 2 and out[1]["predicted"] == 2
+
+
+def test_parametric_resonance_opens_where_the_acoustic_top_passes_half_the_frequency():
+    from scipy.optimize import brentq
+
+    from continuation import events as ev
+    from warpchain.model import band_edges
+
+    K_star = brentq(lambda K: band_edges(30.0, K)["acoustic_top"] - 0.505, 1.0, 3.0, xtol=1e-14)
+    assert (1, "AA") not in ev.parametric_orders(30.0, K_star - 1e-6, 1.01)
+    assert (1, "AA") in ev.parametric_orders(30.0, K_star + 1e-6, 1.01)
+    a, b = (types.SimpleNamespace(K=k, omega=1.01) for k in (1.864, 2.018))
+    e = ev.parametric_event(a, b, "K", 30.0)
+    assert e["opened"] == [[1, "AA"]] and e["closed"] == [] and e["at"] == pytest.approx(K_star, abs=1e-12)
+    assert ev.parametric_event(a, a, "K", 30.0) is None
+    # a foam stretch starting in the next step begins at the opening, not at its first recorded step
+    pts = [_branch_point(1.864, True), _branch_point(2.018, True), _branch_point(2.274, True)]
+    narrow = [bubbles.Bubble(0.5, 0.05, 0.5 + 1e-5j, 1.00001, 1)]
+    out = ev.unresolved_bubbles(pts, [e, ev.foam_event(pts[1], pts[2], "K", narrow, 1.0)], "K")
+    assert len(out) == 1 and out[0]["start"] == pytest.approx(K_star) and "n = 1 (AA) opened" in out[0]["onset"]
