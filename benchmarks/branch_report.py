@@ -71,6 +71,7 @@ def report(root: Path, flat: bool = False) -> str:
     ivs = k["unstable_intervals"]
     foam_k = min((min(x["start"], x["end"]) for x in k.get("unresolved_bubbles", [])), default=float("inf"))
     before = max((p["K"] for p in k["points"] if p["K"] < foam_k), default=float("nan"))
+    onset = next((x.get("onset") for x in k.get("unresolved_bubbles", []) if x.get("onset")), None)
     short = [iv for iv in ivs if iv["max_modulus"] - 1 < 1e-4]
     long_ = [iv for iv in ivs if iv["max_modulus"] - 1 >= 1e-4]
     lines.append(
@@ -78,12 +79,16 @@ def report(root: Path, flat: bool = False) -> str:
         f"{k['points'][0]['K']:g} to K = {k['end_K']:g} (stop: `{k['stop_reason']}`), "
         f"E = {k['end_energy']:.8f} at the end; "
         f"{len(k['stability_changes'])} stability changes, each bracketed to the resolution "
+        + f"({k['parameters']['resolution']:g} in log10 K). "
         + (
-            f"({k['parameters']['resolution']:g} in log10 K). Stable at every point up to K = {before:.4g}; the "
-            f"next step, to K = {foam_k:.4g}, is the last without predicted bubbles too narrow to chase (the foam "
-            "below may begin inside it), "
+            f"Stable up to K = {foam_k:.6g}, where the first phonon-phonon parametric resonance opens "
+            f"({onset.split(': ')[-1].split(' at ')[0]}, closed form from the band edges): from there on the "
+            "branch is in the stretch of unresolved bubbles below; "
+            if foam_k < ivs[0]["start"] and onset
+            else f"Stable at every point up to K = {before:.4g}; the next step, to K = {foam_k:.4g}, is the last "
+            "without predicted bubbles too narrow to chase (the foam below may begin inside it), "
             if foam_k < ivs[0]["start"]
-            else f"({k['parameters']['resolution']:g} in log10 K). Stable up to K = {ivs[0]['start']:.4g}, "
+            else f"Stable up to K = {ivs[0]['start']:.4g}, "
         )
         + f"then {len(short)} solved narrow bubbles of weak extended quadruplets (max |l| - 1 <= "
         f"{max((iv['max_modulus'] - 1 for iv in short), default=0):.0e}) between K = "
