@@ -81,16 +81,17 @@ def report(root: Path, flat: bool = False) -> str:
         f"{len(k['stability_changes'])} stability changes, each bracketed to the resolution "
         + f"({k['parameters']['resolution']:g} in log10 K). "
         + (
-            f"Stable up to K = {foam_k:.6g}, where the first phonon-phonon parametric resonance opens "
-            f"({onset.split(': ')[-1].split(' at ')[0]}, closed form from the band edges): from there on the "
-            "branch is in the stretch of unresolved bubbles below; "
+            f"Stable up to K = {foam_k:.6g}, where the first phonon-phonon parametric resonance w_k + w_k' = "
+            "n w_b opens (closed form from the band edges); from there on the branch is in the stretch of "
+            "unresolved bubbles below. The solved points show "
             if foam_k < ivs[0]["start"] and onset
             else f"Stable at every point up to K = {before:.4g}; the next step, to K = {foam_k:.4g}, is the last "
             "without predicted bubbles too narrow to chase (the foam below may begin inside it), "
             if foam_k < ivs[0]["start"]
             else f"Stable up to K = {ivs[0]['start']:.4g}, "
         )
-        + f"then {len(short)} solved narrow bubbles of weak extended quadruplets (max |l| - 1 <= "
+        + ("" if foam_k < ivs[0]["start"] and onset else "then ")
+        + f"{len(short)} narrow bubbles of weak extended quadruplets (max |l| - 1 <= "
         f"{max((iv['max_modulus'] - 1 for iv in short), default=0):.0e}) between K = "
         f"{min((iv['start'] for iv in short), default=float('nan')):.4g} and "
         f"{max((iv['end'] for iv in short), default=float('nan')):.4g}, and unstable "
