@@ -346,8 +346,9 @@ def unresolved_bubbles(points, events, parameter: str) -> list:
             opened = [e for e in resonances.get((vals[i - 1], vals[i]), ()) if e["opened"]]
             if opened:
                 start, onset = opened[-1]["at"], opened[-1]["message"]
-        found = [kind[k] for k in range(i, j + 1) if kind[k] is not None]
-        lengths = np.array([abs(vals[k + 1] - vals[k]) for k in range(i, j + 1) if kind[k] is not None])
+        recorded = [k for k in range(i, j + 1) if kind[k] is not None]  # the steps with a foam event
+        found = [kind[k] for k in recorded]
+        lengths = np.array([abs(vals[k + 1] - vals[k]) for k in recorded])
         fractions = np.array([e["unstable_fraction"] for e in found])
         inside = points[i : j + 2]
         out.append(
