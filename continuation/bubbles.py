@@ -78,12 +78,12 @@ def predict(a, b, sa, sb) -> list:
     Returns:
         list of Bubble, sorted by centre (empty when either end has no spectral data).
     """
-    if sa is None or sb is None or a.signature is None or len(sa.blocks) != len(sb.blocks):
+    if sa is None or sb is None or a.signature is None or sa.parities != sb.parities:
         return []
     tol = max(float(a.tolerance), float(b.tolerance))
     out = []
     offset = 0
-    for k, (parity, _, R) in enumerate(sa.blocks):
+    for k, (parity, _, _, R) in enumerate(sa.blocks):
         n = R.shape[1]
         sig = np.asarray(a.signature[offset : offset + n])
         mu = np.asarray(a.mu[offset : offset + n])
@@ -91,7 +91,7 @@ def predict(a, b, sa, sb) -> list:
         ip, jm = np.flatnonzero(sig == 1), np.flatnonzero(sig == -1)
         if not (len(ip) and len(jm)):
             continue
-        change = sa.block_matrix(k, sb.Mu) - sa.block_matrix(k)
+        change = sb.block_matrix(k) - sa.block_matrix(k)
         try:
             D = np.linalg.solve(R, change @ R)
         except np.linalg.LinAlgError:  # a defective Mu_a (exactly colliding mu): no eigenbasis to expand in

@@ -60,6 +60,7 @@ from . import bubbles
 from . import events as ev
 from .events import StopReason
 from .floquet import FloquetResult, half_period_map, reduced_floquet
+from .hostblas import DEFAULT_BLAS_THREADS, blas_threads
 from .shooting import frequency_report
 
 
@@ -106,6 +107,8 @@ class ContinuationSettings:
             a kind changed (inside an unstable stretch; recorded as ``instability_count`` events).
         floquet: compute multipliers at every point (False: energies only, no stability).
         max_seconds: opt-in time budget (None: stop only on physics or max_points).
+        blas_threads: threads of the host BLAS during the walk (``continuation.hostblas``: one is
+            fastest at these sizes; None leaves the process's setting alone).
     """
 
     ds: float = 0.05
@@ -124,6 +127,7 @@ class ContinuationSettings:
     chord: bool = True
     floquet: bool = True
     max_seconds: float | None = None
+    blas_threads: int | None = DEFAULT_BLAS_THREADS
 
     def __post_init__(self):
         for name in (
@@ -150,6 +154,8 @@ class ContinuationSettings:
         whole_number("max_newton", self.max_newton, minimum=1)
         if self.max_seconds is not None:
             real_number("max_seconds", self.max_seconds, nonnegative=True)
+        if self.blas_threads is not None:
+            whole_number("blas_threads", self.blas_threads, minimum=1)
 
     def replace(self, **changes) -> "ContinuationSettings":
         return dataclasses.replace(self, **changes)
@@ -386,6 +392,12 @@ def continuation(
     Returns:
         Branch (its ``stop_reason`` says why it stopped; see StopReason.explanation).
     """
+    with blas_threads(settings.blas_threads):
+        return _walk(problem, settings, resume, on_point, on_event, log, progress)
+
+
+def _walk(problem, settings, resume, on_point, on_event, log, progress) -> Branch:
+    """``continuation``'s body (under its BLAS thread limit)."""
     start = time.perf_counter()
     stats = {"solves": 0, "failed_solves": 0, "bisection_solves": 0, "rejected_backwards": 0}
     events: list = []

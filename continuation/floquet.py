@@ -189,20 +189,21 @@ class SpectralData:
     """The reduced matrix of an orbit and its eigenvectors, per parity block.
 
     Attributes:
-        Mu: the reduced matrix (2N x 2N).
-        blocks: (parity, basis, eigenvectors) per block in the order of the result's ``mu``: parity +1
-            / -1 with ``basis`` from ``_parity_basis`` and eigenvectors in that basis, or a single
-            (0, None, eigenvectors of the whole Mu) when the orbit is not mirror-symmetric.
+        blocks: (parity, basis, matrix, eigenvectors) per block, in the order of the result's ``mu``:
+            parity +1 / -1 with ``basis`` from ``_parity_basis``, the block of Mu in that basis and its
+            eigenvectors in that basis; or a single (0, None, Mu, eigenvectors of Mu) when the orbit is
+            not mirror-symmetric.
     """
 
-    Mu: np.ndarray = dataclasses.field(repr=False)
     blocks: tuple = dataclasses.field(repr=False)
 
-    def block_matrix(self, k: int, matrix: np.ndarray | None = None) -> np.ndarray:
-        """Block k of ``matrix`` (default: this Mu) in block k's basis."""
-        X = self.Mu if matrix is None else matrix
-        basis = self.blocks[k][1]
-        return X if basis is None else _apply_left(_apply_right(X, basis), basis)
+    @property
+    def parities(self) -> tuple:
+        return tuple(b[0] for b in self.blocks)
+
+    def block_matrix(self, k: int) -> np.ndarray:
+        """Block k of Mu in block k's basis."""
+        return self.blocks[k][2]
 
 
 # ----------------------------------------------------------------------------- building blocks
@@ -276,8 +277,12 @@ def reduced_products(A: np.ndarray, M: float) -> tuple:
         (Mu (2N, 2N), symplecticity (float), P (2N, 2N)).
     """
     n2 = A.shape[0] // 2
-    m = _masses(M, n2 // 2)
-    A11, A12, A21, A22 = A[:n2, :n2], A[:n2, n2:], A[n2:, :n2], A[n2:, n2:]
+    return _products(A[:n2, :n2], A[:n2, n2:], A[n2:, :n2], A[n2:, n2:], _masses(M, n2 // 2))
+
+
+def _products(A11, A12, A21, A22, m) -> tuple:
+    """``reduced_products`` on the four blocks of A (n x n each) with the diagonal mass matrix m (n,)."""
+    n = A11.shape[0]
     C = A12.T * m
     X = (A22.T * m) @ A11  # Mm X
     Y = C @ A21  # Mm Y
@@ -285,7 +290,7 @@ def reduced_products(A: np.ndarray, M: float) -> tuple:
     Z = C @ A22  # Mm Q Mm
     Mu = (X + Y) / m[:, None]
     S12 = (X - Y) / m[:, None]
-    S12[np.diag_indices(n2)] -= 1.0
+    S12[np.diag_indices(n)] -= 1.0
     S22 = (Z - Z.T) / m[:, None] / m[None, :]
     sympl = max(float(np.max(np.abs(S12))), float(np.max(np.abs(P - P.T))), float(np.max(np.abs(S22))))
     return Mu, sympl, P
@@ -361,8 +366,8 @@ def vector_parity(vectors: np.ndarray, threshold: float = 0.9) -> np.ndarray:
 #: branches: exactly) has its reduced matrix split into even and odd blocks (``parity_blocks``)
 SYMMETRIC_RTOL = 1e-9
 
-#: the parity split is used when the coupling between the even and odd blocks of Mu is below this
-#: fraction of Mu's largest entry (it is ~1e-16 on a projected orbit); otherwise the whole Mu is solved
+#: the parity split is used when the half-period map A couples even and odd vectors by less than this
+#: fraction of A's largest entry (round-off, ~1e-14, on a symmetric orbit); otherwise the whole Mu is solved
 PARITY_COUPLING_RTOL = 1e-11
 
 
@@ -408,33 +413,78 @@ def _expand(Y: np.ndarray, basis, n2: int) -> np.ndarray:
     return out
 
 
-def parity_blocks(Mu: np.ndarray):
-    """Eigen-decomposition of Mu (2N x 2N) of a mirror-symmetric orbit from its even and odd blocks.
+@dataclasses.dataclass(frozen=True)
+class ParityBlock:
+    """The reduced problem restricted to the even (+1) or odd (-1) vectors of a mirror-symmetric orbit.
 
-    The reflection commutes with the orbit's half-period map, so in an orthonormal basis of even and
-    odd vectors Mu is block-diagonal: two eigenproblems of about N each instead of one of 2N (about 4x
-    less work), and every eigenvector's parity is exact instead of read off with a threshold (which
-    leaves near-degenerate even/odd pairs mixed, parity 0).
+    Attributes:
+        parity: +1 or -1.
+        basis: the block's orthonormal basis (``_parity_basis``).
+        Mu: the block of Mu in that basis, (n, n).
+        P: the block of the Krein form P = A11^T Mm A21 in that basis, (n, n).
+        symplecticity: the gauge of ``reduced_products`` on this block.
+        mu: Mu's eigenvalues, (n,); vectors: its eigenvectors in the basis, (n, n).
+    """
+
+    parity: int
+    basis: tuple
+    Mu: np.ndarray
+    P: np.ndarray
+    symplecticity: float
+    mu: np.ndarray
+    vectors: np.ndarray
+
+
+_BLOCK_POOL = None
+
+
+def _block_pool():
+    """Two host threads for the even and the odd block (LAPACK releases the GIL; with one BLAS thread
+    per call, ``hostblas``, the two eigs take the time of one)."""
+    global _BLOCK_POOL
+    if _BLOCK_POOL is None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        _BLOCK_POOL = ThreadPoolExecutor(max_workers=2, thread_name_prefix="warpchain-floquet")
+    return _BLOCK_POOL
+
+
+def parity_blocks(A: np.ndarray, M: float) -> "tuple[ParityBlock, ParityBlock] | None":
+    """The reduced problem of a mirror-symmetric orbit from its half-period map A, per parity.
+
+    The reflection commutes with the orbit's half-period map, so in an orthonormal basis S of even and
+    odd vectors each block of A (A11, A12, A21, A22) is block-diagonal, and so is Mm (a basis vector
+    pairs two sites of the same field, which have the same mass). Then Mu, P and the symplecticity
+    gauge of each parity follow from ``reduced_products`` on the four blocks S^T Aij S of size ~N:
+    products and eigs of two problems of ~N instead of one of 2N (about 4x less work each), done on
+    two host threads, and every eigenvector's parity is exact instead of read off with a threshold
+    (which leaves near-degenerate even/odd pairs mixed, parity 0).
 
     Returns:
-        (mu (2N,), vectors (2N, 2N) in the original coordinates, parity (2N,) of +1/-1, blocks), blocks
-        being (parity, basis, eigenvectors in the basis) for the even and the odd block (in the order of
-        mu); or None when the blocks are coupled by more than PARITY_COUPLING_RTOL of Mu's size (not a
-        symmetric orbit).
+        (even, odd) ParityBlocks, or None when A couples even and odd vectors by more than
+        PARITY_COUPLING_RTOL of A's largest entry (not a symmetric orbit).
     """
-    n2 = Mu.shape[0]
-    even, odd = _parity_basis(n2 // 2)
-    Me, Mo = _apply_right(Mu, even), _apply_right(Mu, odd)
-    scale = max(float(np.max(np.abs(Mu))), 1e-300)
-    coupling = max(float(np.max(np.abs(_apply_left(Me, odd)))), float(np.max(np.abs(_apply_left(Mo, even)))))
+    n2 = A.shape[0] // 2
+    N = n2 // 2
+    even, odd = _parity_basis(N)
+    parts = (A[:n2, :n2], A[:n2, n2:], A[n2:, :n2], A[n2:, n2:])
+    scale = max(float(np.max(np.abs(A))), 1e-300)
+    right = [(_apply_right(X, even), _apply_right(X, odd)) for X in parts]
+    coupling = max(
+        max(float(np.max(np.abs(_apply_left(Xe, odd)))), float(np.max(np.abs(_apply_left(Xo, even)))))
+        for Xe, Xo in right
+    )
     if coupling > PARITY_COUPLING_RTOL * scale:
         return None
-    mu_e, ve = np.linalg.eig(_apply_left(Me, even))
-    mu_o, vo = np.linalg.eig(_apply_left(Mo, odd))
-    mu = np.concatenate([mu_e, mu_o])
-    vec = np.hstack([_expand(ve, even, n2), _expand(vo, odd, n2)])
-    parity = np.concatenate([np.ones(len(mu_e), int), -np.ones(len(mu_o), int)])
-    return mu, vec, parity, ((1, even, ve), (-1, odd, vo))
+    m = _masses(M, N)
+
+    def block(sign, basis, k):
+        Mu, sympl, P = _products(*(_apply_left(r[k], basis) for r in right), m[basis[0]])
+        mu, vec = np.linalg.eig(Mu)
+        return ParityBlock(sign, basis, Mu, P, sympl, mu, vec)
+
+    jobs = [_block_pool().submit(block, sign, basis, k) for k, (sign, basis) in enumerate(((1, even), (-1, odd)))]
+    return tuple(job.result() for job in jobs)
 
 
 # ----------------------------------------------------------------------------- the two paths
@@ -464,15 +514,22 @@ def reduced_floquet(
     """
     start = time.perf_counter()
     N = A.shape[0] // 4
-    Mu, sympl, P = reduced_products(A, M)
-    blocks = parity_blocks(Mu) if state is not None and mirror_symmetric(state, SYMMETRIC_RTOL) else None
+    blocks = parity_blocks(A, M) if state is not None and mirror_symmetric(state, SYMMETRIC_RTOL) else None
     if blocks is None:
+        Mu, sympl, P = reduced_products(A, M)
         mu, vec = np.linalg.eig(Mu)
         parity = vector_parity(vec) if state is not None and mirror_symmetric(state) else np.zeros(len(mu), int)
-        spectral = SpectralData(Mu, ((0, None, vec),))
+        spectral = SpectralData(((0, None, Mu, vec),))
+        a = np.real(vec)
+        act = np.sum(a * (P @ a), axis=0)
     else:
-        mu, vec, parity, parts = blocks
-        spectral = SpectralData(Mu, parts)
+        mu = np.concatenate([b.mu for b in blocks])
+        vec = np.hstack([_expand(b.vectors, b.basis, 2 * N) for b in blocks])
+        parity = np.concatenate([np.full(len(b.mu), b.parity, int) for b in blocks])
+        sympl = max(b.symplecticity for b in blocks)
+        spectral = SpectralData(tuple((b.parity, b.basis, b.Mu, b.vectors) for b in blocks))
+        # a = S y with S real: a^T P a = y^T (S^T P S) y, the block's own P
+        act = np.concatenate([np.sum(np.real(b.vectors) * (b.P @ np.real(b.vectors)), axis=0) for b in blocks])
     trivial = int(np.argmin(np.abs(mu - 1.0)))
     accuracy = {"trivial_deviation": float(abs(mu[trivial] - 1.0)), "symplecticity": sympl}
     tol = 10.0 * max(accuracy["trivial_deviation"], sympl, 1e-13) if tolerance is None else float(tolerance)
@@ -480,8 +537,6 @@ def reduced_floquet(
         raise ValueError(f"tolerance must be >= 0, got {tolerance!r}")
     kinds = mu_kind(mu, tol)
     # Krein signature of elliptic mu: -sign((A11 a)^T Mm (A21 a)) = -sign(a^T P a) (real eigenvectors for real mu)
-    a = np.real(vec)
-    act = np.sum(a * (P @ a), axis=0)
     signature = np.where(kinds == "elliptic", -np.sign(act), 0).astype(int)
     signature[trivial] = 0
     pr = participation(vec, M)

@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 from ._common import PAPER_SCENES, SCENES, load_scene, run_scene
+from ._parallel import parse_jobs, run_parallel
 
 
 def main(argv=None) -> int:
@@ -33,7 +34,15 @@ def main(argv=None) -> int:
     )
     run = sub.add_parser("run", parents=[common], help="run one scene")
     run.add_argument("name", help="scene name (see 'list')")
-    sub.add_parser("paper", parents=[common], help="run every paper scene in order")
+    # set by ``paper --jobs``: the command its children record in their provenance
+    run.add_argument("--provenance-command", default=None, help=argparse.SUPPRESS)
+    paper = sub.add_parser("paper", parents=[common], help="run every paper scene")
+    paper.add_argument(
+        "--jobs",
+        default="auto",
+        help="scenes run at once, each in its own process (default auto: one per 4 CPU cores, at most 4; "
+        "1: in order, in this process)",
+    )
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s", datefmt="%H:%M:%S")
 
@@ -54,7 +63,7 @@ def main(argv=None) -> int:
         overrides[key.strip()] = value.strip()
     if args.command == "paper" and (overrides or args.resume):
         parser.error("--set and --resume apply to one scene: use 'run NAME'")
-    command_line = " ".join(
+    command_line = getattr(args, "provenance_command", None) or " ".join(
         ["python -m scenarios", *(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))]
     )
     from warpchain import store
@@ -62,6 +71,16 @@ def main(argv=None) -> int:
     store.COMMAND_LINE = command_line  # every store's provenance records the command as typed
     try:
         check_output_root(args.out)
+        jobs = parse_jobs(args.jobs, len(names)) if args.command == "paper" else 1
+        if jobs > 1:
+            from warpchain import resolve_device
+
+            device = resolve_device(args.device)  # once, here: a missing GPU is one error, not one per scene
+            failures = run_parallel(names, args.out, device, args.quick, jobs, command_line)
+            for name, code, tail in failures:
+                print(f"error: scene {name} failed (exit {code}); its last lines:", file=sys.stderr)
+                print("\n".join("    " + line for line in tail), file=sys.stderr)
+            return 0 if not failures else max(code for _, code, _ in failures)
         for name in names:
             run_scene(name, args.out, args.device, args.quick, overrides, args.resume, command_line)
     except (ValueError, OSError) as exc:  # bad input, damaged store, unusable --out: one line, exit 2

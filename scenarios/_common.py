@@ -185,8 +185,11 @@ def run_scene(
     ctx = Context(
         name=name, out=out, device=resolved, quick=quick, params=params, resume=resume, command_line=command_line
     )
+    from continuation.hostblas import blas_threads
+
     try:
-        return _run_in(module, ctx)
+        with blas_threads():  # the host's small linear algebra runs fastest on one BLAS thread (hostblas)
+            return _run_in(module, ctx)
     except BaseException:
         if created and not any(out.iterdir()):  # nothing was written: leave no empty folder
             out.rmdir()

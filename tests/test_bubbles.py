@@ -15,7 +15,7 @@ def _point(Mu, signature, tolerance=1e-12):
     order = np.argsort(mu.real)
     mu, R = mu[order], R[:, order]
     return types.SimpleNamespace(
-        spectral=SpectralData(Mu, ((0, None, R),)), mu=mu, signature=np.asarray(signature), tolerance=tolerance
+        spectral=SpectralData(((0, None, Mu, R),)), mu=mu, signature=np.asarray(signature), tolerance=tolerance
     )
 
 

@@ -44,11 +44,34 @@ def test_dispersion_scene(tmp_path):
 
 @pytest.fixture(scope="module")
 def paper_quick(tmp_path_factory):
-    """``python -m scenarios paper --quick``: every paper scene, once, in one process."""
+    """``python -m scenarios paper --quick --jobs 2``: every paper scene, once, two processes at a time
+    (each scene's output is that of ``run NAME``; the tests below read it)."""
     out_dir = tmp_path_factory.mktemp("paper")
-    out = _run("paper", "--quick", "--out", str(out_dir), "--device", "cpu")
+    out = _run("paper", "--quick", "--jobs", "2", "--out", str(out_dir), "--device", "cpu")
     assert out.returncode == 0, out.stderr[-3000:]
+    assert "paper: 8 scenes, 2 at a time in separate processes" in out.stderr
+    assert "paper: 8 scenes in" in out.stderr and "0 failed" in out.stderr
+    # every child's provenance records the paper command as typed
+    s = json.loads((out_dir / "site-bond" / "summary.json").read_text())
+    assert s["command_line"].startswith("python -m scenarios paper --quick --jobs 2")
     return out_dir
+
+
+def test_paper_jobs_are_checked_and_a_failing_scene_is_reported(tmp_path):
+    from scenarios._parallel import auto_jobs, child_environment, parse_jobs, run_parallel
+
+    out = _run("paper", "--jobs", "0", "--out", str(tmp_path))
+    assert out.returncode == 2 and "--jobs takes a whole number >= 1" in out.stderr
+    assert auto_jobs(8, cores=2) == 1 and auto_jobs(8, cores=16) == 4 and auto_jobs(2, cores=64) == 2
+    assert parse_jobs("3", 8) == 3 and parse_jobs("auto", 8) == auto_jobs(8)
+    env, threads = child_environment(4, environ={"OPENBLAS_NUM_THREADS": "8"}, cores=16)
+    assert threads == 2 and env["OMP_NUM_THREADS"] == env["MKL_NUM_THREADS"] == "2" and env["TQDM_DISABLE"] == "1"
+    assert child_environment(4, environ={}, cores=2)[1] == 1
+    # a child that fails (here: a scene that does not exist) does not stop the others; its last lines come back
+    failures = run_parallel(["no-such-scene", "dispersion"], tmp_path, "cpu", True, 2, "test")
+    assert [f[0] for f in failures] == ["no-such-scene"] and failures[0][1] != 0
+    assert any("unknown scene" in line for line in failures[0][2])
+    assert (tmp_path / "dispersion" / "summary.json").exists()
 
 
 def test_breather_scenes_quick(paper_quick):

@@ -176,6 +176,32 @@ def test_settings_are_validated():
         ContinuationSettings(max_points=0)
     with pytest.raises(ValueError, match="bisect_krein"):
         ContinuationSettings(bisect_krein="some")
+    with pytest.raises(ValueError, match="blas_threads"):
+        ContinuationSettings(blas_threads=0)
+
+
+def test_the_walk_runs_on_one_blas_thread_and_restores_the_setting():
+    from threadpoolctl import threadpool_info
+
+    from continuation.hostblas import blas_threads
+
+    def counts():
+        return [lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"]
+
+    before = counts()
+    seen = []
+    p = ChainParams(30.0, 100.0, 21)
+    settings = ContinuationSettings(ds=0.1, ds_max=0.1, max_points=2, floquet=False)
+    continue_in_coupling(
+        p, 1.01, ct.nls_seed(p, 1.01), 160.0, settings=settings, on_point=lambda point: seen.append(counts())
+    )
+    assert seen and all(c == [1] * len(c) for c in seen)
+    assert counts() == before
+    with blas_threads(None):
+        assert counts() == before
+    with pytest.raises(ValueError, match="BLAS threads"):
+        with blas_threads(0):
+            pass
 
 
 def test_a_branch_without_floquet_is_stored_and_read_back(tmp_path):

@@ -91,23 +91,34 @@ def test_a_non_symplectic_map_gives_no_verdict_unless_asked(breather):
 
 
 def test_parity_blocks_split_the_reduced_problem_exactly(breather):
-    from continuation.floquet import half_period_map, parity_blocks, vector_parity
+    from continuation.floquet import _expand, half_period_map, parity_blocks, reduced_products, vector_parity
 
     fl = ct.floquet(breather)
-    Mu = reduced_matrix(half_period_map(breather.linearization(breather.flow)), breather.params.M)
-    mu, vec, parity, blocks = parity_blocks(Mu)
+    A = half_period_map(breather.linearization(breather.flow))
+    M = breather.params.M
+    Mu, sympl, P = reduced_products(A, M)
+    blocks = parity_blocks(A, M)
+    assert [b.parity for b in blocks] == [1, -1] and sum(len(b.mu) for b in blocks) == Mu.shape[0]
+    mu = np.concatenate([b.mu for b in blocks])
+    vec = np.hstack([_expand(b.vectors, b.basis, Mu.shape[0]) for b in blocks])
+    parity = np.concatenate([np.full(len(b.mu), b.parity) for b in blocks])
     full = np.linalg.eigvals(Mu)
     r, c = linear_sum_assignment(np.abs(mu[:, None] - full[None, :]))
     assert np.max(np.abs(mu[r] - full[c])) < 1e-11
-    # each eigenvector is exactly even or odd, and an eigenvector of Mu
+    # each eigenvector is exactly even or odd, and an eigenvector of the whole Mu
     assert np.array_equal(vector_parity(vec, threshold=1 - 1e-12), parity)
     assert np.max(np.abs(Mu @ vec - vec * mu)) < 1e-11
-    assert [b[0] for b in blocks] == [1, -1] and sum(b[2].shape[1] for b in blocks) == len(mu)
+    # the blocks' Krein forms and gauges are those of the whole problem, restricted
+    a = np.real(vec)
+    whole = np.sum(a * (P @ a), axis=0)
+    per_block = np.concatenate([np.sum(np.real(b.vectors) * (b.P @ np.real(b.vectors)), axis=0) for b in blocks])
+    assert np.allclose(per_block, whole, rtol=1e-9, atol=1e-12 * np.max(np.abs(whole)))
+    assert max(b.symplecticity for b in blocks) <= 2 * sympl + 1e-15
     # the Floquet result uses them: parity known for every multiplier of a symmetric orbit
-    assert np.all(fl.parity != 0) and fl.spectral is not None and len(fl.spectral.blocks) == 2
+    assert np.all(fl.parity != 0) and fl.spectral is not None and fl.spectral.parities == (1, -1)
     # an orbit that is not mirror-symmetric: no split
     rng = np.random.default_rng(1)
-    assert parity_blocks(Mu + 1e-6 * rng.standard_normal(Mu.shape)) is None
+    assert parity_blocks(A + 1e-6 * rng.standard_normal(A.shape), M) is None
 
 
 def test_fused_products_equal_the_separate_reduced_matrix_symplecticity_and_signature(breather):

@@ -1,0 +1,164 @@
+"""``python -m scenarios paper --jobs J``: the paper's scenes in J processes at once.
+
+The paper scenes are independent (each reads only its own folder), and the three branch scenes are
+bound by host work (Newton's LU and the Floquet eigs of 201 x 201 blocks, on one or two cores each)
+while the GPU sits mostly idle: on a machine with many cores they run side by side. Each scene is a
+child ``python -m scenarios run NAME`` with the same --out, --device and --quick, so its store, summary
+and figures are exactly those of a run on its own; the command line recorded in their provenance is
+the ``paper`` command as typed.
+
+Scheduling: the longest scenes start first (``COST_ORDER``), a new one starts whenever one ends.
+Each child gets ``max(1, cores // J)`` BLAS/OpenMP threads (unless the caller set
+``OMP_NUM_THREADS``/``OPENBLAS_NUM_THREADS`` explicitly, which are then divided by J), no progress
+bars, and its log lines pass through unchanged (they carry the scene's name). A failing scene does not
+stop the others; the run ends with a list of what failed and the last lines each printed.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import os
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+log = logging.getLogger("scenarios")
+
+#: the paper scenes, longest first (2-core CPU and H200 runs of 2026-11-22: site-bond 55-70 s,
+#: continuation-omega 50-60 s, continuation-k 41-49 s, the others 1-7 s)
+COST_ORDER = (
+    "site-bond",
+    "continuation-omega",
+    "continuation-k",
+    "breather",
+    "direct-simulation",
+    "nls",
+    "dispersion",
+    "anticontinuum",
+)
+_THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+_TAIL_LINES = 25
+
+
+def auto_jobs(n_scenes: int, cores: int | None = None) -> int:
+    """Scenes at once by default: one per 4 cores (a branch scene uses 1-2 cores of host work and its
+    copies and kernels a few more), at most 4 and the scene count; 1 on a small machine."""
+    cores = cores or os.cpu_count() or 1
+    return max(1, min(4, n_scenes, cores // 4))
+
+
+def parse_jobs(value: str, n_scenes: int) -> int:
+    """--jobs: ``auto`` or a whole number >= 1."""
+    if str(value).strip().lower() == "auto":
+        return auto_jobs(n_scenes)
+    try:
+        jobs = int(value)
+    except ValueError:
+        raise ValueError(f"--jobs takes a whole number >= 1 or 'auto', got {value!r}") from None
+    if jobs < 1:
+        raise ValueError(f"--jobs takes a whole number >= 1 or 'auto', got {value!r}")
+    return jobs
+
+
+def child_environment(jobs: int, environ=None, cores: int | None = None) -> tuple[dict, int]:
+    """The environment of each child and its thread count: the cores (or the caller's explicit thread
+    count) shared out among the jobs, no progress bars."""
+    env = dict(os.environ if environ is None else environ)
+    cores = cores or os.cpu_count() or 1
+    given = [int(env[k]) for k in _THREAD_VARIABLES if env.get(k, "").strip().isdigit()]
+    threads = max(1, (max(given) if given else cores) // jobs)
+    for key in _THREAD_VARIABLES:
+        env[key] = str(threads)
+    env["TQDM_DISABLE"] = "1"  # a child's bar would interleave with the others' log lines
+    env["PYTHONUNBUFFERED"] = "1"
+    return env, threads
+
+
+class _Child:
+    """One scene's process, with a thread that passes its output lines on and keeps the last few."""
+
+    def __init__(self, name: str, argv: list[str], env: dict):
+        self.name = name
+        self.start = time.perf_counter()
+        self.tail = collections.deque(maxlen=_TAIL_LINES)
+        self.proc = subprocess.Popen(
+            argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=env, text=True, bufsize=1
+        )
+        self.reader = threading.Thread(target=self._pump, daemon=True)
+        self.reader.start()
+
+    def _pump(self) -> None:
+        for line in self.proc.stdout:
+            self.tail.append(line.rstrip("\n"))
+            sys.stderr.write(line)
+            sys.stderr.flush()
+
+    def finished(self) -> int | None:
+        code = self.proc.poll()
+        if code is not None:
+            self.reader.join()
+        return code
+
+
+def run_parallel(
+    names: list[str],
+    out: Path,
+    device: str | None,
+    quick: bool,
+    jobs: int,
+    command_line: str,
+    poll_seconds: float = 0.1,
+) -> list[tuple[str, int, list[str]]]:
+    """Run the scenes ``names`` in up to ``jobs`` child processes; returns the failures as
+    (name, exit code, last output lines), empty when every scene succeeded."""
+    order = sorted(names, key=lambda n: COST_ORDER.index(n) if n in COST_ORDER else len(COST_ORDER))
+    env, threads = child_environment(jobs)
+    log.info(
+        "paper: %d scenes, %d at a time in separate processes (%d BLAS threads each), longest first",
+        len(order),
+        jobs,
+        threads,
+    )
+    pending = collections.deque(order)
+    running: list[_Child] = []
+    failures = []
+    done = 0
+    start = time.perf_counter()
+    try:
+        while pending or running:
+            while pending and len(running) < jobs:
+                name = pending.popleft()
+                argv = [sys.executable, "-m", "scenarios", "run", name, "--out", str(out)]
+                argv += ["--device", device] if device else []
+                argv += ["--quick"] if quick else []
+                argv += ["--provenance-command", command_line]
+                running.append(_Child(name, argv, env))
+            time.sleep(poll_seconds)
+            for child in list(running):
+                code = child.finished()
+                if code is None:
+                    continue
+                running.remove(child)
+                done += 1
+                took = time.perf_counter() - child.start
+                if code == 0:
+                    log.info("paper: %s finished in %.1f s (%d of %d)", child.name, took, done, len(order))
+                else:
+                    log.info(
+                        "paper: %s FAILED (exit %d) after %.1f s (%d of %d)", child.name, code, took, done, len(order)
+                    )
+                    failures.append((child.name, code, list(child.tail)))
+    except KeyboardInterrupt:
+        # the children are in this terminal's process group and got the interrupt too: let them mark
+        # their stores and exit
+        for child in running:
+            try:
+                child.proc.wait(timeout=60)
+            except subprocess.TimeoutExpired:
+                child.proc.kill()
+        raise
+    log.info("paper: %d scenes in %.1f s, %d failed", len(order), time.perf_counter() - start, len(failures))
+    return failures
