@@ -40,7 +40,7 @@ def main(argv=None) -> int:
     paper.add_argument(
         "--jobs",
         default="auto",
-        help="scenes run at once, each in its own process (default auto: one per 4 CPU cores, at most 4; "
+        help="scenes run at once, each in its own process (default auto: one per 2 usable CPU cores, at most 4; "
         "1: in order, in this process)",
     )
     args = parser.parse_args(argv)

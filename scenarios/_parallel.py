@@ -25,6 +25,8 @@ import threading
 import time
 from pathlib import Path
 
+from warpchain.ensemble import usable_cores
+
 log = logging.getLogger("scenarios")
 
 #: the paper scenes, longest first (2-core CPU and H200 runs of 2026-11-22: site-bond 55-70 s,
@@ -44,10 +46,11 @@ _TAIL_LINES = 25
 
 
 def auto_jobs(n_scenes: int, cores: int | None = None) -> int:
-    """Scenes at once by default: one per 4 cores (a branch scene uses 1-2 cores of host work and its
-    copies and kernels a few more), at most 4 and the scene count; 1 on a small machine."""
-    cores = cores or os.cpu_count() or 1
-    return max(1, min(4, n_scenes, cores // 4))
+    """Scenes at once by default: one per 2 usable cores (a branch scene's host work is mostly one
+    thread of Python and LAPACK, plus a second for the other parity block), at most 4 and the scene
+    count; 1 on a 2-core machine, where one scene's Warp CPU kernels already use both cores."""
+    cores = cores or usable_cores()
+    return max(1, min(4, n_scenes, cores // 2))
 
 
 def parse_jobs(value: str, n_scenes: int) -> int:
@@ -67,7 +70,7 @@ def child_environment(jobs: int, environ=None, cores: int | None = None) -> tupl
     """The environment of each child and its thread count: the cores (or the caller's explicit thread
     count) shared out among the jobs, no progress bars."""
     env = dict(os.environ if environ is None else environ)
-    cores = cores or os.cpu_count() or 1
+    cores = cores or usable_cores()
     given = [int(env[k]) for k in _THREAD_VARIABLES if env.get(k, "").strip().isdigit()]
     threads = max(1, (max(given) if given else cores) // jobs)
     for key in _THREAD_VARIABLES:

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import threading
 
 import numpy as np
 
@@ -38,6 +39,7 @@ from continuation import bifurcation as bf
 from continuation.branch import CouplingAxis, NaturalParameter, PseudoArclength
 from continuation.floquet import KINDS, energy_centre
 from warpchain import ChainParams
+from warpchain.ensemble import usable_cores
 from warpchain.reference import solve_ivp_reference
 from warpchain.store import StoreError, open_store, write_table
 
@@ -75,6 +77,7 @@ class Parameters(BranchParameters):
     asymmetric_max_points: int = 60
     finite_size_K: tuple = (10.0, PAPER_K)
     dop853_rtol: float = 1e-11
+    workers: int = 0  # host threads for the branch-point and finite-size solves (0: one per 2 cores, at most 4)
 
     def settings(self):
         return super().settings().replace(multiplier_floor=self.multiplier_floor)
@@ -172,6 +175,38 @@ def _solve_near(points, K: float, P: Parameters, flow, symmetric=None):
     return res if res.success else None
 
 
+def _finite_size(flow, P: Parameters, K: float, site_points):
+    """``bifurcation.finite_size_check`` of the site orbit at K (None when K is outside the family)."""
+    site = _solve_near(site_points, K, P, flow, symmetric=True)
+    return None if site is None else bf.finite_size_check(ChainParams(P.M, K, P.N), P.omega, site.state, flow)
+
+
+class _Workers:
+    """Independent solves on a few host threads, each with its own Flow (a Flow keeps device buffers
+    between calls, so threads do not share one). The solves spend most of their time in LAPACK and in
+    waits for the device, which release the GIL. ``P.workers`` threads (0: one per two CPU cores, at
+    most 4); with one, the solves run one after the other, as before."""
+
+    def __init__(self, P: Parameters, device: str):
+        from concurrent.futures import ThreadPoolExecutor
+
+        self.P, self.device = P, device
+        self.local = threading.local()
+        if P.workers < 0:
+            raise ValueError(f"workers must be >= 0 (0: one per two CPU cores), got {P.workers}")
+        count = P.workers or max(1, min(4, usable_cores() // 2))
+        self.pool = ThreadPoolExecutor(max_workers=count, thread_name_prefix="site-bond")
+
+    def _flow(self):
+        if getattr(self.local, "flow", None) is None:
+            self.local.flow = self.P.flow(self.device)
+        return self.local.flow
+
+    def submit(self, fn, *args):
+        """fn(flow, *args) on a worker thread; returns its Future."""
+        return self.pool.submit(lambda: fn(self._flow(), *args))
+
+
 def _folds(family: str, points) -> list:
     """Turning points in K of an arclength family: K maxima or minima of three consecutive points,
     placed at the vertex of the parabola through them in (arclength, log10 K)."""
@@ -234,7 +269,9 @@ def run(ctx: Context) -> dict:
     for family in FAMILIES[:3]:
         branches[family] = _family_branch(ctx, P, flow, family)
 
-    # 2. branch points: localized real pairs through +1
+    # 2. branch points: localized real pairs through +1, located on worker threads (each solve is
+    # independent; the log lines follow in the families' order)
+    tasks = []
     for family in FAMILIES[:3]:
         points = branches[family].points
         parity = -1 if family != "bond-out-of-phase" else None
@@ -246,42 +283,41 @@ def run(ctx: Context) -> dict:
             if points[i].K > P.locate_K_max:
                 unlocated.append(bf.unlocated(family, points[i], points[j], vertex, parity))
                 continue
-            try:
-                found = bf.locate_real_pair(
-                    family,
-                    ChainParams(P.M, P.K_start, points[0].state.shape[1]),
-                    P.omega,
-                    points[i],
-                    points[j],
-                    flow,
-                    parity=parity,
-                    vertex=vertex,
-                    atol=P.locate_atol,
-                )
-            except (ValueError, RuntimeError) as exc:
-                ctx.log(
-                    "%s: the branch point between K = %.8g and %.8g was not located: %s",
-                    family,
-                    points[i].K,
-                    points[j].K,
-                    exc,
-                )
-                continue
-            for bif in found:
-                ctx.log(
-                    "%s: %s at K = %.10g +- %.1e (%s the localized real pair; null vector: %.1f sites, %.0f %% on the "
-                    "centre; mu - 1 = %.1e; %d solves)",
-                    family,
-                    bif.kind,
-                    bif.K,
-                    bif.K_error,
-                    bif.direction,
-                    bif.participation,
-                    100 * bif.central_weight,
-                    bif.test,
-                    bif.evaluations,
-                )
-                bifurcations.append(bif)
+            tasks.append((family, points[i], points[j], vertex, parity))
+
+    def locate(flow, family, a, b, vertex, parity):
+        try:
+            chain = ChainParams(P.M, P.K_start, a.state.shape[1])
+            return bf.locate_real_pair(
+                family, chain, P.omega, a, b, flow, parity=parity, vertex=vertex, atol=P.locate_atol
+            )
+        except (ValueError, RuntimeError) as exc:
+            return exc
+
+    workers = _Workers(P, ctx.device)
+    located = [workers.submit(locate, *task) for task in tasks]
+    # the finite-size checks (step 5) only need the site family: they run beside the rest
+    finite_jobs = {K: workers.submit(_finite_size, P, K, branches["site"].points) for K in P.finite_size_K}
+    for (family, a, b, _, _), job in zip(tasks, located):
+        found = job.result()
+        if isinstance(found, Exception):
+            ctx.log("%s: the branch point between K = %.8g and %.8g was not located: %s", family, a.K, b.K, found)
+            continue
+        for bif in found:
+            ctx.log(
+                "%s: %s at K = %.10g +- %.1e (%s the localized real pair; null vector: %.1f sites, %.0f %% on the "
+                "centre; mu - 1 = %.1e; %d solves)",
+                family,
+                bif.kind,
+                bif.K,
+                bif.K_error,
+                bif.direction,
+                bif.participation,
+                100 * bif.central_weight,
+                bif.test,
+                bif.evaluations,
+            )
+            bifurcations.append(bif)
     if unlocated:
         ctx.log(
             "%d more exchanges of the localized real pair above K = %g (brackets in summary.json; "
@@ -387,12 +423,10 @@ def run(ctx: Context) -> dict:
     # 5. finite-size check on the site family
     root = open_store(ctx.out / "data.zarr", mode="a")
     tables = {}
-    site_points = branches["site"].points
-    for K in P.finite_size_K:
-        site = _solve_near(site_points, K, P, flow, symmetric=True)
-        if site is None:
+    for K, job in finite_jobs.items():
+        check = job.result()
+        if check is None:
             continue
-        check = bf.finite_size_check(ChainParams(P.M, K, P.N), P.omega, site.state, flow)
         tables[f"{K:g}"] = check
         for row in check["classification"]:
             ctx.log(
@@ -423,6 +457,8 @@ def run(ctx: Context) -> dict:
                 dim="instability",
                 attrs={"K": K, "N": n, "kinds": list(KINDS)},
             )
+
+    workers.pool.shutdown()
 
     # the bifurcation table, the square-root law, the barrier and the exchange window
     n_max = max([P.N] + [b.state.shape[1] for b in bifurcations])

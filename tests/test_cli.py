@@ -62,7 +62,7 @@ def test_paper_jobs_are_checked_and_a_failing_scene_is_reported(tmp_path):
 
     out = _run("paper", "--jobs", "0", "--out", str(tmp_path))
     assert out.returncode == 2 and "--jobs takes a whole number >= 1" in out.stderr
-    assert auto_jobs(8, cores=2) == 1 and auto_jobs(8, cores=16) == 4 and auto_jobs(2, cores=64) == 2
+    assert auto_jobs(8, cores=2) == 1 and auto_jobs(8, cores=8) == 4 and auto_jobs(2, cores=64) == 2
     assert parse_jobs("3", 8) == 3 and parse_jobs("auto", 8) == auto_jobs(8)
     env, threads = child_environment(4, environ={"OPENBLAS_NUM_THREADS": "8"}, cores=16)
     assert threads == 2 and env["OMP_NUM_THREADS"] == env["MKL_NUM_THREADS"] == "2" and env["TQDM_DISABLE"] == "1"

@@ -224,8 +224,17 @@ def _check_step(method: Method, params, dt, M, K, allow_unstable_step: bool) -> 
     return limit
 
 
+def usable_cores() -> int:
+    """Cores this process may run on (its CPU affinity; os.cpu_count() counts the host's, which in a
+    container can be twice as many: 16 against 8 on the H200 machine)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
 def cpu_threads() -> int:
-    """Threads used for CPU launches: WARPCHAIN_CPU_THREADS, else the number of cores."""
+    """Threads used for CPU launches: WARPCHAIN_CPU_THREADS, else the usable cores."""
     env = os.environ.get("WARPCHAIN_CPU_THREADS")
     if env:
         try:
@@ -235,7 +244,7 @@ def cpu_threads() -> int:
         if value < 1:
             raise ValueError(f"WARPCHAIN_CPU_THREADS must be a positive integer, got {env!r}")
         return value
-    return os.cpu_count() or 1
+    return usable_cores()
 
 
 def _slices(n: int, device: str) -> list[tuple[int, int]]:
@@ -480,7 +489,7 @@ def _copy(dst: np.ndarray, src: np.ndarray) -> None:
 def _workers(values: int) -> int:
     """Threads for a host copy of this many float64 values: one per _COPY_SLICE values (handing a piece to
     a pool thread costs tens of us), at most 16 and the CPU count."""
-    return max(1, min(16, os.cpu_count() or 1, int(values) // _COPY_SLICE))
+    return max(1, min(16, usable_cores(), int(values) // _COPY_SLICE))
 
 
 #: values per host copy thread (``_workers``): 8 MB (H200 host: with 1 MB per thread, and with the pages of the
