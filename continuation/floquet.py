@@ -60,6 +60,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import threading
 import time
 import warnings
 
@@ -387,7 +388,7 @@ def _parity_basis(n: int) -> tuple:
                 i1.append(o + j), i2.append(o + n - 1 - j), w1.append(r), w2.append(sign * r)
             if n % 2 and sign > 0:
                 i1.append(o + half), i2.append(o + half), w1.append(1.0), w2.append(0.0)
-        out.append((np.array(i1), np.array(i2), np.array(w1), np.array(w2)))
+        out.append((np.array(i1, dtype=int), np.array(i2, dtype=int), np.array(w1, float), np.array(w2, float)))
     return tuple(out)
 
 
@@ -436,16 +437,18 @@ class ParityBlock:
 
 
 _BLOCK_POOL = None
+_BLOCK_POOL_LOCK = threading.Lock()
 
 
 def _block_pool():
     """Two host threads for the even and the odd block (LAPACK releases the GIL; with one BLAS thread
     per call, ``hostblas``, the two eigs take the time of one)."""
     global _BLOCK_POOL
-    if _BLOCK_POOL is None:
-        from concurrent.futures import ThreadPoolExecutor
+    with _BLOCK_POOL_LOCK:
+        if _BLOCK_POOL is None:
+            from concurrent.futures import ThreadPoolExecutor
 
-        _BLOCK_POOL = ThreadPoolExecutor(max_workers=2, thread_name_prefix="warpchain-floquet")
+            _BLOCK_POOL = ThreadPoolExecutor(max_workers=2, thread_name_prefix="warpchain-floquet")
     return _BLOCK_POOL
 
 

@@ -12,7 +12,8 @@ at once (``floquet.parity_blocks``), which two threads inside one OpenBLAS call 
 
 ``blas_threads(n)`` limits every loaded BLAS (numpy's and scipy's OpenBLAS, MKL, ...) to n threads
 for the duration of a ``with`` block, through ``threadpoolctl``, and restores the previous limits
-after. ``None`` leaves them alone.
+after. ``None`` leaves them alone. The limit is the process's, not the calling thread's: two branches
+walked at once on two threads of one process share it, and the first to finish restores the old value.
 """
 
 from __future__ import annotations

@@ -8,10 +8,11 @@ and figures are exactly those of a run on its own; the command line recorded in 
 the ``paper`` command as typed.
 
 Scheduling: the longest scenes start first (``COST_ORDER``), a new one starts whenever one ends.
-Each child gets ``max(1, cores // J)`` BLAS/OpenMP threads (unless the caller set
-``OMP_NUM_THREADS``/``OPENBLAS_NUM_THREADS`` explicitly, which are then divided by J), no progress
-bars, and its log lines pass through unchanged (they carry the scene's name). A failing scene does not
-stop the others; the run ends with a list of what failed and the last lines each printed.
+Each child gets ``max(1, cores // J)`` Warp CPU threads and BLAS/OpenMP threads (the scenes use one
+BLAS thread themselves, ``continuation.hostblas``), no progress bars, and its log lines pass through
+unchanged (they carry the scene's name). A failing scene does not stop the others; the run ends with a
+list of what failed and the last lines each printed. A Ctrl-C (or any error) in this process sends each
+running child one SIGINT, so that it marks its stores as interrupted, and kills what is left after 30 s.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from __future__ import annotations
 import collections
 import logging
 import os
+import signal
 import subprocess
 import sys
 import threading
@@ -75,6 +77,7 @@ def child_environment(jobs: int, environ=None, cores: int | None = None) -> tupl
     threads = max(1, (max(given) if given else cores) // jobs)
     for key in _THREAD_VARIABLES:
         env[key] = str(threads)
+    env["WARPCHAIN_CPU_THREADS"] = str(max(1, cores // jobs))  # Warp's CPU launches (``ensemble.cpu_threads``)
     env["TQDM_DISABLE"] = "1"  # a child's bar would interleave with the others' log lines
     env["PYTHONUNBUFFERED"] = "1"
     return env, threads
@@ -88,16 +91,28 @@ class _Child:
         self.start = time.perf_counter()
         self.tail = collections.deque(maxlen=_TAIL_LINES)
         self.proc = subprocess.Popen(
-            argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=env, text=True, bufsize=1
+            argv,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            env=env,
+            text=True,
+            errors="replace",
+            bufsize=1,
+            start_new_session=True,  # a Ctrl-C reaches this process only, which passes one SIGINT on (_stop)
         )
         self.reader = threading.Thread(target=self._pump, daemon=True)
         self.reader.start()
 
     def _pump(self) -> None:
+        """Pass the child's lines on; keep draining its pipe even when our stderr is gone (a full pipe
+        would block the child)."""
         for line in self.proc.stdout:
             self.tail.append(line.rstrip("\n"))
-            sys.stderr.write(line)
-            sys.stderr.flush()
+            try:
+                sys.stderr.write(line)
+                sys.stderr.flush()
+            except (OSError, ValueError):
+                pass
 
     def finished(self) -> int | None:
         code = self.proc.poll()
@@ -118,12 +133,13 @@ def run_parallel(
     """Run the scenes ``names`` in up to ``jobs`` child processes; returns the failures as
     (name, exit code, last output lines), empty when every scene succeeded."""
     order = sorted(names, key=lambda n: COST_ORDER.index(n) if n in COST_ORDER else len(COST_ORDER))
-    env, threads = child_environment(jobs)
+    jobs = max(1, min(jobs, len(order)))
+    env, _ = child_environment(jobs)
     log.info(
-        "paper: %d scenes, %d at a time in separate processes (%d BLAS threads each), longest first",
+        "paper: %d scenes, %d at a time in separate processes (%s Warp CPU threads each), longest first",
         len(order),
         jobs,
-        threads,
+        env["WARPCHAIN_CPU_THREADS"],
     )
     pending = collections.deque(order)
     running: list[_Child] = []
@@ -150,18 +166,31 @@ def run_parallel(
                 if code == 0:
                     log.info("paper: %s finished in %.1f s (%d of %d)", child.name, took, done, len(order))
                 else:
+                    code = 128 - code if code < 0 else code  # killed by signal n: the shell's 128 + n
                     log.info(
                         "paper: %s FAILED (exit %d) after %.1f s (%d of %d)", child.name, code, took, done, len(order)
                     )
                     failures.append((child.name, code, list(child.tail)))
-    except KeyboardInterrupt:
-        # the children are in this terminal's process group and got the interrupt too: let them mark
-        # their stores and exit
-        for child in running:
-            try:
-                child.proc.wait(timeout=60)
-            except subprocess.TimeoutExpired:
-                child.proc.kill()
-        raise
+    finally:
+        _stop(running)
     log.info("paper: %d scenes in %.1f s, %d failed", len(order), time.perf_counter() - start, len(failures))
     return failures
+
+
+def _stop(running: list, grace_seconds: float = 30.0) -> None:
+    """Interrupt the children still running (an interrupt or error in this process; the children
+    mark their stores as interrupted, as on a Ctrl-C of their own), wait for them until one shared
+    deadline, then kill and reap what is left."""
+    for child in running:
+        if child.proc.poll() is None:
+            try:
+                child.proc.send_signal(signal.SIGINT)
+            except OSError:
+                pass
+    deadline = time.monotonic() + grace_seconds
+    for child in running:
+        try:
+            child.proc.wait(timeout=max(0.0, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            child.proc.kill()
+            child.proc.wait()

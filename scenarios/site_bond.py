@@ -184,8 +184,9 @@ def _finite_size(flow, P: Parameters, K: float, site_points):
 class _Workers:
     """Independent solves on a few host threads, each with its own Flow (a Flow keeps device buffers
     between calls, so threads do not share one). The solves spend most of their time in LAPACK and in
-    waits for the device, which release the GIL. ``P.workers`` threads (0: one per two CPU cores, at
-    most 4); with one, the solves run one after the other, as before."""
+    waits for the device, which release the GIL. ``P.workers`` threads (0: one per two usable cores, at
+    most 4); even with one, that thread's solves run beside the main thread's later steps (the
+    asymmetric family, the barrier), which use the main Flow."""
 
     def __init__(self, P: Parameters, device: str):
         from concurrent.futures import ThreadPoolExecutor
@@ -205,6 +206,10 @@ class _Workers:
     def submit(self, fn, *args):
         """fn(flow, *args) on a worker thread; returns its Future."""
         return self.pool.submit(lambda: fn(self._flow(), *args))
+
+    def close(self) -> None:
+        """Cancel what has not started (after success nothing is left); a running solve finishes."""
+        self.pool.shutdown(wait=False, cancel_futures=True)
 
 
 def _folds(family: str, points) -> list:
@@ -261,6 +266,14 @@ def _other_events(family: str, points) -> list:
 
 
 def run(ctx: Context) -> dict:
+    workers = _Workers(ctx.params, ctx.device)
+    try:
+        return _run(ctx, workers)
+    finally:
+        workers.close()  # an error or Ctrl-C stops here: the queued solves are cancelled, not run first
+
+
+def _run(ctx: Context, workers: "_Workers") -> dict:
     P: Parameters = ctx.params
     flow = P.flow(ctx.device)
     branches, bifurcations, folds, unlocated = {}, [], [], []
@@ -294,7 +307,6 @@ def run(ctx: Context) -> dict:
         except (ValueError, RuntimeError) as exc:
             return exc
 
-    workers = _Workers(P, ctx.device)
     located = [workers.submit(locate, *task) for task in tasks]
     # the finite-size checks (step 5) only need the site family: they run beside the rest
     finite_jobs = {K: workers.submit(_finite_size, P, K, branches["site"].points) for K in P.finite_size_K}
@@ -457,8 +469,6 @@ def run(ctx: Context) -> dict:
                 dim="instability",
                 attrs={"K": K, "N": n, "kinds": list(KINDS)},
             )
-
-    workers.pool.shutdown()
 
     # the bifurcation table, the square-root law, the barrier and the exchange window
     n_max = max([P.N] + [b.state.shape[1] for b in bifurcations])

@@ -66,6 +66,7 @@ def test_paper_jobs_are_checked_and_a_failing_scene_is_reported(tmp_path):
     assert parse_jobs("3", 8) == 3 and parse_jobs("auto", 8) == auto_jobs(8)
     env, threads = child_environment(4, environ={"OPENBLAS_NUM_THREADS": "8"}, cores=16)
     assert threads == 2 and env["OMP_NUM_THREADS"] == env["MKL_NUM_THREADS"] == "2" and env["TQDM_DISABLE"] == "1"
+    assert env["WARPCHAIN_CPU_THREADS"] == "4"
     assert child_environment(4, environ={}, cores=2)[1] == 1
     # a child that fails (here: a scene that does not exist) does not stop the others; its last lines come back
     failures = run_parallel(["no-such-scene", "dispersion"], tmp_path, "cpu", True, 2, "test")
