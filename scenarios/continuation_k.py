@@ -1,7 +1,7 @@
 """Continuation in the coupling K (paper Fig. 6): M = 30, w_b = 1.01, N = 201, from the single-site
 anti-continuum seed at K = 0.01 to K = 160, with multipliers and their kinds at every point.
 
-Command: ``python -m scenarios run continuation-k`` (CPU: a few minutes; ``--quick``: N = 101,
+Command: ``python -m scenarios run continuation-k`` (CPU: ~25 s on 2 cores; ``--quick``: N = 101,
 coarser steps, under a minute). Options: ``--set KEY=VALUE`` (fields of ``Parameters``), ``--resume``.
 
 Natural-parameter continuation (``continuation.branch.NaturalParameter``) with a secant predictor in

@@ -2,7 +2,7 @@
 (state, w_b) from the lowest optical eigenmode through the gap into the acoustic band, until a
 resonator loses contact.
 
-Command: ``python -m scenarios run continuation-omega`` (CPU: a few minutes; ``--quick``: N = 101
+Command: ``python -m scenarios run continuation-omega`` (CPU: ~30 s on 2 cores; ``--quick``: N = 101
 and a short branch). Options: ``--set KEY=VALUE`` (fields of ``Parameters``, e.g. ``--set N=401
 --set omega_min=0.99``), ``--resume`` (continue the stored branch).
 

@@ -1,7 +1,7 @@
 """Site- and bond-centred breathers, the asymmetric family that joins them, and which instabilities
 are the breather's own (the paper's abstract: breathers "localized around one or two lattice sites").
 
-Command: ``python -m scenarios run site-bond`` (CPU: ~4 min on 2 cores; ``--quick``: N = 101, under
+Command: ``python -m scenarios run site-bond`` (CPU: ~30 s on 2 cores; ``--quick``: N = 101, under
 a minute). Options: ``--set KEY=VALUE`` (fields of ``Parameters``).
 
 1. **Families** at w_b = 1.01, from the anti-continuum seeds at K = 0.01 to K = 160: site-centred
