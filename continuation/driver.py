@@ -53,14 +53,14 @@ from typing import Callable
 
 import numpy as np
 
-from warpchain import ChainParams, energy
+from warpchain import ChainParams, energy, resolve_device
 from warpchain.model import real_number, whole_number
 
 from . import bubbles
 from . import events as ev
 from .events import StopReason
 from .floquet import FloquetResult, half_period_map, reduced_floquet
-from .hostblas import DEFAULT_BLAS_THREADS, blas_threads
+from .hostblas import blas_threads, threads_for
 from .shooting import frequency_report
 
 
@@ -107,8 +107,9 @@ class ContinuationSettings:
             a kind changed (inside an unstable stretch; recorded as ``instability_count`` events).
         floquet: compute multipliers at every point (False: energies only, no stability).
         max_seconds: opt-in time budget (None: stop only on physics or max_points).
-        blas_threads: threads of the host BLAS during the walk (``continuation.hostblas``: one is
-            fastest at these sizes; None leaves the process's setting alone).
+        blas_threads: threads of the host BLAS during the walk: ``"auto"`` (default: one on the CPU
+            device, the process's setting on a GPU; ``continuation.hostblas``), a whole number, or None
+            (leave the process's setting alone).
     """
 
     ds: float = 0.05
@@ -127,7 +128,7 @@ class ContinuationSettings:
     chord: bool = True
     floquet: bool = True
     max_seconds: float | None = None
-    blas_threads: int | None = DEFAULT_BLAS_THREADS
+    blas_threads: int | str | None = "auto"
 
     def __post_init__(self):
         for name in (
@@ -154,7 +155,7 @@ class ContinuationSettings:
         whole_number("max_newton", self.max_newton, minimum=1)
         if self.max_seconds is not None:
             real_number("max_seconds", self.max_seconds, nonnegative=True)
-        if self.blas_threads is not None:
+        if self.blas_threads is not None and self.blas_threads != "auto":
             whole_number("blas_threads", self.blas_threads, minimum=1)
 
     def replace(self, **changes) -> "ContinuationSettings":
@@ -392,7 +393,12 @@ def continuation(
     Returns:
         Branch (its ``stop_reason`` says why it stopped; see StopReason.explanation).
     """
-    with blas_threads(settings.blas_threads):
+    threads = settings.blas_threads
+    if threads == "auto":
+        flow = getattr(problem, "flow", None)
+        device = getattr(flow, "device", "cpu")
+        threads = threads_for(resolve_device(device) if device != "numpy" else device)
+    with blas_threads(threads):
         return _walk(problem, settings, resume, on_point, on_event, log, progress)
 
 

@@ -68,6 +68,8 @@ import numpy as np
 
 from warpchain import ChainParams, Flow, get_method, propagate_tangent
 
+from .hostblas import blas_threads
+
 KINDS = ("real_pair", "period_doubling", "complex_quadruplet")
 
 #: a full-path tolerance above this cannot resolve the weak instabilities breathers have (|l| - 1 of
@@ -486,8 +488,9 @@ def parity_blocks(A: np.ndarray, M: float) -> "tuple[ParityBlock, ParityBlock] |
         mu, vec = np.linalg.eig(Mu)
         return ParityBlock(sign, basis, Mu, P, sympl, mu, vec)
 
-    jobs = [_block_pool().submit(block, sign, basis, k) for k, (sign, basis) in enumerate(((1, even), (-1, odd)))]
-    return tuple(job.result() for job in jobs)
+    with blas_threads(1):  # two LAPACK calls at once, one BLAS thread each (hostblas)
+        jobs = [_block_pool().submit(block, sign, basis, k) for k, (sign, basis) in enumerate(((1, even), (-1, odd)))]
+        return tuple(job.result() for job in jobs)
 
 
 # ----------------------------------------------------------------------------- the two paths

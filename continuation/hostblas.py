@@ -1,38 +1,60 @@
 """How many threads the host's BLAS/LAPACK may use while a branch is walked.
 
 The host linear algebra of continuation is small: LU solves of 402 (or 804) unknowns, products of
-201- or 402-square blocks, and eigen-decompositions of 201-square parity blocks. LAPACK's Hessenberg QR
-(``dgeev``) is not threaded at these sizes, and OpenBLAS's level-3 threading gains little there; but
-its worker threads spin after every call, on the cores that Warp's CPU kernels, the tangent launches'
-threads and the host copy threads need. On this project's 2-core CPU the paper's frequency branch took
-51.3 s with OpenBLAS's default 2 threads and 24.7 s with 1 (``benchmarks/branch_profile.py``; the LU of
-402 unknowns went from 15 to 1.7 ms per call, the Floquet products from 32 to 11 ms). One thread per BLAS
-call also lets the even and odd parity blocks of the Floquet matrix be decomposed on two host threads
-at once (``floquet.parity_blocks``), which two threads inside one OpenBLAS call cannot match.
+201- or 402-square blocks, and eigen-decompositions of 201-square parity blocks. How many BLAS threads
+pay depends on what else wants the cores:
 
-``blas_threads(n)`` limits every loaded BLAS (numpy's and scipy's OpenBLAS, MKL, ...) to n threads
-for the duration of a ``with`` block, through ``threadpoolctl``, and restores the previous limits
-after. ``None`` leaves them alone. The limit is the process's, not the calling thread's: two branches
-walked at once on two threads of one process share it, and the first to finish restores the old value.
+- **On the CPU device** one thread. OpenBLAS's worker threads spin after every call, on the cores that
+  Warp's CPU kernels, the tangent launches' threads and the host copy threads need. On this project's
+  2-core CPU the paper's frequency branch took 51.3 s with OpenBLAS's default 2 threads and 24.7 s with 1
+  (``benchmarks/branch_profile.py``; the LU of 402 unknowns went from 15 to 1.7 ms per call, the Floquet
+  products from 32 to 11 ms).
+- **On a GPU** the process's own setting (``None``): the kernels need no host cores, and on the H200
+  machines' hosts one thread factors the 402 x 402 Newton Jacobian in 9 ms against 2-4 ms on several
+  (``benchmarks/h200-2026-11-22g``).
+- **The two parity blocks' eigs** (``floquet.parity_blocks``) always run on one BLAS thread each, on two
+  host threads at once: LAPACK's ``dgeev`` is not threaded at these sizes, and two calls that each start
+  OpenBLAS threads contend (2-core CPU: 27.6 ms for both on 2 BLAS threads, 13.3 ms on 1).
+
+``blas_threads(n)`` limits every loaded BLAS (numpy's and scipy's OpenBLAS, MKL, ...) to n threads for
+the duration of a ``with`` block, through one cached ``threadpoolctl.ThreadpoolController`` (11 us per
+block, against 1.5 ms for a fresh ``threadpool_limits``), and restores the previous limits after. ``None``
+leaves them alone. The limit is the process's, not the calling thread's: two branches walked at once on
+two threads of one process share it, and the first to finish restores the old value.
 """
 
 from __future__ import annotations
 
 import contextlib
+import threading
 
-#: BLAS threads while a branch is walked, a breather is found or a scene runs (module docstring)
-DEFAULT_BLAS_THREADS = 1
+_CONTROLLER = None
+_LOCK = threading.Lock()
+
+
+def threads_for(device: str | None) -> int | None:
+    """The BLAS threads for a walk on this device (module docstring): 1 on the CPU (and for the numpy
+    reference flow), None (the process's setting) on a GPU."""
+    return 1 if device is None or str(device) in ("cpu", "numpy") else None
+
+
+def _controller():
+    global _CONTROLLER
+    with _LOCK:
+        if _CONTROLLER is None:
+            from threadpoolctl import ThreadpoolController
+
+            _CONTROLLER = ThreadpoolController()  # the BLAS libraries loaded by now: numpy's and scipy's
+    return _CONTROLLER
 
 
 @contextlib.contextmanager
-def blas_threads(threads: int | None = DEFAULT_BLAS_THREADS):
+def blas_threads(threads: int | None = 1):
     """Limit the host BLAS to ``threads`` threads inside the block (None: no change)."""
     if threads is None:
         yield
         return
     if int(threads) < 1:
         raise ValueError(f"BLAS threads must be a whole number >= 1 or None, got {threads!r}")
-    from threadpoolctl import threadpool_limits
-
-    with threadpool_limits(limits=int(threads), user_api="blas"):
+    with _controller().limit(limits=int(threads), user_api="blas"):
         yield

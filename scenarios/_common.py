@@ -185,10 +185,10 @@ def run_scene(
     ctx = Context(
         name=name, out=out, device=resolved, quick=quick, params=params, resume=resume, command_line=command_line
     )
-    from continuation.hostblas import blas_threads
+    from continuation.hostblas import blas_threads, threads_for
 
     try:
-        with blas_threads():  # the host's small linear algebra runs fastest on one BLAS thread (hostblas)
+        with blas_threads(threads_for(resolved)):  # one on the CPU device, where Warp needs the cores (hostblas)
             return _run_in(module, ctx)
     except BaseException:
         if created and not any(out.iterdir()):  # nothing was written: leave no empty folder

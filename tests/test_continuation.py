@@ -183,7 +183,7 @@ def test_settings_are_validated():
 def test_the_walk_runs_on_one_blas_thread_and_restores_the_setting():
     from threadpoolctl import threadpool_info
 
-    from continuation.hostblas import blas_threads
+    from continuation.hostblas import blas_threads, threads_for
 
     def counts():
         return [lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"]
@@ -193,10 +193,17 @@ def test_the_walk_runs_on_one_blas_thread_and_restores_the_setting():
     p = ChainParams(30.0, 100.0, 21)
     settings = ContinuationSettings(ds=0.1, ds_max=0.1, max_points=2, floquet=False)
     continue_in_coupling(
-        p, 1.01, ct.nls_seed(p, 1.01), 160.0, settings=settings, on_point=lambda point: seen.append(counts())
+        p,
+        1.01,
+        ct.nls_seed(p, 1.01),
+        160.0,
+        settings=settings,
+        device="cpu",
+        on_point=lambda point: seen.append(counts()),
     )
-    assert seen and all(c == [1] * len(c) for c in seen)
+    assert seen and all(c == [1] * len(c) for c in seen)  # "auto" on the CPU device: one thread
     assert counts() == before
+    assert threads_for("cpu") == 1 and threads_for("numpy") == 1 and threads_for("cuda:0") is None
     with blas_threads(None):
         assert counts() == before
     with pytest.raises(ValueError, match="BLAS threads"):
