@@ -83,7 +83,8 @@ def predict(a, b, sa, sb) -> list:
     tol = max(float(a.tolerance), float(b.tolerance))
     out = []
     offset = 0
-    for k, (parity, _, _, R) in enumerate(sa.blocks):
+    for k, block in enumerate(sa.blocks):
+        parity, R = block.parity, block.vectors
         n = R.shape[1]
         sig = np.asarray(a.signature[offset : offset + n])
         mu = np.asarray(a.mu[offset : offset + n])

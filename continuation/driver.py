@@ -53,7 +53,7 @@ from typing import Callable
 
 import numpy as np
 
-from warpchain import ChainParams, energy, resolve_device
+from warpchain import ChainParams, energy
 from warpchain.model import real_number, whole_number
 
 from . import bubbles
@@ -395,9 +395,7 @@ def continuation(
     """
     threads = settings.blas_threads
     if threads == "auto":
-        flow = getattr(problem, "flow", None)
-        device = getattr(flow, "device", "cpu")
-        threads = threads_for(resolve_device(device) if device != "numpy" else device)
+        threads = threads_for(getattr(getattr(problem, "flow", None), "device", "cpu"))
     with blas_threads(threads):
         return _walk(problem, settings, resume, on_point, on_event, log, progress)
 

@@ -192,21 +192,20 @@ class SpectralData:
     """The reduced matrix of an orbit and its eigenvectors, per parity block.
 
     Attributes:
-        blocks: (parity, basis, matrix, eigenvectors) per block, in the order of the result's ``mu``:
-            parity +1 / -1 with ``basis`` from ``_parity_basis``, the block of Mu in that basis and its
-            eigenvectors in that basis; or a single (0, None, Mu, eigenvectors of Mu) when the orbit is
-            not mirror-symmetric.
+        blocks: ``ParityBlock``s in the order of the result's ``mu``: the even (+1) and the odd (-1) block
+            of a mirror-symmetric orbit, or a single block of parity 0 and basis None (the whole Mu)
+            when the orbit is not mirror-symmetric.
     """
 
     blocks: tuple = dataclasses.field(repr=False)
 
     @property
     def parities(self) -> tuple:
-        return tuple(b[0] for b in self.blocks)
+        return tuple(b.parity for b in self.blocks)
 
     def block_matrix(self, k: int) -> np.ndarray:
         """Block k of Mu in block k's basis."""
-        return self.blocks[k][2]
+        return self.blocks[k].Mu
 
 
 # ----------------------------------------------------------------------------- building blocks
@@ -408,7 +407,10 @@ def _apply_left(X: np.ndarray, basis) -> np.ndarray:
 
 def _expand(Y: np.ndarray, basis, n2: int) -> np.ndarray:
     """S @ Y: vectors in the basis back to the 2N coordinates (i1 and i2 each hold distinct indices,
-    so plain fancy-index assignment adds nothing twice; np.add.at was 1 s of a branch)."""
+    so plain fancy-index assignment adds nothing twice; np.add.at was 1 s of a branch). basis None:
+    Y is already in those coordinates."""
+    if basis is None:
+        return Y
     i1, i2, w1, w2 = basis
     out = np.zeros((n2, Y.shape[1]), dtype=Y.dtype)
     out[i1] += Y * w1[:, None]
@@ -421,8 +423,8 @@ class ParityBlock:
     """The reduced problem restricted to the even (+1) or odd (-1) vectors of a mirror-symmetric orbit.
 
     Attributes:
-        parity: +1 or -1.
-        basis: the block's orthonormal basis (``_parity_basis``).
+        parity: +1 or -1 (0 for the whole problem of an orbit that is not mirror-symmetric).
+        basis: the block's orthonormal basis (``_parity_basis``); None for the whole problem.
         Mu: the block of Mu in that basis, (n, n).
         P: the block of the Krein form P = A11^T Mm A21 in that basis, (n, n).
         symplecticity: the gauge of ``reduced_products`` on this block.
@@ -521,21 +523,20 @@ def reduced_floquet(
     start = time.perf_counter()
     N = A.shape[0] // 4
     blocks = parity_blocks(A, M) if state is not None and mirror_symmetric(state, SYMMETRIC_RTOL) else None
-    if blocks is None:
+    split = blocks is not None
+    if not split:
         Mu, sympl, P = reduced_products(A, M)
-        mu, vec = np.linalg.eig(Mu)
-        parity = vector_parity(vec) if state is not None and mirror_symmetric(state) else np.zeros(len(mu), int)
-        spectral = SpectralData(((0, None, Mu, vec),))
-        a = np.real(vec)
-        act = np.sum(a * (P @ a), axis=0)
-    else:
-        mu = np.concatenate([b.mu for b in blocks])
-        vec = np.hstack([_expand(b.vectors, b.basis, 2 * N) for b in blocks])
+        blocks = (ParityBlock(0, None, Mu, P, sympl, *np.linalg.eig(Mu)),)
+    mu = np.concatenate([b.mu for b in blocks])
+    vec = np.hstack([_expand(b.vectors, b.basis, 2 * N) for b in blocks])
+    if split:
         parity = np.concatenate([np.full(len(b.mu), b.parity, int) for b in blocks])
-        sympl = max(b.symplecticity for b in blocks)
-        spectral = SpectralData(tuple((b.parity, b.basis, b.Mu, b.vectors) for b in blocks))
-        # a = S y with S real: a^T P a = y^T (S^T P S) y, the block's own P
-        act = np.concatenate([np.sum(np.real(b.vectors) * (b.P @ np.real(b.vectors)), axis=0) for b in blocks])
+    else:
+        parity = vector_parity(vec) if state is not None and mirror_symmetric(state) else np.zeros(len(mu), int)
+    sympl = max(b.symplecticity for b in blocks)
+    spectral = SpectralData(blocks)
+    # a = S y with S real: a^T P a = y^T (S^T P S) y, each block's own P
+    act = np.concatenate([np.sum(np.real(b.vectors) * (b.P @ np.real(b.vectors)), axis=0) for b in blocks])
     trivial = int(np.argmin(np.abs(mu - 1.0)))
     accuracy = {"trivial_deviation": float(abs(mu[trivial] - 1.0)), "symplecticity": sympl}
     tol = 10.0 * max(accuracy["trivial_deviation"], sympl, 1e-13) if tolerance is None else float(tolerance)

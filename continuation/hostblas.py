@@ -34,8 +34,12 @@ _LOCK = threading.Lock()
 
 def threads_for(device: str | None) -> int | None:
     """The BLAS threads for a walk on this device (module docstring): 1 on the CPU (and for the numpy
-    reference flow), None (the process's setting) on a GPU."""
-    return 1 if device is None or str(device) in ("cpu", "numpy") else None
+    reference flow), None (the process's setting) on a GPU. None picks the device as Warp would."""
+    if device is None:
+        from warpchain import resolve_device
+
+        device = resolve_device(None)
+    return 1 if str(device) in ("cpu", "numpy") else None
 
 
 def _controller():

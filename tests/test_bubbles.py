@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from continuation import bubbles
-from continuation.floquet import SpectralData
+from continuation.floquet import ParityBlock, SpectralData
 
 
 def _point(Mu, signature, tolerance=1e-12):
@@ -14,9 +14,8 @@ def _point(Mu, signature, tolerance=1e-12):
     mu, R = np.linalg.eig(Mu)
     order = np.argsort(mu.real)
     mu, R = mu[order], R[:, order]
-    return types.SimpleNamespace(
-        spectral=SpectralData(((0, None, Mu, R),)), mu=mu, signature=np.asarray(signature), tolerance=tolerance
-    )
+    spectral = SpectralData((ParityBlock(0, None, Mu, None, 0.0, mu, R),))
+    return types.SimpleNamespace(spectral=spectral, mu=mu, signature=np.asarray(signature), tolerance=tolerance)
 
 
 def _predict(a, b):
