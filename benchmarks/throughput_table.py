@@ -30,23 +30,21 @@ def print_simulate(s):
         print()
         print(
             f"| batch | kernel (`time_steps`) | `simulate()` default | `simulate(save_every={every})` "
-            "| frames to host | same into reused `frames_out` |"
+            "| frames to host | same into reused `frames_out` | into reused page-locked `frame_buffers` |"
         )
-        print("| --- | --- | --- | --- | --- | --- |")
+        print("| --- | --- | --- | --- | --- | --- | --- |")
+
+        def recording(r, name):
+            if r.get(f"{name}_seconds") is None:
+                return "-"
+            return f"{r[f'{name}_rate']:.2e} ({r[f'{name}_over_kernel']:.2f}x), {r[f'{name}_gb_per_second']:.1f} GB/s"
+
         for r in sim:
-            reused = r.get("recording_reused_seconds")
-            reused = (
-                "-"
-                if reused is None
-                else (
-                    f"{r['recording_reused_rate']:.2e} ({r['recording_reused_over_kernel']:.2f}x), "
-                    f"{r['recording_reused_gb_per_second']:.1f} GB/s"
-                )
-            )
             print(
                 f"| {r['batch']} | {r['kernel_rate']:.2e} | {r['default_rate']:.2e} ({r['default_over_kernel']:.2f}x) "
                 f"| {r['recording_rate']:.2e} ({r['recording_over_kernel']:.2f}x) "
-                f"| {r['recording_gb_per_second']:.1f} GB/s | {reused} |"
+                f"| {r['recording_gb_per_second']:.1f} GB/s | {recording(r, 'recording_reused')} "
+                f"| {recording(r, 'recording_pinned')} |"
             )
 
 

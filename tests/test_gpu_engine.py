@@ -118,6 +118,15 @@ def test_flow_min_contact_reduced_on_the_device_matches_the_reference(layout):
     assert la.min_contact == lb.min_contact
     d = np.eye(4 * p.N)[:5].reshape(5, 4, p.N)
     assert np.array_equal(la.columns(d), lb.columns(d))
+    # the unit columns (directions made once on the device, buffers reused) against the reference's, and
+    # a trial run on the same Flow in between (the history is replayed for the older linearization)
+    vel = la.unit_columns("velocities")
+    flow.linearize(p, x0[1:], 40, 0.05).unit_columns("positions")
+    flow.linearize(p, x0[1:], 40, 0.05)
+    pos = la.unit_columns("positions")
+    assert np.array_equal(pos, lb.unit_columns("positions")) and np.array_equal(vel, lb.unit_columns("velocities"))
+    assert np.array_equal(la.unit_columns("all"), np.hstack([pos, vel])) and la.unit_columns("positions") is pos
+    assert la.stats["tangent_columns"] == 5 + 4 * p.N
 
 
 def test_host_copy_helpers_and_buffer_pool():
@@ -199,6 +208,71 @@ def test_sliced_transfers_give_the_same_run(layout, monkeypatch):
     bad[4, 2, 7] = np.inf
     with pytest.raises(ValueError, match=r"non-finite entries in lattice\(s\) \[4\]"):
         simulate(p, bad, 60 * 0.02, 0.02, **kwargs)
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_short_sliced_runs_default_to_two_chunks(layout, monkeypatch):
+    """A short run on a large batch (the GPU's sliced path, forced on the CPU) defaults to two chunks, whose
+    kernels hide the slices' transfers, in one slice per ``_SLICE_LATTICES`` lattices: the same end state
+    as a run in more chunks over the whole batch; a blow-up is still reported at a chunk end with its
+    lattice; explicit chunks, progress bars and long runs keep their chunk counts."""
+    from warpchain import ensemble
+
+    p = ChainParams(30.0, 160.0, 41)
+    x0 = localized_state(p.N, amplitude=0.8, batch=7, seed=3)
+    M = np.array([30.0, 10.0, 50.0, 30.0, 20.0, 40.0, 25.0])
+    kwargs = dict(method="yoshida4", device="cpu", M=M, layout=layout)
+    plain = simulate(p, x0, 60 * 0.02, 0.02, chunks=4, **kwargs)
+    monkeypatch.setattr(ensemble, "_SLICE_ON_CPU", True)
+    monkeypatch.setattr(ensemble, "_SLICED_MIN_VALUES", 1)
+    monkeypatch.setattr(ensemble, "_SLICE_LATTICES", 2)
+    monkeypatch.setattr(ensemble, "_CHUNK_WORK", 1)  # the work alone would ask for 10 chunks
+    run = simulate(p, x0, 60 * 0.02, 0.02, **kwargs)
+    assert (run.stats["chunks"], run.stats["slices"]) == (2, 3)
+    assert np.array_equal(run.x, plain.x) and np.array_equal(run.energy_t, [0.0, 0.6, 1.2])
+    assert np.array_equal(run.energy_trace[[0, -1]], plain.energy_trace[[0, -1]])
+    assert simulate(p, x0, 60 * 0.02, 0.02, chunks=4, **kwargs).stats["chunks"] == 4
+    assert simulate(p, x0, 60 * 0.02, 0.02, progress=True, **kwargs).stats["chunks"] == 30  # 2 steps each
+    monkeypatch.setattr(ensemble, "_SHORT_RUN_EVALUATIONS", 100)
+    assert simulate(p, x0, 60 * 0.02, 0.02, **kwargs).stats["chunks"] == 10
+    monkeypatch.setattr(ensemble, "_SHORT_RUN_EVALUATIONS", 1 << 15)
+    # a bound on the energy error that lattice 5 (last slice) crosses first
+    drift = x0[[2, 2, 2, 2, 2, 5, 2]] * np.array([0.5, 0.5, 1, 0.5, 0.5, 1, 0.5])[:, None, None]
+    drifting = dict(kwargs, M=np.array([50.0, 50.0, 50.0, 50.0, 50.0, 40.0, 50.0]), max_energy_error=1.5e-4)
+    with pytest.raises(IntegrationError) as error:
+        simulate(p, drift, 40 * 0.1, 0.1, **drifting)
+    assert error.value.t == 2.0 and error.value.failed == [5]
+
+
+def test_frames_go_straight_into_page_locked_results(small_chain):
+    """Frames into arrays that view page-locked Warp memory (``frame_buffers`` on a GPU) are copied off the
+    device straight into them, at the views' offsets; emulated on the CPU with a Warp host array marked
+    pinned. ``frame_buffers`` gives simulate's frame shape (plain arrays on the CPU)."""
+    import warp as wp
+
+    from warpchain import frame_buffers
+    from warpchain.ensemble import _FrameSink, _pinned_view
+
+    p = small_chain
+    u, v = frame_buffers(p, 3, 40 * 0.05, 0.05, 10, device="cpu")
+    assert u.shape == v.shape == (5, 3, p.N) and not np.shares_memory(u, v)
+    assert _pinned_view(u) is None
+    x0 = localized_state(p.N, amplitude=0.7, batch=3, seed=2)
+    runner = _Runner(get_method("verlet"), p, x0, np.full(3, p.M), np.full(3, p.K), "cpu")
+    base = [wp.zeros(7 + 5 * 3 * p.N, dtype=wp.float64, device="cpu") for _ in range(2)]
+    for b in base:
+        b.pinned = True  # what frame_buffers allocates on a GPU
+    views = tuple(b.numpy()[7:].reshape(5, 3, p.N) for b in base)
+    assert _pinned_view(views[0])[1] == 7
+    sink = _FrameSink(runner, 5, 2, gpu=True, out=views)
+    assert sink.direct is not None and sink.staging == []
+    frames = [np.random.default_rng(k).normal(size=(2, 3, p.N)) for k in range(2)]
+    for rec, f in zip(sink.rec, frames):
+        rec.assign(f)
+    sink.enqueue(2, 1, 3)
+    sink.take(1, 3, 2)
+    assert np.array_equal(views[0][3:5], frames[0]) and np.array_equal(views[1][3:5], frames[1])
+    assert np.all(base[0].numpy()[:7] == 0) and np.all(views[0][:3] == 0)
 
 
 @pytest.mark.parametrize("boundary", ["fixed", "free", "periodic"])

@@ -301,8 +301,16 @@ def resolve_layout(layout: str, device: str, n_sites: int) -> str:
 #: many values up (fresh memory fills at ~3 GB/s per thread: 0.9 ms for the 805-lattice state)
 _PREFAULT_MIN_VALUES = 1 << 16
 #: ``simulate`` moves the state in lattice slices (overlapped with the kernels) from this many values up
-_SLICED_MIN_VALUES = 1 << 24
-_SLICES = 4
+#: (5.2k lattices of 201 sites), in ``_slice_count`` slices (``_SLICES`` when set)
+_SLICED_MIN_VALUES = 1 << 22
+_SLICES = None
+#: lattices per slice (the kernel keeps ~0.9 of its full-batch rate from 2048 lattices) and the most slices
+_SLICE_LATTICES = 2048
+_MAX_SLICES = 8
+#: a sliced run of at most this many force evaluations per site runs in at most ``_SHORT_RUN_CHUNKS`` chunks
+#: by default: the first and the last chunk, whose kernels hide the slices' transfers, then hold the whole run
+_SHORT_RUN_EVALUATIONS = 1 << 15
+_SHORT_RUN_CHUNKS = 2
 _SLICE_ON_CPU = False  # tests set it to run the sliced path on the CPU
 #: from this many lattices a launch of a method with few stages would take two lattices per thread block
 #: (None: never). Off: on the H200 it made the Verlet kernel slower, 3.27e11 against 3.56e11 site-steps/s
@@ -358,6 +366,13 @@ _GROUP_MIN_BLOCKS: dict = {}
 
 _RUNNER_POOL: dict = {}
 _RUNNER_POOL_SIZE = 4
+
+
+def _slice_count(batch: int) -> int:
+    """Lattice slices of a sliced ``simulate`` run."""
+    if _SLICES is not None:
+        return _SLICES
+    return max(2, min(_MAX_SLICES, batch // _SLICE_LATTICES))
 
 
 def _pooled_runner(
@@ -584,10 +599,12 @@ class _GuardReader:
 
 
 class _SlicedTransfers:
-    """The state's trip to the device and back in lattice slices, overlapped with the first and the
-    last chunk: slice s is copied (host -> pinned -> device, on a copy stream) while the kernel runs
-    on slice s - 1, and its final state goes back while the kernel runs on slice s + 1, so only one
-    slice's transfer each way is exposed (on a GPU; on the CPU the same steps run in order)."""
+    """The state's trip to the device and back in lattice slices, overlapped with kernels: slice s is
+    copied (host -> pinned -> device, on an upload stream) while the kernels run on slice s - 1, and its
+    final state goes back (on a download stream) while they run on slice s + 1, so only one slice's
+    transfer each way is exposed (on a GPU; on the CPU the same steps run in order). ``simulate`` uses it
+    slice-major (every chunk of a slice before the next slice) or, when recording, around the first and
+    the last chunk only."""
 
     def __init__(self, runner, x0: np.ndarray, n_slices: int):
         wp = runner.wp
@@ -600,7 +617,12 @@ class _SlicedTransfers:
         self.down = _take_buffer(wp, runner.device, x0.size, self.gpu)
         self.events = {}
         if self.gpu:
-            self.copy_stream = wp.Stream(runner.device)
+            # uploads and downloads on streams of their own: slice s + 1's upload never waits behind slice s's
+            # download, which waits for slice s's kernels
+            streams = getattr(runner, "_transfer_streams", None)
+            if streams is None:
+                streams = runner._transfer_streams = (wp.Stream(runner.device), wp.Stream(runner.device))
+            self.up_stream, self.down_stream = streams
             self.main = wp.get_stream(runner.device)
 
     def _range(self, s: int):
@@ -613,8 +635,8 @@ class _SlicedTransfers:
         lo, hi = self.slices[s]
         _copy(self.up.numpy()[a:b], np.ascontiguousarray(self.x0[lo:hi]))
         if self.gpu:
-            self.wp.copy(self.r.x, self.up, dest_offset=a, src_offset=a, count=b - a, stream=self.copy_stream)
-            self.main.wait_event(self.copy_stream.record_event())
+            self.wp.copy(self.r.x, self.up, dest_offset=a, src_offset=a, count=b - a, stream=self.up_stream)
+            self.main.wait_event(self.up_stream.record_event())
         else:
             self.wp.copy(self.r.x, self.up, dest_offset=a, src_offset=a, count=b - a)
 
@@ -622,9 +644,9 @@ class _SlicedTransfers:
         """Slice s's state back to pinned memory once the kernels queued so far have run."""
         a, b = self._range(s)
         if self.gpu:
-            self.copy_stream.wait_event(self.main.record_event())
-            self.wp.copy(self.down, self.r.x, dest_offset=a, src_offset=a, count=b - a, stream=self.copy_stream)
-            self.events[s] = self.copy_stream.record_event()
+            self.down_stream.wait_event(self.main.record_event())
+            self.wp.copy(self.down, self.r.x, dest_offset=a, src_offset=a, count=b - a, stream=self.down_stream)
+            self.events[s] = self.down_stream.record_event()
         else:
             self.wp.copy(self.down, self.r.x, dest_offset=a, src_offset=a, count=b - a)
 
@@ -639,16 +661,62 @@ class _SlicedTransfers:
         if self.up is None:
             return
         if self.gpu:
-            self.wp.synchronize_stream(self.copy_stream)
+            self.wp.synchronize_stream(self.up_stream)
+            self.wp.synchronize_stream(self.down_stream)
         _give_buffer(self.r.device, self.gpu, self.up)
         _give_buffer(self.r.device, self.gpu, self.down)
         self.up = self.down = None
 
 
+def frame_buffers(
+    params: ChainParams, batch: int, t_final: float, dt: float, save_every: int, *, device: str | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Host arrays (u, v) for ``simulate(..., frames_out=...)``, each (n_saved, batch, N) float64 with
+    n_saved = 1 + nsteps // save_every, as ``simulate`` records with the same ``t_final``, ``dt`` and
+    ``save_every``.
+
+    On a GPU they are page-locked (pinned): ``simulate`` then copies each chunk's frames from the device
+    straight into them, at the bus's rate, instead of through staging buffers and host copies (which
+    bound recording at ~10 GB/s on the H200 host). Page-locking costs ~0.4 s per GiB, so allocate them
+    once per study and pass them to every run; on the CPU they are plain numpy arrays.
+
+    Raises:
+        ValueError: bad sizes, or ``save_every`` longer than the run.
+    """
+    batch = whole_number("batch", batch, minimum=1)
+    save_every = whole_number("save_every", save_every, minimum=1)
+    nsteps, _ = steps_for(real_number("t_final", t_final, nonnegative=True), real_number("dt", dt, positive=True))
+    shape = (1 + nsteps // save_every, batch, params.N)
+    device = resolve_device(device)
+    if device == "cpu":
+        return np.zeros(shape), np.zeros(shape)
+    wp = _warp()
+    size = int(np.prod(shape))
+    # each a view of its own pinned Warp array (the view's base), which _pinned_view finds again
+    return tuple(wp.zeros(size, dtype=wp.float64, device="cpu", pinned=True).numpy().reshape(shape) for _ in range(2))
+
+
+def _pinned_view(arr: np.ndarray):
+    """(pinned Warp array, offset in values) when ``arr`` views page-locked Warp host memory (as the arrays
+    of ``frame_buffers`` do), else None."""
+    wp = _warp()
+    base = arr
+    while base is not None and not isinstance(base, wp.array):
+        base = getattr(base, "base", None)
+    if base is None or not getattr(base, "pinned", False) or base.dtype != wp.float64 or not base.is_contiguous:
+        return None
+    offset = arr.ctypes.data - base.ptr
+    if offset < 0 or offset % 8 or offset // 8 + arr.size > base.size:
+        return None
+    flat = base if base.ndim == 1 else base.flatten()
+    return flat, offset // 8
+
+
 class _FrameSink:
     """Recorded frames on their way to the result arrays ``u`` and ``v`` (n_saved, batch, N): the kernel
     writes a chunk's frames into device buffers, which are copied (asynchronously, on a GPU into pinned
-    host staging buffers, two slots) and then, by a few host threads, into the preallocated results."""
+    host staging buffers, two slots) and then, by a few host threads, into the preallocated results.
+    When the results are page-locked (``frame_buffers``) the device copies straight into them."""
 
     def __init__(self, runner, n_saved: int, max_frames: int, gpu: bool, out=None):
         wp = runner.wp
@@ -666,18 +734,30 @@ class _FrameSink:
             runner._sink_frames = cached  # kept with the runner (reused by the next call)
         self.rec = cached[1]
         self.device = runner.device
-        self.staging = [_take_buffer(wp, self.device, max(max_frames, 1) * self.frame, gpu) for _ in range(4)]
+        direct = [_pinned_view(a) for a in (self.u, self.v)] if gpu and out is not None else [None]
+        self.direct = direct if all(d is not None for d in direct) else None
+        self.staging = []
+        if self.direct is None:
+            self.staging = [_take_buffer(wp, self.device, max(max_frames, 1) * self.frame, gpu) for _ in range(4)]
 
     def put_initial(self, x0: np.ndarray) -> None:
         self.u[0] = x0[:, 0]
         self.v[0] = x0[:, 1]
 
-    def enqueue(self, n_rec: int, i: int) -> None:
+    def enqueue(self, n_rec: int, i: int, first: int) -> None:
+        """Copy chunk i's ``n_rec`` frames (frames ``first`` on of the result) off the device."""
         count = n_rec * self.frame
+        if self.direct is not None:
+            for (dst, offset), rec in zip(self.direct, self.rec):
+                self.wp.copy(dst, rec, dest_offset=offset + first * self.frame, count=count)
+            return
         for buf, rec in zip(self.staging[2 * (i % 2) : 2 * (i % 2) + 2], self.rec):
             self.wp.copy(buf, rec, count=count)
 
     def take(self, i: int, first: int, n_rec: int) -> None:
+        """Write chunk i's frames into the results (once its copies have completed)."""
+        if self.direct is not None:
+            return  # already there
         count = n_rec * self.frame
         shape = (n_rec, self.batch, self.N)
         for dst, buf in zip((self.u, self.v), self.staging[2 * (i % 2) : 2 * (i % 2) + 2]):
@@ -693,10 +773,9 @@ class _FrameSink:
         return out
 
     def close(self) -> None:
-        if self.staging is not None:
-            for buf in self.staging:
-                _give_buffer(self.device, self.gpu, buf)
-            self.staging = None
+        for buf in self.staging:
+            _give_buffer(self.device, self.gpu, buf)
+        self.staging = []
 
 
 class _Plan:
@@ -1090,7 +1169,9 @@ def simulate(
         M, K: per-lattice parameters, shape (batch,), so that a sweep runs in one launch.
         max_energy_error: relative energy error that counts as a blow-up (None: only non-finite).
         allow_unstable_step: run (with a warning) even when dt is above the linear stability limit.
-        chunks: number of launches the run is split into (default: 10, or 50 with progress).
+        chunks: number of launches the run is split into, each followed by the energy guard (default: from
+            the work, at most 10, or 50 with progress; at most 2 for a short run on a large batch on a GPU,
+            whose first and last chunk hide the state's transfers).
         layout: ``"block"`` (a thread block per lattice: the GPU path), ``"thread"`` (a thread per
             lattice: the CPU path) or ``"auto"`` (block on a GPU, thread on the CPU).
         on_chunk: called after every chunk with (t, u, v) of the frames recorded in that chunk,
@@ -1147,6 +1228,9 @@ def simulate(
     units_total = max(1, math.ceil(nsteps / unit))
     work = batch * params.N * max(nsteps, 1) * meth.force_evaluations
     n_chunks = chunks or max(1, min(50 if progress else 10, math.ceil(work / _CHUNK_WORK)))
+    sliced = x0.size >= _SLICED_MIN_VALUES and (device != "cpu" or _SLICE_ON_CPU)
+    if sliced and chunks is None and not progress and nsteps * meth.force_evaluations <= _SHORT_RUN_EVALUATIONS:
+        n_chunks = min(n_chunks, _SHORT_RUN_CHUNKS)
     units_per_chunk = max(1, math.ceil(units_total / n_chunks))
     if save_every:
         units_per_chunk = min(units_per_chunk, _frames_per_chunk(batch, params.N))
@@ -1158,8 +1242,7 @@ def simulate(
         plan.append((first, steps, steps // save_every if save_every else 0))
 
     gpu = device != "cpu"
-    # a large batch on a GPU moves in lattice slices, overlapped with the first and the last chunk
-    sliced = bool(plan) and x0.size >= _SLICED_MIN_VALUES and (gpu or _SLICE_ON_CPU)
+    sliced = sliced and bool(plan)  # a large batch: state moved in slices, overlapped with the first and last chunk
     t_runner = time.perf_counter()
     runner = _pooled_runner(meth, params, x0, Mb, Kb, device, layout, upload=not sliced)
     runner.set_damping(damping, dt_used)
@@ -1167,7 +1250,7 @@ def simulate(
     wp = runner.wp
     target = None  # the final state's host array, touched in the background once the device is busy
     guard = _GuardReader(runner, gpu)
-    transfers = _SlicedTransfers(runner, x0, _SLICES) if sliced else None
+    transfers = _SlicedTransfers(runner, x0, _slice_count(batch)) if sliced else None
     if not plan:
         E0, finite0, contact = (a.copy() for a in guard.read(runner.guard(), 0))  # of x0, on the device
         if not finite0.all():
@@ -1215,13 +1298,45 @@ def simulate(
             runner.launch(steps, dt_used, save_every or 0, rec)
         guard.enqueue(runner.guard(rec, n_rec, i), i)
         if n_rec:
-            sink.enqueue(n_rec, i)
+            sink.enqueue(n_rec, i, 1 + plan[i][0] // save_every)
         guard.record(i)
+
+    def check(i, E, finite, low):
+        """Chunk i's guard on the host: trace the energy, raise on a blow-up."""
+        nonlocal max_err, contact
+        first, steps, _ = plan[i]
+        t_now = (first + steps) * dt_used
+        change = _signed_energy_change(E, E0, params.N)  # lattices with losses: only growth is an error
+        err = np.where(runner.lossy_host, np.maximum(change, 0.0), np.abs(change))
+        err = np.where(finite, err, np.inf)
+        max_err = np.maximum(max_err, err)
+        trace_t.append(t_now)
+        trace_E.append(E.copy())
+        bad = ~finite | ((err > max_energy_error) if max_energy_error is not None else False)
+        if np.any(bad):
+            if gpu:
+                wp.synchronize_device(device)  # the next chunk may still be running; let it finish
+            failed = np.flatnonzero(bad).tolist()
+            what = "non-finite state" if not finite.all() else f"energy error above {max_energy_error:g}"
+            raise IntegrationError(
+                f"integration blew up ({what}) at t = {t_now:.6g} with method '{meth.name}', "
+                f"dt = {dt_used:.6g} (linear stability limit {limit:.6g}); failing lattices: {failed[:20]}"
+                + (" ..." if len(failed) > 20 else "")
+                + f"; largest relative energy error {np.nanmax(err):.3g}. Reduce dt or choose another method.",
+                method=meth.name,
+                dt=dt_used,
+                stability_limit=limit,
+                failed=failed,
+                t=t_now,
+            )
+        contact = low.copy()
 
     saved = 1
     stats = {"chunks": len(plan), "runner": t_runner, "waiting": 0.0, "frames": 0.0, "final": 0.0}
+    stats["slices"] = len(transfers.slices) if sliced else 1
     if runner.layout == "block" and isinstance(meth, SplittingMethod):
-        stats["sites_per_thread"] = sites_per_thread(batch, params.N, meth.stages, device)
+        lattices = transfers.slices[0][1] if sliced else batch
+        stats["sites_per_thread"] = sites_per_thread(lattices, params.N, meth.stages, device)
     try:
         if plan:
             enqueue(0)
@@ -1247,32 +1362,7 @@ def simulate(
                 if not finite0.all():
                     raise ValueError(f"x0 has non-finite entries in lattice(s) {np.flatnonzero(~finite0).tolist()}")
                 trace_E[0] = E0
-            done = first + steps
-            t_now = done * dt_used
-            change = _signed_energy_change(E, E0, params.N)  # lattices with losses: only growth is an error
-            err = np.where(runner.lossy_host, np.maximum(change, 0.0), np.abs(change))
-            err = np.where(finite, err, np.inf)
-            max_err = np.maximum(max_err, err)
-            trace_t.append(t_now)
-            trace_E.append(E.copy())
-            bad = ~finite | ((err > max_energy_error) if max_energy_error is not None else False)
-            if np.any(bad):
-                if gpu:
-                    wp.synchronize_device(device)  # the next chunk may still be running; let it finish
-                failed = np.flatnonzero(bad).tolist()
-                what = "non-finite state" if not finite.all() else f"energy error above {max_energy_error:g}"
-                raise IntegrationError(
-                    f"integration blew up ({what}) at t = {t_now:.6g} with method '{meth.name}', "
-                    f"dt = {dt_used:.6g} (linear stability limit {limit:.6g}); failing lattices: {failed[:20]}"
-                    + (" ..." if len(failed) > 20 else "")
-                    + f"; largest relative energy error {np.nanmax(err):.3g}. Reduce dt or choose another method.",
-                    method=meth.name,
-                    dt=dt_used,
-                    stability_limit=limit,
-                    failed=failed,
-                    t=t_now,
-                )
-            contact = low.copy()
+            check(i, E, finite, low)
             if n_rec:
                 t0 = time.perf_counter()
                 sink.take(i, saved, n_rec)

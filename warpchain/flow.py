@@ -59,10 +59,22 @@ class Linearization:
         stats: counters (``tangent_columns`` propagated so far).
     """
 
-    def __init__(self, x0, x_end, min_contact_value, nsteps, dt, columns: Callable[[np.ndarray], np.ndarray]):
+    def __init__(
+        self,
+        x0,
+        x_end,
+        min_contact_value,
+        nsteps,
+        dt,
+        columns: Callable[[np.ndarray], np.ndarray],
+        unit: Callable[[int, int], np.ndarray] | None = None,
+    ):
         self.x0, self.x_end, self.min_contact = x0, x_end, float(min_contact_value)
         self.nsteps, self.dt = int(nsteps), float(dt)
         self._columns = columns
+        # optional: (first, count) -> the end-state derivatives along unit directions first .. first + count - 1
+        # of the 4N, shape (count, 4, N), without the directions crossing from the host
+        self._unit = unit
         self._cache: dict[str, np.ndarray] = {}
         self.stats = {"tangent_columns": 0}
 
@@ -87,11 +99,18 @@ class Linearization:
         """Columns along the unit directions of the positions (``"positions"``: u then v, 2N) or the
         velocities (``"velocities"``: u' then v', 2N) or of the whole state (``"all"``, 4N)."""
         N = self.x0.shape[1]
-        eye = np.eye(4 * N).reshape(4 * N, 4, N)
-        sel = {"positions": eye[: 2 * N], "velocities": eye[2 * N :], "all": eye}[which]
+        first, count = {"positions": (0, 2 * N), "velocities": (2 * N, 2 * N), "all": (0, 4 * N)}[which]
+        if which in self._cache:
+            return self._cache[which]
         if which == "all" and "positions" in self._cache and "velocities" in self._cache:
             return np.hstack([self._cache["positions"], self._cache["velocities"]])
-        return self.columns(sel, key=which)
+        if self._unit is not None:
+            cols = self._unit(first, count).reshape(count, -1).T
+            self.stats["tangent_columns"] += count
+            self._cache[which] = cols
+            return cols
+        eye = np.eye(4 * N)[first : first + count].reshape(count, 4, N)
+        return self.columns(eye, key=which)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -199,14 +218,15 @@ class Flow:
         generation = runner.generation
         wp = runner.wp
 
-        def columns(directions):
+        def propagate(fill, count):
+            """Tangent columns from ``fill(dx)`` (dx: a device (count, 4, N) buffer) back on the host."""
             if runner.generation != generation:  # the buffers were handed to another run since
                 runner.load(x0, *_parameters(params))
                 runner.launch(int(nsteps), float(dt), record_stiffness=True)
-            dx = wp.array(directions, dtype=wp.float64, device=runner.device)
-            base = wp.zeros(len(directions), dtype=wp.int32, device=runner.device)
+            dx, base = _column_buffers(runner, count)
+            fill(dx)
             runner.launch_tangent(dx, base, int(nsteps), float(dt))
-            out = dx.numpy().copy()
+            out = _download(runner, dx)
             if not np.isfinite(out).all():
                 from .ensemble import IntegrationError, stability_limit
 
@@ -222,7 +242,52 @@ class Flow:
                 )
             return out
 
-        return Linearization(x0[0], x_end, contact, nsteps, dt, columns)
+        def columns(directions):
+            return propagate(lambda dx: dx.assign(directions), len(directions))
+
+        def unit(first, count):
+            eye = _unit_directions(runner)  # the 4N unit directions, made once on the device
+            n = 4 * params.N
+            return propagate(lambda dx: wp.copy(dx, eye, src_offset=first * n, count=count * n), count)
+
+        return Linearization(x0[0], x_end, contact, nsteps, dt, columns, unit=unit)
+
+
+def _column_buffers(runner, count: int):
+    """The runner's device buffers for ``count`` tangent columns (directions, base indices), kept between
+    calls (Newton asks for the same columns at every iterate)."""
+    held = getattr(runner, "_columns_held", None)
+    if held is None or held[0].shape[0] != count:
+        wp = runner.wp
+        dx = wp.empty((count, 4, runner.N), dtype=wp.float64, device=runner.device)
+        held = (dx, wp.zeros(count, dtype=wp.int32, device=runner.device))
+        runner._columns_held = held
+    return held
+
+
+def _unit_directions(runner):
+    """A device array (4N, 4, N) of the unit directions, kept with the runner."""
+    eye = getattr(runner, "_unit_directions", None)
+    if eye is None:
+        n = 4 * runner.N
+        eye = runner.wp.array(np.eye(n).reshape(n, 4, runner.N), dtype=runner.wp.float64, device=runner.device)
+        runner._unit_directions = eye
+    return eye
+
+
+def _download(runner, dx) -> np.ndarray:
+    """A new host copy of device array ``dx``: on a GPU through a pinned buffer kept with the runner
+    (a copy from pageable memory runs at a fraction of the bus's rate)."""
+    if runner.device == "cpu":
+        return dx.numpy().copy()  # numpy() is a view of the reused buffer
+    wp = runner.wp
+    buf = getattr(runner, "_pinned_columns", None)
+    if buf is None or buf.size < dx.size:
+        buf = wp.empty(dx.size, dtype=wp.float64, device="cpu", pinned=True)
+        runner._pinned_columns = buf
+    wp.copy(buf, dx, count=dx.size)
+    wp.synchronize_stream(wp.get_stream(runner.device))
+    return buf.numpy()[: dx.size].reshape(dx.shape).copy()
 
 
 def _run_with_contact(runner, nsteps: int, dt: float, record_stiffness: bool) -> np.ndarray:

@@ -1,0 +1,67 @@
+"""Where one Newton iteration of the paper breather (w_b = 1.01, K = 160, kahan8, reversible formulation,
+402 unknowns) spends its time: base run (``PeriodMap.evaluate``: the Flow's linearize), the 402 tangent
+columns, the Jacobian's rows and the LU solve, best of ``--repeats``; then a cProfile of 10 iterations
+by own time.
+
+Command (GPU): ``python benchmarks/newton_profile.py [--device cuda] [--top 25]``
+"""
+
+import argparse
+import cProfile
+import pstats
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from continuation.newton import solve_linear  # noqa: E402
+from continuation.shooting import PeriodMap  # noqa: E402
+from scenarios._common import paper_breather  # noqa: E402
+
+
+def iteration(pmap, unknowns, marks):
+    t0 = time.perf_counter()
+    point = pmap.evaluate(unknowns)
+    t1 = time.perf_counter()
+    cols = point.columns()
+    t2 = time.perf_counter()
+    J = point.jacobian()
+    t3 = time.perf_counter()
+    solve_linear(J, point.residual)
+    t4 = time.perf_counter()
+    for name, a, b in (("evaluate", t0, t1), ("columns", t1, t2), ("jacobian", t2, t3), ("solve", t3, t4)):
+        marks.setdefault(name, []).append(b - a)
+    marks.setdefault("total", []).append(t4 - t0)
+    return cols
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--device", default="cuda")
+    ap.add_argument("--repeats", type=int, default=20)
+    ap.add_argument("--top", type=int, default=25)
+    args = ap.parse_args()
+    breather = paper_breather(args.device)
+    pmap = PeriodMap(breather.params, breather.omega, breather.flow)
+    unknowns = pmap.from_state(breather.state)
+    marks = {}
+    for _ in range(3):
+        iteration(pmap, unknowns, {})
+    for _ in range(args.repeats):
+        iteration(pmap, unknowns, marks)
+    print(f"Newton iteration, {args.device}, best / median of {args.repeats} (ms):")
+    for name, values in marks.items():
+        print(f"  {name:9s} {1e3 * min(values):7.3f} {1e3 * np.median(values):7.3f}")
+    prof = cProfile.Profile()
+    prof.enable()
+    for _ in range(10):
+        iteration(pmap, unknowns, {})
+    prof.disable()
+    pstats.Stats(prof).sort_stats("tottime").print_stats(args.top)
+
+
+if __name__ == "__main__":
+    main()

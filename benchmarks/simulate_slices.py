@@ -1,0 +1,68 @@
+"""``simulate()`` without recording on a GPU: the state moved in S lattice slices (overlapped with the first
+and the last chunk) against the whole batch at once, beside the kernel's own time (``time_steps``), Verlet,
+N = 201, 2000 steps: the data behind ``ensemble._slice_count``, ``_SLICED_MIN_VALUES`` and the two chunks of a
+short sliced run. Best of ``--repeats`` calls after one untimed call; ``stats`` of the best call (ms).
+
+Variants: ``whole``: no slices, the default chunk count (from the work, at most 10); ``whole, 2 chunks``;
+``S slices``: S slices, two chunks; ``auto``: what ``simulate`` does by default.
+
+Command (GPU): ``python benchmarks/simulate_slices.py [--batch 805 8192 32768] [--slices 2 4 8 16]``
+"""
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from warpchain import ChainParams, lowest_optical_mode, simulate  # noqa: E402
+from warpchain import ensemble  # noqa: E402
+from warpchain.ensemble import time_steps  # noqa: E402
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--batch", type=int, nargs="+", default=[805, 2048, 8192, 32768])
+    ap.add_argument("--slices", type=int, nargs="+", default=[2, 4, 8, 16])
+    ap.add_argument("--steps", type=int, default=2000)
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--device", default="cuda")
+    args = ap.parse_args()
+    p = ChainParams(30.0, 160.0, 201)
+    _, shape = lowest_optical_mode(p)
+    one = np.zeros((4, p.N))
+    one[:2] = 0.3 * shape / np.max(np.abs(shape))
+    dt = 0.1
+    defaults = (ensemble._SLICED_MIN_VALUES, ensemble._SLICES)
+    variants = [("whole", 1 << 62, None, None), ("whole, 2 chunks", 1 << 62, None, 2)]
+    variants += [(f"{s} slices", 1, s, None) for s in args.slices] + [("auto", *defaults, None)]
+    print(f"# {args.steps} Verlet steps, N = {p.N}; best of {args.repeats}; ratio = kernel / simulate()", flush=True)
+    for batch in args.batch:
+        x0 = np.repeat(one[None], batch, 0)
+        kernel = time_steps(p, x0, args.steps, dt, device=args.device, repeats=3)
+        print(f"\nbatch {batch}: kernel {1e3 * kernel:.3f} ms", flush=True)
+        for name, min_values, slices, chunks in variants:
+            ensemble._SLICED_MIN_VALUES, ensemble._SLICES = min_values, slices
+            simulate(p, x0, args.steps * dt, dt, device=args.device, chunks=chunks)
+            walls, stats = [], []
+            for _ in range(args.repeats):
+                t0 = time.perf_counter()
+                run = simulate(p, x0, args.steps * dt, dt, device=args.device, chunks=chunks)
+                walls.append(time.perf_counter() - t0)
+                stats.append(run.stats)
+                del run
+            best = int(np.argmin(walls))
+            st = {k: round(1e3 * v, 3) if isinstance(v, float) else v for k, v in stats[best].items()}
+            print(
+                f"  {name:16s} best {1e3 * walls[best]:8.3f} ms ({kernel / walls[best]:.2f}x kernel), "
+                f"median {1e3 * np.median(walls):8.3f} ms; stats {st}",
+                flush=True,
+            )
+        ensemble._SLICED_MIN_VALUES, ensemble._SLICES = defaults
+
+
+if __name__ == "__main__":
+    main()
