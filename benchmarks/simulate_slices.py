@@ -30,6 +30,7 @@ def main():
     ap.add_argument("--steps", type=int, default=2000)
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--device", default="cuda")
+    ap.add_argument("--copy-slice", type=int, nargs="*", default=[], help="also: auto, values per copy thread")
     args = ap.parse_args()
     p = ChainParams(30.0, 160.0, 201)
     _, shape = lowest_optical_mode(p)
@@ -39,13 +40,16 @@ def main():
     defaults = (ensemble._SLICED_MIN_VALUES, ensemble._SLICES)
     variants = [("whole", 1 << 62, None, None), ("whole, 2 chunks", 1 << 62, None, 2)]
     variants += [(f"{s} slices", 1, s, None) for s in args.slices] + [("auto", *defaults, None)]
+    variants += [(f"auto, copy {c}", *defaults, None, c) for c in args.copy_slice]
+    copy_slice = ensemble._COPY_SLICE
     print(f"# {args.steps} Verlet steps, N = {p.N}; best of {args.repeats}; ratio = kernel / simulate()", flush=True)
     for batch in args.batch:
         x0 = np.repeat(one[None], batch, 0)
         kernel = time_steps(p, x0, args.steps, dt, device=args.device, repeats=3)
         print(f"\nbatch {batch}: kernel {1e3 * kernel:.3f} ms", flush=True)
-        for name, min_values, slices, chunks in variants:
+        for name, min_values, slices, chunks, *copy in variants:
             ensemble._SLICED_MIN_VALUES, ensemble._SLICES = min_values, slices
+            ensemble._COPY_SLICE = copy[0] if copy else copy_slice
             simulate(p, x0, args.steps * dt, dt, device=args.device, chunks=chunks)
             walls, stats = [], []
             for _ in range(args.repeats):
@@ -62,6 +66,7 @@ def main():
                 flush=True,
             )
         ensemble._SLICED_MIN_VALUES, ensemble._SLICES = defaults
+        ensemble._COPY_SLICE = copy_slice
 
 
 if __name__ == "__main__":

@@ -304,8 +304,9 @@ _PREFAULT_MIN_VALUES = 1 << 16
 #: (5.2k lattices of 201 sites), in ``_slice_count`` slices (``_SLICES`` when set)
 _SLICED_MIN_VALUES = 1 << 22
 _SLICES = None
-#: lattices per slice (the kernel keeps ~0.9 of its full-batch rate from 2048 lattices) and the most slices
-_SLICE_LATTICES = 2048
+#: lattices per slice and the most slices: on the H200, 8 slices of 4096 lattices, 2 of 4096 and the whole
+#: batch at 805 were each the best or within 2 % of it (benchmarks/h200-2026-11-22h/slices.txt)
+_SLICE_LATTICES = 4096
 _MAX_SLICES = 8
 #: a sliced run of at most this many force evaluations per site runs in at most ``_SHORT_RUN_CHUNKS`` chunks
 #: by default: the first and the last chunk, whose kernels hide the slices' transfers, then hold the whole run
@@ -503,13 +504,14 @@ def _copy(dst: np.ndarray, src: np.ndarray) -> None:
 
 def _workers(values: int) -> int:
     """Threads for a host copy of this many float64 values: one per _COPY_SLICE values (handing a piece to
-    a pool thread costs tens of us), at most 16 and the CPU count."""
-    return max(1, min(16, usable_cores(), int(values) // _COPY_SLICE))
+    a pool thread costs tens of us), at most _MAX_COPY_THREADS and the usable cores."""
+    return max(1, min(_MAX_COPY_THREADS, usable_cores(), int(values) // _COPY_SLICE))
 
 
-#: values per host copy thread (``_workers``): 8 MB (H200 host: with 1 MB per thread, and with the pages of the
-#: destination populated by madvise first, simulate() got slower: 68 against 56 ms at 32768 lattices)
-_COPY_SLICE = 1 << 20
+#: values per host copy thread (``_workers``): 2 MB. With 8 MB, a 13 MB slice of the state went on one thread
+#: at ~5 GB/s (H200 host, benchmarks/h200-2026-11-22h/slices-before.txt)
+_COPY_SLICE = 1 << 18
+_MAX_COPY_THREADS = 16
 
 
 def _fill_zero(arr: np.ndarray) -> None:
@@ -527,12 +529,15 @@ def _fill_zero(arr: np.ndarray) -> None:
 
 
 def _copy_pool(workers: int):
+    """The host copy threads: made once with as many threads as any copy may use (not as the first copy asks:
+    a pool sized by a small first copy would serialise every later large one)."""
     global _COPY_POOL
     with _STAGING_LOCK:
         if _COPY_POOL is None:
             from concurrent.futures import ThreadPoolExecutor
 
-            _COPY_POOL = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="warpchain-copy")
+            size = max(workers, min(_MAX_COPY_THREADS, usable_cores()))
+            _COPY_POOL = ThreadPoolExecutor(max_workers=size, thread_name_prefix="warpchain-copy")
     return _COPY_POOL
 
 
