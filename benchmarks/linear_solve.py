@@ -143,6 +143,23 @@ def raw_lapack_no_gecon(J, r):
     return scipy.linalg.lstsq(J, r, check_finite=False)[0], True
 
 
+def raw_lapack_gecon_one_thread(J, r):
+    """dgetrf on the process's BLAS threads, dgecon and dgetrs (level-2 work) on one."""
+    from continuation.hostblas import blas_threads
+
+    a = np.array(J, dtype=np.float64, order="F")
+    anorm = lapack.dlange("1", a)
+    lu, piv, info = lapack.dgetrf(a, overwrite_a=True)
+    if info == 0:
+        with blas_threads(1):
+            rcond, info = lapack.dgecon(lu, anorm, norm="1")
+            if info == 0 and rcond >= EPS:
+                x, info = lapack.dgetrs(lu, piv, r)
+                if info == 0:
+                    return x, False
+    return scipy.linalg.lstsq(J, r, check_finite=False)[0], True
+
+
 def numpy_solve(J, r):
     return np.linalg.solve(J, r), False
 
@@ -154,6 +171,7 @@ VARIANTS = {
     "lu_factor+gecon": lu_factor_gecon,
     "dgetrf+dgecon": raw_lapack,
     "dgetrf, no gecon": raw_lapack_no_gecon,
+    "gecon+getrs 1 thr": raw_lapack_gecon_one_thread,
     "numpy.solve": numpy_solve,
 }
 
