@@ -103,7 +103,12 @@ def main(path):
             f"monodromy ({mono['columns']} columns, {mono['period_steps']} steps of {mono['method']}): kernel "
             f"{1e3 * mono['monodromy_kernel_seconds']:.2f} ms, wall {1e3 * mono['monodromy_wall_seconds']:.1f} ms; "
             f"Newton iteration {1e3 * mono['newton_iteration_seconds']:.2f} ms "
-            f"(linear solve {1e3 * mono['newton_linear_solve_seconds']:.2f} ms)"
+            + (
+                f"(median {1e3 * mono['newton_iteration_median_seconds']:.2f} ms) "
+                if "newton_iteration_median_seconds" in mono
+                else ""
+            )
+            + f"(linear solve {1e3 * mono['newton_linear_solve_seconds']:.2f} ms)"
         )
     for row in s.get("kernel_properties", []):
         print(f"{row['kernel']}: {row['register_count']} registers, occupancy {row['occupancy']:.2f}")
