@@ -120,16 +120,23 @@ def lu_factor_gecon(J, r):
     return scipy.linalg.lu_solve((lu, piv), r, check_finite=False), False
 
 
-def raw_lapack(J, r):
+def raw_lapack(J, r, level2_threads: int | None = None):
+    """dgetrf, dgecon, dgetrs; with ``level2_threads``, dgecon and dgetrs (level-2 work) on that many BLAS
+    threads and dgetrf on the process's."""
+    import contextlib
+
+    from continuation.hostblas import blas_threads
+
     a = np.array(J, dtype=np.float64, order="F")
     anorm = lapack.dlange("1", a)
     lu, piv, info = lapack.dgetrf(a, overwrite_a=True)
     if info == 0:
-        rcond, info = lapack.dgecon(lu, anorm, norm="1")
-        if info == 0 and rcond >= EPS:
-            x, info = lapack.dgetrs(lu, piv, r)
-            if info == 0:
-                return x, False
+        with blas_threads(level2_threads) if level2_threads else contextlib.nullcontext():
+            rcond, info = lapack.dgecon(lu, anorm, norm="1")
+            if info == 0 and rcond >= EPS:
+                x, info = lapack.dgetrs(lu, piv, r)
+                if info == 0:
+                    return x, False
     return scipy.linalg.lstsq(J, r, check_finite=False)[0], True
 
 
@@ -140,23 +147,6 @@ def raw_lapack_no_gecon(J, r):
         x, info = lapack.dgetrs(lu, piv, r)
         if info == 0:
             return x, False
-    return scipy.linalg.lstsq(J, r, check_finite=False)[0], True
-
-
-def raw_lapack_gecon_one_thread(J, r):
-    """dgetrf on the process's BLAS threads, dgecon and dgetrs (level-2 work) on one."""
-    from continuation.hostblas import blas_threads
-
-    a = np.array(J, dtype=np.float64, order="F")
-    anorm = lapack.dlange("1", a)
-    lu, piv, info = lapack.dgetrf(a, overwrite_a=True)
-    if info == 0:
-        with blas_threads(1):
-            rcond, info = lapack.dgecon(lu, anorm, norm="1")
-            if info == 0 and rcond >= EPS:
-                x, info = lapack.dgetrs(lu, piv, r)
-                if info == 0:
-                    return x, False
     return scipy.linalg.lstsq(J, r, check_finite=False)[0], True
 
 
@@ -171,7 +161,7 @@ VARIANTS = {
     "lu_factor+gecon": lu_factor_gecon,
     "dgetrf+dgecon": raw_lapack,
     "dgetrf, no gecon": raw_lapack_no_gecon,
-    "gecon+getrs 1 thr": raw_lapack_gecon_one_thread,
+    "gecon+getrs 1 thr": lambda J, r: raw_lapack(J, r, level2_threads=1),
     "numpy.solve": numpy_solve,
 }
 

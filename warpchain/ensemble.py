@@ -509,7 +509,7 @@ def _workers(values: int) -> int:
 
 
 #: values per host copy thread (``_workers``): 2 MB. With 8 MB, a 13 MB slice of the state went on one thread
-#: at ~5 GB/s (H200 host, benchmarks/h200-2026-11-22h/slices-before.txt)
+#: at ~5 GB/s (H200 host, benchmarks/h200-2026-11-22h/slices-before-copy-fix.txt)
 _COPY_SLICE = 1 << 18
 _MAX_COPY_THREADS = 16
 
@@ -607,9 +607,8 @@ class _SlicedTransfers:
     """The state's trip to the device and back in lattice slices, overlapped with kernels: slice s is
     copied (host -> pinned -> device, on an upload stream) while the kernels run on slice s - 1, and its
     final state goes back (on a download stream) while they run on slice s + 1, so only one slice's
-    transfer each way is exposed (on a GPU; on the CPU the same steps run in order). ``simulate`` uses it
-    slice-major (every chunk of a slice before the next slice) or, when recording, around the first and
-    the last chunk only."""
+    transfer each way is exposed (on a GPU; on the CPU the same steps run in order). ``simulate`` runs the
+    first and the last chunk slice by slice for it; a short run on a large batch has only those two."""
 
     def __init__(self, runner, x0: np.ndarray, n_slices: int):
         wp = runner.wp

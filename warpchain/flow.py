@@ -19,7 +19,8 @@ continuation can be tested without Warp.
 
 Adding a flow: subclass ``Flow`` and implement ``run`` and ``linearize`` (returning a
 ``Linearization`` whose ``_columns`` callable maps directions (ncols, 4, N) to the end-state
-derivatives (ncols, 4, N)).
+derivatives (ncols, 4, N); optionally a ``unit`` callable for the unit directions, which ``Flow``
+makes once on the device so that Newton's 2N columns cost no host-to-device copy of an identity).
 """
 
 from __future__ import annotations
