@@ -76,7 +76,8 @@ class SimulationResult:
             upload, until the first chunk is queued; ``runner`` of it: the device buffers taken from the
             pool and loaded with the batch and its parameters), ``waiting`` (the host blocked on the device's
             chunks), ``frames`` (recorded frames copied into ``u`` and ``v``), ``final`` (the final
-            state copied into ``x``), and ``chunks``, ``sites_per_thread`` (block layout).
+            state copied into ``x``), and ``chunks``, ``slices`` (lattice slices the state moved in),
+            ``sites_per_thread`` (block layout).
     """
 
     x: np.ndarray
@@ -1016,14 +1017,16 @@ class _Runner:
         """The kernels' loss arguments (flags, coefficients) for lattices lo..hi."""
         return [self.lossy[lo:hi], self.damp[lo:hi] if self.damped else self.no_damp]
 
-    def _pinned(self, name: str):
-        """This runner's own pinned host buffer ``name`` of the state's size (made once: the runner is
-        pooled, so later calls on the same batch shape reuse it), after any copy from it has finished."""
-        buf = getattr(self, name)
-        if buf is None:
-            buf = self.wp.empty(self.x.size, dtype=self.wp.float64, device="cpu", pinned=True)
+    def _pinned(self, name: str, size: int | None = None):
+        """This runner's own pinned host buffer ``name`` of at least ``size`` values (default: the state's;
+        made once and grown when needed: the runner is pooled, so later calls reuse it), after any copy
+        from it has finished."""
+        size = self.x.size if size is None else size
+        buf = getattr(self, name, None)
+        if buf is None or buf.size < size:
+            buf = self.wp.empty(size, dtype=self.wp.float64, device="cpu", pinned=True)
             setattr(self, name, buf)
-        done = getattr(self, name + "_done")
+        done = getattr(self, name + "_done", None)
         if done is not None:
             self.wp.synchronize_event(done)
         return buf
@@ -1044,16 +1047,21 @@ class _Runner:
         """The batch state as a new host array (on a GPU through a pinned buffer, then a few threads
         write the result: fresh host memory is filled ~5x faster that way than by one thread);
         ``out``: a host array of the state's shape to fill instead (e.g. one touched in advance)."""
-        wp = self.wp
         if self.device == "cpu":
             return self.x.numpy()  # on the CPU a view of the device buffer
         if self.x.size < (1 << 16):
             return self.x.numpy()
-        buf = self._pinned("_pinned_down")
-        wp.copy(buf, self.x, count=self.x.size)
-        wp.synchronize_device(self.device)
-        out = np.empty(self.x.shape) if out is None else out
-        _copy(out, buf.numpy())
+        return self.fetch(self.x, "_pinned_down", out)
+
+    def fetch(self, arr, name: str, out: np.ndarray | None = None) -> np.ndarray:
+        """A host copy of device array ``arr`` (into ``out`` when given) through this runner's pinned buffer
+        ``name``, once the work queued so far has run (a copy into pageable memory runs at a fraction of the
+        bus's rate)."""
+        buf = self._pinned(name, arr.size)
+        self.wp.copy(buf, arr, count=arr.size)
+        self.wp.synchronize_device(self.device)
+        out = np.empty(arr.shape) if out is None else out
+        _copy(out, buf.numpy()[: arr.size].reshape(arr.shape))
         return out
 
     def load(self, x0: np.ndarray, M, K, upload: bool = True) -> None:

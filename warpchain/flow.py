@@ -277,18 +277,10 @@ def _unit_directions(runner):
 
 
 def _download(runner, dx) -> np.ndarray:
-    """A new host copy of device array ``dx``: on a GPU through a pinned buffer kept with the runner
-    (a copy from pageable memory runs at a fraction of the bus's rate)."""
+    """A new host copy of device array ``dx`` (on a GPU through a pinned buffer kept with the runner)."""
     if runner.device == "cpu":
         return dx.numpy().copy()  # numpy() is a view of the reused buffer
-    wp = runner.wp
-    buf = getattr(runner, "_pinned_columns", None)
-    if buf is None or buf.size < dx.size:
-        buf = wp.empty(dx.size, dtype=wp.float64, device="cpu", pinned=True)
-        runner._pinned_columns = buf
-    wp.copy(buf, dx, count=dx.size)
-    wp.synchronize_stream(wp.get_stream(runner.device))
-    return buf.numpy()[: dx.size].reshape(dx.shape).copy()
+    return runner.fetch(dx, "_pinned_columns")
 
 
 def _run_with_contact(runner, nsteps: int, dt: float, record_stiffness: bool) -> np.ndarray:
