@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from conftest import localized_state
-from warpchain import METHODS, ChainParams, IntegrationError, energy, reference, simulate
+from warpchain import METHODS, ChainParams, IntegrationError, energy, propagate_tangent, reference, simulate
 from warpchain.ensemble import _CHUNK_WORK, _Runner
 from warpchain.flow import Flow, ReferenceFlow
 from warpchain.integrators import get_method
@@ -360,3 +360,44 @@ def test_frames_out_receives_the_recording(small_chain):
         simulate(p, x0, 40 * 0.05, 0.05, device="cpu", save_every=10, frames_out=(u[:4], v))
     with pytest.raises(ValueError, match="share memory"):
         simulate(p, x0, 40 * 0.05, 0.05, device="cpu", save_every=10, frames_out=(u, u))
+
+
+@pytest.mark.parametrize("boundary", ["fixed", "free", "periodic"])
+def test_two_tangent_columns_per_block_bit_for_bit(boundary, monkeypatch):
+    """The GPU's tangent kernel with two columns per block and the history loaded one force evaluation ahead
+    (the monodromy's 804 columns), forced on the CPU: an odd column count (the last block carries one column),
+    columns of two base lattices with their own M and K, a many-stage method (its register-capped build) and
+    Verlet; the same bits as the thread layout and as one column per block without prefetch."""
+    from warpchain import ensemble
+
+    p = ChainParams(3.0, 4.0, 37, boundary)
+    x0 = localized_state(p.N, amplitude=0.7, batch=2, seed=5)
+    eye = np.eye(4 * p.N).reshape(4 * p.N, 4, p.N)
+    dx0 = np.concatenate([eye[:25], eye[40:64]])
+    base = np.repeat([0, 1], [25, 24])
+    M, K = np.array([3.0, 2.0]), np.array([4.0, 6.0])
+    for method in ("verlet", "kahan8"):
+        runs = {}
+        for columns, prefetch in ((1, False), (2, True), (2, False)):
+            monkeypatch.setattr(ensemble, "_TANGENT_COLUMNS", columns)
+            monkeypatch.setattr(ensemble, "_TANGENT_PREFETCH", prefetch)
+            runs[columns, prefetch] = propagate_tangent(
+                p, x0, dx0, 5, 0.05, method=method, column_base=base, M=M, K=K, device="cpu", layout="block"
+            ).columns
+        thread = propagate_tangent(
+            p, x0, dx0, 5, 0.05, method=method, column_base=base, M=M, K=K, device="cpu", layout="thread"
+        ).columns
+        for key, cols in runs.items():
+            assert np.array_equal(cols, thread), (method, key)
+
+
+def test_tangent_columns_per_block_policy():
+    from warpchain import ensemble
+
+    assert ensemble.tangent_columns_per_block(804, 15, "cpu") == 1
+    assert ensemble.tangent_columns_per_block(804, 15, "cuda:0") == 2
+    assert ensemble.tangent_columns_per_block(ensemble._TANGENT_PAIR_MIN_COLUMNS - 1, 1, "cuda:0") == 1
+    with pytest.raises(ValueError, match="1 or 2 columns"):
+        from warpchain import block_kernels
+
+        block_kernels.block_kernels(64).splitting_tangent(1, columns=3)

@@ -208,10 +208,15 @@ class BlockKernels:
             raise ValueError(f"the block kernels support 1 to {MAX_STAGES} stages, got {stages}")
         return self._get("splitting", int(stages), bool(record), bool(save), bool(damped))
 
-    def splitting_tangent(self, stages: int):
+    def splitting_tangent(self, stages: int, columns: int = 1, prefetch: bool = True):
+        """Tangent kernel for ``stages`` stages carrying ``columns`` tangent columns per block (1 or 2;
+        launch with ``dim=(ceil(ncols / columns), block)``); ``prefetch``: load each force evaluation's
+        history entry one evaluation ahead (the benchmarks compare both; same arithmetic)."""
         if not 1 <= stages <= MAX_STAGES:
             raise ValueError(f"the block kernels support 1 to {MAX_STAGES} stages, got {stages}")
-        return self._get("splitting_tangent", int(stages))
+        if columns not in (1, 2):
+            raise ValueError(f"the tangent kernel carries 1 or 2 columns per block, got {columns}")
+        return self._get("splitting_tangent", int(stages), int(columns), bool(prefetch))
 
     @property
     def rk4(self):
@@ -362,7 +367,10 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0, lattices: int = 1) -> 
 
         return splitting
 
-    def make_splitting_tangent(stages: int):
+    def make_splitting_tangent(stages: int, columns: int = 1, prefetch: bool = True):
+        cols = wp.types.vector(length=columns, dtype=wp.float64)
+        bases = wp.types.vector(length=columns, dtype=wp.int32)
+
         @wp.kernel(**options)
         def splitting_tangent(
             dx: wp.array3d(dtype=wp.float64),
@@ -376,41 +384,95 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0, lattices: int = 1) -> 
             nsteps: int,
             hist: wp.array3d(dtype=wp.float64),
         ):
-            """Tangent column c (block) of the splitting map along base trajectory column_base[c]."""
-            c, j = wp.tid()
+            """Tangent columns g * columns + q (q < ``columns``) of the splitting map along base trajectories
+            column_base[c]: block g, thread j = site; a thread carries its site of every column of its block
+            (independent chains: more work in flight per barrier and per history entry)."""
+            g, j = wp.tid()
             n = dx.shape[2]
+            ncols = dx.shape[0]
+            last = hist.shape[0] - 1
             active = j < n
-            base = column_base[c]
             jj = wp.min(j, n - 1)  # idle threads read a valid (unused) history entry
-            start = load_site(dx, c, j, active)
-            du = start[0]
-            dv = start[1]
-            dpu = start[2]
-            dpv = start[3]
-            m = inv_mass[base]
-            k = coupling[base]
+            du = cols()
+            dv = cols()
+            dpu = cols()
+            dpv = cols()
+            m = cols()
+            k = cols()
+            base = bases()
+            for q in range(wp.static(columns)):
+                c = g * wp.static(columns) + q
+                b = column_base[wp.min(c, ncols - 1)]  # a column past the end (odd count) carries zeros
+                base[q] = b
+                m[q] = inv_mass[b]
+                k[q] = coupling[b]
+                start = load_site(dx, c, j, active and c < ncols)
+                du[q] = start[0]
+                dv[q] = start[1]
+                dpu[q] = start[2]
+                dpv[q] = start[3]
             nbr = site_neighbours(j, n, boundary)
-            buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
+            buf = wp.tile_zeros(shape=(halves,), dtype=cols, storage="shared")
             parity = int(0)
-            nb = exchange(buf, du, parity, nbr, boundary)
-            a = site_tangent_acceleration(du, dv, nb[0], nb[1], m, k, hist[0, base, jj])
+            au = cols()
+            av = cols()
+            stiff = cols()  # f'(z) of the base at the next force evaluation, loaded one evaluation ahead
+            wp.tile_assign(buf, wp.tile(du, preserve_type=True), offset=(parity * wp.static(threads),))
+            left = buf[parity * wp.static(threads) + nbr[0]]
+            right = buf[parity * wp.static(threads) + nbr[1]]
+            for q in range(wp.static(columns)):
+                if wp.static(prefetch):
+                    stiff[q] = hist[wp.min(1, last), base[q], jj]
+                a = site_tangent_acceleration(
+                    du[q],
+                    dv[q],
+                    neighbour_or_wall(left[q], du[q], nbr[2], boundary),
+                    neighbour_or_wall(right[q], du[q], nbr[3], boundary),
+                    m[q],
+                    k[q],
+                    hist[0, base[q], jj],
+                )
+                au[q] = a[0]
+                av[q] = a[1]
             for step in range(nsteps):
                 h = kicks[0]  # times dt, as in the splitting kernel
-                dpu = dpu + h * a[0]
-                dpv = dpv + h * a[1]
+                for q in range(wp.static(columns)):
+                    dpu[q] = dpu[q] + h * au[q]
+                    dpv[q] = dpv[q] + h * av[q]
                 for s in range(wp.static(stages)):
                     h = drifts[s]
-                    du = du + h * dpu
-                    dv = dv + h * dpv
+                    e = step * wp.static(stages) + s + 1  # this force evaluation's history slot
+                    now = cols(stiff)  # a copy: stiff is overwritten below
+                    for q in range(wp.static(columns)):
+                        du[q] = du[q] + h * dpu[q]
+                        dv[q] = dv[q] + h * dpv[q]
+                        if wp.static(prefetch):  # issued before the barrier: its latency hides behind it
+                            stiff[q] = hist[wp.min(e + 1, last), base[q], jj]
                     parity = 1 - parity
-                    nb = exchange(buf, du, parity, nbr, boundary)
-                    a = site_tangent_acceleration(
-                        du, dv, nb[0], nb[1], m, k, hist[step * wp.static(stages) + s + 1, base, jj]
-                    )
+                    offset = parity * wp.static(threads)
+                    wp.tile_assign(buf, wp.tile(du, preserve_type=True), offset=(offset,))
+                    left = buf[offset + nbr[0]]
+                    right = buf[offset + nbr[1]]
                     h = kicks[s + 1]
-                    dpu = dpu + h * a[0]
-                    dpv = dpv + h * a[1]
-            store_site(dx, c, j, active, wp.vec4d(du, dv, dpu, dpv))
+                    for q in range(wp.static(columns)):
+                        if wp.static(not prefetch):
+                            now[q] = hist[e, base[q], jj]
+                        a = site_tangent_acceleration(
+                            du[q],
+                            dv[q],
+                            neighbour_or_wall(left[q], du[q], nbr[2], boundary),
+                            neighbour_or_wall(right[q], du[q], nbr[3], boundary),
+                            m[q],
+                            k[q],
+                            now[q],
+                        )
+                        au[q] = a[0]
+                        av[q] = a[1]
+                        dpu[q] = dpu[q] + h * au[q]
+                        dpv[q] = dpv[q] + h * av[q]
+            for q in range(wp.static(columns)):
+                c = g * wp.static(columns) + q
+                store_site(dx, c, j, active and c < ncols, wp.vec4d(du[q], dv[q], dpu[q], dpv[q]))
 
         return splitting_tangent
 

@@ -366,6 +366,27 @@ _GROUP_ONE_SITE: bool | None = None
 _GROUP_MIN_BLOCKS: dict = {}
 
 
+#: tangent columns per block of the block splitting tangent kernel: None lets ``tangent_columns_per_block``
+#: choose; 1 or 2 forces it (tests, benchmarks)
+_TANGENT_COLUMNS: int | None = None
+#: from this many columns a GPU tangent launch carries two columns per block
+_TANGENT_PAIR_MIN_COLUMNS = 256
+#: ``__launch_bounds__`` minimum blocks per SM of the two-column tangent kernel, by "many stages" (more than
+#: ``_SITES_MAX_STAGES``): the 804 columns of a monodromy are 402 blocks, one wave of the H200's 132 SMs at 4
+_TANGENT_PAIR_MIN_BLOCKS = {True: 4, False: 0}
+#: the tangent kernel loads each history entry one force evaluation ahead (False: when it is used)
+_TANGENT_PREFETCH = True
+
+
+def tangent_columns_per_block(ncols: int, stages: int, device: str) -> int:
+    """Tangent columns each block of a block splitting tangent launch carries: 2 on a GPU from
+    ``_TANGENT_PAIR_MIN_COLUMNS`` columns (each thread then runs two independent chains: more work in flight
+    per barrier and per history load, and half the blocks), else 1."""
+    if _TANGENT_COLUMNS is not None:
+        return _TANGENT_COLUMNS
+    return 2 if device != "cpu" and ncols >= _TANGENT_PAIR_MIN_COLUMNS else 1
+
+
 _RUNNER_POOL: dict = {}
 _RUNNER_POOL_SIZE = 4
 
@@ -845,10 +866,19 @@ class _BlockSplitting(_Plan):
 
     def tangent(self, dx, column_base, lo, hi, dt, nsteps):
         r = self.r
+        from . import block_kernels
+
         inputs = [dx[lo:hi], column_base[lo:hi], r.inv_mass, r.coupling, *self.coefficients(dt), r.boundary]
         inputs += [r.wp.float64(dt), int(nsteps), r.hist]
-        kernel = r.bk.splitting_tangent(r.method.stages)
-        r.wp.launch(kernel, dim=(hi - lo, r.block), block_dim=r.block, device=r.device, inputs=inputs)
+        stages = r.method.stages
+        columns = tangent_columns_per_block(hi - lo, stages, r.device)
+        kernels = r.bk
+        if columns > 1:
+            cap = _TANGENT_PAIR_MIN_BLOCKS.get(stages > _SITES_MAX_STAGES, 0)
+            kernels = block_kernels.block_kernels(r.block, cap)
+        kernel = kernels.splitting_tangent(stages, columns, _TANGENT_PREFETCH)
+        dim = (-(-(hi - lo) // columns), r.block)
+        r.wp.launch(kernel, dim=dim, block_dim=r.block, device=r.device, inputs=inputs)
 
 
 class _BlockRungeKutta(_Plan):
