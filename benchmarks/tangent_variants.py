@@ -1,8 +1,8 @@
 """The monodromy's kernels, variant by variant: the paper breather's base run (one lattice, kahan8, 64 steps,
 recording the contact stiffness) and its tangent columns (804 for the monodromy, 402 for a Newton iteration),
 for every (columns per block, history prefetch, register cap) of ``block_kernels``' tangent kernel; each
-checked bit for bit against the first variant. Kernel time best of ``--repeats`` (device synchronised
-before and after each launch).
+checked bit for bit against the first variant and against the numpy reference. Kernel time best of
+``--repeats`` (device synchronised before and after each launch).
 
 Command (GPU): ``python benchmarks/tangent_variants.py [--repeats 20]``
 """
@@ -25,7 +25,7 @@ from scenarios._common import (  # noqa: E402
     PAPER_N,
     PAPER_OMEGA,
 )
-from warpchain import ChainParams, ensemble  # noqa: E402
+from warpchain import ChainParams, ensemble, reference  # noqa: E402
 from warpchain.integrators import get_method  # noqa: E402
 
 VARIANTS = [  # (columns per block, prefetch, min blocks per SM of the two-column kernel)
@@ -80,6 +80,7 @@ def main():
         dx = wp.empty(eye.shape, dtype=wp.float64, device=args.device)
         column_base = wp.zeros(ncols, dtype=wp.int32, device=args.device)
         first = None
+        exact = reference.integrate(BREATHER_METHOD, params, x0, dt, nsteps, dx0=eye[None])["dx"][0]
         for columns, prefetch, cap in VARIANTS:
             ensemble._TANGENT_COLUMNS, ensemble._TANGENT_PREFETCH = columns, prefetch
             if cap is not None:
@@ -93,6 +94,7 @@ def main():
             out = dx.numpy().copy()
             first = out if first is None else first
             same = "same bits" if np.array_equal(out, first) else f"DIFFERS by {np.max(np.abs(out - first)):.3g}"
+            same += f", reference rel diff {np.max(np.abs(out - exact)) / np.max(np.abs(exact)):.2g}"
             copy, _ = best(lambda: dx.assign(eye), wp, args.device, args.repeats)
             t, tm = best(tangent, wp, args.device, args.repeats)
             print(

@@ -357,16 +357,18 @@ def _kernel_properties(ctx, params):
     """Registers, local memory and theoretical occupancy of the kernels that ran (CUDA only)."""
     import warp as wp
 
-    from warpchain import block_kernels, kernels
+    from warpchain import block_kernels, ensemble, kernels
 
     block = block_kernels.block_size(params.N)
     rows = []
-    built = {}
-    for method in METHODS.values():
-        min_blocks = block_kernels.min_blocks_per_sm(method.stages)
+    built, blocks = {}, {}
+    caps = {block_kernels.min_blocks_per_sm(method.stages) for method in METHODS.values()}
+    for min_blocks in sorted(caps | set(ensemble._TANGENT_PAIR_MIN_BLOCKS.values())):
         for key, kernel in block_kernels.block_kernels(block, min_blocks).built().items():
-            built["/".join(str(part) for part in key) + f" (min blocks {min_blocks})"] = kernel
-    blocks = dict.fromkeys(built, (block, 2 * block * 8))  # threads, shared bytes (two halves of a float64 row)
+            name = "/".join(str(part) for part in key) + f" (min blocks {min_blocks})"
+            # threads, shared bytes: two halves of a float64 row, or of (float64 x columns) for the tangents
+            columns = key[2] if key[0] == "splitting_tangent" else 1
+            built[name], blocks[name] = kernel, (block, 2 * block * 8 * columns)
     for (threads, sites, _, min_blocks), group in block_kernels.SITE_GROUPS.items():
         for key, kernel in group.built().items():
             name = "/".join(str(part) for part in key) + f" ({sites} sites/thread, min blocks {min_blocks})"
