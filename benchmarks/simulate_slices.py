@@ -1,15 +1,19 @@
 """``simulate()`` without recording on a GPU: the state moved in S lattice slices (overlapped with the first
 and the last chunk) against the whole batch at once, beside the kernel's own time (``time_steps``), Verlet,
 N = 201, 2000 steps: the data behind ``ensemble._slice_count``, ``_SLICED_MIN_VALUES`` and the two chunks of a
-short sliced run. Best of ``--repeats`` calls after one untimed call; ``stats`` of the best call (ms).
+short sliced run. Best of ``--repeats`` calls after one untimed call; ``stats`` of the best call (ms); each
+variant's end state against the first's, bit for bit.
 
 Variants: ``whole``: no slices, the default chunk count (from the work, at most 10); ``whole, 2 chunks``;
-``S slices``: S slices, two chunks; ``auto``: what ``simulate`` does by default.
+``S slices``: S slices, two chunks; ``auto``: what ``simulate`` does by default. Each variant runs with the
+state copied straight between the caller's arrays and the device (``pageable``, the default) and through
+pinned buffers filled by host threads (``pinned``), in turn (``--transfers``).
 
 Command (GPU): ``python benchmarks/simulate_slices.py [--batch 805 8192 32768] [--slices 2 4 8 16]``
 """
 
 import argparse
+import itertools
 import sys
 import time
 from pathlib import Path
@@ -30,6 +34,7 @@ def main():
     ap.add_argument("--steps", type=int, default=2000)
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--device", default="cuda")
+    ap.add_argument("--transfers", nargs="+", default=["pageable", "pinned"], choices=["pageable", "pinned"])
     ap.add_argument("--copy-slice", type=int, nargs="*", default=[], help="also: auto, values per copy thread")
     args = ap.parse_args()
     p = ChainParams(30.0, 160.0, 201)
@@ -47,9 +52,12 @@ def main():
         x0 = np.repeat(one[None], batch, 0)
         kernel = time_steps(p, x0, args.steps, dt, device=args.device, repeats=3)
         print(f"\nbatch {batch}: kernel {1e3 * kernel:.3f} ms", flush=True)
-        for name, min_values, slices, chunks, *copy in variants:
+        first = None  # the first variant's end state: every other must have the same bits
+        for (name, min_values, slices, chunks, *copy), transfers in itertools.product(variants, args.transfers):
             ensemble._SLICED_MIN_VALUES, ensemble._SLICES = min_values, slices
             ensemble._COPY_SLICE = copy[0] if copy else copy_slice
+            ensemble._PAGEABLE_TRANSFERS = transfers == "pageable"
+            name = f"{name}, {transfers}"
             simulate(p, x0, args.steps * dt, dt, device=args.device, chunks=chunks)
             walls, stats = [], []
             for _ in range(args.repeats):
@@ -57,16 +65,18 @@ def main():
                 run = simulate(p, x0, args.steps * dt, dt, device=args.device, chunks=chunks)
                 walls.append(time.perf_counter() - t0)
                 stats.append(run.stats)
-                del run
             best = int(np.argmin(walls))
+            first = run.x if first is None else first
+            same = "same bits" if np.array_equal(run.x, first) else f"DIFFERS by {np.max(np.abs(run.x - first)):.3g}"
             st = {k: round(1e3 * v, 3) if isinstance(v, float) else v for k, v in stats[best].items()}
             print(
-                f"  {name:16s} best {1e3 * walls[best]:8.3f} ms ({kernel / walls[best]:.2f}x kernel), "
-                f"median {1e3 * np.median(walls):8.3f} ms; stats {st}",
+                f"  {name:26s} best {1e3 * walls[best]:8.3f} ms ({kernel / walls[best]:.2f}x kernel), "
+                f"median {1e3 * np.median(walls):8.3f} ms; {same}; stats {st}",
                 flush=True,
             )
         ensemble._SLICED_MIN_VALUES, ensemble._SLICES = defaults
         ensemble._COPY_SLICE = copy_slice
+        ensemble._PAGEABLE_TRANSFERS = True
 
 
 if __name__ == "__main__":
