@@ -6,8 +6,8 @@ variant's end state against the first's, bit for bit.
 
 Variants: ``whole``: no slices, the default chunk count (from the work, at most 10); ``whole, 2 chunks``;
 ``S slices``: S slices, two chunks; ``auto``: what ``simulate`` does by default. Each variant runs with the
-state copied straight between the caller's arrays and the device (``pageable``, the default) and through
-pinned buffers filled by host threads (``pinned``), in turn (``--transfers``).
+state copied through pinned buffers filled by host threads (``pinned``, the default) and straight between the
+caller's arrays and the device (``pageable``: ``ensemble._PAGEABLE_TRANSFERS``), in turn (``--transfers``).
 
 Command (GPU): ``python benchmarks/simulate_slices.py [--batch 805 8192 32768] [--slices 2 4 8 16]``
 """
@@ -34,7 +34,7 @@ def main():
     ap.add_argument("--steps", type=int, default=2000)
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--device", default="cuda")
-    ap.add_argument("--transfers", nargs="+", default=["pageable", "pinned"], choices=["pageable", "pinned"])
+    ap.add_argument("--transfers", nargs="+", default=["pinned", "pageable"], choices=["pageable", "pinned"])
     ap.add_argument("--copy-slice", type=int, nargs="*", default=[], help="also: auto, values per copy thread")
     args = ap.parse_args()
     p = ChainParams(30.0, 160.0, 201)
@@ -46,7 +46,7 @@ def main():
     variants = [("whole", 1 << 62, None, None), ("whole, 2 chunks", 1 << 62, None, 2)]
     variants += [(f"{s} slices", 1, s, None) for s in args.slices] + [("auto", *defaults, None)]
     variants += [(f"auto, copy {c}", *defaults, None, c) for c in args.copy_slice]
-    copy_slice = ensemble._COPY_SLICE
+    copy_slice, pageable = ensemble._COPY_SLICE, ensemble._PAGEABLE_TRANSFERS
     print(f"# {args.steps} Verlet steps, N = {p.N}; best of {args.repeats}; ratio = kernel / simulate()", flush=True)
     for batch in args.batch:
         x0 = np.repeat(one[None], batch, 0)
@@ -76,7 +76,7 @@ def main():
             )
         ensemble._SLICED_MIN_VALUES, ensemble._SLICES = defaults
         ensemble._COPY_SLICE = copy_slice
-        ensemble._PAGEABLE_TRANSFERS = True
+        ensemble._PAGEABLE_TRANSFERS = pageable
 
 
 if __name__ == "__main__":

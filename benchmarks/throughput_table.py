@@ -101,7 +101,13 @@ def main(path):
     if mono:
         print(
             f"monodromy ({mono['columns']} columns, {mono['period_steps']} steps of {mono['method']}): kernel "
-            f"{1e3 * mono['monodromy_kernel_seconds']:.2f} ms, wall {1e3 * mono['monodromy_wall_seconds']:.1f} ms; "
+            f"{1e3 * mono['monodromy_kernel_seconds']:.2f} ms"
+            + (
+                f" (CUDA events; launches host-timed {1e3 * mono['monodromy_launch_seconds']:.2f} ms)"
+                if "monodromy_launch_seconds" in mono
+                else ""
+            )
+            + f", wall {1e3 * mono['monodromy_wall_seconds']:.1f} ms; "
             f"Newton iteration {1e3 * mono['newton_iteration_seconds']:.2f} ms "
             + (
                 f"(median {1e3 * mono['newton_iteration_median_seconds']:.2f} ms) "

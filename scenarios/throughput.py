@@ -306,13 +306,15 @@ def _monodromy(ctx, repeats):
         for _ in range(repeats)
     ]
     kernel = min(r.kernel_seconds for r in runs)
+    launches = min(r.launch_seconds for r in runs)
     wall = min(r.wall_seconds for r in runs)
     ctx.log(
-        "monodromy (%d columns, %d steps of %s): kernel %.3g ms, wall %.3g ms",
+        "monodromy (%d columns, %d steps of %s): kernel %.3g ms (launches, host-timed %.3g ms), wall %.3g ms",
         n,
         period_steps,
         breather.method,
         1e3 * kernel,
+        1e3 * launches,
         1e3 * wall,
     )
     pmap = PeriodMap(params, breather.omega, breather.flow)
@@ -344,6 +346,7 @@ def _monodromy(ctx, repeats):
         "method": breather.method,
         "force_evaluations": period_steps * METHODS[breather.method].force_evaluations,
         "monodromy_kernel_seconds": kernel,
+        "monodromy_launch_seconds": launches,
         "monodromy_wall_seconds": wall,
         "newton_columns": int(J.shape[1]),
         "newton_iteration_seconds": min(iteration),

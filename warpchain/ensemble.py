@@ -369,13 +369,17 @@ _GROUP_MIN_BLOCKS: dict = {}
 #: tangent columns per block of the block splitting tangent kernel: None lets ``tangent_columns_per_block``
 #: choose; 1 or 2 forces it (tests, benchmarks)
 _TANGENT_COLUMNS: int | None = None
-#: from this many columns a GPU tangent launch carries two columns per block
+#: from this many columns a GPU tangent launch carries two columns per block. H200, the paper breather's
+#: 804-column monodromy (kahan8, 32 steps; ``benchmarks/tangent_variants.py``, ``benchmarks/h200-2026-11-22i``):
+#: 0.348 ms with one column per block as before, 0.305 ms with its history loaded one evaluation ahead, 0.303 ms
+#: with two columns per block (0.322 ms with both); 402 columns: 0.23-0.24 ms every way
 _TANGENT_PAIR_MIN_COLUMNS = 256
 #: ``__launch_bounds__`` minimum blocks per SM of the two-column tangent kernel, by "many stages" (more than
 #: ``_SITES_MAX_STAGES``): the 804 columns of a monodromy are 402 blocks, one wave of the H200's 132 SMs at 4
 _TANGENT_PAIR_MIN_BLOCKS = {True: 4, False: 0}
-#: the tangent kernel loads each history entry one force evaluation ahead (False: when it is used)
-_TANGENT_PREFETCH = True
+#: the tangent kernel loads each history entry one force evaluation ahead: None does so with one column per
+#: block (where it paid) and not with two (the extra registers cost more than it saved); True/False force it
+_TANGENT_PREFETCH: bool | None = None
 
 
 def tangent_columns_per_block(ncols: int, stages: int, device: str) -> int:
@@ -724,8 +728,11 @@ def _host_view(wp, arr: np.ndarray):
 
 
 #: copy the state between the caller's (pageable) arrays and the device directly, letting the driver stage it,
-#: instead of through pinned buffers that host threads fill and empty (False: the pinned path)
-_PAGEABLE_TRANSFERS = True
+#: instead of through pinned buffers that host threads fill and empty. Off: on the H200 host the driver's
+#: pageable copies were the slower path at every batch, 59.1 against 39.5 ms at 32768 lattices, 18.7 against
+#: 13.0 ms at 8192 and 3.17 against 3.50 ms at 805 (``benchmarks/h200-2026-11-22i/slices.txt``; the 105 MB
+#: upload alone took 27-30 ms, ~3.7 GB/s)
+_PAGEABLE_TRANSFERS = False
 
 
 def frame_buffers(
@@ -910,7 +917,8 @@ class _BlockSplitting(_Plan):
         if columns > 1:
             cap = _TANGENT_PAIR_MIN_BLOCKS.get(stages > _SITES_MAX_STAGES, 0)
             kernels = block_kernels.block_kernels(r.block, cap)
-        kernel = kernels.splitting_tangent(stages, columns, _TANGENT_PREFETCH)
+        prefetch = columns == 1 if _TANGENT_PREFETCH is None else _TANGENT_PREFETCH
+        kernel = kernels.splitting_tangent(stages, columns, prefetch)
         dim = (-(-(hi - lo) // columns), r.block)
         r.wp.launch(kernel, dim=dim, block_dim=r.block, device=r.device, inputs=inputs)
 
@@ -1515,8 +1523,11 @@ class TangentResult:
             the end state of base ``column_base[c]`` along the initial direction ``dx0[c]``.
         column_base: base trajectory of each column, shape (ncols,).
         method, dt, nsteps, device, wall_seconds, layout.
-        kernel_seconds: time of the two launches alone (base run and tangent columns, device
-            synchronised before and after; no transfers, no set-up).
+        kernel_seconds: device time of the two kernels (base run and tangent columns): on a GPU between
+            CUDA events recorded before the first launch and after the second, so any gap the host leaves
+            between them counts; on the CPU as ``launch_seconds``.
+        launch_seconds: host time of the two launches, the device synchronised before and after (no
+            transfers, no set-up).
     """
 
     x: np.ndarray
@@ -1529,6 +1540,7 @@ class TangentResult:
     wall_seconds: float
     layout: str = "thread"
     kernel_seconds: float = float("nan")
+    launch_seconds: float = float("nan")
 
 
 def propagate_tangent(
@@ -1578,11 +1590,18 @@ def propagate_tangent(
     base_dev = wp.array(base, dtype=wp.int32, device=device)
     wp.synchronize_device(device)
     kernel_start = time.perf_counter()
+    events = None
+    if nsteps and device != "cpu":  # device time from the base run's start to the columns' end
+        events = [wp.Event(device, enable_timing=True) for _ in range(2)]
+        wp.record_event(events[0])
     if nsteps:
         runner.launch(int(nsteps), float(dt), record_stiffness=True)
         runner.launch_tangent(dx, base_dev, int(nsteps), float(dt))
+    if events is not None:
+        wp.record_event(events[1])
     wp.synchronize_device(device)
-    kernel_seconds = time.perf_counter() - kernel_start
+    launch_seconds = time.perf_counter() - kernel_start
+    kernel_seconds = launch_seconds if events is None else 1e-3 * wp.get_event_elapsed_time(*events)
     x = runner.x.numpy()
     columns = dx.numpy()
     if not (np.isfinite(x).all() and np.isfinite(columns).all()):
@@ -1606,6 +1625,7 @@ def propagate_tangent(
         wall_seconds=time.perf_counter() - start,
         layout=runner.layout,
         kernel_seconds=kernel_seconds,
+        launch_seconds=launch_seconds,
     )
 
 
