@@ -156,6 +156,31 @@ def site_kick(
 
 
 @wp.func
+def column_acceleration(
+    du: wp.float64,
+    dv: wp.float64,
+    left: wp.float64,
+    right: wp.float64,
+    nbr: wp.vec4i,
+    boundary: int,
+    inv_mass: wp.float64,
+    coupling: wp.float64,
+    stiffness: wp.float64,
+) -> wp.vec2d:
+    """``site_tangent_acceleration`` of one tangent column at a site, from the shared tile's neighbour values
+    (replaced at a chain end by the wall's, as ``neighbour_or_wall``)."""
+    return site_tangent_acceleration(
+        du,
+        dv,
+        neighbour_or_wall(left, du, nbr[2], boundary),
+        neighbour_or_wall(right, du, nbr[3], boundary),
+        inv_mass,
+        coupling,
+        stiffness,
+    )
+
+
+@wp.func
 def rk4_accumulate(stage: int, total: wp.vec4d, k: wp.vec4d, weights: wp.vec4d) -> wp.vec4d:
     """The weighted sum of the stage derivatives after stage ``stage`` (as kernels.rk4_advance)."""
     if stage == 0:
@@ -423,14 +448,8 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0, lattices: int = 1) -> 
             for q in range(wp.static(columns)):
                 if wp.static(prefetch):
                     stiff[q] = hist[wp.min(1, last), base[q], jj]
-                a = site_tangent_acceleration(
-                    du[q],
-                    dv[q],
-                    neighbour_or_wall(left[q], du[q], nbr[2], boundary),
-                    neighbour_or_wall(right[q], du[q], nbr[3], boundary),
-                    m[q],
-                    k[q],
-                    hist[0, base[q], jj],
+                a = column_acceleration(
+                    du[q], dv[q], left[q], right[q], nbr, boundary, m[q], k[q], hist[0, base[q], jj]
                 )
                 au[q] = a[0]
                 av[q] = a[1]
@@ -457,15 +476,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0, lattices: int = 1) -> 
                     for q in range(wp.static(columns)):
                         if wp.static(not prefetch):
                             now[q] = hist[e, base[q], jj]
-                        a = site_tangent_acceleration(
-                            du[q],
-                            dv[q],
-                            neighbour_or_wall(left[q], du[q], nbr[2], boundary),
-                            neighbour_or_wall(right[q], du[q], nbr[3], boundary),
-                            m[q],
-                            k[q],
-                            now[q],
-                        )
+                        a = column_acceleration(du[q], dv[q], left[q], right[q], nbr, boundary, m[q], k[q], now[q])
                         au[q] = a[0]
                         av[q] = a[1]
                         dpu[q] = dpu[q] + h * au[q]
