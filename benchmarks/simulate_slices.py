@@ -5,15 +5,12 @@ short sliced run. Best of ``--repeats`` calls after one untimed call; ``stats`` 
 variant's end state against the first's, bit for bit.
 
 Variants: ``whole``: no slices, the default chunk count (from the work, at most 10); ``whole, 2 chunks``;
-``S slices``: S slices, two chunks; ``auto``: what ``simulate`` does by default. Each variant runs with the
-state copied through pinned buffers filled by host threads (``pinned``, the default) and straight between the
-caller's arrays and the device (``pageable``: ``ensemble._PAGEABLE_TRANSFERS``), in turn (``--transfers``).
+``S slices``: S slices, two chunks; ``auto``: what ``simulate`` does by default.
 
 Command (GPU): ``python benchmarks/simulate_slices.py [--batch 805 8192 32768] [--slices 2 4 8 16]``
 """
 
 import argparse
-import itertools
 import sys
 import time
 from pathlib import Path
@@ -34,7 +31,6 @@ def main():
     ap.add_argument("--steps", type=int, default=2000)
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--device", default="cuda")
-    ap.add_argument("--transfers", nargs="+", default=["pinned", "pageable"], choices=["pageable", "pinned"])
     ap.add_argument("--copy-slice", type=int, nargs="*", default=[], help="also: auto, values per copy thread")
     args = ap.parse_args()
     p = ChainParams(30.0, 160.0, 201)
@@ -46,18 +42,16 @@ def main():
     variants = [("whole", 1 << 62, None, None), ("whole, 2 chunks", 1 << 62, None, 2)]
     variants += [(f"{s} slices", 1, s, None) for s in args.slices] + [("auto", *defaults, None)]
     variants += [(f"auto, copy {c}", *defaults, None, c) for c in args.copy_slice]
-    copy_slice, pageable = ensemble._COPY_SLICE, ensemble._PAGEABLE_TRANSFERS
+    copy_slice = ensemble._COPY_SLICE
     print(f"# {args.steps} Verlet steps, N = {p.N}; best of {args.repeats}; ratio = kernel / simulate()", flush=True)
     for batch in args.batch:
         x0 = np.repeat(one[None], batch, 0)
         kernel = time_steps(p, x0, args.steps, dt, device=args.device, repeats=3)
         print(f"\nbatch {batch}: kernel {1e3 * kernel:.3f} ms", flush=True)
         first = None  # the first variant's end state: every other must have the same bits
-        for (name, min_values, slices, chunks, *copy), transfers in itertools.product(variants, args.transfers):
+        for name, min_values, slices, chunks, *copy in variants:
             ensemble._SLICED_MIN_VALUES, ensemble._SLICES = min_values, slices
             ensemble._COPY_SLICE = copy[0] if copy else copy_slice
-            ensemble._PAGEABLE_TRANSFERS = transfers == "pageable"
-            name = f"{name}, {transfers}"
             simulate(p, x0, args.steps * dt, dt, device=args.device, chunks=chunks)
             walls, stats = [], []
             for _ in range(args.repeats):
@@ -70,13 +64,12 @@ def main():
             same = "same bits" if np.array_equal(run.x, first) else f"DIFFERS by {np.max(np.abs(run.x - first)):.3g}"
             st = {k: round(1e3 * v, 3) if isinstance(v, float) else v for k, v in stats[best].items()}
             print(
-                f"  {name:26s} best {1e3 * walls[best]:8.3f} ms ({kernel / walls[best]:.2f}x kernel), "
+                f"  {name:16s} best {1e3 * walls[best]:8.3f} ms ({kernel / walls[best]:.2f}x kernel), "
                 f"median {1e3 * np.median(walls):8.3f} ms; {same}; stats {st}",
                 flush=True,
             )
         ensemble._SLICED_MIN_VALUES, ensemble._SLICES = defaults
         ensemble._COPY_SLICE = copy_slice
-        ensemble._PAGEABLE_TRANSFERS = pageable
 
 
 if __name__ == "__main__":

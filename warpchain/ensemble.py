@@ -631,29 +631,20 @@ class _GuardReader:
 
 class _SlicedTransfers:
     """The state's trip to the device and back in lattice slices, overlapped with kernels: slice s is
-    copied to the device (on an upload stream) while the kernels run on slice s - 1, and its final state
-    goes back (on a download stream) while they run on slice s + 1, so only one slice's transfer each way
-    is exposed (on a GPU; on the CPU the same steps run in order). ``simulate`` runs the first and the
-    last chunk slice by slice for it; a short run on a large batch has only those two.
-
-    The copies go straight between the caller's arrays and the device (``_PAGEABLE_TRANSFERS``): the
-    driver stages pageable memory itself, and an upload returns once its slice is staged, a download once
-    it has landed. Without it they go through pinned buffers that host threads fill and empty."""
+    copied (host -> pinned -> device, on an upload stream) while the kernels run on slice s - 1, and its
+    final state goes back (on a download stream) while they run on slice s + 1, so only one slice's
+    transfer each way is exposed (on a GPU; on the CPU the same steps run in order). ``simulate`` runs the
+    first and the last chunk slice by slice for it; a short run on a large batch has only those two."""
 
     def __init__(self, runner, x0: np.ndarray, n_slices: int):
         wp = runner.wp
         self.wp, self.r, self.x0 = wp, runner, x0
         self.gpu = runner.device != "cpu"
-        self.staged = self.gpu and not _PAGEABLE_TRANSFERS  # through pinned buffers
         bounds = np.linspace(0, runner.batch, n_slices + 1).astype(int)
         self.slices = [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
         self.site_values = 4 * runner.N
-        if self.staged:
-            self.up = _take_buffer(wp, runner.device, x0.size, True)
-            self.down = _take_buffer(wp, runner.device, x0.size, True)
-        else:
-            self.up = _host_view(wp, x0)  # the caller's array itself
-            self.down = None  # the result's array, given to ``take``
+        self.up = _take_buffer(wp, runner.device, x0.size, self.gpu)
+        self.down = _take_buffer(wp, runner.device, x0.size, self.gpu)
         self.events = {}
         if self.gpu:
             # uploads and downloads on streams of their own: slice s + 1's upload never waits behind slice s's
@@ -671,9 +662,8 @@ class _SlicedTransfers:
     def upload(self, s: int) -> None:
         """Slice s to the device; the compute stream waits for it."""
         a, b = self._range(s)
-        if self.staged:
-            lo, hi = self.slices[s]
-            _copy(self.up.numpy()[a:b], np.ascontiguousarray(self.x0[lo:hi]))
+        lo, hi = self.slices[s]
+        _copy(self.up.numpy()[a:b], np.ascontiguousarray(self.x0[lo:hi]))
         if self.gpu:
             self.wp.copy(self.r.x, self.up, dest_offset=a, src_offset=a, count=b - a, stream=self.up_stream)
             self.main.wait_event(self.up_stream.record_event())
@@ -681,34 +671,21 @@ class _SlicedTransfers:
             self.wp.copy(self.r.x, self.up, dest_offset=a, src_offset=a, count=b - a)
 
     def download(self, s: int) -> None:
-        """Queue slice s's way back, after the kernels queued so far (staged: its copy to pinned memory;
-        else only the event that ``take`` waits for)."""
-        if not self.gpu:
-            return
-        done = self.main.record_event()
-        if self.staged:
-            a, b = self._range(s)
-            self.down_stream.wait_event(done)
+        """Slice s's state back to pinned memory once the kernels queued so far have run."""
+        a, b = self._range(s)
+        if self.gpu:
+            self.down_stream.wait_event(self.main.record_event())
             self.wp.copy(self.down, self.r.x, dest_offset=a, src_offset=a, count=b - a, stream=self.down_stream)
-            done = self.down_stream.record_event()
-        self.events[s] = done
+            self.events[s] = self.down_stream.record_event()
+        else:
+            self.wp.copy(self.down, self.r.x, dest_offset=a, src_offset=a, count=b - a)
 
     def take(self, s: int, out: np.ndarray) -> None:
-        """Write slice s's final state into ``out`` (the whole batch's host array, C-contiguous)."""
+        """Write slice s's final state into ``out`` (the whole batch's host array)."""
         a, b = self._range(s)
-        if self.staged:
-            self.wp.synchronize_event(self.events[s])
-            _copy(out.reshape(-1)[a:b], self.down.numpy()[a:b])
-            return
         if self.gpu:
-            # a copy into pageable memory returns once it has landed; the device goes on with later slices
-            self.down_stream.wait_event(self.events[s])
-            self.wp.copy(
-                _host_view(self.wp, out), self.r.x, dest_offset=a, src_offset=a, count=b - a, stream=self.down_stream
-            )
-            self.wp.synchronize_stream(self.down_stream)
-        else:
-            self.wp.copy(_host_view(self.wp, out), self.r.x, dest_offset=a, src_offset=a, count=b - a)
+            self.wp.synchronize_event(self.events[s])
+        _copy(out.reshape(-1)[a:b], self.down.numpy()[a:b])
 
     def close(self) -> None:
         if self.up is None:
@@ -716,23 +693,9 @@ class _SlicedTransfers:
         if self.gpu:
             self.wp.synchronize_stream(self.up_stream)
             self.wp.synchronize_stream(self.down_stream)
-        if self.staged:
-            _give_buffer(self.r.device, True, self.up)
-            _give_buffer(self.r.device, True, self.down)
+        _give_buffer(self.r.device, self.gpu, self.up)
+        _give_buffer(self.r.device, self.gpu, self.down)
         self.up = self.down = None
-
-
-def _host_view(wp, arr: np.ndarray):
-    """A flat Warp CPU array over the memory of C-contiguous float64 ``arr`` (no copy)."""
-    return wp.array(arr.reshape(-1), dtype=wp.float64, device="cpu", copy=False)
-
-
-#: copy the state between the caller's (pageable) arrays and the device directly, letting the driver stage it,
-#: instead of through pinned buffers that host threads fill and empty. Off: on the H200 host the driver's
-#: pageable copies were the slower path at every batch, 59.1 against 39.5 ms at 32768 lattices, 18.7 against
-#: 13.0 ms at 8192 and 3.17 against 3.50 ms at 805 (``benchmarks/h200-2026-11-22i/slices.txt``; the 105 MB
-#: upload alone took 27-30 ms, ~3.7 GB/s)
-_PAGEABLE_TRANSFERS = False
 
 
 def frame_buffers(
@@ -915,7 +878,7 @@ class _BlockSplitting(_Plan):
         columns = tangent_columns_per_block(hi - lo, stages, r.device)
         kernels = r.bk
         if columns > 1:
-            cap = _TANGENT_PAIR_MIN_BLOCKS.get(stages > _SITES_MAX_STAGES, 0)
+            cap = _TANGENT_PAIR_MIN_BLOCKS[stages > _SITES_MAX_STAGES]
             kernels = block_kernels.block_kernels(r.block, cap)
         prefetch = columns == 1 if _TANGENT_PREFETCH is None else _TANGENT_PREFETCH
         kernel = kernels.splitting_tangent(stages, columns, prefetch)
@@ -1104,15 +1067,11 @@ class _Runner:
         return buf
 
     def upload(self, x0: np.ndarray) -> None:
-        """Copy a batch state to the device: on a GPU straight from ``x0`` (``_PAGEABLE_TRANSFERS``: the driver
-        stages it and the call returns once it has, so ``x0`` may change at once), else through this runner's
-        pinned buffer, which host threads fill. Kernels queued after it see the new state."""
+        """Copy a batch state to the device (on a GPU through this runner's pinned buffer: ~55 GB/s instead
+        of the ~15 GB/s of pageable memory). Asynchronous: kernels queued after it see the new state."""
         wp = self.wp
         if self.device == "cpu" or x0.size < (1 << 16):
             self.x.assign(np.ascontiguousarray(x0, dtype=np.float64))
-            return
-        if _PAGEABLE_TRANSFERS:  # returns once the driver has staged x0: the caller may change it at once
-            wp.copy(self.x, _host_view(wp, np.ascontiguousarray(x0, dtype=np.float64)), count=x0.size)
             return
         buf = self._pinned("_pinned_up")
         _copy(buf.numpy(), np.ascontiguousarray(x0, dtype=np.float64))
@@ -1122,16 +1081,11 @@ class _Runner:
     def download(self, out: np.ndarray | None = None) -> np.ndarray:
         """The batch state as a new host array (on a GPU through a pinned buffer, then a few threads
         write the result: fresh host memory is filled ~5x faster that way than by one thread);
-        ``out``: a C-contiguous float64 host array of the state's shape to fill instead (e.g. one touched in
-        advance: with ``_PAGEABLE_TRANSFERS`` the device copies straight into it)."""
+        ``out``: a host array of the state's shape to fill instead (e.g. one touched in advance)."""
         if self.device == "cpu":
             return self.x.numpy()  # on the CPU a view of the device buffer
         if self.x.size < (1 << 16):
             return self.x.numpy()
-        if _PAGEABLE_TRANSFERS and out is not None:  # memory already touched: straight in, at the bus's rate
-            self.wp.copy(_host_view(self.wp, out), self.x, count=self.x.size)
-            self.wp.synchronize_device(self.device)
-            return out
         return self.fetch(self.x, "_pinned_down", out)
 
     def fetch(self, arr, name: str, out: np.ndarray | None = None) -> np.ndarray:
