@@ -129,6 +129,36 @@ def test_flow_min_contact_reduced_on_the_device_matches_the_reference(layout):
     assert la.stats["tangent_columns"] == 5 + 4 * p.N
 
 
+@pytest.mark.parametrize("method,layout", [("kahan8", "block"), ("rk4", "thread"), ("verlet", "block")])
+def test_flow_replayed_as_a_graph_bit_for_bit(method, layout, monkeypatch):
+    """The Flow's base runs and unit columns are captured into a graph from their second call with the same
+    (step count, dt) and replayed (``_Replay``; a CUDA graph on a GPU, Warp's CPU graph here, on one CPU
+    thread as on a GPU's one slice): every replay gives the reference's bits, for new states, new
+    parameters, a new dt and an older linearization's history replayed in between."""
+    from warpchain import ensemble
+
+    monkeypatch.setattr(ensemble, "_GRAPH_ON_CPU", True)
+    monkeypatch.setenv("WARPCHAIN_CPU_THREADS", "1")
+    p, q = ChainParams(30.0, 160.0, 21), ChainParams(20.0, 100.0, 21)
+    x0 = localized_state(p.N, amplitude=0.3, batch=2, seed=4)
+    flow, ref = Flow(method, 16, device="cpu", layout=layout), ReferenceFlow(method, 16)
+    cases = [(p, x0[:1], 0.05), (p, x0[1:], 0.05), (p, x0[:1], 0.04), (q, x0[:1], 0.05), (p, x0[1:], 0.05)] * 2
+    older = None
+    for params, x, dt in cases:
+        a, b = flow.linearize(params, x, 8, dt), ref.linearize(params, x, 8, dt)
+        assert np.array_equal(a.x_end, b.x_end) and a.min_contact == b.min_contact
+        assert np.array_equal(a.unit_columns("positions"), b.unit_columns("positions"))
+        assert np.array_equal(a.unit_columns("all"), b.unit_columns("all"))
+        run, run_ref = flow.run(params, x0, 8, dt), ref.run(params, x0, 8, dt)
+        assert np.array_equal(run.x_end, run_ref.x_end) and np.array_equal(run.min_contact, run_ref.min_contact)
+        if older is not None:  # the older point's buffers went to other runs since: its history is re-run
+            assert np.array_equal(older[0].unit_columns("velocities"), older[1].unit_columns("velocities"))
+        older = (a, b)
+    replays = [r for slot in flow._pool.values() for runner in slot["runners"] for r in runner._replays.values()]
+    assert sum(r.graph is not None for r in replays) >= 4  # base runs and columns were replayed as graphs
+    assert all(r.issued >= 1 for r in replays)
+
+
 def test_host_copy_helpers_and_buffer_pool():
     from warpchain import ensemble
 

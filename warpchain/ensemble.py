@@ -821,6 +821,15 @@ class _Plan:
     def tangent(self, dx, column_base, lo: int, hi: int, dt: float, nsteps: int) -> None:
         raise NotImplementedError
 
+    def kept(self, name: str, shape: tuple):
+        """A device array of ``shape`` kept under (``name``, ``shape``): launches allocate nothing, so that
+        they can be captured in a graph (``_Replay``) and replayed."""
+        held = self.__dict__.setdefault("_kept", {})
+        key = (name, tuple(shape))
+        if key not in held:
+            held[key] = self.r.wp.zeros(shape, dtype=self.r.wp.float64, device=self.r.device)
+        return held[key]
+
 
 class _BlockSplitting(_Plan):
     """A thread block per lattice, a splitting method compiled for its stage count."""
@@ -926,7 +935,7 @@ class _ThreadSplitting(_Plan):
 
     def tangent(self, dx, column_base, lo, hi, dt, nsteps):
         r, wp = self.r, self.r.wp
-        dacc = wp.zeros((hi - lo, 2, r.N), dtype=wp.float64, device=r.device)
+        dacc = self.kept("dacc", (dx.shape[0], 2, r.N))[lo:hi]  # written before it is read
         inputs = [dx[lo:hi], dacc, column_base[lo:hi], r.inv_mass, r.coupling, self.drifts, self.kicks]
         inputs += [r.boundary, wp.float64(dt), int(nsteps), r.hist]
         wp.launch(r.k.splitting_tangent_kernel, dim=hi - lo, device=r.device, inputs=inputs)
@@ -951,7 +960,7 @@ class _ThreadRungeKutta(_Plan):
 
     def tangent(self, dx, column_base, lo, hi, dt, nsteps):
         r, wp = self.r, self.r.wp
-        scratch = [wp.zeros((hi - lo, 4, r.N), dtype=wp.float64, device=r.device) for _ in range(3)]
+        scratch = [self.kept(f"stage{i}", (dx.shape[0], 4, r.N))[lo:hi] for i in range(3)]
         inputs = [dx[lo:hi], *scratch, column_base[lo:hi], r.inv_mass, r.coupling, *self.tableau, r.boundary]
         inputs += [wp.float64(dt), int(nsteps), r.hist]
         wp.launch(r.k.rk4_tangent_kernel, dim=hi - lo, device=r.device, inputs=inputs)
@@ -970,6 +979,48 @@ def _plan_for(layout: str, method: Method):
         if plan_layout == layout and isinstance(method, kind):
             return plan
     raise ValueError(f"no launch plan for layout {layout!r} and method type {type(method).__name__}")
+
+
+#: operations issued again and again with the same arguments (a Flow's base run, a Newton iteration's
+#: columns) are captured into a CUDA graph at their ``_GRAPH_AFTER``-th issue and replayed from then on: one
+#: launch from Python instead of several (~0.1 ms of host time each), and the device never waits for the host
+#: between them. None: always issued one by one (tests and benchmarks compare both).
+_GRAPH_AFTER: int | None = 1
+#: graphs kept per runner (a frequency continuation changes dt, hence the graphs, at every point)
+_GRAPHS_PER_RUNNER = 8
+#: tests set it to capture and replay on the CPU too (Warp's CPU graphs), so that CI checks what a graph holds
+_GRAPH_ON_CPU = False
+
+
+class _Replay:
+    """A fixed sequence of launches and copies on fixed buffers (``enqueue``), issued eagerly the first
+    ``after`` times and then captured once into a CUDA graph that every later call launches. On the CPU
+    (or with ``_GRAPH_AFTER`` None) every call issues the operations one by one; the tests also capture
+    them on the CPU (``_GRAPH_ON_CPU``, Warp's CPU graphs) and check the replay bit for bit. ``enqueue``
+    must not synchronise or allocate (every buffer it uses is kept alive by its closure)."""
+
+    def __init__(self, wp, device: str, enqueue: Callable[[], None], after: int | None = None):
+        self.wp, self.device, self.enqueue = wp, device, enqueue
+        self.after = _GRAPH_AFTER if after is None else after
+        self.issued = 0
+        self.graph = None
+
+    def prepare(self) -> bool:
+        """Capture the graph now if calls are due to replay one (without running it); True if they are."""
+        capture = self.device != "cpu" or _GRAPH_ON_CPU
+        if self.graph is None and capture and _GRAPH_AFTER is not None and self.issued >= self.after:
+            with self.wp.ScopedCapture(device=self.device) as capture:
+                self.enqueue()
+            self.graph = capture.graph
+        return self.graph is not None
+
+    def __call__(self) -> None:
+        """Issue the operations (asynchronous on a GPU)."""
+        if self.prepare():
+            self.wp.capture_launch(self.graph)
+        else:
+            self.enqueue()
+        self.issued += 1
 
 
 class _Runner:
@@ -1176,6 +1227,26 @@ class _Runner:
         ncols = dx.shape[0]
         slices = [(0, ncols)] if self.serial else _slices(ncols, self.device)
         _in_parallel([lambda lo=lo, hi=hi: self.plan.tangent(dx, column_base, lo, hi, dt, nsteps) for lo, hi in slices])
+
+    def replay(self, key, enqueue: Callable[[], None]) -> _Replay:
+        """This runner's ``_Replay`` of ``enqueue`` under ``key`` (which must name every argument the
+        operations take that is not one of this runner's buffers, e.g. the step count and dt): made on first
+        request, kept for later ones (at most ``_GRAPHS_PER_RUNNER``, the oldest dropped)."""
+        replays = self.__dict__.setdefault("_replays", {})
+        if key not in replays:
+            while len(replays) >= _GRAPHS_PER_RUNNER:
+                del replays[next(iter(replays))]
+            replays[key] = _Replay(self.wp, self.device, enqueue)
+        return replays[key]
+
+    def host_buffer(self, name: str, size: int):
+        """A host array of ``size`` float64 values kept with the runner under (``name``, ``size``) (page-locked
+        on a GPU, so that copies into and out of it can be captured in a graph and run at the bus's rate)."""
+        held = self.__dict__.setdefault("_host_buffers", {})
+        key = (name, int(size))  # never replaced: a captured graph may hold its address
+        if key not in held:
+            held[key] = self.wp.empty(size, dtype=self.wp.float64, device="cpu", pinned=self.device != "cpu")
+        return held[key]
 
 
 # ----------------------------------------------------------------------------- public API
@@ -1478,10 +1549,10 @@ class TangentResult:
         column_base: base trajectory of each column, shape (ncols,).
         method, dt, nsteps, device, wall_seconds, layout.
         kernel_seconds: device time of the two kernels (base run and tangent columns): on a GPU between
-            CUDA events recorded before the first launch and after the second, so any gap the host leaves
-            between them counts; on the CPU as ``launch_seconds``.
-        launch_seconds: host time of the two launches, the device synchronised before and after (no
-            transfers, no set-up).
+            CUDA events captured with the two launches into one CUDA graph (so no host gap counts, before
+            or between them); on the CPU as ``launch_seconds``.
+        launch_seconds: host time of issuing the two launches (on a GPU the graph's launch, its
+            instantiation included), the device synchronised before and after (no transfers, no set-up).
     """
 
     x: np.ndarray
@@ -1542,17 +1613,25 @@ def propagate_tangent(
     wp = runner.wp
     dx = wp.array(dx0, dtype=wp.float64, device=device)
     base_dev = wp.array(base, dtype=wp.int32, device=device)
-    wp.synchronize_device(device)
-    kernel_start = time.perf_counter()
-    events = None
-    if nsteps and device != "cpu":  # device time from the base run's start to the columns' end
-        events = [wp.Event(device, enable_timing=True) for _ in range(2)]
-        wp.record_event(events[0])
-    if nsteps:
+    # device time from the base run's start to the columns' end, between events captured with the two
+    # launches into one graph (so the device does not wait for the host between or before them)
+    events = [wp.Event(device, enable_timing=True) for _ in range(2)] if nsteps and device != "cpu" else None
+
+    def launches():
+        if events is not None:
+            wp.record_event(events[0])
         runner.launch(int(nsteps), float(dt), record_stiffness=True)
         runner.launch_tangent(dx, base_dev, int(nsteps), float(dt))
-    if events is not None:
-        wp.record_event(events[1])
+        if events is not None:
+            wp.record_event(events[1])
+
+    replay = _Replay(wp, device, launches, after=0)
+    if nsteps:
+        replay.prepare()  # capture before the clock starts
+    wp.synchronize_device(device)
+    kernel_start = time.perf_counter()
+    if nsteps:
+        replay()
     wp.synchronize_device(device)
     launch_seconds = time.perf_counter() - kernel_start
     kernel_seconds = launch_seconds if events is None else 1e-3 * wp.get_event_elapsed_time(*events)

@@ -168,7 +168,8 @@ class Flow:
 
     def _runner(self, params: ChainParams, x0: np.ndarray, nsteps: int, record: bool):
         """A runner with buffers for this (N, boundary, batch, nsteps), reused between calls; two per
-        key, handed out in turn, each tagged with a generation so a stale history is detected."""
+        key, handed out in turn, each tagged with a generation so a stale history is detected. The
+        parameters are loaded, the state is not (``_base_run`` uploads it)."""
         from .ensemble import _Runner, resolve_device
         from .model import per_lattice_parameters
 
@@ -187,12 +188,13 @@ class Flow:
                 device,
                 record_stiffness_steps=max(int(nsteps), 1) if record else 0,
                 layout=self.layout,
+                upload=False,
             )
             runner.generation = 0
             slot["runners"].append(runner)
         else:
             runner = slot["runners"][slot["turn"] % 2]
-            runner.load(x0, Mb, Kb)
+            runner.load(x0, Mb, Kb, upload=False)
         slot["turn"] += 1
         runner.generation += 1
         return runner
@@ -201,33 +203,43 @@ class Flow:
         """Advance a batch by ``nsteps`` steps of ``dt``; end states and min contact."""
         x0 = as_batch(x0, params.N, "x0")
         runner = self._runner(params, x0, nsteps, record=False)
-        contact = min_contact(x0)
-        if nsteps:
-            contact = np.minimum(contact, _run_with_contact(runner, int(nsteps), float(dt), record_stiffness=False))
-        return Trajectory(x_end=runner.x.numpy().copy(), min_contact=contact)  # CPU numpy() is a view
+        x_end, contact = _base_run(runner, x0, int(nsteps), float(dt), record_stiffness=False)
+        return Trajectory(x_end=x_end, min_contact=contact)
 
     def linearize(self, params: ChainParams, x0, nsteps: int, dt: float) -> Linearization:
         """Run one lattice once, recording its contact stiffness, and return its Linearization."""
         x0 = as_batch(x0, params.N, "x0")
         if x0.shape[0] != 1:
             raise ValueError(f"linearize takes one lattice, got a batch of {x0.shape[0]}")
+        from .ensemble import _copy
+
         runner = self._runner(params, x0, nsteps, record=True)
-        contact = float(min_contact(x0)[0])
-        if nsteps:
-            contact = min(contact, float(_run_with_contact(runner, int(nsteps), float(dt), record_stiffness=True)[0]))
-        x_end = runner.x.numpy()[0].copy()  # on the CPU numpy() is a view of the reused buffer
+        x_end, contact = _base_run(runner, x0, int(nsteps), float(dt), record_stiffness=True)
         generation = runner.generation
         wp = runner.wp
 
-        def propagate(fill, count):
-            """Tangent columns from ``fill(dx)`` (dx: a device (count, 4, N) buffer) back on the host."""
+        def propagate(fill, count, key=None):
+            """Tangent columns from ``fill(dx)`` (dx: a device (count, 4, N) buffer) back on the host; with a
+            ``key`` naming ``fill``'s arguments the operations are replayed (``_Replay``: a CUDA graph from
+            the second call with that key)."""
             if runner.generation != generation:  # the buffers were handed to another run since
                 runner.load(x0, *_parameters(params))
                 runner.launch(int(nsteps), float(dt), record_stiffness=True)
             dx, base = _column_buffers(runner, count)
-            fill(dx)
-            runner.launch_tangent(dx, base, int(nsteps), float(dt))
-            out = _download(runner, dx)
+            out_host = runner.host_buffer("columns", dx.size)
+
+            def enqueue():
+                fill(dx)
+                runner.launch_tangent(dx, base, int(nsteps), float(dt))
+                wp.copy(out_host, dx, count=dx.size)
+
+            if key is None:
+                enqueue()
+            else:
+                runner.replay(("columns", *key, int(nsteps), float(dt)), enqueue)()
+            wp.synchronize_device(runner.device)
+            out = np.empty(dx.shape)
+            _copy(out, out_host.numpy().reshape(dx.shape))
             if not np.isfinite(out).all():
                 from .ensemble import IntegrationError, stability_limit
 
@@ -249,21 +261,22 @@ class Flow:
         def unit(first, count):
             eye = _unit_directions(runner)  # the 4N unit directions, made once on the device
             n = 4 * params.N
-            return propagate(lambda dx: wp.copy(dx, eye, src_offset=first * n, count=count * n), count)
+            return propagate(
+                lambda dx: wp.copy(dx, eye, src_offset=first * n, count=count * n), count, key=("unit", first, count)
+            )
 
-        return Linearization(x0[0], x_end, contact, nsteps, dt, columns, unit=unit)
+        return Linearization(x0[0], x_end[0], contact[0], nsteps, dt, columns, unit=unit)
 
 
 def _column_buffers(runner, count: int):
     """The runner's device buffers for ``count`` tangent columns (directions, base indices), kept between
-    calls (Newton asks for the same columns at every iterate)."""
-    held = getattr(runner, "_columns_held", None)
-    if held is None or held[0].shape[0] != count:
+    calls (Newton asks for the same columns at every iterate), one pair per count."""
+    held = runner.__dict__.setdefault("_columns_held", {})
+    if count not in held:
         wp = runner.wp
         dx = wp.empty((count, 4, runner.N), dtype=wp.float64, device=runner.device)
-        held = (dx, wp.zeros(count, dtype=wp.int32, device=runner.device))
-        runner._columns_held = held
-    return held
+        held[count] = (dx, wp.zeros(count, dtype=wp.int32, device=runner.device))
+    return held[count]
 
 
 def _unit_directions(runner):
@@ -276,25 +289,38 @@ def _unit_directions(runner):
     return eye
 
 
-def _download(runner, dx) -> np.ndarray:
-    """A new host copy of device array ``dx`` (on a GPU through a pinned buffer kept with the runner)."""
-    if runner.device == "cpu":
-        return dx.numpy().copy()  # numpy() is a view of the reused buffer
-    return runner.fetch(dx, "_pinned_columns")
+def _base_run(runner, x0: np.ndarray, nsteps: int, dt: float, record_stiffness: bool):
+    """Load ``x0`` (batch, 4, N), run ``nsteps`` steps recording u and v at every step into device buffers
+    (kept by the runner), reduce 1 + u - v to its min per lattice on the device, and return the end
+    state and min contact (start included), shapes (batch, 4, N) and (batch,). The state goes in and out
+    through host buffers kept with the runner (page-locked on a GPU), so the whole sequence is one
+    ``_Replay``: a single CUDA graph launch from the second call with the same (nsteps, dt) on."""
+    wp = runner.wp
+    contact = min_contact(x0)
+    if not nsteps:
+        runner.upload(x0)
+        return np.array(x0, dtype=np.float64), contact
+    frames = runner.__dict__.setdefault("_contact_frames", {})
+    if nsteps not in frames:
+        frames.clear()  # one step count at a time (a replay keeps the frames it was captured with alive)
+        frames[nsteps] = runner.frames(nsteps)
+    rec = frames[nsteps]
+    x_in, x_out = runner.host_buffer("x_in", x0.size), runner.host_buffer("x_out", x0.size)
+    low = runner.host_buffer("guard", 3 * runner.batch)
+    x_in.numpy()[:] = x0.ravel()  # the last replay that read it has finished (synchronised below)
 
+    def enqueue():
+        wp.copy(runner.x, x_in, count=x0.size)
+        runner.reset_contact()
+        runner.launch(nsteps, dt, save_every=1, rec=rec, record_stiffness=record_stiffness)
+        guard = runner.guard(rec, nsteps)
+        wp.copy(low, guard, count=guard.size)
+        wp.copy(x_out, runner.x, count=x0.size)
 
-def _run_with_contact(runner, nsteps: int, dt: float, record_stiffness: bool) -> np.ndarray:
-    """Run ``nsteps`` steps recording u and v at every step into device buffers (kept by the runner) and
-    return the min over those steps and sites of 1 + u - v per lattice, reduced on the device: only
-    these scalars cross to the host."""
-    key = ("contact_frames", nsteps)
-    rec = getattr(runner, "_contact_frames", None)
-    if rec is None or rec[0] != key:
-        rec = (key, runner.frames(nsteps))
-        runner._contact_frames = rec
-    runner.reset_contact()
-    runner.launch(nsteps, dt, save_every=1, rec=rec[1], record_stiffness=record_stiffness)
-    return runner.guard(rec[1], nsteps).numpy()[:, 2].copy()
+    runner.replay(("base", nsteps, dt, record_stiffness), enqueue)()
+    wp.synchronize_device(runner.device)
+    x_end = x_out.numpy().reshape(x0.shape).copy()
+    return x_end, np.minimum(contact, low.numpy().reshape(runner.batch, 3)[:, 2])
 
 
 def _parameters(params: ChainParams):
