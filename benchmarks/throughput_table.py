@@ -107,7 +107,13 @@ def main(path):
                 if "monodromy_launch_seconds" in mono
                 else ""
             )
-            + f", wall {1e3 * mono['monodromy_wall_seconds']:.1f} ms; "
+            + f", wall {1e3 * mono['monodromy_wall_seconds']:.1f} ms"
+            + (
+                f", through the Flow {1e3 * mono['monodromy_flow_wall_seconds']:.2f} ms wall"
+                if "monodromy_flow_wall_seconds" in mono
+                else ""
+            )
+            + "; "
             f"Newton iteration {1e3 * mono['newton_iteration_seconds']:.2f} ms "
             + (
                 f"(median {1e3 * mono['newton_iteration_median_seconds']:.2f} ms) "

@@ -9,8 +9,9 @@ Three parts:
   Warp method in the block layout (the GPU default) as force evaluations per second relative to
   Verlet; a single lattice as nanoseconds per Verlet step.
 * **monodromy**: the paper breather (w_b = 1.01, K = 160, kahan8, 32 steps per period): the full
-  804-column monodromy (kernel time and wall time) and one Newton iteration end to end (tangent
-  batch of the half-period map, transfers, linear solve).
+  804-column monodromy (``propagate_tangent``'s kernel time and wall time, and the Flow's wall time as
+  Floquet gets it) and one Newton iteration end to end (tangent batch of the half-period map,
+  transfers, linear solve).
 * **kernels** (GPU): registers per thread, local memory and theoretical occupancy of each kernel.
 * **simulate**: ``simulate()`` end to end as users call it (validation, upload, chunks, the guard,
   the final state back on the host), with default arguments and recording a frame every
@@ -317,6 +318,16 @@ def _monodromy(ctx, repeats):
         1e3 * launches,
         1e3 * wall,
     )
+    # the same monodromy as Floquet gets it: the Flow's base run and unit columns (replayed as CUDA graphs from
+    # the second call), transfers included, wall time
+    flow = breather.flow.replace()
+    flow_wall = []
+    for _ in range(max(5, repeats) + 1):
+        t0 = time.perf_counter()
+        flow.linearize(params, breather.state, period_steps, breather.dt).unit_columns("all")
+        flow_wall.append(time.perf_counter() - t0)
+    flow_wall = min(flow_wall[1:])
+    ctx.log("monodromy through the Flow (as Floquet gets it, columns on the host): %.3g ms wall", 1e3 * flow_wall)
     pmap = PeriodMap(params, breather.omega, breather.flow)
     unknowns = pmap.from_state(breather.state)
     iteration = []
@@ -348,6 +359,7 @@ def _monodromy(ctx, repeats):
         "monodromy_kernel_seconds": kernel,
         "monodromy_launch_seconds": launches,
         "monodromy_wall_seconds": wall,
+        "monodromy_flow_wall_seconds": flow_wall,
         "newton_columns": int(J.shape[1]),
         "newton_iteration_seconds": min(iteration),
         "newton_iteration_median_seconds": float(np.median(iteration)),
