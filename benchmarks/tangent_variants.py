@@ -31,7 +31,15 @@ from scenarios._common import (  # noqa: E402
 from warpchain import ChainParams, ensemble, reference  # noqa: E402
 from warpchain.integrators import get_method  # noqa: E402
 
-BASE_VARIANTS = [  # (site-group kernel forced, register cap of the default kernel (None: its own), stiffness)
+BASE_VARIANTS = [  # (label, ensemble settings, register cap forced on the default kernel, stiffness recorded)
+    ("history stored per force evaluation, capped (before)", {"_RECORD_PER_STEP": False}, None, True),
+    ("history stored per force evaluation, uncapped", {"_RECORD_PER_STEP": False}, 0, True),
+    ("history stored per step, uncapped (default)", {}, None, True),
+    ("history stored per step, capped", {"_RECORD_UNCAPPED_MAX_BATCH": 0}, None, True),
+    ("no history", {}, None, False),
+    ("site-group kernel", {"_GROUP_ONE_SITE": True}, None, True),
+]
+VARIANTS = [  # (site-group kernel forced, register cap of the default kernel (None: its own), stiffness)
     (None, None, True),
     (None, 0, True),
     (None, None, False),
@@ -76,8 +84,10 @@ def main():
     from warpchain import block_kernels
 
     first_end = None
-    for one_site_group, cap, record in BASE_VARIANTS:
-        ensemble._GROUP_ONE_SITE = one_site_group
+    for label, settings, cap, record in BASE_VARIANTS:
+        saved = {name: getattr(ensemble, name) for name in settings}
+        for name, value in settings.items():
+            setattr(ensemble, name, value)
         runner = ensemble._Runner(meth, params, x0, M, K, args.device, record_stiffness_steps=nsteps, layout="block")
         if cap is not None:
             runner.bk = block_kernels.block_kernels(runner.block, cap)
@@ -92,9 +102,9 @@ def main():
         end = runner.x.numpy().copy()
         first_end = end if first_end is None else first_end
         same = "same bits" if np.array_equal(end, first_end) else f"DIFFERS by {np.max(np.abs(end - first_end)):.3g}"
-        label = "site-group kernel" if one_site_group else f"default kernel, cap {cap}"
-        print(f"base run ({label}, stiffness recorded {record}): {1e3 * b:.3f} / {1e3 * bm:.3f}; {same}", flush=True)
-    ensemble._GROUP_ONE_SITE = None
+        print(f"base run ({label}): {1e3 * b:.3f} / {1e3 * bm:.3f}; {same}", flush=True)
+        for name, value in saved.items():
+            setattr(ensemble, name, value)
     if args.base_only:
         return
     runner = ensemble._Runner(meth, params, x0, M, K, args.device, record_stiffness_steps=nsteps, layout="block")

@@ -421,6 +421,27 @@ def test_two_tangent_columns_per_block_bit_for_bit(boundary, monkeypatch):
             assert np.array_equal(cols, thread), (method, key)
 
 
+@pytest.mark.parametrize("per_step", [True, False])
+def test_stiffness_history_stored_per_step_bit_for_bit(per_step, monkeypatch):
+    """The block splitting kernel's history held over a step's stages and stored after it (the default), or
+    stored at every force evaluation, uncapped or with the many-stage register cap (a batch over
+    ``_RECORD_UNCAPPED_MAX_BATCH``): the same tangent columns as the thread layout, bit for bit."""
+    from warpchain import ensemble
+
+    monkeypatch.setattr(ensemble, "_RECORD_PER_STEP", per_step)
+    p = ChainParams(3.0, 4.0, 23)
+    x0 = localized_state(p.N, amplitude=0.7, batch=3, seed=6)
+    eye = np.eye(4 * p.N).reshape(4 * p.N, 4, p.N)
+    dx0, base = np.concatenate([eye[:10], eye[30:40], eye[50:60]]), np.repeat([0, 1, 2], 10)
+    for limit in (132, 2):
+        monkeypatch.setattr(ensemble, "_RECORD_UNCAPPED_MAX_BATCH", limit)
+        for method in ("kahan8", "yoshida4"):
+            args = (p, x0, dx0, 4, 0.05)
+            block = propagate_tangent(*args, method=method, column_base=base, device="cpu", layout="block")
+            thread = propagate_tangent(*args, method=method, column_base=base, device="cpu", layout="thread")
+            assert np.array_equal(block.columns, thread.columns) and np.array_equal(block.x, thread.x), method
+
+
 def test_tangent_columns_per_block_policy():
     from warpchain import ensemble
 

@@ -238,12 +238,16 @@ class BlockKernels:
             self._built[key] = self._makers[key[0]](*key[1:])
         return self._built[key]
 
-    def splitting(self, stages: int, record: bool = False, save: bool = False, damped: bool = False):
+    def splitting(
+        self, stages: int, record: bool = False, save: bool = False, damped: bool = False, per_step: bool = True
+    ):
         """Splitting kernel for ``stages`` stages; ``record``/``save``/``damped`` compile in the stiffness
-        history, the field recording and the damped kicks (left out, they cost nothing)."""
+        history, the field recording and the damped kicks (left out, they cost nothing); ``per_step``: the
+        history is stored once per step (held in registers over the step's stages) rather than at every
+        force evaluation (the ``block_kernels`` layout; the site-group kernels ignore it). Same bits."""
         if not 1 <= stages <= MAX_STAGES:
             raise ValueError(f"the block kernels support 1 to {MAX_STAGES} stages, got {stages}")
-        return self._get("splitting", int(stages), bool(record), bool(save), bool(damped))
+        return self._get("splitting", int(stages), bool(record), bool(save), bool(damped), bool(per_step))
 
     def splitting_tangent(self, stages: int, columns: int = 1, prefetch: bool = True):
         """Tangent kernel for ``stages`` stages carrying ``columns`` tangent columns per block (1 or 2;
@@ -315,7 +319,9 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0, lattices: int = 1) -> 
     bounds = (threads, min_blocks_per_sm) if min_blocks_per_sm else threads
     options = {"enable_backward": False, "module": "unique", "grid_stride": False, "launch_bounds": bounds}
 
-    def make_splitting(stages: int, record: bool, save: bool, damped: bool = False):
+    def make_splitting(stages: int, record: bool, save: bool, damped: bool = False, per_step: bool = True):
+        held_type = wp.types.vector(length=stages, dtype=wp.float64)
+
         @wp.kernel(**options)
         def splitting(
             x: wp.array3d(dtype=wp.float64),
@@ -371,6 +377,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0, lattices: int = 1) -> 
                     hist[0, b, j] = a3[2]
             else:
                 a = site_acceleration(u, v, nb[0], nb[1], m, k)
+            held = held_type()  # compiled ``per_step``: the step's stiffnesses, stored after its last stage
             for step in range(nsteps):
                 h = kicks[0]  # the coefficients arrive multiplied by dt (on the host: the same product)
                 if wp.static(damped):
@@ -389,7 +396,9 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0, lattices: int = 1) -> 
                     if wp.static(record):
                         a3 = site_acceleration_stiffness(u, v, nb[0], nb[1], m, k)
                         a = wp.vec2d(a3[0], a3[1])
-                        if active:
+                        if wp.static(per_step):
+                            held[s] = a3[2]
+                        elif active:
                             hist[step * wp.static(stages) + s + 1, b, j] = a3[2]
                     else:
                         a = site_acceleration(u, v, nb[0], nb[1], m, k)
@@ -401,6 +410,12 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0, lattices: int = 1) -> 
                     else:
                         pu = pu + h * a[0]
                         pv = pv + h * a[1]
+                if wp.static(record and per_step):
+                    # one batch of stores per step: a barrier waits for the stores issued before it, so a
+                    # store at every force evaluation put that wait between every two evaluations
+                    if active:
+                        for s in range(wp.static(stages)):
+                            hist[step * wp.static(stages) + s + 1, b, j] = held[s]
                 if wp.static(save):
                     if active and (step + 1) % save_every == 0:
                         r = (step + 1) / save_every - 1
@@ -738,7 +753,8 @@ def site_group_kernels(threads: int, sites: int, boundary: int, min_blocks_per_s
     bounds = (threads, min_blocks_per_sm) if min_blocks_per_sm else threads
     options = {"enable_backward": False, "module": "unique", "grid_stride": False, "launch_bounds": bounds}
 
-    def make_splitting(stages: int, record: bool, save: bool, damped: bool = False):
+    def make_splitting(stages: int, record: bool, save: bool, damped: bool = False, per_step: bool = True):
+        # per_step: accepted for the common key, unused (few stages: the history is stored as it comes)
         @wp.func
         def kick(
             pu: wp.float64,

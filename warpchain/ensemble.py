@@ -360,6 +360,13 @@ def site_group_launch(sites: int, stages: int, device: str) -> bool:
     return device != "cpu" and stages <= _SITES_MAX_STAGES
 
 
+#: the block splitting kernel holds a step's contact stiffnesses in registers and stores them after the step
+#: (True) instead of at every force evaluation: each block barrier waits for the stores issued before it.
+#: H200, the paper breather's base run (one lattice, kahan8, 480 force evaluations; ``benchmarks/tangent_variants.py``)
+_RECORD_PER_STEP = True
+#: a recording launch of at most this many lattices (a tangent base run) drops the many-stage kernels'
+#: register cap (under it the held stiffnesses would spill): one block per SM of an H200 needs no occupancy
+_RECORD_UNCAPPED_MAX_BATCH = 132
 #: None: ``site_group_launch`` decides; True/False force the one-site launch's kernel (tests, benchmarks)
 _GROUP_ONE_SITE: bool | None = None
 #: ``__launch_bounds__`` minimum blocks per SM of the site-group kernels, by sites per thread (absent: none)
@@ -874,7 +881,10 @@ class _BlockSplitting(_Plan):
             kernel = group.splitting(stages, record=record, save=save_every > 0, damped=damped)
             r.wp.launch(kernel, dim=(hi - lo, threads), block_dim=threads, device=r.device, inputs=inputs)
             return
-        kernel = r.bk.splitting(stages, record=record, save=save_every > 0, damped=damped)
+        kernels = r.bk
+        if record and hi - lo <= _RECORD_UNCAPPED_MAX_BATCH and _RECORD_PER_STEP:
+            kernels = block_kernels.block_kernels(r.block, 0)  # the step's history in registers: no cap
+        kernel = kernels.splitting(stages, record=record, save=save_every > 0, damped=damped, per_step=_RECORD_PER_STEP)
         r.wp.launch(kernel, dim=(hi - lo, r.block), block_dim=r.block, device=r.device, inputs=inputs)
 
     def tangent(self, dx, column_base, lo, hi, dt, nsteps):
