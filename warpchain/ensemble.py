@@ -1018,8 +1018,8 @@ class _Replay:
 
     def prepare(self) -> bool:
         """Capture the graph now if calls are due to replay one (without running it); True if they are."""
-        capture = self.device != "cpu" or _GRAPH_ON_CPU
-        if self.graph is None and capture and _GRAPH_AFTER is not None and self.issued >= self.after:
+        graphs_here = self.device != "cpu" or _GRAPH_ON_CPU
+        if self.graph is None and graphs_here and _GRAPH_AFTER is not None and self.issued >= self.after:
             with self.wp.ScopedCapture(device=self.device) as capture:
                 self.enqueue()
             self.graph = capture.graph
