@@ -3,7 +3,7 @@
 columns, the Jacobian's rows and the LU solve, best of ``--repeats``, with the launches issued one by one and
 then replayed as CUDA graphs (``ensemble._Replay``, the default); then a cProfile of 10 iterations by own time.
 
-Command (GPU): ``python benchmarks/newton_profile.py [--device cuda] [--top 25]``
+Command (GPU): ``python benchmarks/newton_profile.py [--device cuda] [--top 25] [--blas 8,4,2]``
 """
 
 import argparse
@@ -17,6 +17,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from continuation.hostblas import blas_threads  # noqa: E402
 from continuation.newton import solve_linear  # noqa: E402
 from warpchain import ensemble  # noqa: E402
 from continuation.shooting import PeriodMap  # noqa: E402
@@ -44,6 +45,7 @@ def main():
     ap.add_argument("--device", default="cuda")
     ap.add_argument("--repeats", type=int, default=20)
     ap.add_argument("--top", type=int, default=25)
+    ap.add_argument("--blas", default="", help="also time the iteration with these BLAS thread counts, e.g. 8,4,2")
     args = ap.parse_args()
     breather = paper_breather(args.device)
     columns = {}
@@ -61,6 +63,16 @@ def main():
         for name, values in marks.items():
             print(f"  {name:9s} {1e3 * min(values):7.3f} {1e3 * np.median(values):7.3f}")
     print("same columns both ways:", np.array_equal(columns[None], columns[1]))
+    for threads in [int(t) for t in args.blas.split(",") if t]:  # the host BLAS threads, replayed launches
+        with blas_threads(threads):
+            marks = {}
+            for _ in range(3):
+                iteration(pmap, unknowns, {})
+            for _ in range(args.repeats):
+                iteration(pmap, unknowns, marks)
+        print(f"Newton iteration, replayed, {threads} BLAS threads, best / median of {args.repeats} (ms):")
+        for name, values in marks.items():
+            print(f"  {name:9s} {1e3 * min(values):7.3f} {1e3 * np.median(values):7.3f}")
     prof = cProfile.Profile()
     prof.enable()
     for _ in range(10):
