@@ -33,11 +33,9 @@ from .kernels import (
     ONE,
     ZERO,
     contact_force,
-    contact_force_stiffness,
     contact_stiffness,
     finite_state,
     site_acceleration,
-    site_acceleration_stiffness,
     site_energy,
     site_tangent_acceleration,
 )
@@ -135,16 +133,6 @@ def site_acceleration_times(
     force = contact_force(u - v)
     au = (coupling * ((u - left) + (u - right)) + force) * minus_inv_mass
     return wp.vec2d(au, force)
-
-
-@wp.func
-def site_acceleration_times_stiffness(
-    u: wp.float64, v: wp.float64, left: wp.float64, right: wp.float64, minus_inv_mass: wp.float64, coupling: wp.float64
-) -> wp.vec3d:
-    """``site_acceleration_times`` and f'(u - v), the root shared (``contact_force_stiffness``)."""
-    fs = contact_force_stiffness(u - v)
-    au = (coupling * ((u - left) + (u - right)) + fs[0]) * minus_inv_mass
-    return wp.vec3d(au, fs[0], fs[1])
 
 
 @wp.func
@@ -370,13 +358,10 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0, lattices: int = 1) -> 
             buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
             parity = int(0)
             nb = exchange(buf, u, parity, nbr, boundary)
+            a = site_acceleration(u, v, nb[0], nb[1], m, k)
             if wp.static(record):
-                a3 = site_acceleration_stiffness(u, v, nb[0], nb[1], m, k)
-                a = wp.vec2d(a3[0], a3[1])
                 if active:
-                    hist[0, b, j] = a3[2]
-            else:
-                a = site_acceleration(u, v, nb[0], nb[1], m, k)
+                    hist[0, b, j] = contact_stiffness(u - v)
             held = held_type()  # compiled ``per_step``: the step's stiffnesses, stored after its last stage
             for step in range(nsteps):
                 h = kicks[0]  # the coefficients arrive multiplied by dt (on the host: the same product)
@@ -393,15 +378,12 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0, lattices: int = 1) -> 
                     v = v + h * pv
                     parity = 1 - parity
                     nb = exchange(buf, u, parity, nbr, boundary)
+                    a = site_acceleration(u, v, nb[0], nb[1], m, k)
                     if wp.static(record):
-                        a3 = site_acceleration_stiffness(u, v, nb[0], nb[1], m, k)
-                        a = wp.vec2d(a3[0], a3[1])
                         if wp.static(per_step):
-                            held[s] = a3[2]
+                            held[s] = contact_stiffness(u - v)
                         elif active:
-                            hist[step * wp.static(stages) + s + 1, b, j] = a3[2]
-                    else:
-                        a = site_acceleration(u, v, nb[0], nb[1], m, k)
+                            hist[step * wp.static(stages) + s + 1, b, j] = contact_stiffness(u - v)
                     h = kicks[s + 1]
                     if wp.static(damped):
                         w = site_kick(pu, pv, a, h, loss, damp, b_read, s + 1)
@@ -821,16 +803,12 @@ def site_group_kernels(threads: int, sites: int, boundary: int, min_blocks_per_s
             av = run()
             for s in range(wp.static(sites)):
                 nb = neighbour_values(u, e, t, n, s)
+                a = site_acceleration_times(u[s], v[s], nb[0], nb[1], m[s], k)
+                au[s] = a[0]
+                av[s] = a[1]
                 if wp.static(record):
-                    a3 = site_acceleration_times_stiffness(u[s], v[s], nb[0], nb[1], m[s], k)
-                    au[s] = a3[0]
-                    av[s] = a3[1]
                     if first + s < n:
-                        hist[0, b, first + s] = a3[2]
-                else:
-                    a = site_acceleration_times(u[s], v[s], nb[0], nb[1], m[s], k)
-                    au[s] = a[0]
-                    av[s] = a[1]
+                        hist[0, b, first + s] = contact_stiffness(u[s] - v[s])
             # the first kick of the first step; every later step's first kick follows the previous
             # step's last kick (same accelerations), inside the loop
             if nsteps > 0:
@@ -848,16 +826,14 @@ def site_group_kernels(threads: int, sites: int, boundary: int, min_blocks_per_s
                     e = ends(buf, u, t, n, parity)
                     for s in range(wp.static(sites)):
                         nb = neighbour_values(u, e, t, n, s)
+                        a = site_acceleration_times(u[s], v[s], nb[0], nb[1], m[s], k)
+                        au[s] = a[0]
+                        av[s] = a[1]
                         if wp.static(record):
-                            a3 = site_acceleration_times_stiffness(u[s], v[s], nb[0], nb[1], m[s], k)
-                            au[s] = a3[0]
-                            av[s] = a3[1]
                             if first + s < n:
-                                hist[step * wp.static(stages) + stage + 1, b, first + s] = a3[2]
-                        else:
-                            a = site_acceleration_times(u[s], v[s], nb[0], nb[1], m[s], k)
-                            au[s] = a[0]
-                            av[s] = a[1]
+                                hist[step * wp.static(stages) + stage + 1, b, first + s] = contact_stiffness(
+                                    u[s] - v[s]
+                                )
                     h = kicks[stage + 1]
                     for s in range(wp.static(sites)):
                         w = kick(pu[s], pv[s], au[s], av[s], h, loss, damp, b, stage + 1)

@@ -70,16 +70,6 @@ def contact_stiffness(z: wp.float64) -> wp.float64:
 
 
 @wp.func
-def contact_force_stiffness(z: wp.float64) -> wp.vec2d:
-    """(f(z), f'(z)) from one square root: the operations of ``contact_force`` and ``contact_stiffness``,
-    so the same bits. The kernels that record the stiffness (a tangent base run) use it so that the root is
-    written once; on the H200 it measured the same as the two calls (``benchmarks/h200-2026-11-22j``)."""
-    s = wp.max(ZERO, ONE + z)
-    r = wp.sqrt(s)
-    return wp.vec2d(TWO_THIRDS * (s * r - ONE), r)
-
-
-@wp.func
 def laplacian_at(x: wp.array3d(dtype=wp.float64), b: int, comp: int, j: int, n: int, boundary: int) -> wp.float64:
     """(u_j - u_{j-1}) + (u_j - u_{j+1}) of component ``comp`` of lattice b at site j."""
     u = x[b, comp, j]
@@ -230,16 +220,6 @@ def site_acceleration(
     force = contact_force(u - v)
     au = -(coupling * ((u - left) + (u - right)) + force) * inv_mass
     return wp.vec2d(au, force)
-
-
-@wp.func
-def site_acceleration_stiffness(
-    u: wp.float64, v: wp.float64, left: wp.float64, right: wp.float64, inv_mass: wp.float64, coupling: wp.float64
-) -> wp.vec3d:
-    """``site_acceleration`` (u'', f) and f'(u - v), the root shared (``contact_force_stiffness``)."""
-    fs = contact_force_stiffness(u - v)
-    au = -(coupling * ((u - left) + (u - right)) + fs[0]) * inv_mass
-    return wp.vec3d(au, fs[0], fs[1])
 
 
 @wp.func
