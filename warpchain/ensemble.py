@@ -832,11 +832,8 @@ class _Plan:
     def kept(self, name: str, shape: tuple):
         """A device array of ``shape`` kept under (``name``, ``shape``): launches allocate nothing, so that
         they can be captured in a graph (``_Replay``) and replayed."""
-        held = self.__dict__.setdefault("_kept", {})
-        key = (name, tuple(shape))
-        if key not in held:
-            held[key] = self.r.wp.zeros(shape, dtype=self.r.wp.float64, device=self.r.device)
-        return held[key]
+        wp, device = self.r.wp, self.r.device
+        return held(self, (name, tuple(shape)), lambda: wp.zeros(shape, dtype=wp.float64, device=device))
 
 
 class _BlockSplitting(_Plan):
@@ -1001,6 +998,15 @@ _GRAPH_AFTER: int | None = 1
 _GRAPHS_PER_RUNNER = 8
 #: tests set it to capture and replay on the CPU too (Warp's CPU graphs), so that CI checks what a graph holds
 _GRAPH_ON_CPU = False
+
+
+def held(owner, key, make: Callable[[], object]):
+    """``make()``, kept on ``owner`` under ``key``: made on first request and never replaced, so a graph
+    captured with it (``_Replay``) keeps a valid address (a runner's or a plan's buffers)."""
+    kept = owner.__dict__.setdefault("_held", {})
+    if key not in kept:
+        kept[key] = make()
+    return kept[key]
 
 
 class _Replay:
@@ -1253,11 +1259,9 @@ class _Runner:
     def host_buffer(self, name: str, size: int):
         """A host array of ``size`` float64 values kept with the runner under (``name``, ``size``) (page-locked
         on a GPU, so that copies into and out of it can be captured in a graph and run at the bus's rate)."""
-        held = self.__dict__.setdefault("_host_buffers", {})
-        key = (name, int(size))  # never replaced: a captured graph may hold its address
-        if key not in held:
-            held[key] = self.wp.empty(size, dtype=self.wp.float64, device="cpu", pinned=self.device != "cpu")
-        return held[key]
+        pinned = self.device != "cpu"
+        make = lambda: self.wp.empty(size, dtype=self.wp.float64, device="cpu", pinned=pinned)  # noqa: E731
+        return held(self, ("host", name, int(size)), make)
 
 
 # ----------------------------------------------------------------------------- public API

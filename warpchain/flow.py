@@ -271,22 +271,28 @@ class Flow:
 def _column_buffers(runner, count: int):
     """The runner's device buffers for ``count`` tangent columns (directions, base indices), kept between
     calls (Newton asks for the same columns at every iterate), one pair per count."""
-    held = runner.__dict__.setdefault("_columns_held", {})
-    if count not in held:
-        wp = runner.wp
-        dx = wp.empty((count, 4, runner.N), dtype=wp.float64, device=runner.device)
-        held[count] = (dx, wp.zeros(count, dtype=wp.int32, device=runner.device))
-    return held[count]
+    from .ensemble import held
+
+    wp, shape = runner.wp, (count, 4, runner.N)
+    return held(
+        runner,
+        ("columns", count),
+        lambda: (
+            wp.empty(shape, dtype=wp.float64, device=runner.device),
+            wp.zeros(count, dtype=wp.int32, device=runner.device),
+        ),
+    )
 
 
 def _unit_directions(runner):
     """A device array (4N, 4, N) of the unit directions, kept with the runner."""
-    eye = getattr(runner, "_unit_directions", None)
-    if eye is None:
+    from .ensemble import held
+
+    def make():
         n = 4 * runner.N
-        eye = runner.wp.array(np.eye(n).reshape(n, 4, runner.N), dtype=runner.wp.float64, device=runner.device)
-        runner._unit_directions = eye
-    return eye
+        return runner.wp.array(np.eye(n).reshape(n, 4, runner.N), dtype=runner.wp.float64, device=runner.device)
+
+    return held(runner, "unit directions", make)
 
 
 def _base_run(runner, x0: np.ndarray, nsteps: int, dt: float, record_stiffness: bool):
