@@ -1120,16 +1120,14 @@ class _Runner:
         """The kernels' loss arguments (flags, coefficients) for lattices lo..hi."""
         return [self.lossy[lo:hi], self.damp[lo:hi] if self.damped else self.no_damp]
 
-    def _pinned(self, name: str, size: int | None = None):
-        """This runner's own pinned host buffer ``name`` of at least ``size`` values (default: the state's;
-        made once and grown when needed: the runner is pooled, so later calls reuse it), after any copy
-        from it has finished."""
-        size = self.x.size if size is None else size
-        buf = getattr(self, name, None)
-        if buf is None or buf.size < size:
-            buf = self.wp.empty(size, dtype=self.wp.float64, device="cpu", pinned=True)
+    def _pinned(self, name: str):
+        """This runner's own pinned host buffer ``name`` of the state's size (made once: the runner is
+        pooled, so later calls on the same batch shape reuse it), after any copy from it has finished."""
+        buf = getattr(self, name)
+        if buf is None:
+            buf = self.wp.empty(self.x.size, dtype=self.wp.float64, device="cpu", pinned=True)
             setattr(self, name, buf)
-        done = getattr(self, name + "_done", None)
+        done = getattr(self, name + "_done")
         if done is not None:
             self.wp.synchronize_event(done)
         return buf
@@ -1154,17 +1152,11 @@ class _Runner:
             return self.x.numpy()  # on the CPU a view of the device buffer
         if self.x.size < (1 << 16):
             return self.x.numpy()
-        return self.fetch(self.x, "_pinned_down", out)
-
-    def fetch(self, arr, name: str, out: np.ndarray | None = None) -> np.ndarray:
-        """A host copy of device array ``arr`` (into ``out`` when given) through this runner's pinned buffer
-        ``name``, once the work queued so far has run (a copy into pageable memory runs at a fraction of the
-        bus's rate)."""
-        buf = self._pinned(name, arr.size)
-        self.wp.copy(buf, arr, count=arr.size)
+        buf = self._pinned("_pinned_down")
+        self.wp.copy(buf, self.x, count=self.x.size)
         self.wp.synchronize_device(self.device)
-        out = np.empty(arr.shape) if out is None else out
-        _copy(out, buf.numpy()[: arr.size].reshape(arr.shape))
+        out = np.empty(self.x.shape) if out is None else out
+        _copy(out, buf.numpy().reshape(self.x.shape))
         return out
 
     def load(self, x0: np.ndarray, M, K, upload: bool = True) -> None:
