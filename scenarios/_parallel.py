@@ -27,7 +27,7 @@ import threading
 import time
 from pathlib import Path
 
-from warpchain.ensemble import usable_cores
+from warpchain.ensemble import count_from_text, usable_cores
 
 log = logging.getLogger("scenarios")
 
@@ -59,13 +59,7 @@ def parse_jobs(value: str, n_scenes: int) -> int:
     """--jobs: ``auto`` or a whole number >= 1."""
     if str(value).strip().lower() == "auto":
         return auto_jobs(n_scenes)
-    try:
-        jobs = int(value)
-    except ValueError:
-        raise ValueError(f"--jobs takes a whole number >= 1 or 'auto', got {value!r}") from None
-    if jobs < 1:
-        raise ValueError(f"--jobs takes a whole number >= 1 or 'auto', got {value!r}")
-    return jobs
+    return count_from_text(value, "--jobs takes a whole number >= 1 or 'auto'")
 
 
 def child_environment(jobs: int, environ=None, cores: int | None = None) -> tuple[dict, int]:

@@ -234,17 +234,23 @@ def usable_cores() -> int:
         return os.cpu_count() or 1
 
 
+def count_from_text(text: str, requirement: str) -> int:
+    """A whole number >= 1 written as ``text`` (an option, an environment variable); otherwise a ValueError
+    that reads "<requirement>, got <text>"."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise ValueError(f"{requirement}, got {text!r}")
+    return value
+
+
 def cpu_threads() -> int:
     """Threads used for CPU launches: WARPCHAIN_CPU_THREADS, else the usable cores."""
     env = os.environ.get("WARPCHAIN_CPU_THREADS")
     if env:
-        try:
-            value = int(env)
-        except ValueError:
-            raise ValueError(f"WARPCHAIN_CPU_THREADS must be a positive integer, got {env!r}") from None
-        if value < 1:
-            raise ValueError(f"WARPCHAIN_CPU_THREADS must be a positive integer, got {env!r}")
-        return value
+        return count_from_text(env, "WARPCHAIN_CPU_THREADS must be a positive integer")
     return usable_cores()
 
 
