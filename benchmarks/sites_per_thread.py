@@ -9,6 +9,11 @@ first checked against the numpy reference on the device (max |x - reference| aft
 hand variant too.
 
 Command (GPU; the hand kernels need CuPy): ``python benchmarks/sites_per_thread.py [--quick]``
+
+``--variants`` instead times the kernels' options against each other, interleaved over ``--rounds`` rounds
+(best of all): Warp's site-group kernels with and without ``force_first`` (the contact force before the
+exchange's barrier) and ``scalar_ends`` (one float64 per thread in the shared tile), and the hand kernels
+with and without the same ``force_first``, at the sites per thread each layout runs at that batch.
 """
 
 import argparse
@@ -34,7 +39,12 @@ def main():
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--device", default="cuda")
     ap.add_argument("--json", default=None, help="write the rows here")
+    ap.add_argument("--variants", action="store_true", help="compare the kernels' options (see the docstring)")
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--batches", type=int, nargs="+", default=[1, 64, 805, 4096, 32768], help="with --variants")
     args = ap.parse_args()
+    if args.variants:
+        return variants(args)
     p = ChainParams(30.0, 160.0, 201)
     dt = 0.1
     _, shape = lowest_optical_mode(p)
@@ -116,6 +126,92 @@ def main():
         if best["hand"] and best["warp"]:
             line += f"; warp / hand {best['warp']['rate'] / best['hand']['rate']:.2f}"
         print(line)
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1))
+
+
+#: Warp site-group options compared by ``--variants`` (the first is the default)
+WARP_OPTIONS = {
+    "default": {},
+    "no force_first": {"force_first": False},
+    "no scalar_ends": {"scalar_ends": False},
+    "neither": {"force_first": False, "scalar_ends": False},
+}
+
+
+def variants(args):
+    """Each option set of the Warp site-group kernel and of the hand kernel, per batch, interleaved."""
+    p = ChainParams(30.0, 160.0, 201)
+    dt = 0.1
+    _, shape = lowest_optical_mode(p)
+    one = np.zeros((4, p.N))
+    one[:2] = 0.3 * shape / np.max(np.abs(shape))
+    check = np.repeat(one[None], 3, 0)
+    check[1, 0] *= 0.5
+    ref = reference.integrate("verlet", p, check, dt, 400)["x"]
+    batches = args.batches
+    steps = {1: 200000, 64: 50000, 805: 4000, 4096: 2000, 32768: 1000}
+    best: dict = {}
+    for name, options in WARP_OPTIONS.items():
+        ensemble._GROUP_OPTIONS = options
+        for sites in (1, 7):
+            ensemble._SITES_FORCED, ensemble._GROUP_ONE_SITE = sites, True
+            run = simulate(p, check, 400 * dt, dt, device=args.device, layout="block", max_energy_error=None)
+            print(
+                f"warp {name}, {sites} sites/thread: max |x - reference| after 400 steps "
+                f"{float(np.max(np.abs(run.x - ref))):.2g}",
+                flush=True,
+            )
+    hands = {}
+    for first in (True, False):
+        hands[first] = cupy_verlet_runner(p.M, p.K, force_first=first)
+        if hands[first] is None:
+            print("CuPy not importable: no hand-written kernels")
+            break
+        for sites in (1, 7):
+            r = cupy_verlet_runner(p.M, p.K, force_first=first, sites=sites)
+            print(
+                f"hand force_first={first}, {sites} sites/thread: max |x - reference| after 400 steps "
+                f"{float(np.max(np.abs(r(check, 400, dt)[0] - ref))):.2g}",
+                flush=True,
+            )
+    for rnd in range(args.rounds):
+        for batch in batches:
+            x0 = np.repeat(one[None], batch, 0)
+            n = steps.get(batch, 1000) if args.device != "cpu" else 20
+            sites = ensemble.sites_per_thread(batch, p.N, 1, args.device)
+            for name, options in WARP_OPTIONS.items():
+                ensemble._GROUP_OPTIONS = options
+                ensemble._SITES_FORCED, ensemble._GROUP_ONE_SITE = None, None
+                seconds = time_steps(p, x0, n, dt, device=args.device, layout="block", repeats=3)
+                key = ("warp", name, batch)
+                best[key] = min(best.get(key, np.inf), seconds / n)
+            for first, run in hands.items():
+                if run is None:
+                    continue
+                seconds = min(run(x0, n, dt)[1] for _ in range(3))
+                key = ("hand", f"force_first={first}", batch)
+                best[key] = min(best.get(key, np.inf), seconds / n)
+        print(f"round {rnd + 1} done", flush=True)
+    ensemble._GROUP_OPTIONS = {}
+    ensemble._SITES_FORCED = ensemble._GROUP_ONE_SITE = None
+    rows = []
+    for batch in batches:
+        sites = ensemble.sites_per_thread(batch, p.N, 1, args.device)
+        for (impl, name, b), per_step in best.items():
+            if b == batch:
+                rate = batch * p.N / per_step
+                rows.append(
+                    {"impl": impl, "variant": name, "batch": batch, "rate": rate, "ns_per_step": 1e9 * per_step}
+                )
+                print(
+                    f"{impl:4s} {name:20s} batch {batch:6d} (warp {sites} sites/thread): {rate:.4g} site-steps/s "
+                    f"({1e9 * per_step:.1f} ns/step)"
+                )
+        warp = best[("warp", "default", batch)]
+        hand = [v for (i, _, b), v in best.items() if i == "hand" and b == batch]
+        if hand:
+            print(f"  warp default / best hand at {batch}: {min(hand) / warp:.3f}")
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
 

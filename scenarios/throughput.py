@@ -384,10 +384,11 @@ def _kernel_properties(ctx, params):
             # threads, shared bytes: two halves of a float64 row, or of (float64 x columns) for the tangents
             columns = key[2] if key[0] == "splitting_tangent" else 1
             built[name], blocks[name] = kernel, (block, 2 * block * 8 * columns)
-    for (threads, sites, _, min_blocks), group in block_kernels.SITE_GROUPS.items():
+    for (threads, sites, _, min_blocks, _, scalar_ends), group in block_kernels.SITE_GROUPS.items():
         for key, kernel in group.built().items():
             name = "/".join(str(part) for part in key) + f" ({sites} sites/thread, min blocks {min_blocks})"
-            built[name], blocks[name] = kernel, (threads, 2 * (threads + 2) * 16)
+            entry_bytes = 8 if scalar_ends and sites == 1 else 16
+            built[name], blocks[name] = kernel, (threads, 2 * (threads + 2) * entry_bytes)
     for name, kernel in sorted(built.items()):
         block, smem = blocks[name]
         try:

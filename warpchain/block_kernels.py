@@ -136,6 +136,19 @@ def site_acceleration_times(
 
 
 @wp.func
+def coupled_acceleration(
+    u: wp.float64,
+    left: wp.float64,
+    right: wp.float64,
+    force: wp.float64,
+    minus_inv_mass: wp.float64,
+    coupling: wp.float64,
+) -> wp.float64:
+    """u'' of ``site_acceleration_times`` from a contact force f(u - v) computed beforehand (same operations)."""
+    return (coupling * ((u - left) + (u - right)) + force) * minus_inv_mass
+
+
+@wp.func
 def site_kick(
     pu: wp.float64,
     pv: wp.float64,
@@ -275,7 +288,7 @@ def min_blocks_per_sm(stages: int) -> int:
 
 
 @functools.lru_cache(maxsize=None)
-def block_kernels(block: int, min_blocks_per_sm: int = 0, lattices: int = 1) -> BlockKernels:
+def block_kernels(block: int, min_blocks_per_sm: int = 0, lattices: int = 1, force_first: bool = True) -> BlockKernels:
     """The block kernels for ``block`` threads per lattice (a multiple of 32, at most 1024).
 
     Args:
@@ -285,6 +298,9 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0, lattices: int = 1) -> 
         lattices: lattices per thread block (the splitting kernel only; 2 halves the blocks of a large
             batch, as the best hand-written kernel does). Launch with ``dim=(ceil(batch / lattices),
             lattices * block)``.
+        force_first: the splitting kernel computes a site's contact force (and, recording, its stiffness)
+            right after the drift, before the exchange's barrier, as ``site_group_kernels`` does: same
+            operations, so the same bits, with the square roots' latency behind the barrier.
     """
     if block % WARP_LANES or not WARP_LANES <= block <= MAX_BLOCK:
         raise ValueError(f"block must be a multiple of {WARP_LANES} in [{WARP_LANES}, {MAX_BLOCK}], got {block}")
@@ -351,10 +367,13 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0, lattices: int = 1) -> 
             pu = start[2]
             pv = start[3]
             m = inv_mass[b_read]
+            minus_m = -m
             k = coupling[b_read]
             loss = int(0)
             if wp.static(damped):
                 loss = lossy[b_read]
+            force = wp.float64(0.0)
+            stiffness = wp.float64(0.0)
             buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
             parity = int(0)
             nb = exchange(buf, u, parity, nbr, boundary)
@@ -376,14 +395,23 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0, lattices: int = 1) -> 
                     h = drifts[s]
                     u = u + h * pu
                     v = v + h * pv
+                    if wp.static(force_first):  # own u, v only: the roots' latency overlaps the barrier
+                        force = contact_force(u - v)
+                        if wp.static(record):
+                            stiffness = contact_stiffness(u - v)
                     parity = 1 - parity
                     nb = exchange(buf, u, parity, nbr, boundary)
-                    a = site_acceleration(u, v, nb[0], nb[1], m, k)
+                    if wp.static(force_first):
+                        a = wp.vec2d(coupled_acceleration(u, nb[0], nb[1], force, minus_m, k), force)
+                    else:
+                        a = site_acceleration(u, v, nb[0], nb[1], m, k)
+                        if wp.static(record):
+                            stiffness = contact_stiffness(u - v)
                     if wp.static(record):
                         if wp.static(per_step):
-                            held[s] = contact_stiffness(u - v)
+                            held[s] = stiffness
                         elif active:
-                            hist[step * wp.static(stages) + s + 1, b, j] = contact_stiffness(u - v)
+                            hist[step * wp.static(stages) + s + 1, b, j] = stiffness
                     h = kicks[s + 1]
                     if wp.static(damped):
                         w = site_kick(pu, pv, a, h, loss, damp, b_read, s + 1)
@@ -652,12 +680,19 @@ def group_threads(n_sites: int, sites: int) -> int:
 MAX_SITES_PER_THREAD = 8
 
 
-#: the site-group kernels built so far, by (threads, sites, boundary, min blocks per SM)
+#: the site-group kernels built so far, by (threads, sites, boundary, min blocks per SM, force_first, scalar_ends)
 SITE_GROUPS: dict = {}
 
 
 @functools.lru_cache(maxsize=None)
-def site_group_kernels(threads: int, sites: int, boundary: int, min_blocks_per_sm: int = 0) -> BlockKernels:
+def site_group_kernels(
+    threads: int,
+    sites: int,
+    boundary: int,
+    min_blocks_per_sm: int = 0,
+    force_first: bool = True,
+    scalar_ends: bool = True,
+) -> BlockKernels:
     """Block kernels in which each of ``threads`` threads owns ``sites`` consecutive sites of one lattice.
 
     Why: with one site per thread every force evaluation pays a shared-memory round trip and a block
@@ -682,6 +717,14 @@ def site_group_kernels(threads: int, sites: int, boundary: int, min_blocks_per_s
     ``min_blocks_per_sm`` goes to ``__launch_bounds__`` (0: none), capping registers so that this many
     blocks fit on one SM.
 
+    ``force_first``: each slot's contact force f(u - v) is computed right after the drift, before the
+    exchange, instead of after it. It needs only the thread's own u and v, so its square root (the longest
+    float64 chain of a force evaluation) runs while the thread waits at the barrier rather than after it;
+    the operations and their order per value are unchanged, so are the bits. ``scalar_ends``: with one site
+    per thread the first and last u of a run are the same value, so the shared tile holds one float64 per
+    thread (8-byte stores and loads) instead of a pair. Both are options only so that
+    ``benchmarks/sites_per_thread.py --variants`` can time the kernel without them.
+
     Launch with ``dim=(lattices, threads), block_dim=threads``.
     """
     if threads % WARP_LANES or not WARP_LANES <= threads <= MAX_BLOCK:
@@ -697,25 +740,45 @@ def site_group_kernels(threads: int, sites: int, boundary: int, min_blocks_per_s
     fixed = boundary == int(BOUNDARY_FIXED)
     free = boundary == int(BOUNDARY_FREE)
     periodic = boundary == int(BOUNDARY_PERIODIC)
+    scalar_ends = bool(scalar_ends) and sites == 1
+    entry = wp.float64 if scalar_ends else wp.vec2d
 
-    @wp.func
-    def ends(buf: wp.tile[wp.vec2d, halves], u: run, t: int, n: int, parity: int) -> wp.vec4d:
-        """Publish this thread's end values in half ``parity``; return (u left of its first site, u right
-        of its last site, u of site n - 1, u of site 0): the last two only matter for periodic ends."""
-        offset = parity * entries
-        last = u[last_slot]
-        if wp.static(periodic):  # the thread holding site n - 1 publishes it as its last value
-            for s in range(wp.static(sites)):
-                last = wp.where(t * wp.static(sites) + s == n - 1, u[s], last)
-        wp.tile_assign(buf, wp.tile(wp.vec2d(u[0], last), preserve_type=True), offset=(offset + 1,))
-        left = buf[offset + t][1]
-        right = buf[offset + t + 2][0]
-        end = wp.float64(0.0)
-        start = wp.float64(0.0)
-        if wp.static(periodic):
-            end = buf[offset + 1 + (n - 1) / wp.static(sites)][1]
-            start = buf[offset + 1][0]
-        return wp.vec4d(left, right, end, start)
+    if scalar_ends:
+
+        @wp.func
+        def ends(buf: wp.tile[wp.float64, halves], u: run, t: int, n: int, parity: int) -> wp.vec4d:
+            """``ends`` with one site per thread: its u is both ends of its run, one float64 per thread."""
+            offset = parity * entries
+            wp.tile_assign(buf, wp.tile(u[0]), offset=(offset + 1,))
+            left = buf[offset + t]
+            right = buf[offset + t + 2]
+            end = wp.float64(0.0)
+            start = wp.float64(0.0)
+            if wp.static(periodic):
+                end = buf[offset + n]
+                start = buf[offset + 1]
+            return wp.vec4d(left, right, end, start)
+
+    else:
+
+        @wp.func
+        def ends(buf: wp.tile[wp.vec2d, halves], u: run, t: int, n: int, parity: int) -> wp.vec4d:
+            """Publish this thread's end values in half ``parity``; return (u left of its first site, u right
+            of its last site, u of site n - 1, u of site 0): the last two only matter for periodic ends."""
+            offset = parity * entries
+            last = u[last_slot]
+            if wp.static(periodic):  # the thread holding site n - 1 publishes it as its last value
+                for s in range(wp.static(sites)):
+                    last = wp.where(t * wp.static(sites) + s == n - 1, u[s], last)
+            wp.tile_assign(buf, wp.tile(wp.vec2d(u[0], last), preserve_type=True), offset=(offset + 1,))
+            left = buf[offset + t][1]
+            right = buf[offset + t + 2][0]
+            end = wp.float64(0.0)
+            start = wp.float64(0.0)
+            if wp.static(periodic):
+                end = buf[offset + 1 + (n - 1) / wp.static(sites)][1]
+                start = buf[offset + 1][0]
+            return wp.vec4d(left, right, end, start)
 
     @wp.func
     def neighbour_values(u: run, e: wp.vec4d, t: int, n: int, s: int) -> wp.vec2d:
@@ -796,7 +859,7 @@ def site_group_kernels(threads: int, sites: int, boundary: int, min_blocks_per_s
                     pu[s] = x[b, 2, j]
                     pv[s] = x[b, 3, j]
                     m[s] = mb
-            buf = wp.tile_zeros(shape=(halves,), dtype=wp.vec2d, storage="shared")
+            buf = wp.tile_zeros(shape=(halves,), dtype=entry, storage="shared")
             parity = int(0)
             e = ends(buf, u, t, n, parity)
             au = run()
@@ -822,13 +885,18 @@ def site_group_kernels(threads: int, sites: int, boundary: int, min_blocks_per_s
                     for s in range(wp.static(sites)):
                         u[s] = u[s] + h * pu[s]
                         v[s] = v[s] + h * pv[s]
+                        if wp.static(force_first):  # before the barrier: its root overlaps the wait
+                            av[s] = contact_force(u[s] - v[s])
                     parity = 1 - parity
                     e = ends(buf, u, t, n, parity)
                     for s in range(wp.static(sites)):
                         nb = neighbour_values(u, e, t, n, s)
-                        a = site_acceleration_times(u[s], v[s], nb[0], nb[1], m[s], k)
-                        au[s] = a[0]
-                        av[s] = a[1]
+                        if wp.static(force_first):
+                            au[s] = coupled_acceleration(u[s], nb[0], nb[1], av[s], m[s], k)
+                        else:
+                            a = site_acceleration_times(u[s], v[s], nb[0], nb[1], m[s], k)
+                            au[s] = a[0]
+                            av[s] = a[1]
                         if wp.static(record):
                             if first + s < n:
                                 hist[step * wp.static(stages) + stage + 1, b, first + s] = contact_stiffness(
@@ -862,5 +930,5 @@ def site_group_kernels(threads: int, sites: int, boundary: int, min_blocks_per_s
         return splitting
 
     group = BlockKernels({"splitting": make_splitting})
-    SITE_GROUPS[threads, sites, boundary, min_blocks_per_sm] = group
+    SITE_GROUPS[threads, sites, boundary, min_blocks_per_sm, force_first, scalar_ends] = group
     return group

@@ -378,6 +378,10 @@ _RECORD_UNCAPPED_MAX_BATCH = 132
 _GROUP_ONE_SITE: bool | None = None
 #: ``__launch_bounds__`` minimum blocks per SM of the site-group kernels, by sites per thread (absent: none)
 _GROUP_MIN_BLOCKS: dict = {}
+#: keyword options of ``block_kernels.site_group_kernels`` (``force_first``, ``scalar_ends``) and of
+#: ``block_kernels.block_kernels`` (``force_first``): the defaults unless tests or benchmarks set them
+_GROUP_OPTIONS: dict = {}
+_BLOCK_OPTIONS: dict = {}
 
 
 #: tangent columns per block of the block splitting tangent kernel: None lets ``tangent_columns_per_block``
@@ -872,7 +876,7 @@ class _BlockSplitting(_Plan):
         pairs = pairs and block_kernels.min_blocks_per_sm(stages) == 0
         if pairs and (r.device != "cpu" or _PAIR_ON_CPU) and 2 * r.block <= block_kernels.MAX_BLOCK:
             # two lattices per block on a large batch (as the best hand-written kernel: hand-cuda-variants.txt)
-            kernel = block_kernels.block_kernels(r.block, 0, 2).splitting(
+            kernel = block_kernels.block_kernels(r.block, 0, 2, **_BLOCK_OPTIONS).splitting(
                 stages, record=record, save=save_every > 0, damped=damped
             )
             dim = (-(-(hi - lo) // 2), 2 * r.block)
@@ -881,13 +885,16 @@ class _BlockSplitting(_Plan):
         sites = sites_per_thread(hi - lo, r.N, stages, r.device)
         if site_group_launch(sites, stages, r.device):
             threads = block_kernels.group_threads(r.N, sites)
-            group = block_kernels.site_group_kernels(threads, sites, r.boundary, _GROUP_MIN_BLOCKS.get(sites, 0))
+            minb = _GROUP_MIN_BLOCKS.get(sites, 0)
+            group = block_kernels.site_group_kernels(threads, sites, r.boundary, minb, **_GROUP_OPTIONS)
             kernel = group.splitting(stages, record=record, save=save_every > 0, damped=damped)
             r.wp.launch(kernel, dim=(hi - lo, threads), block_dim=threads, device=r.device, inputs=inputs)
             return
         kernels = r.bk
         if record and hi - lo <= _RECORD_UNCAPPED_MAX_BATCH and _RECORD_PER_STEP:
-            kernels = block_kernels.block_kernels(r.block, 0)  # the step's history in registers: no cap
+            kernels = block_kernels.block_kernels(
+                r.block, 0, **_BLOCK_OPTIONS
+            )  # the step's history in registers: no cap
         kernel = kernels.splitting(stages, record=record, save=save_every > 0, damped=damped, per_step=_RECORD_PER_STEP)
         r.wp.launch(kernel, dim=(hi - lo, r.block), block_dim=r.block, device=r.device, inputs=inputs)
 
@@ -1069,7 +1076,8 @@ class _Runner:
         self.layout = resolve_layout(layout, device, self.N)
         if self.layout == "block":
             self.block = block_kernels.block_size(self.N)
-            self.bk = block_kernels.block_kernels(self.block, block_kernels.min_blocks_per_sm(method.stages))
+            cap = block_kernels.min_blocks_per_sm(method.stages)
+            self.bk = block_kernels.block_kernels(self.block, cap, **_BLOCK_OPTIONS)
             if device == "cpu":
                 # run the block's threads as cooperative fibers (Warp's experimental CPU blocks)
                 wp.config.enable_cpu_blocks = True
