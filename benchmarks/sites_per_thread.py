@@ -10,10 +10,12 @@ hand variant too.
 
 Command (GPU; the hand kernels need CuPy): ``python benchmarks/sites_per_thread.py [--quick]``
 
-``--variants`` instead times the kernels' options against each other, interleaved over ``--rounds`` rounds
-(best of all): Warp's site-group kernels with and without ``force_first`` (the contact force before the
-exchange's barrier) and ``scalar_ends`` (one float64 per thread in the shared tile), and the hand kernels
-with and without the same ``force_first``, at the sites per thread each layout runs at that batch.
+``--variants`` instead times Warp's site-group kernel with and without ``scalar_ends`` (one float64 per
+thread in the shared tile when a thread owns one site) and with ``carry`` (the accelerations carried across
+steps) against the hand kernel, interleaved over ``--rounds``
+rounds (best of all), at the sites per thread each runs at that batch. (At commit 162cc50 it also timed a
+``force_first`` option of both, the contact force computed before the exchange's barrier: slower in both,
+``benchmarks/h200-2026-11-22k/sites-variants.txt``, and removed.)
 """
 
 import argparse
@@ -131,12 +133,7 @@ def main():
 
 
 #: Warp site-group options compared by ``--variants`` (the first is the default)
-WARP_OPTIONS = {
-    "default": {},
-    "no force_first": {"force_first": False},
-    "no scalar_ends": {"scalar_ends": False},
-    "neither": {"force_first": False, "scalar_ends": False},
-}
+WARP_OPTIONS = {"default": {}, "no scalar_ends": {"scalar_ends": False}, "carry": {"carry": True}}
 
 
 def variants(args):
@@ -162,19 +159,16 @@ def variants(args):
                 f"{float(np.max(np.abs(run.x - ref))):.2g}",
                 flush=True,
             )
-    hands = {}
-    for first in (True, False):
-        hands[first] = cupy_verlet_runner(p.M, p.K, force_first=first)
-        if hands[first] is None:
-            print("CuPy not importable: no hand-written kernels")
-            break
-        for sites in (1, 7):
-            r = cupy_verlet_runner(p.M, p.K, force_first=first, sites=sites)
-            print(
-                f"hand force_first={first}, {sites} sites/thread: max |x - reference| after 400 steps "
-                f"{float(np.max(np.abs(r(check, 400, dt)[0] - ref))):.2g}",
-                flush=True,
-            )
+    hand = cupy_verlet_runner(p.M, p.K)
+    if hand is None:
+        print("CuPy not importable: no hand-written kernel")
+    for sites in (1, 7) if hand is not None else ():
+        r = cupy_verlet_runner(p.M, p.K, sites=sites)
+        print(
+            f"hand, {sites} sites/thread: max |x - reference| after 400 steps "
+            f"{float(np.max(np.abs(r(check, 400, dt)[0] - ref))):.2g}",
+            flush=True,
+        )
     for rnd in range(args.rounds):
         for batch in batches:
             x0 = np.repeat(one[None], batch, 0)
@@ -186,12 +180,9 @@ def variants(args):
                 seconds = time_steps(p, x0, n, dt, device=args.device, layout="block", repeats=3)
                 key = ("warp", name, batch)
                 best[key] = min(best.get(key, np.inf), seconds / n)
-            for first, run in hands.items():
-                if run is None:
-                    continue
-                seconds = min(run(x0, n, dt)[1] for _ in range(3))
-                key = ("hand", f"force_first={first}", batch)
-                best[key] = min(best.get(key, np.inf), seconds / n)
+            if hand is not None:
+                seconds = min(hand(x0, n, dt)[1] for _ in range(3))
+                best["hand", "default", batch] = min(best.get(("hand", "default", batch), np.inf), seconds / n)
         print(f"round {rnd + 1} done", flush=True)
     ensemble._GROUP_OPTIONS = {}
     ensemble._SITES_FORCED = ensemble._GROUP_ONE_SITE = None
@@ -209,9 +200,8 @@ def variants(args):
                     f"({1e9 * per_step:.1f} ns/step)"
                 )
         warp = best[("warp", "default", batch)]
-        hand = [v for (i, _, b), v in best.items() if i == "hand" and b == batch]
-        if hand:
-            print(f"  warp default / best hand at {batch}: {min(hand) / warp:.3f}")
+        if ("hand", "default", batch) in best:
+            print(f"  warp default / hand at {batch}: {best['hand', 'default', batch] / warp:.3f}")
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
 

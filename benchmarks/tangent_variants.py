@@ -31,15 +31,12 @@ from scenarios._common import (  # noqa: E402
 from warpchain import ChainParams, ensemble, reference  # noqa: E402
 from warpchain.integrators import get_method  # noqa: E402
 
-AFTER = {"force_first": False}  # the splitting kernel computing the contact force after the exchange (as before)
 BASE_VARIANTS = [  # (label, ensemble settings, register cap forced on the default kernel, stiffness recorded)
     ("history stored per force evaluation, capped (before)", {"_RECORD_PER_STEP": False}, None, True),
     ("history stored per force evaluation, uncapped", {"_RECORD_PER_STEP": False}, 0, True),
     ("history stored per step, uncapped (default)", {}, None, True),
     ("history stored per step, capped", {"_RECORD_UNCAPPED_MAX_BATCH": 0}, None, True),
-    ("history stored per step, uncapped, force after the exchange", {"_BLOCK_OPTIONS": AFTER}, None, True),
     ("no history", {}, None, False),
-    ("no history, force after the exchange", {"_BLOCK_OPTIONS": AFTER}, None, False),
     ("site-group kernel", {"_GROUP_ONE_SITE": True}, None, True),
 ]
 VARIANTS = [  # (columns per block, prefetch, min blocks per SM of the two-column kernel)

@@ -59,8 +59,7 @@ _CUDA_SOURCE = r"""
 // known to the compiler, state in registers for the whole launch, fixed walls as two zero entries
 // padding each shared row (no boundary branch in the loop), idle threads write a dummy slot chosen
 // by a select (no branch), ping-pong shared rows so one barrier per step suffices, the kick and drift
-// factors (dt/2, dt) hoisted out of the loop, 2/3 as a constant; WC_FORCE_FIRST: the contact force (its
-// square root) computed from the thread's own u, v before the shared store and the barrier.
+// factors (dt/2, dt) hoisted out of the loop, 2/3 as a constant.
 #define WC_ROW (WC_T + 3)
 #if WC_MINB > 0
 #define BOUNDS __launch_bounds__(WC_T * WC_LPB, WC_MINB)
@@ -93,17 +92,11 @@ extern "C" __global__ void BOUNDS verlet(double* __restrict__ x, const int batch
     for (int step = 0; step < nsteps; ++step) {
         du += hdt * au; dv += hdt * av;
         u += dt * du; v += dt * dv;
-#if WC_FORCE_FIRST
-        s = fmax(1.0 + u - v, 0.0);  // own u, v only: the root's latency overlaps the store and the barrier
-        av = c23 * (s * sqrt(s) - 1.0);
-#endif
         su[p][sub][w] = u;
         __syncthreads();
         const double l = su[p][sub][lane], r = su[p][sub][lane + 2];
-#if !WC_FORCE_FIRST
         s = fmax(1.0 + u - v, 0.0);
         av = c23 * (s * sqrt(s) - 1.0);
-#endif
         au = -(K * ((u - l) + (u - r)) + av) * inv_m;
 #if WC_IDLE_ZERO
         au *= live; av *= live;
@@ -154,10 +147,6 @@ extern "C" __global__ void __launch_bounds__(WC_T) verlet_sites(double* __restri
         for (int s = 0; s < WC_S; ++s) {
             du[s] += hdt * au[s]; dv[s] += hdt * av[s];
             u[s] += dt * du[s]; v[s] += dt * dv[s];
-#if WC_FORCE_FIRST
-            const double q = fmax(1.0 + u[s] - v[s], 0.0);  // before the barrier, as in ``verlet``
-            av[s] = c23 * (q * sqrt(q) - 1.0);
-#endif
         }
         se[p][t + 1] = make_double2(u[0], u[WC_S - 1]);
         __syncthreads();
@@ -165,10 +154,8 @@ extern "C" __global__ void __launch_bounds__(WC_T) verlet_sites(double* __restri
 #pragma unroll
         for (int s = 0; s < WC_S; ++s) {
             const double l = s == 0 ? L : u[s > 0 ? s - 1 : 0], r = s == WC_S - 1 ? R : u[s < WC_S - 1 ? s + 1 : 0];
-#if !WC_FORCE_FIRST
             const double q = fmax(1.0 + u[s] - v[s], 0.0);
             av[s] = c23 * (q * sqrt(q) - 1.0);
-#endif
             au[s] = -(K * ((u[s] - l) + (u[s] - r)) + av[s]) * m[s];
             du[s] += hdt * au[s]; dv[s] += hdt * av[s];
         }
@@ -188,14 +175,7 @@ extern "C" __global__ void __launch_bounds__(WC_T) verlet_sites(double* __restri
 #: "sites": "auto" runs ``verlet_sites`` with ceil(N / 32) sites per thread (a warp per lattice) from
 #: AUTO_SITES_BATCH lattices on, else ``verlet`` (``benchmarks/sites_per_thread.py`` on the H200: 3.99e11 against
 #: 3.78e11 site-steps/s at 4096 lattices, 4.31e11 against 3.91e11 at 32768; at 2400 one site per thread is faster)
-DEFAULT_VARIANT = {
-    "lattices_per_block": "auto",
-    "min_blocks": 0,
-    "threads": None,
-    "idle_zero": False,
-    "sites": "auto",
-    "force_first": True,
-}
+DEFAULT_VARIANT = {"lattices_per_block": "auto", "min_blocks": 0, "threads": None, "idle_zero": False, "sites": "auto"}
 AUTO_TWO_PER_BLOCK = 4096
 AUTO_SITES_BATCH = 4096
 
@@ -220,7 +200,6 @@ def cupy_verlet_runner(
     threads: int | None = None,
     idle_zero: bool | None = None,
     sites: int | str | None = None,
-    force_first: bool | None = None,
 ):
     """Returns run(x0, nsteps, dt) -> (x_final, seconds) with the hand-written kernel, or None.
 
@@ -239,21 +218,20 @@ def cupy_verlet_runner(
     fixed_threads = DEFAULT_VARIANT.get("threads") if threads is None else threads
     zero = int(DEFAULT_VARIANT.get("idle_zero", False) if idle_zero is None else idle_zero)
     sites_choice = DEFAULT_VARIANT["sites"] if sites is None else sites
-    first = int(DEFAULT_VARIANT.get("force_first", False) if force_first is None else force_first)
     kernels = {}
 
     def kernel_for(n, lpb, sites):
         if sites > 1:  # several sites per thread: one lattice per block
             if (n, "sites", sites) not in kernels:
                 threads = ((-(-n // sites)) + 31) // 32 * 32
-                options = (f"-DWC_N={n}", f"-DWC_T={threads}", f"-DWC_S={int(sites)}", f"-DWC_FORCE_FIRST={first}")
+                options = (f"-DWC_N={n}", f"-DWC_T={threads}", f"-DWC_S={int(sites)}")
                 kernel = cp.RawKernel(_CUDA_SITES_SOURCE, "verlet_sites", options=options)
                 kernels[n, "sites", sites] = (kernel, threads)
             return kernels[n, "sites", sites]
         if (n, lpb) not in kernels:
             threads = max(int(fixed_threads or 0), ((n + 31) // 32) * 32)
             options = (f"-DWC_N={n}", f"-DWC_T={threads}", f"-DWC_LPB={lpb}", f"-DWC_MINB={minb}")
-            options += (f"-DWC_IDLE_ZERO={zero}", f"-DWC_FORCE_FIRST={first}")
+            options += (f"-DWC_IDLE_ZERO={zero}",)
             kernels[n, lpb] = (cp.RawKernel(_CUDA_SOURCE, "verlet", options=options), threads)
         return kernels[n, lpb]
 

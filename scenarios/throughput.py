@@ -384,7 +384,7 @@ def _kernel_properties(ctx, params):
             # threads, shared bytes: two halves of a float64 row, or of (float64 x columns) for the tangents
             columns = key[2] if key[0] == "splitting_tangent" else 1
             built[name], blocks[name] = kernel, (block, 2 * block * 8 * columns)
-    for (threads, sites, _, min_blocks, _, scalar_ends), group in block_kernels.SITE_GROUPS.items():
+    for (threads, sites, _, min_blocks, scalar_ends, _), group in block_kernels.SITE_GROUPS.items():
         for key, kernel in group.built().items():
             name = "/".join(str(part) for part in key) + f" ({sites} sites/thread, min blocks {min_blocks})"
             entry_bytes = 8 if scalar_ends and sites == 1 else 16

@@ -325,14 +325,13 @@ def test_two_lattices_per_block_bit_for_bit(boundary, monkeypatch):
 @pytest.mark.parametrize("boundary", ["fixed", "free", "periodic"])
 @pytest.mark.parametrize(
     "sites, options",
-    [(1, {}), (2, {}), (7, {}), (1, {"force_first": False, "scalar_ends": False}), (7, {"force_first": False})],
+    [(1, {}), (2, {}), (7, {}), (1, {"scalar_ends": False}), (1, {"carry": True}), (7, {"carry": True})],
 )
 def test_several_sites_per_thread_bit_for_bit(boundary, sites, options, monkeypatch):
     """``block_kernels.site_group_kernels`` (each thread owns a run of sites; the GPU's large-batch path),
     forced on the CPU: identical to the reference with per-lattice M and K, a lattice length that leaves
-    idle slots, frames recorded; with losses; and the stiffness history of a tangent base run. The kernel's
-    default options (force before the exchange, one float64 per thread in the tile) and the benchmarks'
-    variants without them."""
+    idle slots, frames recorded; with losses; and the stiffness history of a tangent base run. With one site
+    per thread, both tile layouts (one float64 per thread, the default, and a pair as for several sites)."""
     from warpchain import ensemble
     from warpchain.losses import Damping
 
@@ -427,16 +426,14 @@ def test_two_tangent_columns_per_block_bit_for_bit(boundary, monkeypatch):
             assert np.array_equal(cols, thread), (method, key)
 
 
-@pytest.mark.parametrize("per_step, force_first", [(True, True), (False, True), (True, False)])
-def test_stiffness_history_stored_per_step_bit_for_bit(per_step, force_first, monkeypatch):
+@pytest.mark.parametrize("per_step", [True, False])
+def test_stiffness_history_stored_per_step_bit_for_bit(per_step, monkeypatch):
     """The block splitting kernel's history held over a step's stages and stored after it (the default), or
     stored at every force evaluation, uncapped or with the many-stage register cap (a batch over
-    ``_RECORD_UNCAPPED_MAX_BATCH``), the force and stiffness computed before the exchange (the default) or
-    after it: the same tangent columns as the thread layout, bit for bit."""
+    ``_RECORD_UNCAPPED_MAX_BATCH``): the same tangent columns as the thread layout, bit for bit."""
     from warpchain import ensemble
 
     monkeypatch.setattr(ensemble, "_RECORD_PER_STEP", per_step)
-    monkeypatch.setattr(ensemble, "_BLOCK_OPTIONS", {"force_first": force_first})
     p = ChainParams(3.0, 4.0, 23)
     x0 = localized_state(p.N, amplitude=0.7, batch=3, seed=6)
     eye = np.eye(4 * p.N).reshape(4 * p.N, 4, p.N)

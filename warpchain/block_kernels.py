@@ -136,19 +136,6 @@ def site_acceleration_times(
 
 
 @wp.func
-def coupled_acceleration(
-    u: wp.float64,
-    left: wp.float64,
-    right: wp.float64,
-    force: wp.float64,
-    minus_inv_mass: wp.float64,
-    coupling: wp.float64,
-) -> wp.float64:
-    """u'' of ``site_acceleration_times`` from a contact force f(u - v) computed beforehand (same operations)."""
-    return (coupling * ((u - left) + (u - right)) + force) * minus_inv_mass
-
-
-@wp.func
 def site_kick(
     pu: wp.float64,
     pv: wp.float64,
@@ -288,7 +275,7 @@ def min_blocks_per_sm(stages: int) -> int:
 
 
 @functools.lru_cache(maxsize=None)
-def block_kernels(block: int, min_blocks_per_sm: int = 0, lattices: int = 1, force_first: bool = True) -> BlockKernels:
+def block_kernels(block: int, min_blocks_per_sm: int = 0, lattices: int = 1) -> BlockKernels:
     """The block kernels for ``block`` threads per lattice (a multiple of 32, at most 1024).
 
     Args:
@@ -298,9 +285,6 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0, lattices: int = 1, for
         lattices: lattices per thread block (the splitting kernel only; 2 halves the blocks of a large
             batch, as the best hand-written kernel does). Launch with ``dim=(ceil(batch / lattices),
             lattices * block)``.
-        force_first: the splitting kernel computes a site's contact force (and, recording, its stiffness)
-            right after the drift, before the exchange's barrier, as ``site_group_kernels`` does: same
-            operations, so the same bits, with the square roots' latency behind the barrier.
     """
     if block % WARP_LANES or not WARP_LANES <= block <= MAX_BLOCK:
         raise ValueError(f"block must be a multiple of {WARP_LANES} in [{WARP_LANES}, {MAX_BLOCK}], got {block}")
@@ -367,13 +351,10 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0, lattices: int = 1, for
             pu = start[2]
             pv = start[3]
             m = inv_mass[b_read]
-            minus_m = -m
             k = coupling[b_read]
             loss = int(0)
             if wp.static(damped):
                 loss = lossy[b_read]
-            force = wp.float64(0.0)
-            stiffness = wp.float64(0.0)
             buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
             parity = int(0)
             nb = exchange(buf, u, parity, nbr, boundary)
@@ -395,23 +376,14 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0, lattices: int = 1, for
                     h = drifts[s]
                     u = u + h * pu
                     v = v + h * pv
-                    if wp.static(force_first):  # own u, v only: the roots' latency overlaps the barrier
-                        force = contact_force(u - v)
-                        if wp.static(record):
-                            stiffness = contact_stiffness(u - v)
                     parity = 1 - parity
                     nb = exchange(buf, u, parity, nbr, boundary)
-                    if wp.static(force_first):
-                        a = wp.vec2d(coupled_acceleration(u, nb[0], nb[1], force, minus_m, k), force)
-                    else:
-                        a = site_acceleration(u, v, nb[0], nb[1], m, k)
-                        if wp.static(record):
-                            stiffness = contact_stiffness(u - v)
+                    a = site_acceleration(u, v, nb[0], nb[1], m, k)
                     if wp.static(record):
                         if wp.static(per_step):
-                            held[s] = stiffness
+                            held[s] = contact_stiffness(u - v)
                         elif active:
-                            hist[step * wp.static(stages) + s + 1, b, j] = stiffness
+                            hist[step * wp.static(stages) + s + 1, b, j] = contact_stiffness(u - v)
                     h = kicks[s + 1]
                     if wp.static(damped):
                         w = site_kick(pu, pv, a, h, loss, damp, b_read, s + 1)
@@ -680,7 +652,7 @@ def group_threads(n_sites: int, sites: int) -> int:
 MAX_SITES_PER_THREAD = 8
 
 
-#: the site-group kernels built so far, by (threads, sites, boundary, min blocks per SM, force_first, scalar_ends)
+#: the site-group kernels built so far, by (threads, sites, boundary, min blocks per SM, scalar_ends, carry)
 SITE_GROUPS: dict = {}
 
 
@@ -690,8 +662,8 @@ def site_group_kernels(
     sites: int,
     boundary: int,
     min_blocks_per_sm: int = 0,
-    force_first: bool = True,
     scalar_ends: bool = True,
+    carry: bool = False,
 ) -> BlockKernels:
     """Block kernels in which each of ``threads`` threads owns ``sites`` consecutive sites of one lattice.
 
@@ -717,13 +689,12 @@ def site_group_kernels(
     ``min_blocks_per_sm`` goes to ``__launch_bounds__`` (0: none), capping registers so that this many
     blocks fit on one SM.
 
-    ``force_first``: each slot's contact force f(u - v) is computed right after the drift, before the
-    exchange, instead of after it. It needs only the thread's own u and v, so its square root (the longest
-    float64 chain of a force evaluation) runs while the thread waits at the barrier rather than after it;
-    the operations and their order per value are unchanged, so are the bits. ``scalar_ends``: with one site
-    per thread the first and last u of a run are the same value, so the shared tile holds one float64 per
-    thread (8-byte stores and loads) instead of a pair. Both are options only so that
-    ``benchmarks/sites_per_thread.py --variants`` can time the kernel without them.
+    ``scalar_ends``: with one site per thread the first and last u of a run are the same value, so the
+    shared tile holds one float64 per thread (8-byte stores and loads) instead of a pair: one lattice
+    129.5 ns per Verlet step against 160 ns (H200, ``benchmarks/h200-2026-11-22k``). An option only so that
+    ``benchmarks/sites_per_thread.py --variants`` can time the kernel without it. ``carry``: each step's
+    first kick at the top of the loop, from the accelerations carried over from the step before (as the hand
+    kernel does), instead of after the previous step's last kick behind a ``step + 1 < nsteps`` test.
 
     Launch with ``dim=(lattices, threads), block_dim=threads``.
     """
@@ -873,30 +844,31 @@ def site_group_kernels(
                     if first + s < n:
                         hist[0, b, first + s] = contact_stiffness(u[s] - v[s])
             # the first kick of the first step; every later step's first kick follows the previous
-            # step's last kick (same accelerations), inside the loop
-            if nsteps > 0:
-                for s in range(wp.static(sites)):
-                    w = kick(pu[s], pv[s], au[s], av[s], kicks[0], loss, damp, b, 0)
-                    pu[s] = w[0]
-                    pv[s] = w[1]
+            # step's last kick (same accelerations), inside the loop (compiled ``carry``: at the loop's top)
+            if wp.static(not carry):
+                if nsteps > 0:
+                    for s in range(wp.static(sites)):
+                        w = kick(pu[s], pv[s], au[s], av[s], kicks[0], loss, damp, b, 0)
+                        pu[s] = w[0]
+                        pv[s] = w[1]
             for step in range(nsteps):
+                if wp.static(carry):
+                    for s in range(wp.static(sites)):
+                        w = kick(pu[s], pv[s], au[s], av[s], kicks[0], loss, damp, b, 0)
+                        pu[s] = w[0]
+                        pv[s] = w[1]
                 for stage in range(wp.static(stages)):  # unrolled: coefficients become constants
                     h = drifts[stage]
                     for s in range(wp.static(sites)):
                         u[s] = u[s] + h * pu[s]
                         v[s] = v[s] + h * pv[s]
-                        if wp.static(force_first):  # before the barrier: its root overlaps the wait
-                            av[s] = contact_force(u[s] - v[s])
                     parity = 1 - parity
                     e = ends(buf, u, t, n, parity)
                     for s in range(wp.static(sites)):
                         nb = neighbour_values(u, e, t, n, s)
-                        if wp.static(force_first):
-                            au[s] = coupled_acceleration(u[s], nb[0], nb[1], av[s], m[s], k)
-                        else:
-                            a = site_acceleration_times(u[s], v[s], nb[0], nb[1], m[s], k)
-                            au[s] = a[0]
-                            av[s] = a[1]
+                        a = site_acceleration_times(u[s], v[s], nb[0], nb[1], m[s], k)
+                        au[s] = a[0]
+                        av[s] = a[1]
                         if wp.static(record):
                             if first + s < n:
                                 hist[step * wp.static(stages) + stage + 1, b, first + s] = contact_stiffness(
@@ -914,11 +886,12 @@ def site_group_kernels(
                             if first + s < n:
                                 rec_u[r, b, first + s] = u[s]
                                 rec_v[r, b, first + s] = v[s]
-                if step + 1 < nsteps:  # the next step's first kick
-                    for s in range(wp.static(sites)):
-                        w = kick(pu[s], pv[s], au[s], av[s], kicks[0], loss, damp, b, 0)
-                        pu[s] = w[0]
-                        pv[s] = w[1]
+                if wp.static(not carry):
+                    if step + 1 < nsteps:  # the next step's first kick
+                        for s in range(wp.static(sites)):
+                            w = kick(pu[s], pv[s], au[s], av[s], kicks[0], loss, damp, b, 0)
+                            pu[s] = w[0]
+                            pv[s] = w[1]
             for s in range(wp.static(sites)):
                 j = first + s
                 if j < n:
@@ -930,5 +903,5 @@ def site_group_kernels(
         return splitting
 
     group = BlockKernels({"splitting": make_splitting})
-    SITE_GROUPS[threads, sites, boundary, min_blocks_per_sm, force_first, scalar_ends] = group
+    SITE_GROUPS[threads, sites, boundary, min_blocks_per_sm, scalar_ends, carry] = group
     return group

@@ -378,10 +378,9 @@ _RECORD_UNCAPPED_MAX_BATCH = 132
 _GROUP_ONE_SITE: bool | None = None
 #: ``__launch_bounds__`` minimum blocks per SM of the site-group kernels, by sites per thread (absent: none)
 _GROUP_MIN_BLOCKS: dict = {}
-#: keyword options of ``block_kernels.site_group_kernels`` (``force_first``, ``scalar_ends``) and of
-#: ``block_kernels.block_kernels`` (``force_first``): the defaults unless tests or benchmarks set them
+#: keyword options of ``block_kernels.site_group_kernels`` (``scalar_ends``): its defaults unless tests or
+#: benchmarks set them
 _GROUP_OPTIONS: dict = {}
-_BLOCK_OPTIONS: dict = {}
 
 
 #: tangent columns per block of the block splitting tangent kernel: None lets ``tangent_columns_per_block``
@@ -876,7 +875,7 @@ class _BlockSplitting(_Plan):
         pairs = pairs and block_kernels.min_blocks_per_sm(stages) == 0
         if pairs and (r.device != "cpu" or _PAIR_ON_CPU) and 2 * r.block <= block_kernels.MAX_BLOCK:
             # two lattices per block on a large batch (as the best hand-written kernel: hand-cuda-variants.txt)
-            kernel = block_kernels.block_kernels(r.block, 0, 2, **_BLOCK_OPTIONS).splitting(
+            kernel = block_kernels.block_kernels(r.block, 0, 2).splitting(
                 stages, record=record, save=save_every > 0, damped=damped
             )
             dim = (-(-(hi - lo) // 2), 2 * r.block)
@@ -892,9 +891,7 @@ class _BlockSplitting(_Plan):
             return
         kernels = r.bk
         if record and hi - lo <= _RECORD_UNCAPPED_MAX_BATCH and _RECORD_PER_STEP:
-            kernels = block_kernels.block_kernels(
-                r.block, 0, **_BLOCK_OPTIONS
-            )  # the step's history in registers: no cap
+            kernels = block_kernels.block_kernels(r.block, 0)  # the step's history in registers: no cap
         kernel = kernels.splitting(stages, record=record, save=save_every > 0, damped=damped, per_step=_RECORD_PER_STEP)
         r.wp.launch(kernel, dim=(hi - lo, r.block), block_dim=r.block, device=r.device, inputs=inputs)
 
@@ -1077,7 +1074,7 @@ class _Runner:
         if self.layout == "block":
             self.block = block_kernels.block_size(self.N)
             cap = block_kernels.min_blocks_per_sm(method.stages)
-            self.bk = block_kernels.block_kernels(self.block, cap, **_BLOCK_OPTIONS)
+            self.bk = block_kernels.block_kernels(self.block, cap)
             if device == "cpu":
                 # run the block's threads as cooperative fibers (Warp's experimental CPU blocks)
                 wp.config.enable_cpu_blocks = True
