@@ -11,8 +11,8 @@ hand variant too.
 Command (GPU; the hand kernels need CuPy): ``python benchmarks/sites_per_thread.py [--quick]``
 
 ``--variants`` instead times Warp's site-group kernel with and without ``scalar_ends`` (one float64 per
-thread in the shared tile when a thread owns one site) and with ``carry`` (the accelerations carried across
-steps) against the hand kernel, interleaved over ``--rounds``
+thread in the shared tile when a thread owns one site) and without ``carry`` (the accelerations carried
+across steps) against the hand kernel, interleaved over ``--rounds``
 rounds (best of all), at the sites per thread each runs at that batch. (At commit 162cc50 it also timed a
 ``force_first`` option of both, the contact force computed before the exchange's barrier: slower in both,
 ``benchmarks/h200-2026-11-22k/sites-variants.txt``, and removed.)
@@ -44,6 +44,7 @@ def main():
     ap.add_argument("--variants", action="store_true", help="compare the kernels' options (see the docstring)")
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--batches", type=int, nargs="+", default=[1, 64, 805, 4096, 32768], help="with --variants")
+    ap.add_argument("--sites", type=int, nargs="*", default=[], help="with --variants: also these sites per thread")
     args = ap.parse_args()
     if args.variants:
         return variants(args)
@@ -133,7 +134,7 @@ def main():
 
 
 #: Warp site-group options compared by ``--variants`` (the first is the default)
-WARP_OPTIONS = {"default": {}, "no scalar_ends": {"scalar_ends": False}, "carry": {"carry": True}}
+WARP_OPTIONS = {"default": {}, "no scalar_ends": {"scalar_ends": False}, "no carry": {"carry": False}}
 
 
 def variants(args):
@@ -162,8 +163,9 @@ def variants(args):
     hand = cupy_verlet_runner(p.M, p.K)
     if hand is None:
         print("CuPy not importable: no hand-written kernel")
-    for sites in (1, 7) if hand is not None else ():
-        r = cupy_verlet_runner(p.M, p.K, sites=sites)
+    forced_hands = {sites: cupy_verlet_runner(p.M, p.K, sites=sites) for sites in args.sites}
+    for sites in sorted({1, 7, *args.sites}) if hand is not None else ():
+        r = forced_hands.get(sites) or cupy_verlet_runner(p.M, p.K, sites=sites)
         print(
             f"hand, {sites} sites/thread: max |x - reference| after 400 steps "
             f"{float(np.max(np.abs(r(check, 400, dt)[0] - ref))):.2g}",
@@ -180,9 +182,20 @@ def variants(args):
                 seconds = time_steps(p, x0, n, dt, device=args.device, layout="block", repeats=3)
                 key = ("warp", name, batch)
                 best[key] = min(best.get(key, np.inf), seconds / n)
+            ensemble._GROUP_OPTIONS = {}
+            for forced in args.sites:
+                ensemble._SITES_FORCED, ensemble._GROUP_ONE_SITE = forced, True
+                seconds = time_steps(p, x0, n, dt, device=args.device, layout="block", repeats=3)
+                key = ("warp", f"{forced} sites/thread", batch)
+                best[key] = min(best.get(key, np.inf), seconds / n)
+            ensemble._SITES_FORCED, ensemble._GROUP_ONE_SITE = None, None
             if hand is not None:
                 seconds = min(hand(x0, n, dt)[1] for _ in range(3))
                 best["hand", "default", batch] = min(best.get(("hand", "default", batch), np.inf), seconds / n)
+                for forced in args.sites:
+                    seconds = min(forced_hands[forced](x0, n, dt)[1] for _ in range(3))
+                    key = ("hand", f"{forced} sites/thread", batch)
+                    best[key] = min(best.get(key, np.inf), seconds / n)
         print(f"round {rnd + 1} done", flush=True)
     ensemble._GROUP_OPTIONS = {}
     ensemble._SITES_FORCED = ensemble._GROUP_ONE_SITE = None

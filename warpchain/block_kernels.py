@@ -663,7 +663,7 @@ def site_group_kernels(
     boundary: int,
     min_blocks_per_sm: int = 0,
     scalar_ends: bool = True,
-    carry: bool = False,
+    carry: bool = True,
 ) -> BlockKernels:
     """Block kernels in which each of ``threads`` threads owns ``sites`` consecutive sites of one lattice.
 
@@ -683,18 +683,20 @@ def site_group_kernels(
 
     The arithmetic is that of ``block_kernels`` and the numpy reference (same operations, same order), so
     the results are the same bit for bit on the CPU. The kick that ends one step and the kick that starts
-    the next use the same accelerations; they are applied one after the other inside the step, as the
-    reference does, so no acceleration is carried across iterations (fewer live registers).
+    the next use the same accelerations. With ``carry`` (the default) the accelerations are carried into the
+    next iteration, whose first kick comes at the top of the loop, as in the hand-written kernel. Without it
+    both kicks are applied inside the step, the second behind a ``step + 1 < nsteps`` test, so that no
+    acceleration lives across iterations (fewer live registers). The test in the loop costs more than the
+    registers save: one lattice 118.6 against 129.5 ns per Verlet step, 3.08e11 against 2.80e11 site-steps/s
+    at 805 lattices, 4.49e11 against 4.39e11 at 32768 (H200, ``benchmarks/h200-2026-11-22k``).
 
     ``min_blocks_per_sm`` goes to ``__launch_bounds__`` (0: none), capping registers so that this many
     blocks fit on one SM.
 
     ``scalar_ends``: with one site per thread the first and last u of a run are the same value, so the
     shared tile holds one float64 per thread (8-byte stores and loads) instead of a pair: one lattice
-    129.5 ns per Verlet step against 160 ns (H200, ``benchmarks/h200-2026-11-22k``). An option only so that
-    ``benchmarks/sites_per_thread.py --variants`` can time the kernel without it. ``carry``: each step's
-    first kick at the top of the loop, from the accelerations carried over from the step before (as the hand
-    kernel does), instead of after the previous step's last kick behind a ``step + 1 < nsteps`` test.
+    129.5 ns per Verlet step against 160 ns (H200, ``benchmarks/h200-2026-11-22k``). Both are options only
+    so that ``benchmarks/sites_per_thread.py --variants`` can time the kernel without them.
 
     Launch with ``dim=(lattices, threads), block_dim=threads``.
     """

@@ -355,10 +355,11 @@ def sites_per_thread(batch: int, n_sites: int, stages: int, device: str) -> int:
 
 def site_group_launch(sites: int, stages: int, device: str) -> bool:
     """Whether a block splitting launch with this many sites per thread runs ``site_group_kernels``: always
-    for several sites, and on a GPU for one site per thread and few stages too (its walls compiled in and no
-    acceleration carried across steps: one lattice 170 ns per Verlet step against 202 ns, 2.58e11 against
-    2.51e11 site-steps/s at 805 lattices, H200); the many-stage methods keep ``block_kernels``' register-capped
-    kernel. ``_GROUP_ONE_SITE`` (tests, benchmarks) forces it."""
+    for several sites, and on a GPU for one site per thread and few stages too (its walls compiled in, one
+    float64 per thread in the tile: one lattice 118.6 ns per Verlet step, 3.08e11 site-steps/s at 805 lattices,
+    H200, ``benchmarks/h200-2026-11-22k``; in ``h200-2026-11-22e`` it was 170 ns against ``block_kernels``'
+    202 ns); the many-stage methods keep ``block_kernels``' register-capped kernel. ``_GROUP_ONE_SITE``
+    (tests, benchmarks) forces it."""
     if sites > 1:
         return True
     if _GROUP_ONE_SITE is not None:
