@@ -190,10 +190,10 @@ def variants(args):
                 best[key] = min(best.get(key, np.inf), seconds / n)
             ensemble._SITES_FORCED, ensemble._GROUP_ONE_SITE = None, None
             if hand is not None:
-                seconds = min(hand(x0, n, dt)[1] for _ in range(3))
+                seconds = hand(x0, n, dt, repeats=3)[1]
                 best["hand", "default", batch] = min(best.get(("hand", "default", batch), np.inf), seconds / n)
                 for forced in args.sites:
-                    seconds = min(forced_hands[forced](x0, n, dt)[1] for _ in range(3))
+                    seconds = forced_hands[forced](x0, n, dt, repeats=3)[1]
                     key = ("hand", f"{forced} sites/thread", batch)
                     best[key] = min(best.get(key, np.inf), seconds / n)
         print(f"round {rnd + 1} done", flush=True)
