@@ -36,6 +36,19 @@ WARP_SITES = (1, "1g", 2, 4, 7)
 HAND_SITES = (1, 7)
 
 
+def setup():
+    """The chain, dt, the timed state (lowest optical mode, amplitude 0.3), a 3-lattice check batch and its
+    numpy reference after 400 Verlet steps."""
+    p = ChainParams(30.0, 160.0, 201)
+    dt = 0.1
+    _, shape = lowest_optical_mode(p)
+    one = np.zeros((4, p.N))
+    one[:2] = 0.3 * shape / np.max(np.abs(shape))
+    check = np.repeat(one[None], 3, 0)
+    check[1, 0] *= 0.5
+    return p, dt, one, check, reference.integrate("verlet", p, check, dt, 400)["x"]
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true")
@@ -48,14 +61,7 @@ def main():
     args = ap.parse_args()
     if args.variants:
         return variants(args)
-    p = ChainParams(30.0, 160.0, 201)
-    dt = 0.1
-    _, shape = lowest_optical_mode(p)
-    one = np.zeros((4, p.N))
-    one[:2] = 0.3 * shape / np.max(np.abs(shape))
-    check = np.repeat(one[None], 3, 0)
-    check[1, 0] *= 0.5
-    ref = reference.integrate("verlet", p, check, dt, 400)["x"]
+    p, dt, one, check, ref = setup()
     batches = (1, 805, 32768) if args.quick else (1, 64, 805, 1600, 2400, 4096, 32768)
     rows = []
 
@@ -139,14 +145,7 @@ WARP_OPTIONS = {"default": {}, "no scalar_ends": {"scalar_ends": False}, "no car
 
 def variants(args):
     """Each option set of the Warp site-group kernel and of the hand kernel, per batch, interleaved."""
-    p = ChainParams(30.0, 160.0, 201)
-    dt = 0.1
-    _, shape = lowest_optical_mode(p)
-    one = np.zeros((4, p.N))
-    one[:2] = 0.3 * shape / np.max(np.abs(shape))
-    check = np.repeat(one[None], 3, 0)
-    check[1, 0] *= 0.5
-    ref = reference.integrate("verlet", p, check, dt, 400)["x"]
+    p, dt, one, check, ref = setup()
     batches = args.batches
     steps = {1: 200000, 64: 50000, 805: 4000, 4096: 2000, 32768: 1000}
     best: dict = {}
