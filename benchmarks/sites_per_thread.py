@@ -12,10 +12,10 @@ Command (GPU; the hand kernels need CuPy): ``python benchmarks/sites_per_thread.
 
 ``--variants`` instead times Warp's site-group kernel with and without ``scalar_ends`` (one float64 per
 thread in the shared tile when a thread owns one site) and without ``carry`` (the accelerations carried
-across steps) against the hand kernel, interleaved over ``--rounds``
-rounds (best of all), at the sites per thread each runs at that batch. (At commit 162cc50 it also timed a
-``force_first`` option of both, the contact force computed before the exchange's barrier: slower in both,
-``benchmarks/h200-2026-11-22k/sites-variants.txt``, and removed.)
+across steps) against the hand kernel, interleaved over ``--rounds`` rounds (best of all), at the sites per
+thread each runs at that batch; ``--sites`` adds forced sites per thread for both. (At commit 162cc50 it
+also timed a ``force_first`` option of both, the contact force computed before the exchange's barrier:
+slower in both, ``benchmarks/h200-2026-11-22k/sites-variants-first.txt``, and removed.)
 """
 
 import argparse
@@ -174,7 +174,6 @@ def variants(args):
         for batch in batches:
             x0 = np.repeat(one[None], batch, 0)
             n = steps.get(batch, 1000) if args.device != "cpu" else 20
-            sites = ensemble.sites_per_thread(batch, p.N, 1, args.device)
             for name, options in WARP_OPTIONS.items():
                 ensemble._GROUP_OPTIONS = options
                 ensemble._SITES_FORCED, ensemble._GROUP_ONE_SITE = None, None

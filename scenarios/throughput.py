@@ -385,7 +385,7 @@ def _kernel_properties(ctx, params):
     for (threads, sites, _, min_blocks, scalar_ends, _), group in block_kernels.SITE_GROUPS.items():
         for key, kernel in group.built().items():
             name = "/".join(str(part) for part in key) + f" ({sites} sites/thread, min blocks {min_blocks})"
-            entry_bytes = 8 if scalar_ends and sites == 1 else 16
+            entry_bytes = 8 if scalar_ends else 16  # the key holds the option as compiled (one site per thread only)
             built[name], blocks[name] = kernel, (threads, 2 * (threads + 2) * entry_bytes)
     for name, kernel in sorted(built.items()):
         block, smem = blocks[name]

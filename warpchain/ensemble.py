@@ -379,8 +379,8 @@ _RECORD_UNCAPPED_MAX_BATCH = 132
 _GROUP_ONE_SITE: bool | None = None
 #: ``__launch_bounds__`` minimum blocks per SM of the site-group kernels, by sites per thread (absent: none)
 _GROUP_MIN_BLOCKS: dict = {}
-#: keyword options of ``block_kernels.site_group_kernels`` (``scalar_ends``): its defaults unless tests or
-#: benchmarks set them
+#: keyword options of ``block_kernels.site_group_kernels`` (``scalar_ends``, ``carry``): its defaults unless
+#: tests or benchmarks set them
 _GROUP_OPTIONS: dict = {}
 
 
@@ -1074,8 +1074,7 @@ class _Runner:
         self.layout = resolve_layout(layout, device, self.N)
         if self.layout == "block":
             self.block = block_kernels.block_size(self.N)
-            cap = block_kernels.min_blocks_per_sm(method.stages)
-            self.bk = block_kernels.block_kernels(self.block, cap)
+            self.bk = block_kernels.block_kernels(self.block, block_kernels.min_blocks_per_sm(method.stages))
             if device == "cpu":
                 # run the block's threads as cooperative fibers (Warp's experimental CPU blocks)
                 wp.config.enable_cpu_blocks = True
