@@ -5,9 +5,10 @@ short sliced run. Best of ``--repeats`` calls after one untimed call; ``stats`` 
 variant's end state against the first's, bit for bit.
 
 Variants: ``whole``: no slices, the default chunk count (from the work, at most 10); ``whole, 2 chunks``;
-``S slices``: S slices, two chunks; ``auto``: what ``simulate`` does by default.
+``S slices``: S slices (each on a stream of its own), two chunks; ``S slices, 1 chunk`` (``--one-chunk S``);
+``auto``: what ``simulate`` does by default.
 
-Command (GPU): ``python benchmarks/simulate_slices.py [--batch 805 8192 32768] [--slices 2 4 8 16]``
+Command (GPU): ``python benchmarks/simulate_slices.py [--batch 805 8192 32768] [--slices 2 4 8 16] [--one-chunk 4 8]``
 """
 
 import argparse
@@ -31,6 +32,7 @@ def main():
     ap.add_argument("--steps", type=int, default=2000)
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--device", default="cuda")
+    ap.add_argument("--one-chunk", type=int, nargs="*", default=[], help="also: these slice counts in one chunk")
     ap.add_argument("--copy-slice", type=int, nargs="*", default=[], help="also: auto, values per copy thread")
     args = ap.parse_args()
     p = ChainParams(30.0, 160.0, 201)
@@ -40,7 +42,8 @@ def main():
     dt = 0.1
     defaults = (ensemble._SLICED_MIN_VALUES, ensemble._SLICES)
     variants = [("whole", 1 << 62, None, None), ("whole, 2 chunks", 1 << 62, None, 2)]
-    variants += [(f"{s} slices", 1, s, None) for s in args.slices] + [("auto", *defaults, None)]
+    variants += [(f"{s} slices", 1, s, None) for s in args.slices]
+    variants += [(f"{s} slices, 1 chunk", 1, s, 1) for s in args.one_chunk] + [("auto", *defaults, None)]
     variants += [(f"auto, copy {c}", *defaults, None, c) for c in args.copy_slice]
     copy_slice = ensemble._COPY_SLICE
     print(f"# {args.steps} Verlet steps, N = {p.N}; best of {args.repeats}; ratio = kernel / simulate()", flush=True)
