@@ -2,7 +2,7 @@
 2000 steps) at 805 and 32768 lattices, after one untimed call, with the kernel time (``time_steps``) and a
 timeline of the call's phases beside it. Prints the top functions by cumulative and by own time.
 
-Command (GPU): ``python benchmarks/simulate_profile.py [--batch 805 32768] [--save-every 20]``
+Command (GPU): ``python benchmarks/simulate_profile.py [--batch 805 32768] [--save-every 20] [--slices S]``
 """
 
 import argparse
@@ -17,6 +17,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from warpchain import ChainParams, lowest_optical_mode, simulate  # noqa: E402
+from warpchain import ensemble  # noqa: E402
 from warpchain.ensemble import time_steps  # noqa: E402
 
 
@@ -26,7 +27,10 @@ def main():
     ap.add_argument("--save-every", type=int, default=None)
     ap.add_argument("--device", default="cuda")
     ap.add_argument("--top", type=int, default=25)
+    ap.add_argument("--slices", type=int, default=None, help="force this many lattice slices (the sliced path)")
     args = ap.parse_args()
+    if args.slices is not None:
+        ensemble._SLICED_MIN_VALUES, ensemble._SLICES = 1, args.slices
     p = ChainParams(30.0, 160.0, 201)
     _, shape = lowest_optical_mode(p)
     one = np.zeros((4, p.N))

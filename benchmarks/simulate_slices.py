@@ -1,14 +1,15 @@
-"""``simulate()`` without recording on a GPU: the state moved in S lattice slices (overlapped with the first
-and the last chunk) against the whole batch at once, beside the kernel's own time (``time_steps``), Verlet,
-N = 201, 2000 steps: the data behind ``ensemble._slice_count``, ``_SLICED_MIN_VALUES`` and the two chunks of a
-short sliced run. Best of ``--repeats`` calls after one untimed call; ``stats`` of the best call (ms); each
-variant's end state against the first's, bit for bit.
+"""``simulate()`` without recording on a GPU: the state moved in S lattice slices (overlapped with the
+kernels; a short run queued slice after slice) against the whole batch at once, beside the kernel's own time
+(``time_steps``), Verlet, N = 201, 2000 steps: the data behind ``ensemble._slice_count``,
+``_SLICED_MIN_VALUES`` and the two chunks of a short sliced run. Best of ``--repeats`` calls after one untimed
+call; ``stats`` of the best call (ms); each variant's end state against the first's, bit for bit.
 
 Variants: ``whole``: no slices, the default chunk count (from the work, at most 10); ``whole, 2 chunks``;
-``S slices``: S slices (each on a stream of its own), two chunks; ``S slices, 1 chunk`` (``--one-chunk S``);
-``auto``: what ``simulate`` does by default.
+``S slices``: S slices, two chunks; ``S slices, 1 chunk`` (``--one-chunk S``); ``S slices, no prefault``
+(``--no-prefault S``): the final state's host array not touched in advance; ``auto``: what ``simulate`` does.
 
-Command (GPU): ``python benchmarks/simulate_slices.py [--batch 805 8192 32768] [--slices 2 4 8 16] [--one-chunk 4 8]``
+Command (GPU): ``python benchmarks/simulate_slices.py [--batch 805 8192 32768] [--slices 2 4 8 16]
+[--one-chunk 4 8] [--no-prefault 8]``
 """
 
 import argparse
@@ -33,6 +34,7 @@ def main():
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--device", default="cuda")
     ap.add_argument("--one-chunk", type=int, nargs="*", default=[], help="also: these slice counts in one chunk")
+    ap.add_argument("--no-prefault", type=int, nargs="*", default=[], help="also: these slice counts, no prefault")
     ap.add_argument("--copy-slice", type=int, nargs="*", default=[], help="also: auto, values per copy thread")
     args = ap.parse_args()
     p = ChainParams(30.0, 160.0, 201)
@@ -43,9 +45,11 @@ def main():
     defaults = (ensemble._SLICED_MIN_VALUES, ensemble._SLICES)
     variants = [("whole", 1 << 62, None, None), ("whole, 2 chunks", 1 << 62, None, 2)]
     variants += [(f"{s} slices", 1, s, None) for s in args.slices]
-    variants += [(f"{s} slices, 1 chunk", 1, s, 1) for s in args.one_chunk] + [("auto", *defaults, None)]
+    variants += [(f"{s} slices, 1 chunk", 1, s, 1) for s in args.one_chunk]
+    variants += [(f"{s} slices, no prefault", 1, s, None, None, False) for s in args.no_prefault]
+    variants += [("auto", *defaults, None)]
     variants += [(f"auto, copy {c}", *defaults, None, c) for c in args.copy_slice]
-    copy_slice = ensemble._COPY_SLICE
+    copy_slice, prefault = ensemble._COPY_SLICE, ensemble._PREFAULT_MIN_VALUES
     print(f"# {args.steps} Verlet steps, N = {p.N}; best of {args.repeats}; ratio = kernel / simulate()", flush=True)
     for batch in args.batch:
         x0 = np.repeat(one[None], batch, 0)
@@ -54,7 +58,8 @@ def main():
         first = None  # the first variant's end state: every other must have the same bits
         for name, min_values, slices, chunks, *copy in variants:
             ensemble._SLICED_MIN_VALUES, ensemble._SLICES = min_values, slices
-            ensemble._COPY_SLICE = copy[0] if copy else copy_slice
+            ensemble._COPY_SLICE = copy[0] if copy and copy[0] else copy_slice
+            ensemble._PREFAULT_MIN_VALUES = prefault if len(copy) < 2 or copy[1] else 1 << 62
             simulate(p, x0, args.steps * dt, dt, device=args.device, chunks=chunks)
             walls, stats = [], []
             for _ in range(args.repeats):
@@ -72,7 +77,7 @@ def main():
                 flush=True,
             )
         ensemble._SLICED_MIN_VALUES, ensemble._SLICES = defaults
-        ensemble._COPY_SLICE = copy_slice
+        ensemble._COPY_SLICE, ensemble._PREFAULT_MIN_VALUES = copy_slice, prefault
 
 
 if __name__ == "__main__":

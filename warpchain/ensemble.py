@@ -9,7 +9,6 @@ progress bar advances.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import math
 import os
@@ -602,16 +601,15 @@ class _GuardReader:
         else:
             self.host = [None, None]
 
-    def enqueue_init(self, out, lattices: tuple | None = None) -> None:
-        """Copy slot 2 (the start's scalars; ``lattices``: (lo, hi), only those rows) to the host, on the
-        current stream; read it with ``init`` once a later event recorded after it has completed."""
+    def enqueue_init(self, out) -> None:
+        """Copy slot 2 (the start's scalars) to the host; read it with ``init`` once a later event
+        recorded after it has completed."""
         if self.gpu:
             if not hasattr(self, "init_flat"):
                 self.init_flat = _take_buffer(self.wp, self.runner.device, 3 * self.runner.batch, True)
                 self.flat.append(self.init_flat)
-                self.init_host = self.init_flat[: 3 * self.runner.batch].reshape((self.runner.batch, 3))
-            lo, hi = lattices if lattices is not None else (0, self.runner.batch)
-            self.wp.copy(self.init_host[lo:hi], out[lo:hi])
+            self.init_host = self.init_flat[: 3 * self.runner.batch].reshape((self.runner.batch, 3))
+            self.wp.copy(self.init_host, out)
         else:
             self.init_host = out
 
@@ -625,11 +623,9 @@ class _GuardReader:
                 _give_buffer(self.runner.device, True, buf)
             self.flat = []
 
-    def enqueue(self, out, i: int, lattices: tuple | None = None) -> None:
-        """Copy chunk i's scalars (``lattices``: (lo, hi), only those rows) to the host, on the current stream."""
+    def enqueue(self, out, i: int) -> None:
         if self.gpu:
-            lo, hi = lattices if lattices is not None else (0, self.runner.batch)
-            self.wp.copy(self.host[i % 2][lo:hi], out[lo:hi])
+            self.wp.copy(self.host[i % 2], out)
         else:
             self.host[i % 2] = out
 
@@ -652,16 +648,11 @@ class _GuardReader:
 
 
 class _SlicedTransfers:
-    """A batch run in lattice slices, each on a CUDA stream of its own: slice s is copied to the device
-    (host -> pinned -> device) and its kernels start while the later slices are still being copied, and its
-    final state goes back while the other slices compute, so only about one slice's transfer each way is
-    exposed. The slices' kernels run concurrently, so a batch too small to fill the GPU in one slice (805
-    lattices) loses no throughput to slicing (on the CPU the same steps run in order, on one stream).
-
-    Operations queued inside ``with transfers.on(s):`` go on slice s's stream. The slice streams first wait
-    for the work queued so far on the device's stream (``__init__``); ``join`` makes the device's stream wait
-    for all of them (an event recorded there after ``join`` completes once every slice's work queued so far
-    has), and ``fork`` makes them wait for the device's stream again."""
+    """The state's trip to the device and back in lattice slices, overlapped with kernels: slice s is
+    copied (host -> pinned -> device, on an upload stream) while the kernels run on slice s - 1, and its
+    final state goes back (on a download stream) while they run on slice s + 1, so only one slice's
+    transfer each way is exposed (on a GPU; on the CPU the same steps run in order). ``simulate`` runs the
+    first and the last chunk slice by slice for it; a short run on a large batch has only those two."""
 
     def __init__(self, runner, x0: np.ndarray, n_slices: int):
         wp = runner.wp
@@ -673,51 +664,39 @@ class _SlicedTransfers:
         self.up = _take_buffer(wp, runner.device, x0.size, self.gpu)
         self.down = _take_buffer(wp, runner.device, x0.size, self.gpu)
         self.events = {}
-        self.streams = []
         if self.gpu:
+            # uploads and downloads on streams of their own: slice s + 1's upload never waits behind slice s's
+            # download, which waits for slice s's kernels
+            streams = getattr(runner, "_transfer_streams", None)
+            if streams is None:
+                streams = runner._transfer_streams = (wp.Stream(runner.device), wp.Stream(runner.device))
+            self.up_stream, self.down_stream = streams
             self.main = wp.get_stream(runner.device)
-            streams = runner.__dict__.setdefault("_slice_streams", [])  # made once, kept with the pooled runner
-            while len(streams) < len(self.slices):
-                streams.append(wp.Stream(runner.device))
-            self.streams = streams[: len(self.slices)]
-            self.fork()
-
-    def on(self, s: int):
-        """Context in which Warp operations go on slice s's stream (on the CPU: no change)."""
-        if not self.gpu:
-            return contextlib.nullcontext()
-        return self.wp.ScopedStream(self.streams[s], sync_enter=False)
-
-    def fork(self) -> None:
-        """The slice streams wait for the work queued so far on the device's stream."""
-        if self.gpu:
-            event = self.main.record_event()
-            for stream in self.streams:
-                stream.wait_event(event)
-
-    def join(self) -> None:
-        """The device's stream waits for the work queued so far on every slice stream."""
-        if self.gpu:
-            for stream in self.streams:
-                self.main.wait_event(stream.record_event())
 
     def _range(self, s: int):
         lo, hi = self.slices[s]
         return lo * self.site_values, hi * self.site_values
 
     def upload(self, s: int) -> None:
-        """Slice s to the device, on its stream (call inside ``on(s)``)."""
+        """Slice s to the device; the compute stream waits for it."""
         a, b = self._range(s)
         lo, hi = self.slices[s]
         _copy(self.up.numpy()[a:b], np.ascontiguousarray(self.x0[lo:hi]))
-        self.wp.copy(self.r.x, self.up, dest_offset=a, src_offset=a, count=b - a)
+        if self.gpu:
+            self.wp.copy(self.r.x, self.up, dest_offset=a, src_offset=a, count=b - a, stream=self.up_stream)
+            self.main.wait_event(self.up_stream.record_event())
+        else:
+            self.wp.copy(self.r.x, self.up, dest_offset=a, src_offset=a, count=b - a)
 
     def download(self, s: int) -> None:
-        """Slice s's state back to pinned memory after its kernels (call inside ``on(s)``)."""
+        """Slice s's state back to pinned memory once the kernels queued so far have run."""
         a, b = self._range(s)
-        self.wp.copy(self.down, self.r.x, dest_offset=a, src_offset=a, count=b - a)
         if self.gpu:
-            self.events[s] = self.wp.get_stream(self.r.device).record_event()
+            self.down_stream.wait_event(self.main.record_event())
+            self.wp.copy(self.down, self.r.x, dest_offset=a, src_offset=a, count=b - a, stream=self.down_stream)
+            self.events[s] = self.down_stream.record_event()
+        else:
+            self.wp.copy(self.down, self.r.x, dest_offset=a, src_offset=a, count=b - a)
 
     def take(self, s: int, out: np.ndarray) -> None:
         """Write slice s's final state into ``out`` (the whole batch's host array)."""
@@ -730,9 +709,8 @@ class _SlicedTransfers:
         if self.up is None:
             return
         if self.gpu:
-            self.join()  # later work on the device's stream (the next call's) comes after every slice's
-            for stream in self.streams:
-                self.wp.synchronize_stream(stream)
+            self.wp.synchronize_stream(self.up_stream)
+            self.wp.synchronize_stream(self.down_stream)
         _give_buffer(self.r.device, self.gpu, self.up)
         _give_buffer(self.r.device, self.gpu, self.down)
         self.up = self.down = None
@@ -855,11 +833,7 @@ class _Plan:
     def __init__(self, runner: "_Runner"):
         self.r = runner
 
-    def step(
-        self, lo: int, hi: int, dt: float, nsteps: int, save_every: int, frames, record: bool, layout_batch: int
-    ) -> None:
-        """Launch nsteps on lattices lo..hi; ``layout_batch``: the lattices the device runs at once (the
-        batch when slices run concurrently), which picks a kernel layout where a plan has several."""
+    def step(self, lo: int, hi: int, dt: float, nsteps: int, save_every: int, frames, record: bool) -> None:
         raise NotImplementedError
 
     def tangent(self, dx, column_base, lo: int, hi: int, dt: float, nsteps: int) -> None:
@@ -889,7 +863,7 @@ class _BlockSplitting(_Plan):
             self.scaled = {dt: [self.pack(m.drifts, dt), self.pack(m.kicks, dt)]}
         return self.scaled[dt]
 
-    def step(self, lo, hi, dt, nsteps, save_every, frames, record, layout_batch):
+    def step(self, lo, hi, dt, nsteps, save_every, frames, record):
         r = self.r
         inputs = [r.x[lo:hi], r.inv_mass[lo:hi], r.coupling[lo:hi], *self.coefficients(dt), r.boundary]
         inputs += [r.wp.float64(dt)]
@@ -898,7 +872,7 @@ class _BlockSplitting(_Plan):
 
         stages = r.method.stages
         damped = r.damped
-        pairs = _PAIR_MIN_BATCH is not None and layout_batch >= _PAIR_MIN_BATCH
+        pairs = _PAIR_MIN_BATCH is not None and hi - lo >= _PAIR_MIN_BATCH
         pairs = pairs and block_kernels.min_blocks_per_sm(stages) == 0
         if pairs and (r.device != "cpu" or _PAIR_ON_CPU) and 2 * r.block <= block_kernels.MAX_BLOCK:
             # two lattices per block on a large batch (as the best hand-written kernel: hand-cuda-variants.txt)
@@ -908,7 +882,7 @@ class _BlockSplitting(_Plan):
             dim = (-(-(hi - lo) // 2), 2 * r.block)
             r.wp.launch(kernel, dim=dim, block_dim=2 * r.block, device=r.device, inputs=inputs)
             return
-        sites = sites_per_thread(layout_batch, r.N, stages, r.device)
+        sites = sites_per_thread(hi - lo, r.N, stages, r.device)
         if site_group_launch(sites, stages, r.device):
             threads = block_kernels.group_threads(r.N, sites)
             minb = _GROUP_MIN_BLOCKS.get(sites, 0)
@@ -948,7 +922,7 @@ class _BlockRungeKutta(_Plan):
         m, wp = runner.method, runner.wp
         self.tableau = [wp.vec4d(*m.nodes, m.divisor), wp.vec4d(*m.weights)]
 
-    def step(self, lo, hi, dt, nsteps, save_every, frames, record, layout_batch):
+    def step(self, lo, hi, dt, nsteps, save_every, frames, record):
         r = self.r
         inputs = [r.x[lo:hi], r.inv_mass[lo:hi], r.coupling[lo:hi], *self.tableau, r.boundary, r.wp.float64(dt)]
         inputs += [int(nsteps), int(save_every), *frames, int(record), r.hist]
@@ -971,7 +945,7 @@ class _ThreadSplitting(_Plan):
         self.drifts = wp.array(np.array(m.drifts), dtype=f64, device=runner.device)
         self.kicks = wp.array(np.array(m.kicks), dtype=f64, device=runner.device)
 
-    def step(self, lo, hi, dt, nsteps, save_every, frames, record, layout_batch):
+    def step(self, lo, hi, dt, nsteps, save_every, frames, record):
         r = self.r
         inputs = [r.x[lo:hi], self.acc[lo:hi], r.inv_mass[lo:hi], r.coupling[lo:hi], self.drifts, self.kicks]
         inputs += [r.boundary, r.wp.float64(dt), int(nsteps), int(save_every), *frames, int(record), r.hist]
@@ -996,7 +970,7 @@ class _ThreadRungeKutta(_Plan):
         self.scratch = [wp.zeros(shape, dtype=wp.float64, device=runner.device) for _ in range(3)]
         self.tableau = [wp.vec4d(*m.nodes, m.divisor), wp.vec4d(*m.weights)]
 
-    def step(self, lo, hi, dt, nsteps, save_every, frames, record, layout_batch):
+    def step(self, lo, hi, dt, nsteps, save_every, frames, record):
         r = self.r
         inputs = [r.x[lo:hi], *(a[lo:hi] for a in self.scratch), r.inv_mass[lo:hi], r.coupling[lo:hi]]
         inputs += [*self.tableau, r.boundary, r.wp.float64(dt), int(nsteps), int(save_every), *frames]
@@ -1229,12 +1203,9 @@ class _Runner:
         rec=None,
         record_stiffness: bool = False,
         lattices: tuple | None = None,
-        layout_batch: int | None = None,
     ):
         """Advance every lattice by nsteps; with ``rec`` (device (u, v) frame buffers from ``frames``)
-        also record u and v every ``save_every`` steps into them. Asynchronous on a GPU. ``lattices``:
-        (lo, hi) to advance only those; ``layout_batch``: the lattices running at once, which picks the
-        kernel layout (default: those of the launch).
+        also record u and v every ``save_every`` steps into them. Asynchronous on a GPU.
 
         On the CPU the batch is split into one slice per thread (launched concurrently); a run that
         records the contact stiffness (tangent base) runs as one slice, since its history is shared."""
@@ -1248,7 +1219,7 @@ class _Runner:
                 frames = [self.no_record, self.no_record]
             else:
                 frames = [rec[0][:, lo:hi], rec[1][:, lo:hi]] if (lo, hi) != (0, self.batch) else list(rec)
-            self.plan.step(lo, hi, dt, nsteps, save, frames, bool(record_stiffness), layout_batch or hi - lo)
+            self.plan.step(lo, hi, dt, nsteps, save, frames, bool(record_stiffness))
 
         _in_parallel([lambda lo=lo, hi=hi: task(lo, hi) for lo, hi in slices])
 
@@ -1409,7 +1380,12 @@ def simulate(
         plan.append((first, steps, steps // save_every if save_every else 0))
 
     gpu = device != "cpu"
-    sliced = sliced and bool(plan)  # a large batch: state moved in slices, overlapped with the first and last chunk
+    sliced = sliced and bool(plan)  # a large batch: state moved in slices, overlapped with the kernels
+    # a short sliced run without frames is queued slice after slice, each slice's whole run at once (the device
+    # computes slice s while the host copies slice s + 1 in and slice s - 1 out); a longer one, or one that
+    # records (its frame buffers hold one chunk of the whole batch), chunk after chunk, with the slices' transfers
+    # overlapped with the first and the last chunk
+    slice_major = sliced and not save_every and len(plan) <= 2
     t_runner = time.perf_counter()
     runner = _pooled_runner(meth, params, x0, Mb, Kb, device, layout, upload=not sliced)
     runner.set_damping(damping, dt_used)
@@ -1448,27 +1424,24 @@ def simulate(
         """Queue chunk i on the device: kernel, guard, and the copies of its scalars and frames."""
         _, steps, n_rec = plan[i]
         rec = sink.rec if n_rec else None
-        if sliced:
-            # each slice on its own stream: upload, the start's guard, the kernel, the guard, and the download
+        if sliced and (i == 0 or i == len(plan) - 1):
             for s, lattices in enumerate(transfers.slices):
-                with transfers.on(s):
-                    if i == 0:
-                        transfers.upload(s)
-                        guard.enqueue_init(runner.guard(slot=2, lattices=lattices), lattices)
-                    runner.launch(steps, dt_used, save_every or 0, rec, lattices=lattices, layout_batch=batch)
-                    guard.enqueue(runner.guard(rec, n_rec, i, lattices=lattices), i, lattices)
-                    if i == len(plan) - 1:
-                        transfers.download(s)
-            transfers.join()  # the event below completes once every slice has finished chunk i
+                if i == 0:
+                    transfers.upload(s)
+                    runner.guard(slot=2, lattices=lattices)  # the start: energy, finite, contact
+                runner.launch(steps, dt_used, save_every or 0, rec, lattices=lattices)
+                if i == len(plan) - 1:
+                    transfers.download(s)
+            if i == 0:
+                guard.enqueue_init(runner.guard_out[2])
         else:
             if i == 0:
-                guard.enqueue_init(runner.guard(slot=2))
+                runner.guard(slot=2)
+                guard.enqueue_init(runner.guard_out[2])
             runner.launch(steps, dt_used, save_every or 0, rec)
-            guard.enqueue(runner.guard(rec, n_rec, i), i)
+        guard.enqueue(runner.guard(rec, n_rec, i), i)
         if n_rec:
             sink.enqueue(n_rec, i, 1 + plan[i][0] // save_every)
-            if sliced:
-                transfers.fork()  # the next chunk's kernels write the frame buffers this copy reads
         guard.record(i)
 
     def check(i, E, finite, low):
@@ -1501,21 +1474,40 @@ def simulate(
             )
         contact = low.copy()
 
+    def enqueue_slice_major():
+        """Queue the whole run slice by slice: each slice's upload, the start's guard, every chunk with its
+        guard, and the download (at most two chunks: each has its own guard slot)."""
+        for s, lattices in enumerate(transfers.slices):
+            transfers.upload(s)
+            runner.guard(slot=2, lattices=lattices)
+            for i, (_, steps, _) in enumerate(plan):
+                runner.launch(steps, dt_used, 0, None, lattices=lattices)
+                runner.guard(None, 0, i, lattices=lattices)
+            transfers.download(s)
+        guard.enqueue_init(runner.guard_out[2])
+        for i in range(len(plan)):
+            guard.enqueue(runner.guard_out[i % 2], i)
+            guard.record(i)
+
     saved = 1
     stats = {"chunks": len(plan), "runner": t_runner, "waiting": 0.0, "frames": 0.0, "final": 0.0}
     stats["slices"] = len(transfers.slices) if sliced else 1
+    stats["slice_major"] = slice_major
     if runner.layout == "block" and isinstance(meth, SplittingMethod):
-        stats["sites_per_thread"] = sites_per_thread(batch, params.N, meth.stages, device)
+        lattices = transfers.slices[0][1] if sliced else batch
+        stats["sites_per_thread"] = sites_per_thread(lattices, params.N, meth.stages, device)
     try:
-        if plan:
+        if slice_major:
+            enqueue_slice_major()
+        elif plan:
             enqueue(0)
         stats["setup"] = time.perf_counter() - start
         if gpu and x0.size >= _PREFAULT_MIN_VALUES:
             target = _prefault(x0.shape)
         for i, (first, steps, n_rec) in enumerate(plan):
-            if i + 1 < len(plan):
+            if i + 1 < len(plan) and not slice_major:
                 enqueue(i + 1)  # the device works on the next chunk while the host checks this one
-            if sliced and i == len(plan) - 1:
+            if sliced and i == (0 if slice_major else len(plan) - 1):  # the final state, slice by slice
                 if target is not None:
                     target.join()
                 final = target.result if target is not None else np.empty(x0.shape)
