@@ -242,8 +242,9 @@ def test_sliced_transfers_give_the_same_run(layout, monkeypatch):
 
 @pytest.mark.parametrize("layout", LAYOUTS)
 def test_short_sliced_runs_default_to_two_chunks(layout, monkeypatch):
-    """A short run on a large batch (the GPU's sliced path, forced on the CPU) defaults to two chunks, whose
-    kernels hide the slices' transfers, in one slice per ``_SLICE_LATTICES`` lattices: the same end state
+    """A short run on a large batch (the GPU's sliced path, forced on the CPU) defaults to two chunks, queued
+    slice after slice (each slice's whole run while the next is copied in), in one slice per
+    ``_SLICE_LATTICES`` lattices: the same end state
     as a run in more chunks over the whole batch; a blow-up is still reported at a chunk end with its
     lattice; explicit chunks, progress bars and long runs keep their chunk counts."""
     from warpchain import ensemble
@@ -257,8 +258,9 @@ def test_short_sliced_runs_default_to_two_chunks(layout, monkeypatch):
     monkeypatch.setattr(ensemble, "_SLICED_MIN_VALUES", 1)
     monkeypatch.setattr(ensemble, "_SLICE_LATTICES", 2)
     monkeypatch.setattr(ensemble, "_CHUNK_WORK", 1)  # the work alone would ask for 10 chunks
+    monkeypatch.setattr(ensemble, "_PREFAULT_MIN_VALUES", 1)  # the result touched slice by slice as queued
     run = simulate(p, x0, 60 * 0.02, 0.02, **kwargs)
-    assert (run.stats["chunks"], run.stats["slices"]) == (2, 3)
+    assert (run.stats["chunks"], run.stats["slices"], run.stats["slice_major"]) == (2, 3, True)
     assert np.array_equal(run.x, plain.x) and np.array_equal(run.energy_t, [0.0, 0.6, 1.2])
     assert np.array_equal(run.energy_trace[[0, -1]], plain.energy_trace[[0, -1]])
     assert simulate(p, x0, 60 * 0.02, 0.02, chunks=4, **kwargs).stats["chunks"] == 4
@@ -458,3 +460,42 @@ def test_tangent_columns_per_block_policy():
         from warpchain import block_kernels
 
         block_kernels.block_kernels(64).splitting_tangent(1, columns=3)
+
+
+@pytest.mark.parametrize("method", ["verlet", "rk4"])
+def test_kept_launch_commands_match_plain_launches(method, monkeypatch):
+    """Launch commands kept per argument values (``_Runner.launch_kernel``: always on a GPU, forced here on
+    the CPU) give the plain launches' bits; a changed argument (dt, steps, lattices, a slot) makes a new
+    command, a repeated one reuses its command, and at most ``_COMMANDS_PER_RUNNER`` are kept."""
+    from warpchain import ensemble
+
+    p = ChainParams(30.0, 160.0, 41)
+    x0 = localized_state(p.N, amplitude=0.8, batch=5, seed=3)
+    M, K = np.full(5, 30.0), np.array([160.0, 40.0, 100.0, 160.0, 80.0])
+    kwargs = dict(method=method, device="cpu", chunks=3, M=M, K=K, layout="block", save_every=5)
+    plain = [simulate(p, x0, 30 * dt, dt, **kwargs) for dt in (0.02, 0.03)]
+    monkeypatch.setattr(ensemble, "_COMMANDS_ON_CPU", True)
+    kept = [simulate(p, x0, 30 * dt, dt, **kwargs) for dt in (0.02, 0.03)]
+    for a, b in zip(plain, kept):
+        assert np.array_equal(a.x, b.x) and np.array_equal(a.u, b.u) and np.array_equal(a.min_contact, b.min_contact)
+        assert np.array_equal(a.energy_trace, b.energy_trace)
+
+    def sequence(runner):
+        runner.launch(10, 0.02)
+        runner.launch(10, 0.02)
+        runner.launch(10, 0.03, lattices=(1, 3))
+        runner.guard(slot=1)
+        runner.launch(7, 0.02)
+        return runner.x.numpy().copy(), runner.guard_out[1].numpy().copy()
+
+    make = lambda: _Runner(get_method(method), p, x0, M, K, "cpu", layout="block")  # noqa: E731
+    monkeypatch.setattr(ensemble, "_COMMANDS_ON_CPU", False)
+    expected = sequence(make())
+    monkeypatch.setattr(ensemble, "_COMMANDS_ON_CPU", True)
+    runner = make()
+    got = sequence(runner)
+    assert np.array_equal(got[0], expected[0]) and np.array_equal(got[1], expected[1])
+    assert len(runner._commands) == 4  # (10, 0.02) once for two launches, (10, 0.03) on 1..3, the guard, (7, 0.02)
+    monkeypatch.setattr(ensemble, "_COMMANDS_PER_RUNNER", 2)
+    runner.launch(11, 0.02)
+    assert len(runner._commands) == 2

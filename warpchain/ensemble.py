@@ -880,7 +880,7 @@ class _BlockSplitting(_Plan):
                 stages, record=record, save=save_every > 0, damped=damped
             )
             dim = (-(-(hi - lo) // 2), 2 * r.block)
-            r.wp.launch(kernel, dim=dim, block_dim=2 * r.block, device=r.device, inputs=inputs)
+            r.launch_kernel(kernel, dim, inputs, 2 * r.block)
             return
         sites = sites_per_thread(hi - lo, r.N, stages, r.device)
         if site_group_launch(sites, stages, r.device):
@@ -888,13 +888,13 @@ class _BlockSplitting(_Plan):
             minb = _GROUP_MIN_BLOCKS.get(sites, 0)
             group = block_kernels.site_group_kernels(threads, sites, r.boundary, minb, **_GROUP_OPTIONS)
             kernel = group.splitting(stages, record=record, save=save_every > 0, damped=damped)
-            r.wp.launch(kernel, dim=(hi - lo, threads), block_dim=threads, device=r.device, inputs=inputs)
+            r.launch_kernel(kernel, (hi - lo, threads), inputs, threads)
             return
         kernels = r.bk
         if record and hi - lo <= _RECORD_UNCAPPED_MAX_BATCH and _RECORD_PER_STEP:
             kernels = block_kernels.block_kernels(r.block, 0)  # the step's history in registers: no cap
         kernel = kernels.splitting(stages, record=record, save=save_every > 0, damped=damped, per_step=_RECORD_PER_STEP)
-        r.wp.launch(kernel, dim=(hi - lo, r.block), block_dim=r.block, device=r.device, inputs=inputs)
+        r.launch_kernel(kernel, (hi - lo, r.block), inputs, r.block)
 
     def tangent(self, dx, column_base, lo, hi, dt, nsteps):
         r = self.r
@@ -926,7 +926,7 @@ class _BlockRungeKutta(_Plan):
         r = self.r
         inputs = [r.x[lo:hi], r.inv_mass[lo:hi], r.coupling[lo:hi], *self.tableau, r.boundary, r.wp.float64(dt)]
         inputs += [int(nsteps), int(save_every), *frames, int(record), r.hist]
-        r.wp.launch(r.bk.rk4, dim=(hi - lo, r.block), block_dim=r.block, device=r.device, inputs=inputs)
+        r.launch_kernel(r.bk.rk4, (hi - lo, r.block), inputs, r.block)
 
     def tangent(self, dx, column_base, lo, hi, dt, nsteps):
         r = self.r
@@ -950,7 +950,7 @@ class _ThreadSplitting(_Plan):
         inputs = [r.x[lo:hi], self.acc[lo:hi], r.inv_mass[lo:hi], r.coupling[lo:hi], self.drifts, self.kicks]
         inputs += [r.boundary, r.wp.float64(dt), int(nsteps), int(save_every), *frames, int(record), r.hist]
         inputs += r.losses(lo, hi)
-        r.wp.launch(r.k.splitting_kernel, dim=hi - lo, device=r.device, inputs=inputs)
+        r.launch_kernel(r.k.splitting_kernel, hi - lo, inputs)
 
     def tangent(self, dx, column_base, lo, hi, dt, nsteps):
         r, wp = self.r, self.r.wp
@@ -975,7 +975,7 @@ class _ThreadRungeKutta(_Plan):
         inputs = [r.x[lo:hi], *(a[lo:hi] for a in self.scratch), r.inv_mass[lo:hi], r.coupling[lo:hi]]
         inputs += [*self.tableau, r.boundary, r.wp.float64(dt), int(nsteps), int(save_every), *frames]
         inputs += [int(record), r.hist]
-        r.wp.launch(r.k.rk4_kernel, dim=hi - lo, device=r.device, inputs=inputs)
+        r.launch_kernel(r.k.rk4_kernel, hi - lo, inputs)
 
     def tangent(self, dx, column_base, lo, hi, dt, nsteps):
         r, wp = self.r, self.r.wp
@@ -1228,7 +1228,6 @@ class _Runner:
         over the chunk ends and the first ``n_rec`` frames of ``rec``). Returns the device array
         (batch, 3) of slot ``slot`` (0 and 1 alternate between chunks, 2 holds the start); only it, not
         the state, needs to reach the host. ``lattices``: (lo, hi) to guard only those."""
-        wp = self.wp
         lo, hi = lattices if lattices is not None else (0, self.batch)
         ru, rv = (rec[0][:, lo:hi], rec[1][:, lo:hi]) if rec is not None and n_rec else (self.no_record,) * 2
         out = self.guard_out[slot if slot == 2 else slot % 2]
@@ -1236,10 +1235,33 @@ class _Runner:
         inputs += [self.contact[lo:hi], out[lo:hi]]
         if self.layout == "block":
             dim = (hi - lo, self.block)
-            wp.launch(self.bk.guard, dim=dim, block_dim=self.block, device=self.device, inputs=inputs)
+            self.launch_kernel(self.bk.guard, dim, inputs, self.block)
         else:
-            wp.launch(self.k.guard_kernel, dim=hi - lo, device=self.device, inputs=inputs)
+            self.launch_kernel(self.k.guard_kernel, hi - lo, inputs)
         return out
+
+    def launch_kernel(self, kernel, dim, inputs: list, block_dim: int | None = None) -> None:
+        """``wp.launch`` of ``kernel`` on this runner's device, on a GPU through a launch command kept under
+        (kernel, dim, block_dim, the arguments' values: each array's pointer, shape and strides): a launch
+        repeated with the same arguments (every call of an ensemble study on a pooled runner, every slice of a
+        sliced call) skips Warp's argument packing, 0.1-0.2 ms per launch on the H200 host, which bounded a
+        sliced ``simulate`` (``benchmarks/simulate_timeline.py``). At most ``_COMMANDS_PER_RUNNER`` are kept,
+        the oldest dropped. On the CPU (``_COMMANDS_ON_CPU`` unset) a plain launch."""
+        wp = self.wp
+        key = _launch_key(wp, kernel, dim, block_dim, inputs) if self.device != "cpu" or _COMMANDS_ON_CPU else None
+        if key is None:
+            wp.launch(kernel, dim=dim, block_dim=block_dim, device=self.device, inputs=inputs)
+            return
+        commands = self.__dict__.setdefault("_commands", {})
+        command = commands.pop(key, None)  # re-inserted below: the dict keeps the most recent last
+        if command is None:
+            command = wp.launch(
+                kernel, dim=dim, block_dim=block_dim, device=self.device, inputs=inputs, record_cmd=True
+            )
+            while len(commands) >= _COMMANDS_PER_RUNNER:
+                del commands[next(iter(commands))]
+        commands[key] = command
+        command.launch()
 
     def launch_tangent(self, dx, column_base, nsteps: int, dt: float):
         """Propagate tangent columns (device array (ncols, 4, N)) along the recorded history; on the
@@ -1265,6 +1287,30 @@ class _Runner:
         pinned = self.device != "cpu"
         make = lambda: self.wp.empty(size, dtype=self.wp.float64, device="cpu", pinned=pinned)  # noqa: E731
         return held(self, ("host", name, int(size)), make)
+
+
+#: launch commands a runner keeps (``_Runner.launch_kernel``): a sliced call uses about five per slice
+_COMMANDS_PER_RUNNER = 256
+_COMMANDS_ON_CPU = False  # tests set it to run the kept commands on the CPU
+
+
+def _launch_key(wp, kernel, dim, block_dim, inputs) -> tuple | None:
+    """What a launch command's parameters are made of: the kernel, the launch shape and each argument's value
+    (an array's pointer, shape and strides: two arrays alike in these pass the same parameters); None when an
+    argument has no such value (the launch is then not kept)."""
+    key = [kernel, dim if isinstance(dim, int) else tuple(dim), block_dim]
+    for arg in inputs:
+        if isinstance(arg, wp.array):
+            key.append((arg.ptr, arg.shape, arg.strides, arg.dtype))
+        elif isinstance(arg, (bool, int, float)):
+            key.append((type(arg), arg))
+        elif hasattr(arg, "value"):  # a Warp scalar (wp.float64(dt))
+            key.append((type(arg), arg.value))
+        elif hasattr(arg, "_length_"):  # a Warp vector (coefficients, tableau)
+            key.append((type(arg), bytes(arg)))  # its values' bytes
+        else:
+            return None
+    return tuple(key)
 
 
 # ----------------------------------------------------------------------------- public API
@@ -1484,6 +1530,10 @@ def simulate(
                 runner.launch(steps, dt_used, 0, None, lattices=lattices)
                 runner.guard(None, 0, i, lattices=lattices)
             transfers.download(s)
+            if prefill is not None:
+                # touch this slice's share of the result's fresh pages while the device computes: all of it
+                # at once after the uploads held up the takes (7 ms at 32768 lattices, simulate_timeline.py)
+                _fill_zero(prefill[lattices[0] : lattices[1]])
         guard.enqueue_init(runner.guard_out[2])
         for i in range(len(plan)):
             guard.enqueue(runner.guard_out[i % 2], i)
@@ -1496,6 +1546,11 @@ def simulate(
     if runner.layout == "block" and isinstance(meth, SplittingMethod):
         lattices = transfers.slices[0][1] if sliced else batch
         stats["sites_per_thread"] = sites_per_thread(lattices, params.N, meth.stages, device)
+    # a slice-major run touches the final state's host array slice by slice as it queues them (on the CPU only
+    # when the tests run the sliced path there)
+    prefill = None
+    if slice_major and (gpu or _SLICE_ON_CPU) and x0.size >= _PREFAULT_MIN_VALUES:
+        prefill = np.empty(x0.shape)
     try:
         if slice_major:
             enqueue_slice_major()
@@ -1503,14 +1558,14 @@ def simulate(
             enqueue(0)
         stats["setup"] = time.perf_counter() - start
         if gpu and x0.size >= _PREFAULT_MIN_VALUES:
-            target = _prefault(x0.shape)
+            target = _prefault(x0.shape) if prefill is None else None
         for i, (first, steps, n_rec) in enumerate(plan):
             if i + 1 < len(plan) and not slice_major:
                 enqueue(i + 1)  # the device works on the next chunk while the host checks this one
             if sliced and i == (0 if slice_major else len(plan) - 1):  # the final state, slice by slice
                 if target is not None:
                     target.join()
-                final = target.result if target is not None else np.empty(x0.shape)
+                final = target.result if target is not None else prefill if prefill is not None else np.empty(x0.shape)
                 t0 = time.perf_counter()
                 for s_ in range(len(transfers.slices)):
                     transfers.take(s_, final)  # while the device finishes the later slices
