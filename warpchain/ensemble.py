@@ -1426,12 +1426,7 @@ def simulate(
         plan.append((first, steps, steps // save_every if save_every else 0))
 
     gpu = device != "cpu"
-    sliced = sliced and bool(plan)  # a large batch: state moved in slices, overlapped with the kernels
-    # a short sliced run without frames is queued slice after slice, each slice's whole run at once (the device
-    # computes slice s while the host copies slice s + 1 in and slice s - 1 out); a longer one, or one that
-    # records (its frame buffers hold one chunk of the whole batch), chunk after chunk, with the slices' transfers
-    # overlapped with the first and the last chunk
-    slice_major = sliced and not save_every and len(plan) <= 2
+    sliced = sliced and bool(plan)  # a large batch: state moved in slices, overlapped with the first and last chunk
     t_runner = time.perf_counter()
     runner = _pooled_runner(meth, params, x0, Mb, Kb, device, layout, upload=not sliced)
     runner.set_damping(damping, dt_used)
@@ -1520,52 +1515,25 @@ def simulate(
             )
         contact = low.copy()
 
-    def enqueue_slice_major():
-        """Queue the whole run slice by slice: each slice's upload, the start's guard, every chunk with its
-        guard, and the download (at most two chunks: each has its own guard slot)."""
-        for s, lattices in enumerate(transfers.slices):
-            transfers.upload(s)
-            runner.guard(slot=2, lattices=lattices)
-            for i, (_, steps, _) in enumerate(plan):
-                runner.launch(steps, dt_used, 0, None, lattices=lattices)
-                runner.guard(None, 0, i, lattices=lattices)
-            transfers.download(s)
-            if prefill is not None:
-                # touch this slice's share of the result's fresh pages while the device computes: all of it
-                # at once after the uploads held up the takes (7 ms at 32768 lattices, simulate_timeline.py)
-                _fill_zero(prefill[lattices[0] : lattices[1]])
-        guard.enqueue_init(runner.guard_out[2])
-        for i in range(len(plan)):
-            guard.enqueue(runner.guard_out[i % 2], i)
-            guard.record(i)
-
     saved = 1
     stats = {"chunks": len(plan), "runner": t_runner, "waiting": 0.0, "frames": 0.0, "final": 0.0}
     stats["slices"] = len(transfers.slices) if sliced else 1
-    stats["slice_major"] = slice_major
     if runner.layout == "block" and isinstance(meth, SplittingMethod):
         lattices = transfers.slices[0][1] if sliced else batch
         stats["sites_per_thread"] = sites_per_thread(lattices, params.N, meth.stages, device)
-    # a slice-major run touches the final state's host array slice by slice as it queues them (on the CPU only
-    # when the tests run the sliced path there)
-    prefill = None
-    if slice_major and (gpu or _SLICE_ON_CPU) and x0.size >= _PREFAULT_MIN_VALUES:
-        prefill = np.empty(x0.shape)
     try:
-        if slice_major:
-            enqueue_slice_major()
-        elif plan:
+        if plan:
             enqueue(0)
         stats["setup"] = time.perf_counter() - start
         if gpu and x0.size >= _PREFAULT_MIN_VALUES:
-            target = _prefault(x0.shape) if prefill is None else None
+            target = _prefault(x0.shape)
         for i, (first, steps, n_rec) in enumerate(plan):
-            if i + 1 < len(plan) and not slice_major:
+            if i + 1 < len(plan):
                 enqueue(i + 1)  # the device works on the next chunk while the host checks this one
-            if sliced and i == (0 if slice_major else len(plan) - 1):  # the final state, slice by slice
+            if sliced and i == len(plan) - 1:
                 if target is not None:
                     target.join()
-                final = target.result if target is not None else prefill if prefill is not None else np.empty(x0.shape)
+                final = target.result if target is not None else np.empty(x0.shape)
                 t0 = time.perf_counter()
                 for s_ in range(len(transfers.slices)):
                     transfers.take(s_, final)  # while the device finishes the later slices
