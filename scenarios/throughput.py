@@ -16,7 +16,8 @@ Three parts:
 * **simulate**: ``simulate()`` end to end as users call it (validation, upload, chunks, the guard,
   the final state back on the host), with default arguments and recording a frame every
   ``record_every`` steps, beside the kernel's own rate on the same batch (``time_steps``), all Verlet
-  over ``simulate_steps`` steps; recording also as GB/s of frames reaching host memory.
+  over ``simulate_steps`` steps; recording also as GB/s of frames reaching host memory. Measured first,
+  before the baselines load JAX and CuPy into the process (which slow ``simulate()`` on small batches).
 
 Timings are kernel time (device synchronised before and after, transfers excluded; best of 3), with
 the step count sized so that a measurement takes about ``seconds`` s.
@@ -434,9 +435,11 @@ def run(ctx: Context) -> dict:
     one = np.zeros((4, params.N))
     one[:2] = 0.3 * shape / np.max(np.abs(shape))
     gpu = ctx.device.startswith("cuda")
+    # simulate() first, as users call it: in a process that has not loaded JAX and CuPy (the baselines). With
+    # both loaded, simulate() at 805 lattices took 4.6 ms against 2.5 ms (benchmarks/h200-2026-11-22l/preload.txt)
+    end_to_end = _simulate_end_to_end(ctx, P, params, one, gpu)
     batches, results = _ensemble(ctx, P, params, one, gpu)
     ratios = _ratios(batches, results, gpu)
-    end_to_end = _simulate_end_to_end(ctx, P, params, one, gpu)
     # the monodromy part needs the paper breather (Newton, ~10 s on a CPU): skipped by --quick
     monodromy = _monodromy(ctx, P.monodromy_repeats) if P.monodromy else None
     props = _kernel_properties(ctx, params) if gpu else []
