@@ -460,6 +460,20 @@ def run(ctx: Context) -> dict:
         dim="result",
         attrs={"implementation_names": impls, "method_names": methods},
     )
+    if end_to_end:
+        names = ("kernel", "default", "recording", "recording_reused", "recording_pinned")
+        write_table(
+            root,
+            "simulate",
+            {"batch": [r["batch"] for r in end_to_end]}
+            | {f"{n}_rate": [r[f"{n}_rate"] for r in end_to_end] for n in names},
+            dim="row",
+            attrs={
+                "units": "site-steps per second (velocity Verlet)",
+                "record_every": P.record_every,
+                "steps": int(P.simulate_steps),
+            },
+        )
     prov = provenance(ctx.device)
     return {
         "device": device_description(ctx.device),
@@ -487,13 +501,15 @@ def plot(out) -> None:
     s = read_summary(out)
     d, attrs = read_group(out / "data.zarr", "results")
     plt = pyplot()
-    fig, (ax, bx) = plt.subplots(1, 2, figsize=(13, 5))
+    fig, (ax, bx, cx) = plt.subplots(1, 3, figsize=(19, 5))
     styles = {"warp-block": "o-", "warp-thread": "o:", "numpy": "s--", "jax": "^-", "cupy": "D-"}
+    labels = {"cupy": "hand CUDA (CuPy)"}
     verlet = attrs["method_names"].index("verlet")
     for i, impl in enumerate(attrs["implementation_names"]):
         m = (d["implementation"] == i) & (d["method"] == verlet)
         if m.any():
-            ax.loglog(d["batch"][m], d["site_steps_per_second"][m], styles.get(impl, "x-"), ms=4, label=impl)
+            rate = d["site_steps_per_second"][m]
+            ax.loglog(d["batch"][m], rate, styles.get(impl, "x-"), ms=4, label=labels.get(impl, impl))
     ax.set_xlabel("lattices in the batch")
     ax.set_ylabel("site-steps per second (velocity Verlet)")
     ax.set_title(f"ensemble throughput, N = {s['N']}, float64\n{s['device']}", fontsize=9)
@@ -514,4 +530,30 @@ def plot(out) -> None:
         )
     bx.set_title(title, fontsize=9)
     bx.legend(fontsize=8)
+    _plot_simulate(cx, out, s)
     save_figure(fig, out, "throughput")
+
+
+def _plot_simulate(cx, out, summary) -> None:
+    """simulate() end to end against the kernel's own rate, per batch (from the store's simulate table)."""
+    if not (summary.get("simulate") or {}).get("rows"):
+        cx.set_axis_off()
+        cx.set_title("simulate(): not measured in this run", fontsize=9)
+        return
+    d, attrs = read_group(out / "data.zarr", "simulate")  # raises on a damaged store
+    every = attrs["record_every"]
+    curves = (
+        ("kernel_rate", "o-", "kernel alone (time_steps)"),
+        ("default_rate", "s-", "simulate(), default"),
+        ("recording_pinned_rate", "^--", f"save_every={every} into frame_buffers"),
+        ("recording_rate", "v:", f"save_every={every}, new arrays"),
+    )
+    for key, style, label in curves:
+        cx.loglog(d["batch"], d[key], style, ms=5, label=label)
+    for b, k, r in zip(d["batch"], d["kernel_rate"], d["default_rate"]):
+        cx.annotate(f"{r / k:.2f}x", (b, r), textcoords="offset points", xytext=(4, -12), fontsize=8)
+    cx.set_xlabel("lattices in the batch")
+    cx.set_ylabel("site-steps per second, end to end")
+    title = f"simulate() as users call it ({attrs['steps']} Verlet steps) against its kernel;"
+    cx.set_title(title + "\nlabels: simulate() default / kernel", fontsize=9)
+    cx.legend(fontsize=8)
