@@ -6,8 +6,7 @@ call; ``stats`` of the best call (ms); each variant's end state against the firs
 
 Variants: ``whole``: no slices, the default chunk count (from the work, at most 10); ``whole, 2 chunks``;
 ``S slices``: S slices, two chunks; ``S slices, 1 chunk`` (``--one-chunk S``); ``S slices, no prefault``
-(``--no-prefault S``): the final state's host array not touched in advance; ``auto``: what ``simulate`` does;
-``auto, early prefault on T threads`` (``--early-prefault T``).
+(``--no-prefault S``): the final state's host array not touched in advance; ``auto``: what ``simulate`` does.
 
 Command (GPU): ``python benchmarks/simulate_slices.py [--batch 805 8192 32768] [--slices 2 4 8 16]
 [--one-chunk 4 8] [--no-prefault 8]``
@@ -36,7 +35,6 @@ def main():
     ap.add_argument("--device", default="cuda")
     ap.add_argument("--one-chunk", type=int, nargs="*", default=[], help="also: these slice counts in one chunk")
     ap.add_argument("--no-prefault", type=int, nargs="*", default=[], help="also: these slice counts, no prefault")
-    ap.add_argument("--early-prefault", type=int, nargs="*", default=[], help="also: auto, prefault early on T threads")
     ap.add_argument("--copy-slice", type=int, nargs="*", default=[], help="also: auto, values per copy thread")
     args = ap.parse_args()
     p = ChainParams(30.0, 160.0, 201)
@@ -50,9 +48,8 @@ def main():
     variants += [(f"{s} slices, 1 chunk", 1, s, 1) for s in args.one_chunk]
     variants += [(f"{s} slices, no prefault", 1, s, None, None, False) for s in args.no_prefault]
     variants += [("auto", *defaults, None)]
-    variants += [(f"auto, early prefault on {t} threads", *defaults, None, None, True, t) for t in args.early_prefault]
     variants += [(f"auto, copy {c}", *defaults, None, c) for c in args.copy_slice]
-    copy_slice, prefault, early = ensemble._COPY_SLICE, ensemble._PREFAULT_MIN_VALUES, ensemble._PREFAULT_EARLY_THREADS
+    copy_slice, prefault = ensemble._COPY_SLICE, ensemble._PREFAULT_MIN_VALUES
     print(f"# {args.steps} Verlet steps, N = {p.N}; best of {args.repeats}; ratio = kernel / simulate()", flush=True)
     for batch in args.batch:
         x0 = np.repeat(one[None], batch, 0)
@@ -63,7 +60,6 @@ def main():
             ensemble._SLICED_MIN_VALUES, ensemble._SLICES = min_values, slices
             ensemble._COPY_SLICE = copy[0] if copy and copy[0] else copy_slice
             ensemble._PREFAULT_MIN_VALUES = prefault if len(copy) < 2 or copy[1] else 1 << 62
-            ensemble._PREFAULT_EARLY_THREADS = copy[2] if len(copy) > 2 else early
             simulate(p, x0, args.steps * dt, dt, device=args.device, chunks=chunks)
             walls, stats = [], []
             for _ in range(args.repeats):
@@ -82,7 +78,6 @@ def main():
             )
         ensemble._SLICED_MIN_VALUES, ensemble._SLICES = defaults
         ensemble._COPY_SLICE, ensemble._PREFAULT_MIN_VALUES = copy_slice, prefault
-        ensemble._PREFAULT_EARLY_THREADS = early
 
 
 if __name__ == "__main__":

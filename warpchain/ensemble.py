@@ -320,9 +320,6 @@ _MAX_SLICES = 8
 _SHORT_RUN_EVALUATIONS = 1 << 15
 _SHORT_RUN_CHUNKS = 2
 _SLICE_ON_CPU = False  # tests set it to run the sliced path on the CPU
-#: a sliced run on a GPU starts touching the final state's host array before the first upload, on this many
-#: threads of its own (0: after the first chunk is queued, on the copy pool)
-_PREFAULT_EARLY_THREADS = 0
 #: from this many lattices a launch of a method with few stages would take two lattices per thread block
 #: (None: never). Off: on the H200 it made the Verlet kernel slower, 3.27e11 against 3.56e11 site-steps/s
 #: at 4096 lattices and 3.41e11 against 3.76e11 at 32768 (benchmarks/h200-2026-11-22b/two-per-block/),
@@ -456,24 +453,13 @@ def _release_runner(runner: "_Runner") -> None:
                 del _RUNNER_POOL[oldest]
 
 
-def _prefault(shape, threads: int = 0) -> "threading.Thread":
+def _prefault(shape) -> "threading.Thread":
     """Start filling a new host array of this shape on background threads (the page faults of fresh
-    memory, ~3 GB/s on one thread, happen while the GPU computes); ``.result`` holds it after join().
-    ``threads``: that many threads of its own instead of the host copy pool's (so that it runs beside the
-    pool's copies instead of queued among them)."""
+    memory, ~3 GB/s on one thread, happen while the GPU computes); ``.result`` holds it after join()."""
 
     def work():
         out = np.empty(shape)
-        if threads:
-            flat = out.reshape(-1)
-            bounds = np.linspace(0, flat.size, threads + 1).astype(int)
-            fills = [threading.Thread(target=flat[a:b].fill, args=(0.0,)) for a, b in zip(bounds[:-1], bounds[1:])]
-            for t in fills:
-                t.start()
-            for t in fills:
-                t.join()
-        else:
-            _fill_zero(out)
+        _fill_zero(out)
         holder.result = out
 
     holder = threading.Thread(target=work, daemon=True)
@@ -1536,12 +1522,10 @@ def simulate(
         lattices = transfers.slices[0][1] if sliced else batch
         stats["sites_per_thread"] = sites_per_thread(lattices, params.N, meth.stages, device)
     try:
-        if sliced and gpu and x0.size >= _PREFAULT_MIN_VALUES and _PREFAULT_EARLY_THREADS:
-            target = _prefault(x0.shape, _PREFAULT_EARLY_THREADS)
         if plan:
             enqueue(0)
         stats["setup"] = time.perf_counter() - start
-        if gpu and x0.size >= _PREFAULT_MIN_VALUES and target is None:
+        if gpu and x0.size >= _PREFAULT_MIN_VALUES:
             target = _prefault(x0.shape)
         for i, (first, steps, n_rec) in enumerate(plan):
             if i + 1 < len(plan):
