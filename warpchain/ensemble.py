@@ -1244,8 +1244,8 @@ class _Runner:
         """``wp.launch`` of ``kernel`` on this runner's device, on a GPU through a launch command kept under
         (kernel, dim, block_dim, the arguments' values: each array's pointer, shape and strides): a launch
         repeated with the same arguments (every call of an ensemble study on a pooled runner, every slice of a
-        sliced call) skips Warp's argument packing, 0.1-0.2 ms per launch on the H200 host, which bounded a
-        sliced ``simulate`` (``benchmarks/simulate_timeline.py``). At most ``_COMMANDS_PER_RUNNER`` are kept,
+        sliced call) skips Warp's argument packing: 0.1-0.35 ms per launch on the H200 host before, 0.05-0.11 ms
+        after (``benchmarks/h200-2026-11-22l/timeline-*.txt``). At most ``_COMMANDS_PER_RUNNER`` are kept,
         the oldest dropped. On the CPU (``_COMMANDS_ON_CPU`` unset) a plain launch."""
         wp = self.wp
         key = _launch_key(wp, kernel, dim, block_dim, inputs) if self.device != "cpu" or _COMMANDS_ON_CPU else None
