@@ -667,10 +667,8 @@ class _SlicedTransfers:
         if self.gpu:
             # uploads and downloads on streams of their own: slice s + 1's upload never waits behind slice s's
             # download, which waits for slice s's kernels
-            streams = getattr(runner, "_transfer_streams", None)
-            if streams is None:
-                streams = runner._transfer_streams = (wp.Stream(runner.device), wp.Stream(runner.device))
-            self.up_stream, self.down_stream = streams
+            make = lambda: (wp.Stream(runner.device), wp.Stream(runner.device))  # noqa: E731
+            self.up_stream, self.down_stream = held(runner, "transfer streams", make)  # kept with the runner
             self.main = wp.get_stream(runner.device)
 
     def _range(self, s: int):
