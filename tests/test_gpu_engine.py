@@ -497,3 +497,78 @@ def test_kept_launch_commands_match_plain_launches(method, monkeypatch):
     monkeypatch.setattr(ensemble, "_COMMANDS_PER_RUNNER", 2)
     runner.launch(11, 0.02)
     assert len(runner._commands) == 2
+
+
+@pytest.mark.parametrize("sliced", [False, True])
+def test_lent_page_locked_results_give_the_same_run(sliced, monkeypatch):
+    """On a GPU ``simulate`` returns its final state and frames in page-locked memory lent by ``leases``
+    (the device copies into them; emulated here with plain Warp host buffers): the same bits as plain
+    arrays, a lent result passed back as x0 is read straight from where it is, and a loop reuses two
+    buffers per array instead of making new ones."""
+    import gc
+
+    from warpchain import ensemble, leases
+
+    leases.clear()
+    p = ChainParams(30.0, 160.0, 41)
+    x0 = localized_state(p.N, amplitude=0.8, batch=6, seed=5)
+    kwargs = dict(method="verlet", device="cpu", chunks=3)
+    if sliced:
+        monkeypatch.setattr(ensemble, "_SLICE_ON_CPU", True)
+        monkeypatch.setattr(ensemble, "_SLICED_MIN_VALUES", 1)
+        monkeypatch.setattr(ensemble, "_SLICES", 3)
+    plain = simulate(p, x0, 60 * 0.02, 0.02, save_every=10, **kwargs)
+    plain_next = simulate(p, np.array(plain.x), 60 * 0.02, 0.02, **kwargs)
+    monkeypatch.setattr(ensemble, "_LEASE_ON_CPU", True)
+    held = []
+    for k in range(4):
+        run = simulate(p, x0, 60 * 0.02, 0.02, save_every=10, **kwargs)
+        lent = [leases.pinned_buffer(a) is not None for a in (run.x, run.u, run.v)]
+        assert lent == [k > 0] * 3  # a size is lent from its second request on
+        assert np.array_equal(run.x, plain.x) and np.array_equal(run.u, plain.u) and np.array_equal(run.v, plain.v)
+        assert run.x.flags.writeable and run.x.flags.c_contiguous
+        held.append(leases.held_bytes("cpu"))
+    assert held[2] == held[3] > 0  # the result alive during the next call and that call's own: then reuse
+    nxt = simulate(p, run.x, 60 * 0.02, 0.02, **kwargs)  # x0 read from the lent buffer
+    assert np.array_equal(nxt.x, plain_next.x)
+    del run, nxt
+    gc.collect()
+    monkeypatch.setattr(ensemble, "_LEASE_RESULTS", False)
+    assert leases.pinned_buffer(simulate(p, x0, 60 * 0.02, 0.02, **kwargs).x) is None
+    leases.clear()
+
+
+def test_lease_pool_rules(monkeypatch):
+    """``leases.lend``: plain arrays on a size's first request, lent ones later; a dropped array's buffer
+    is lent again; the pool's pinned bytes stay under its limit (free buffers released first, then plain
+    arrays); a request for several arrays is all or none."""
+    import gc
+
+    import warp as wp
+
+    from warpchain import leases
+
+    leases.clear()
+    monkeypatch.setattr(leases, "LIMIT_BYTES", 7000)
+    assert leases.lend(wp, "cpu", (10, 10)) is None
+    (a,) = leases.lend(wp, "cpu", (10, 10))
+    assert a.shape == (10, 10) and a.dtype == np.float64 and leases.held_bytes("cpu") == 800
+    view = a[2:]
+    del a
+    gc.collect()
+    assert leases.lend(wp, "cpu", (10, 10)) is not None  # the view keeps the first buffer: a second one
+    assert leases.held_bytes("cpu") == 1600
+    del view
+    gc.collect()
+    (b,) = leases.lend(wp, "cpu", (10, 10))
+    assert leases.held_bytes("cpu") == 1600  # a returned buffer lent again: no new one
+    assert leases.lend(wp, "cpu", (40, 40)) is None  # first request of this size
+    assert leases.lend(wp, "cpu", (40, 40)) is None  # 12800 bytes: more than the limit
+    del b
+    gc.collect()
+    big = leases.lend(wp, "cpu", (20, 20), count=2)
+    assert big is None  # first request
+    big = leases.lend(wp, "cpu", (20, 20), count=2)
+    assert big is not None and not np.shares_memory(big[0], big[1])
+    assert leases.held_bytes("cpu") == 6400  # both free 100-value buffers released to make room
+    leases.clear()

@@ -19,6 +19,7 @@ from typing import Callable
 
 import numpy as np
 
+from . import leases
 from .integrators import Method, RungeKuttaMethod, SplittingMethod, get_method, steps_for
 from .losses import KICK_ENTRIES, Damping, as_damping, kick_matrices, lossless, require_splitting
 from .model import (
@@ -77,7 +78,11 @@ class SimulationResult:
             pool and loaded with the batch and its parameters), ``waiting`` (the host blocked on the device's
             chunks), ``frames`` (recorded frames copied into ``u`` and ``v``), ``final`` (the final
             state copied into ``x``), and ``chunks``, ``slices`` (lattice slices the state moved in),
-            ``sites_per_thread`` (block layout).
+            ``sites_per_thread`` (block layout), ``lent`` (``x`` is page-locked memory lent by ``leases``).
+
+    On a GPU, ``x`` (and ``u``, ``v`` without ``frames_out``) are, from the second call of a size on, ordinary
+    numpy arrays in page-locked host memory that the device copied into directly (``warpchain.leases``): they
+    go back to a pool when dropped, and a run continued from ``x`` is uploaded straight from it.
     """
 
     x: np.ndarray
@@ -320,6 +325,11 @@ _MAX_SLICES = 8
 _SHORT_RUN_EVALUATIONS = 1 << 15
 _SHORT_RUN_CHUNKS = 2
 _SLICE_ON_CPU = False  # tests set it to run the sliced path on the CPU
+#: on a GPU ``simulate`` returns its final state (and, without ``frames_out``, its recorded frames) in
+#: page-locked host memory lent by ``leases``, which the device copies into directly: no page touching and no
+#: host copy per call (False: plain arrays, as before; benchmarks compare the two)
+_LEASE_RESULTS = True
+_LEASE_ON_CPU = False  # tests set it to lend (plain Warp host) buffers on the CPU, so CI runs those paths
 #: from this many lattices a launch of a method with few stages would take two lattices per thread block
 #: (None: never). Off: on the H200 it made the Verlet kernel slower, 3.27e11 against 3.56e11 site-steps/s
 #: at 4096 lattices and 3.41e11 against 3.76e11 at 32768 (benchmarks/h200-2026-11-22b/two-per-block/),
@@ -654,15 +664,22 @@ class _SlicedTransfers:
     transfer each way is exposed (on a GPU; on the CPU the same steps run in order). ``simulate`` runs the
     first and the last chunk slice by slice for it; a short run on a large batch has only those two."""
 
-    def __init__(self, runner, x0: np.ndarray, n_slices: int):
+    def __init__(self, runner, x0: np.ndarray, n_slices: int, out: np.ndarray | None = None):
+        """``out``: the final state's host array when it is page-locked (a lent result): the slices are
+        copied into it by the device, and ``take`` only waits for them. A page-locked ``x0`` is likewise
+        copied to the device straight from where it is."""
         wp = runner.wp
         self.wp, self.r, self.x0 = wp, runner, x0
         self.gpu = runner.device != "cpu"
         bounds = np.linspace(0, runner.batch, n_slices + 1).astype(int)
         self.slices = [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
         self.site_values = 4 * runner.N
-        self.up = _take_buffer(wp, runner.device, x0.size, self.gpu)
-        self.down = _take_buffer(wp, runner.device, x0.size, self.gpu)
+        self.direct_up = _pinned_view(x0) if self.gpu or _LEASE_ON_CPU else None
+        self.direct_down = _pinned_view(out) if out is not None and (self.gpu or _LEASE_ON_CPU) else None
+        self.out = out if self.direct_down is not None else None
+        self.up = None if self.direct_up else _take_buffer(wp, runner.device, x0.size, self.gpu)
+        self.down = None if self.direct_down else _take_buffer(wp, runner.device, x0.size, self.gpu)
+        self.closed = False
         self.events = {}
         if self.gpu:
             # uploads and downloads on streams of their own: slice s + 1's upload never waits behind slice s's
@@ -679,39 +696,49 @@ class _SlicedTransfers:
         """Slice s to the device; the compute stream waits for it."""
         a, b = self._range(s)
         lo, hi = self.slices[s]
-        _copy(self.up.numpy()[a:b], np.ascontiguousarray(self.x0[lo:hi]))
+        if self.direct_up is not None:
+            src, base = self.direct_up
+        else:
+            src, base = self.up, 0
+            _copy(self.up.numpy()[a:b], np.ascontiguousarray(self.x0[lo:hi]))
         if self.gpu:
-            self.wp.copy(self.r.x, self.up, dest_offset=a, src_offset=a, count=b - a, stream=self.up_stream)
+            self.wp.copy(self.r.x, src, dest_offset=a, src_offset=base + a, count=b - a, stream=self.up_stream)
             self.main.wait_event(self.up_stream.record_event())
         else:
-            self.wp.copy(self.r.x, self.up, dest_offset=a, src_offset=a, count=b - a)
+            self.wp.copy(self.r.x, src, dest_offset=a, src_offset=base + a, count=b - a)
 
     def download(self, s: int) -> None:
         """Slice s's state back to pinned memory once the kernels queued so far have run."""
         a, b = self._range(s)
+        dst, base = self.direct_down if self.direct_down is not None else (self.down, 0)
         if self.gpu:
             self.down_stream.wait_event(self.main.record_event())
-            self.wp.copy(self.down, self.r.x, dest_offset=a, src_offset=a, count=b - a, stream=self.down_stream)
+            self.wp.copy(dst, self.r.x, dest_offset=base + a, src_offset=a, count=b - a, stream=self.down_stream)
             self.events[s] = self.down_stream.record_event()
         else:
-            self.wp.copy(self.down, self.r.x, dest_offset=a, src_offset=a, count=b - a)
+            self.wp.copy(dst, self.r.x, dest_offset=base + a, src_offset=a, count=b - a)
 
     def take(self, s: int, out: np.ndarray) -> None:
-        """Write slice s's final state into ``out`` (the whole batch's host array)."""
+        """Write slice s's final state into ``out`` (the whole batch's host array; when it is the page-locked
+        ``out`` given at construction, the device has written it already: only wait for that copy)."""
         a, b = self._range(s)
         if self.gpu:
             self.wp.synchronize_event(self.events[s])
+        if out is self.out:
+            return
         _copy(out.reshape(-1)[a:b], self.down.numpy()[a:b])
 
     def close(self) -> None:
-        if self.up is None:
+        if self.closed:
             return
         if self.gpu:
             self.wp.synchronize_stream(self.up_stream)
             self.wp.synchronize_stream(self.down_stream)
-        _give_buffer(self.r.device, self.gpu, self.up)
-        _give_buffer(self.r.device, self.gpu, self.down)
+        for buf in (self.up, self.down):
+            if buf is not None:
+                _give_buffer(self.r.device, self.gpu, buf)
         self.up = self.down = None
+        self.closed = True
 
 
 def frame_buffers(
@@ -742,9 +769,32 @@ def frame_buffers(
     return tuple(wp.zeros(size, dtype=wp.float64, device="cpu", pinned=True).numpy().reshape(shape) for _ in range(2))
 
 
+def page_locked(x, *, device: str | None = None) -> np.ndarray:
+    """A copy of the float64 array ``x`` in page-locked host memory, for ``simulate(x0=...)`` on a GPU: the
+    device copies it straight from there, with no staging pass on the host (a result's ``x`` is lent such
+    memory already, so a run continued from it needs no call here). On the CPU a plain copy.
+
+    The memory comes from ``leases``' pool and goes back to it when the array is dropped.
+
+    Raises:
+        ValueError: not a real array.
+    """
+    arr = np.asarray(x)
+    if not np.issubdtype(arr.dtype, np.floating) and not np.issubdtype(arr.dtype, np.integer):
+        raise ValueError(f"page_locked needs a real array, got dtype {arr.dtype}")
+    device = resolve_device(device)
+    lent = leases.lend(_warp(), device, arr.shape, first=True) if device != "cpu" else None
+    out = lent[0] if lent else np.empty(arr.shape)
+    np.copyto(out, arr, casting="unsafe")
+    return out
+
+
 def _pinned_view(arr: np.ndarray):
     """(pinned Warp array, offset in values) when ``arr`` views page-locked Warp host memory (as the arrays
-    of ``frame_buffers`` do), else None."""
+    of ``frame_buffers`` and the results ``simulate`` lends do), else None."""
+    lent = leases.pinned_buffer(arr)
+    if lent is not None:
+        return lent
     wp = _warp()
     base = arr
     while base is not None and not isinstance(base, wp.array):
@@ -780,7 +830,7 @@ class _FrameSink:
             runner._sink_frames = cached  # kept with the runner (reused by the next call)
         self.rec = cached[1]
         self.device = runner.device
-        direct = [_pinned_view(a) for a in (self.u, self.v)] if gpu and out is not None else [None]
+        direct = [_pinned_view(a) for a in (self.u, self.v)] if (gpu or _LEASE_ON_CPU) and out is not None else [None]
         self.direct = direct if all(d is not None for d in direct) else None
         self.staging = []
         if self.direct is None:
@@ -1141,10 +1191,19 @@ class _Runner:
             self.wp.synchronize_event(done)
         return buf
 
-    def upload(self, x0: np.ndarray) -> None:
+    def upload(self, x0: np.ndarray, wait: bool = True) -> None:
         """Copy a batch state to the device (on a GPU through this runner's pinned buffer: ~55 GB/s instead
-        of the ~15 GB/s of pageable memory). Asynchronous: kernels queued after it see the new state."""
+        of the ~15 GB/s of pageable memory; straight from ``x0`` when it is page-locked itself, e.g. a
+        result ``simulate`` lent). Kernels queued after it see the new state. ``wait=False``: return before
+        the device has read a page-locked ``x0``; the caller must not change it until the device is synchronised."""
         wp = self.wp
+        direct = _pinned_view(x0) if x0.flags.c_contiguous and (self.device != "cpu" or _LEASE_ON_CPU) else None
+        if direct is not None:
+            src, offset = direct
+            wp.copy(self.x, src, src_offset=offset, count=x0.size)
+            if wait:
+                wp.synchronize_stream(wp.get_stream(self.device))
+            return
         if self.device == "cpu" or x0.size < (1 << 16):
             self.x.assign(np.ascontiguousarray(x0, dtype=np.float64))
             return
@@ -1156,7 +1215,14 @@ class _Runner:
     def download(self, out: np.ndarray | None = None) -> np.ndarray:
         """The batch state as a new host array (on a GPU through a pinned buffer, then a few threads
         write the result: fresh host memory is filled ~5x faster that way than by one thread);
-        ``out``: a host array of the state's shape to fill instead (e.g. one touched in advance)."""
+        ``out``: a host array of the state's shape to fill instead (e.g. one touched in advance, or a
+        page-locked one, which the device copies into directly)."""
+        direct = _pinned_view(out) if out is not None and (self.device != "cpu" or _LEASE_ON_CPU) else None
+        if direct is not None:
+            dst, offset = direct
+            self.wp.copy(dst, self.x, dest_offset=offset, count=self.x.size)
+            self.wp.synchronize_device(self.device)
+            return out
         if self.device == "cpu":
             return self.x.numpy()  # on the CPU a view of the device buffer
         if self.x.size < (1 << 16):
@@ -1426,13 +1492,18 @@ def simulate(
     gpu = device != "cpu"
     sliced = sliced and bool(plan)  # a large batch: state moved in slices, overlapped with the first and last chunk
     t_runner = time.perf_counter()
-    runner = _pooled_runner(meth, params, x0, Mb, Kb, device, layout, upload=not sliced)
+    runner = _pooled_runner(meth, params, x0, Mb, Kb, device, layout, upload=False)
+    if not sliced:
+        runner.upload(x0, wait=False)  # a page-locked x0 is read by the device later: synchronised below
     runner.set_damping(damping, dt_used)
     t_runner = time.perf_counter() - t_runner
     wp = runner.wp
-    target = None  # the final state's host array, touched in the background once the device is busy
+    lend = _LEASE_RESULTS and (gpu or _LEASE_ON_CPU)
+    lent = leases.lend(wp, device, x0.shape) if lend and plan else None
+    final = lent[0] if lent else None  # the final state's page-locked host array, which the device fills
+    target = None  # else the final state's host array, touched in the background once the device is busy
     guard = _GuardReader(runner, gpu)
-    transfers = _SlicedTransfers(runner, x0, _slice_count(batch)) if sliced else None
+    transfers = _SlicedTransfers(runner, x0, _slice_count(batch), out=final) if sliced else None
     if not plan:
         E0, finite0, contact = (a.copy() for a in guard.read(runner.guard(), 0))  # of x0, on the device
         if not finite0.all():
@@ -1448,6 +1519,9 @@ def simulate(
     sink = None
     if save_every:
         n_saved = 1 + nsteps // save_every
+        if frames_out is None and lend:
+            lent_frames = leases.lend(wp, device, (n_saved, batch, params.N), count=2)
+            frames_out = tuple(lent_frames) if lent_frames else None
         sink = _FrameSink(runner, n_saved, max(p[2] for p in plan) if plan else 0, gpu, out=frames_out)
         sink.put_initial(x0)
         if on_chunk is not None:
@@ -1516,6 +1590,7 @@ def simulate(
     saved = 1
     stats = {"chunks": len(plan), "runner": t_runner, "waiting": 0.0, "frames": 0.0, "final": 0.0}
     stats["slices"] = len(transfers.slices) if sliced else 1
+    stats["lent"] = final is not None  # the final state in page-locked memory lent by ``leases``
     if runner.layout == "block" and isinstance(meth, SplittingMethod):
         lattices = transfers.slices[0][1] if sliced else batch
         stats["sites_per_thread"] = sites_per_thread(lattices, params.N, meth.stages, device)
@@ -1523,15 +1598,16 @@ def simulate(
         if plan:
             enqueue(0)
         stats["setup"] = time.perf_counter() - start
-        if gpu and x0.size >= _PREFAULT_MIN_VALUES:
+        if gpu and final is None and x0.size >= _PREFAULT_MIN_VALUES:
             target = _prefault(x0.shape)
         for i, (first, steps, n_rec) in enumerate(plan):
             if i + 1 < len(plan):
                 enqueue(i + 1)  # the device works on the next chunk while the host checks this one
             if sliced and i == len(plan) - 1:
-                if target is not None:
-                    target.join()
-                final = target.result if target is not None else np.empty(x0.shape)
+                if final is None:
+                    if target is not None:
+                        target.join()
+                    final = target.result if target is not None else np.empty(x0.shape)
                 t0 = time.perf_counter()
                 for s_ in range(len(transfers.slices)):
                     transfers.take(s_, final)  # while the device finishes the later slices
@@ -1568,7 +1644,10 @@ def simulate(
         if target is not None:
             target.join()
     t0 = time.perf_counter()
-    x = final if sliced else runner.download(target.result if target is not None else None)
+    if sliced:
+        x = final
+    else:
+        x = runner.download(final if final is not None else target.result if target is not None else None)
     stats["final"] += time.perf_counter() - t0
     _release_runner(runner)
     E1 = trace_E[-1]

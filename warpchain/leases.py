@@ -1,0 +1,144 @@
+"""Page-locked host memory lent to ``simulate``'s results, and taken back when the caller drops them.
+
+Why: on a GPU the final state (and any recorded frames) must reach a host numpy array. Into fresh pageable
+memory that costs two host passes per value: touching the new pages (~3 GB/s per thread) and copying out of
+a pinned staging buffer. On the H200 host the two cost 8.6 + 12 ms at 32768 lattices against 29 ms of
+kernel, and 0.45 ms at 805 against 1.1 ms (``benchmarks/h200-2026-11-22l/timeline-*.txt``). A page-locked
+result takes the device's copy directly, at the bus's rate, with no host pass at all.
+
+Page-locking itself is slow (~0.4 s per GiB), so a result's pinned buffer is not freed with the result: the
+array's ``base`` is a :class:`HostLease` whose finaliser puts the buffer back in a pool, and the next call of
+the same size takes it again. A loop ``r = simulate(p, x0, ...)`` therefore page-locks twice in all (the
+result alive during the next call, and that call's own) and then only reuses. Three rules keep it safe:
+
+1. A size is lent only from its second request on: a one-off call pays no page-locking and gets a plain array.
+2. All pinned bytes of the pool (lent and free) stay under ``limit_bytes`` (1/16 of the host's memory, at
+   most 8 GiB); past it, free buffers are released (largest first) and, if that is not enough, the result is a
+   plain array. A study that keeps many results alive falls back to plain arrays, it never pins the host.
+3. Buffers are released only in ``lend`` (the caller's thread, before any work is queued), never in a
+   finaliser: freeing pinned memory synchronises the device, which a finaliser run by the garbage collector
+   in the middle of a chunk must not do.
+
+A lent array is an ordinary, writeable, C-contiguous float64 numpy array; ``pinned_buffer`` finds its Warp
+array again, so that a lent result passed back as ``x0`` (or as ``frames_out``) is copied to the device
+straight from it, without a staging pass.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+
+import numpy as np
+
+#: all pinned bytes of the pool, lent and free, per process (None: from the host's memory, ``limit_bytes``)
+LIMIT_BYTES: int | None = None
+#: requests of a size before it is lent pinned memory (1: from the second request on)
+LEND_AFTER = 1
+_LOCK = threading.Lock()
+_FREE: dict = {}  # device -> [pinned Warp arrays], returned by finalisers, taken again by ``lend``
+_HELD: dict = {}  # device -> pinned bytes made by the pool and not yet released
+_SEEN: dict = {}  # (device, values) -> requests so far
+
+
+def limit_bytes() -> int:
+    """Pinned bytes the pool may hold (``LIMIT_BYTES``, or 1/16 of physical memory, at most 8 GiB)."""
+    if LIMIT_BYTES is not None:
+        return int(LIMIT_BYTES)
+    try:
+        physical = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, ValueError, OSError):
+        physical = 8 << 30
+    return int(min(physical // 16, 8 << 30))
+
+
+class HostLease:
+    """The owner of a lent pinned buffer: a numpy array made from it (its ``base``) keeps it alive, and
+    when the last such array is gone the buffer goes back to the pool."""
+
+    __slots__ = ("buffer", "device", "__array_interface__", "__weakref__")
+
+    def __init__(self, buffer, device: str, shape: tuple):
+        self.buffer, self.device = buffer, device
+        self.__array_interface__ = {
+            "shape": tuple(int(s) for s in shape),
+            "typestr": "<f8",
+            "data": (int(buffer.ptr), False),
+            "version": 3,
+        }
+
+    def __del__(self):
+        try:
+            with _LOCK:
+                _FREE.setdefault(self.device, []).append(self.buffer)
+        except Exception:  # noqa: BLE001 - interpreter shutdown: the module's globals may be gone
+            pass
+
+
+def lend(wp, device: str, shape, count: int = 1, first: bool = False) -> list[np.ndarray] | None:
+    """``count`` float64 host arrays of ``shape`` in page-locked memory lent by the pool (one request), or
+    None where the rules above say plain arrays are better (first request of this size, pool full).
+    ``first``: lend on a first request too (the caller asked for page-locked memory).
+    ``device`` names the GPU they serve; on ``"cpu"`` (tests only) the buffers are plain Warp host arrays."""
+    shape = tuple(int(s) for s in shape)
+    values = int(np.prod(shape))
+    if values == 0 or count < 1:
+        return None
+    nbytes = 8 * values
+    taken, release = [], []
+    with _LOCK:
+        free = _FREE.setdefault(device, [])
+        seen = _SEEN.get((device, values), 0)
+        _SEEN[(device, values)] = seen + 1
+        while len(taken) < count:
+            fits = [i for i, buf in enumerate(free) if values <= buf.size <= 2 * values]
+            if not fits:
+                break
+            taken.append(free.pop(min(fits, key=lambda i: free[i].size)))
+        missing = count - len(taken)
+        if missing and seen < LEND_AFTER and not first:
+            free.extend(taken)  # all or none: a first request gets plain arrays
+            return None
+        free.sort(key=lambda b: b.size)
+        while missing and free and _HELD.get(device, 0) + missing * nbytes > limit_bytes():
+            dropped = free.pop()  # the largest free buffer first
+            _HELD[device] -= 8 * dropped.size
+            release.append(dropped)
+        if missing and _HELD.get(device, 0) + missing * nbytes > limit_bytes():
+            free.extend(taken)
+            return None
+        _HELD[device] = _HELD.get(device, 0) + missing * nbytes
+    del release  # freed here, outside the lock, on the caller's thread
+    pinned = device != "cpu"
+    taken += [wp.empty(values, dtype=wp.float64, device="cpu", pinned=pinned) for _ in range(missing)]
+    return [np.asarray(HostLease(buf, device, shape)) for buf in taken]
+
+
+def pinned_buffer(arr: np.ndarray):
+    """(pinned Warp array, offset in values) when ``arr`` is a contiguous float64 view of a lent buffer,
+    else None."""
+    base = arr
+    while base is not None and not isinstance(base, HostLease):
+        base = getattr(base, "base", None)
+    if base is None or arr.dtype != np.float64 or not arr.flags.c_contiguous:
+        return None
+    buf = base.buffer
+    offset = arr.ctypes.data - buf.ptr
+    if offset < 0 or offset % 8 or offset // 8 + arr.size > buf.size:
+        return None
+    return buf, offset // 8
+
+
+def held_bytes(device: str) -> int:
+    """Pinned bytes the pool holds for ``device`` (lent and free)."""
+    with _LOCK:
+        return _HELD.get(device, 0)
+
+
+def clear() -> None:
+    """Forget every free buffer and every request count (tests; lent arrays stay valid: they hold their own)."""
+    with _LOCK:
+        for device, free in _FREE.items():
+            _HELD[device] = _HELD.get(device, 0) - sum(8 * b.size for b in free)
+        _FREE.clear()
+        _SEEN.clear()
