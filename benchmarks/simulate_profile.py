@@ -2,7 +2,8 @@
 2000 steps) at 805 and 32768 lattices, after one untimed call, with the kernel time (``time_steps``) and a
 timeline of the call's phases beside it. Prints the top functions by cumulative and by own time.
 
-Command (GPU): ``python benchmarks/simulate_profile.py [--batch 805 32768] [--save-every 20] [--slices S]``
+Command (GPU): ``python benchmarks/simulate_profile.py [--batch 805 32768] [--save-every 20] [--slices S]
+[--page-locked]``
 """
 
 import argparse
@@ -16,7 +17,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from warpchain import ChainParams, lowest_optical_mode, simulate  # noqa: E402
+from warpchain import ChainParams, lowest_optical_mode, page_locked, simulate  # noqa: E402
 from warpchain import ensemble  # noqa: E402
 from warpchain.ensemble import time_steps  # noqa: E402
 
@@ -28,6 +29,7 @@ def main():
     ap.add_argument("--device", default="cuda")
     ap.add_argument("--top", type=int, default=25)
     ap.add_argument("--slices", type=int, default=None, help="force this many lattice slices (the sliced path)")
+    ap.add_argument("--page-locked", action="store_true", help="x0 given as page_locked(x0)")
     args = ap.parse_args()
     if args.slices is not None:
         ensemble._SLICED_MIN_VALUES, ensemble._SLICES = 1, args.slices
@@ -37,6 +39,8 @@ def main():
     one[:2] = 0.3 * shape / np.max(np.abs(shape))
     for batch in args.batch:
         x0 = np.repeat(one[None], batch, 0)
+        if args.page_locked:
+            x0 = page_locked(x0, device=args.device)
         kernel = time_steps(p, x0, 2000, 0.1, device=args.device, repeats=3)
         simulate(p, x0, 200.0, 0.1, device=args.device, save_every=args.save_every)
         walls, stats = [], []

@@ -1,9 +1,12 @@
 """Where a sliced ``simulate()`` call spends its host time: the host-side phases of one call (uploads'
 host copies, launches, the prefault of the result, waits, takes), timed by wrapping ``ensemble``'s functions,
 printed as a timeline in ms from the call's start, with the kernel time (``time_steps``) beside it. Verlet,
-N = 201, 2000 steps, after one untimed call.
+N = 201, 2000 steps, after one untimed call. With ``--device-events`` the device's side too: CUDA events
+recorded around every launch (main stream) and every slice transfer (its own stream), in ms from an event
+recorded just before the call, marked ``[device]``.
 
-Command (GPU): ``python benchmarks/simulate_timeline.py [--batch 32768] [--slices 8] [--chunks 1]``
+Command (GPU): ``python benchmarks/simulate_timeline.py [--batch 32768] [--slices 8] [--chunks 1]
+[--page-locked] [--device-events]``
 """
 
 import argparse
@@ -15,11 +18,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from warpchain import ChainParams, lowest_optical_mode, simulate  # noqa: E402
+from warpchain import ChainParams, lowest_optical_mode, page_locked, simulate  # noqa: E402
 from warpchain import ensemble  # noqa: E402
 from warpchain.ensemble import time_steps  # noqa: E402
 
 EVENTS = []
+DEVICE_EVENTS = []  # (label, CUDA event before, CUDA event after)
 
 
 def wrap(owner, name, label):
@@ -36,12 +40,34 @@ def wrap(owner, name, label):
     setattr(owner, name, timed)
 
 
+def wrap_device(owner, name, label, stream_of):
+    """Record CUDA events before and after every call of owner.name on the stream ``stream_of(self)``."""
+    import warp as wp
+
+    original = getattr(owner, name)
+
+    def timed(self, *args, **kwargs):
+        stream = stream_of(self)
+        before = wp.Event(enable_timing=True)
+        stream.record_event(before)
+        try:
+            return original(self, *args, **kwargs)
+        finally:
+            after = wp.Event(enable_timing=True)
+            stream.record_event(after)
+            DEVICE_EVENTS.append((label, before, after))
+
+    setattr(owner, name, timed)
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--batch", type=int, nargs="+", default=[32768])
     ap.add_argument("--slices", type=int, nargs="+", default=[8])
     ap.add_argument("--chunks", type=int, default=None)
     ap.add_argument("--device", default="cuda")
+    ap.add_argument("--page-locked", action="store_true", help="x0 given as page_locked(x0)")
+    ap.add_argument("--device-events", action="store_true", help="also CUDA events around launches, transfers")
     args = ap.parse_args()
     p = ChainParams(30.0, 160.0, 201)
     _, shape = lowest_optical_mode(p)
@@ -55,8 +81,18 @@ def main():
     wrap(ensemble._Runner, "download", "whole download")
     wrap(ensemble, "_fill_zero", "prefault fill (thread)")
     wrap(ensemble._GuardReader, "wait", "guard wait")
+    if args.device_events:
+        import warp as wp
+
+        main_stream = lambda self: wp.get_stream(args.device)  # noqa: E731
+        wrap_device(ensemble._Runner, "launch", "kernel", main_stream)
+        wrap_device(ensemble._Runner, "guard", "guard kernel", main_stream)
+        wrap_device(ensemble._SlicedTransfers, "upload", "slice upload", lambda self: self.up_stream)
+        wrap_device(ensemble._SlicedTransfers, "download", "slice download", lambda self: self.down_stream)
     for batch in args.batch:
         x0 = np.repeat(one[None], batch, 0)
+        if args.page_locked:
+            x0 = page_locked(x0, device=args.device)
         kernel = time_steps(p, x0, 2000, 0.1, device=args.device, repeats=3)
         for slices in args.slices:
             ensemble._SLICED_MIN_VALUES, ensemble._SLICES = (1, slices) if slices > 1 else (1 << 62, None)
@@ -64,15 +100,31 @@ def main():
             best = None
             for _ in range(3):
                 EVENTS.clear()
+                DEVICE_EVENTS.clear()
+                origin = None
+                if args.device_events:
+                    origin = wp.Event(enable_timing=True)
+                    wp.get_stream(args.device).record_event(origin)
                 t0 = time.perf_counter()
-                simulate(p, x0, 200.0, 0.1, device=args.device, chunks=args.chunks)
+                run = simulate(p, x0, 200.0, 0.1, device=args.device, chunks=args.chunks)
                 wall = time.perf_counter() - t0
+                device_rows = []
+                if origin is not None:
+                    wp.synchronize_device(args.device)
+                    for label, a, b in DEVICE_EVENTS:
+                        start = wp.get_event_elapsed_time(origin, a) * 1e-3
+                        device_rows.append((f"[device] {label}", start, start + wp.get_event_elapsed_time(a, b) * 1e-3))
                 if best is None or wall < best[0]:
-                    best = (wall, t0, list(EVENTS))
-            wall, t0, events = best
-            print(f"\n=== batch {batch}, {slices} slice(s): kernel {1e3 * kernel:.2f} ms, call {1e3 * wall:.2f} ms")
+                    lent = "lent" if run.stats.get("lent") else "plain"
+                    best = (wall, t0, [(label, a - t0, b - t0) for label, a, b in EVENTS] + device_rows, lent)
+                del run
+            wall, t0, events, lent = best
+            print(
+                f"\n=== batch {batch}, {slices} slice(s): kernel {1e3 * kernel:.2f} ms, call {1e3 * wall:.2f} ms "
+                f"(x0 {'page-locked' if args.page_locked else 'plain'}, result {lent})"
+            )
             for label, a, b in sorted(events, key=lambda e: e[1]):
-                print(f"  {1e3 * (a - t0):8.3f} .. {1e3 * (b - t0):8.3f}  ({1e3 * (b - a):7.3f})  {label}")
+                print(f"  {1e3 * a:8.3f} .. {1e3 * b:8.3f}  ({1e3 * (b - a):7.3f})  {label}")
 
 
 if __name__ == "__main__":
