@@ -11,9 +11,11 @@ Variants: ``whole``: no slices, the default chunk count (from the work, at most 
 ``ensemble._LEASE_RESULTS`` off (a fresh pageable result, touched in advance, as before the leases);
 ``auto, x0 page-locked``: x0 given as ``page_locked(x0)`` (as a continued run passes a lent result).
 ``--record K``: also ``simulate(save_every=K)``, lent frames against plain ones, with the frames' rate.
+``--ends F``: also ``auto`` with ``ensemble._SLICED_ENDS = F`` (sliced first and last chunks of F of the run
+each, the middle on the whole batch), with x0 plain and page-locked.
 
 Command (GPU): ``python benchmarks/simulate_slices.py [--batch 805 8192 32768] [--slices 2 4 8 16]
-[--one-chunk 4 8] [--no-prefault 8] [--record 20]``
+[--one-chunk 4 8] [--no-prefault 8] [--record 20] [--ends 0.125 0.25]``
 """
 
 import argparse
@@ -41,39 +43,45 @@ def main():
     ap.add_argument("--no-prefault", type=int, nargs="*", default=[], help="also: these slice counts, no prefault")
     ap.add_argument("--copy-slice", type=int, nargs="*", default=[], help="also: auto, values per copy thread")
     ap.add_argument("--record", type=int, default=None, help="also: save_every=K, lent and plain frames")
+    ap.add_argument("--ends", type=float, nargs="*", default=[], help="also: auto with these _SLICED_ENDS")
     args = ap.parse_args()
     p = ChainParams(30.0, 160.0, 201)
     _, shape = lowest_optical_mode(p)
     one = np.zeros((4, p.N))
     one[:2] = 0.3 * shape / np.max(np.abs(shape))
     dt = 0.1
-    defaults = (ensemble._SLICED_MIN_VALUES, ensemble._SLICES)
-    variants = [("whole", 1 << 62, None, None), ("whole, 2 chunks", 1 << 62, None, 2)]
-    variants += [(f"{s} slices", 1, s, None) for s in args.slices]
-    variants += [(f"{s} slices, 1 chunk", 1, s, 1) for s in args.one_chunk]
-    variants += [(f"{s} slices, no prefault", 1, s, None, None, False) for s in args.no_prefault]
-    variants += [("auto", *defaults, None)]
-    variants += [("auto, plain results", *defaults, None, None, True, False)]
-    variants += [("auto, x0 page-locked", *defaults, None, None, True, True, True)]
-    variants += [(f"auto, copy {c}", *defaults, None, c) for c in args.copy_slice]
-    copy_slice, prefault = ensemble._COPY_SLICE, ensemble._PREFAULT_MIN_VALUES
+    whole, sliced = dict(_SLICED_MIN_VALUES=1 << 62, _SLICES=None), lambda n: dict(_SLICED_MIN_VALUES=1, _SLICES=n)
+    # (name, ensemble attributes to set, simulate keywords, x0 page-locked)
+    variants = [("whole", whole, {}, False), ("whole, 2 chunks", whole, dict(chunks=2), False)]
+    variants += [(f"{n} slices", sliced(n), {}, False) for n in args.slices]
+    variants += [(f"{n} slices, 1 chunk", sliced(n), dict(chunks=1), False) for n in args.one_chunk]
+    no_prefault = dict(_PREFAULT_MIN_VALUES=1 << 62, _LEASE_RESULTS=False)
+    variants += [(f"{n} slices, no prefault", {**sliced(n), **no_prefault}, {}, False) for n in args.no_prefault]
+    variants += [("auto", {}, {}, False), ("auto, plain results", dict(_LEASE_RESULTS=False), {}, False)]
+    variants += [("auto, x0 page-locked", {}, {}, True)]
+    for f in args.ends:
+        variants += [(f"auto, ends {f:g}", dict(_SLICED_ENDS=f), {}, False)]
+        variants += [(f"auto, ends {f:g}, x0 page-locked", dict(_SLICED_ENDS=f), {}, True)]
+    variants += [(f"auto, copy {c}", dict(_COPY_SLICE=c), {}, False) for c in args.copy_slice]
+    if args.record:
+        record = dict(save_every=args.record)
+        variants += [
+            ("auto, record", {}, record, False),
+            ("auto, record, plain", dict(_LEASE_RESULTS=False), record, False),
+        ]
+    names = {name for _, settings, _, _ in variants for name in settings}
+    defaults = {name: getattr(ensemble, name) for name in names}
     print(f"# {args.steps} Verlet steps, N = {p.N}; best of {args.repeats}; ratio = kernel / simulate()", flush=True)
     for batch in args.batch:
         x0 = np.repeat(one[None], batch, 0)
         kernel = time_steps(p, x0, args.steps, dt, device=args.device, repeats=3)
         print(f"\nbatch {batch}: kernel {1e3 * kernel:.3f} ms", flush=True)
         first = None  # the first variant's end state: every other must have the same bits
-        runs = [(name, min_values, slices, chunks, *copy, None) for name, min_values, slices, chunks, *copy in variants]
-        if args.record:
-            runs += [("auto, record", *defaults, None, None, True, True, False, args.record)]
-            runs += [("auto, record, plain", *defaults, None, None, True, False, False, args.record)]
-        for name, min_values, slices, chunks, *copy, record in runs:
-            ensemble._SLICED_MIN_VALUES, ensemble._SLICES = min_values, slices
-            ensemble._COPY_SLICE = copy[0] if copy and copy[0] else copy_slice
-            ensemble._PREFAULT_MIN_VALUES = prefault if len(copy) < 2 or copy[1] else 1 << 62
-            ensemble._LEASE_RESULTS = len(copy) < 3 or copy[2]
-            start = page_locked(x0, device=args.device) if len(copy) > 3 and copy[3] else x0
-            kw = dict(device=args.device, chunks=chunks, save_every=record)
+        for name, settings, keywords, locked in variants:
+            for attr, value in {**defaults, **settings}.items():
+                setattr(ensemble, attr, value)
+            start = page_locked(x0, device=args.device) if locked else x0
+            kw = dict(device=args.device, **keywords)
             simulate(p, start, args.steps * dt, dt, **kw)
             walls, stats = [], []
             for _ in range(args.repeats):
@@ -86,16 +94,15 @@ def main():
             same = "same bits" if np.array_equal(run.x, first) else f"DIFFERS by {np.max(np.abs(run.x - first)):.3g}"
             st = {k: round(1e3 * v, 3) if isinstance(v, float) else v for k, v in stats[best].items()}
             lent = "lent" if ensemble._pinned_view(run.x) is not None else "plain"
-            rate = f", frames {2 * run.u.nbytes / walls[best] / 1e9:.1f} GB/s" if record else ""
+            rate = f", frames {2 * run.u.nbytes / walls[best] / 1e9:.1f} GB/s" if run.u is not None else ""
             print(
-                f"  {name:21s} best {1e3 * walls[best]:8.3f} ms ({kernel / walls[best]:.2f}x kernel{rate}), "
+                f"  {name:32s} best {1e3 * walls[best]:8.3f} ms ({kernel / walls[best]:.2f}x kernel{rate}), "
                 f"median {1e3 * np.median(walls):8.3f} ms; {same}; x {lent}; stats {st}",
                 flush=True,
             )
             del run, start
-        ensemble._SLICED_MIN_VALUES, ensemble._SLICES = defaults
-        ensemble._LEASE_RESULTS = True
-        ensemble._COPY_SLICE, ensemble._PREFAULT_MIN_VALUES = copy_slice, prefault
+        for attr, value in defaults.items():
+            setattr(ensemble, attr, value)
 
 
 if __name__ == "__main__":

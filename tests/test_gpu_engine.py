@@ -261,6 +261,10 @@ def test_short_sliced_runs_default_to_two_chunks(layout, monkeypatch):
     assert (run.stats["chunks"], run.stats["slices"]) == (2, 3)
     assert np.array_equal(run.x, plain.x) and np.array_equal(run.energy_t, [0.0, 0.6, 1.2])
     assert np.array_equal(run.energy_trace[[0, -1]], plain.energy_trace[[0, -1]])
+    monkeypatch.setattr(ensemble, "_SLICED_ENDS", 0.1)  # sliced ends of 6 steps, the middle on the whole batch
+    ends = simulate(p, x0, 60 * 0.02, 0.02, **kwargs)
+    assert np.array_equal(ends.x, plain.x) and np.allclose(ends.energy_t, [0.0, 0.12, 1.08, 1.2])
+    monkeypatch.setattr(ensemble, "_SLICED_ENDS", None)
     assert simulate(p, x0, 60 * 0.02, 0.02, chunks=4, **kwargs).stats["chunks"] == 4
     assert simulate(p, x0, 60 * 0.02, 0.02, progress=True, **kwargs).stats["chunks"] == 30  # 2 steps each
     monkeypatch.setattr(ensemble, "_SHORT_RUN_EVALUATIONS", 100)

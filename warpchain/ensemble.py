@@ -325,6 +325,9 @@ _MAX_SLICES = 8
 _SHORT_RUN_EVALUATIONS = 1 << 15
 _SHORT_RUN_CHUNKS = 2
 _SLICE_ON_CPU = False  # tests set it to run the sliced path on the CPU
+#: a short sliced run without recording runs its first and last (sliced) chunk for this fraction of its steps
+#: each and the rest on the whole batch in one chunk (None: two chunks of half the run each)
+_SLICED_ENDS: float | None = None
 #: on a GPU ``simulate`` returns its final state (and, without ``frames_out``, its recorded frames) in
 #: page-locked host memory lent by ``leases``, which the device copies into directly: no page touching and no
 #: host copy per call (False: plain arrays, as before; benchmarks compare the two)
@@ -1477,17 +1480,24 @@ def simulate(
     work = batch * params.N * max(nsteps, 1) * meth.force_evaluations
     n_chunks = chunks or max(1, min(50 if progress else 10, math.ceil(work / _CHUNK_WORK)))
     sliced = x0.size >= _SLICED_MIN_VALUES and (device != "cpu" or _SLICE_ON_CPU)
-    if sliced and chunks is None and not progress and nsteps * meth.force_evaluations <= _SHORT_RUN_EVALUATIONS:
+    short = sliced and chunks is None and not progress and nsteps * meth.force_evaluations <= _SHORT_RUN_EVALUATIONS
+    if short:
         n_chunks = min(n_chunks, _SHORT_RUN_CHUNKS)
     units_per_chunk = max(1, math.ceil(units_total / n_chunks))
     if save_every:
         units_per_chunk = min(units_per_chunk, _frames_per_chunk(batch, params.N))
-    chunk_steps = units_per_chunk * unit
+    sizes = [units_per_chunk] * (units_total // units_per_chunk) + [units_total % units_per_chunk]
+    ends = math.ceil(units_total * _SLICED_ENDS) if short and not save_every and _SLICED_ENDS else 0
+    if 0 < ends and 2 * ends < units_total:
+        # the sliced first and last chunk only as long as hiding the transfers needs; the rest on the whole
+        # batch at once, which runs faster than slice after slice (fuller waves)
+        sizes = [ends, units_total - 2 * ends, ends]
     plan = []  # (first step, steps, frames) of each chunk
-    while sum(p[1] for p in plan) < nsteps:
+    for size in sizes:
         first = sum(p[1] for p in plan)
-        steps = min(chunk_steps, nsteps - first)
-        plan.append((first, steps, steps // save_every if save_every else 0))
+        steps = min(size * unit, nsteps - first)
+        if steps > 0:
+            plan.append((first, steps, steps // save_every if save_every else 0))
 
     gpu = device != "cpu"
     sliced = sliced and bool(plan)  # a large batch: state moved in slices, overlapped with the first and last chunk
