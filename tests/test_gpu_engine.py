@@ -265,6 +265,14 @@ def test_short_sliced_runs_default_to_two_chunks(layout, monkeypatch):
     ends = simulate(p, x0, 60 * 0.02, 0.02, **kwargs)
     assert np.array_equal(ends.x, plain.x) and np.allclose(ends.energy_t, [0.0, 0.12, 1.08, 1.2])
     monkeypatch.setattr(ensemble, "_SLICED_ENDS", None)
+    monkeypatch.setattr(ensemble, "_LEASE_ON_CPU", True)  # a page-locked x0 (emulated): sliced ends of 1/8
+    locked = simulate(p, ensemble.page_locked(x0, device="cpu"), 60 * 0.02, 0.02, **kwargs)
+    assert np.array_equal(locked.x, plain.x) and locked.stats["chunks"] == 2  # page_locked on the CPU: plain
+    (lent,) = ensemble.leases.lend(ensemble._warp(), "cpu", x0.shape, first=True)
+    lent[...] = x0
+    locked = simulate(p, lent, 60 * 0.02, 0.02, **kwargs)
+    assert np.array_equal(locked.x, plain.x) and np.allclose(locked.energy_t, [0.0, 0.16, 1.04, 1.2])
+    monkeypatch.setattr(ensemble, "_LEASE_ON_CPU", False)
     assert simulate(p, x0, 60 * 0.02, 0.02, chunks=4, **kwargs).stats["chunks"] == 4
     assert simulate(p, x0, 60 * 0.02, 0.02, progress=True, **kwargs).stats["chunks"] == 30  # 2 steps each
     monkeypatch.setattr(ensemble, "_SHORT_RUN_EVALUATIONS", 100)

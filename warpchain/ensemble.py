@@ -325,9 +325,14 @@ _MAX_SLICES = 8
 _SHORT_RUN_EVALUATIONS = 1 << 15
 _SHORT_RUN_CHUNKS = 2
 _SLICE_ON_CPU = False  # tests set it to run the sliced path on the CPU
-#: a short sliced run without recording runs its first and last (sliced) chunk for this fraction of its steps
-#: each and the rest on the whole batch in one chunk (None: two chunks of half the run each)
-_SLICED_ENDS: float | None = None
+#: a short sliced run without recording from a page-locked x0 (a lent result, ``page_locked``) runs its first and
+#: last (sliced) chunk for this fraction of its steps each, and the rest on the whole batch in one chunk, which
+#: runs ~8 % faster than slice after slice. From a plain x0 the uploads' host copies (~1.7 ms per 26 MB slice on
+#: the H200 host) need the longer sliced half-run chunks to hide behind. On the H200 at 32768 lattices: 32.8
+#: against 34.2 ms from a page-locked x0, but 43.8 against 35.8 ms from a plain one
+#: (benchmarks/h200-2026-11-22m/slices-ends.txt)
+_LOCKED_ENDS: float | None = 0.125
+_SLICED_ENDS: float | None = None  # benchmarks: this fraction for every short sliced run (None: as above)
 #: on a GPU ``simulate`` returns its final state (and, without ``frames_out``, its recorded frames) in
 #: page-locked host memory lent by ``leases``, which the device copies into directly: no page touching and no
 #: host copy per call (False: plain arrays, as before; benchmarks compare the two)
@@ -1420,7 +1425,8 @@ def simulate(
         allow_unstable_step: run (with a warning) even when dt is above the linear stability limit.
         chunks: number of launches the run is split into, each followed by the energy guard (default: from
             the work, at most 10, or 50 with progress; at most 2 for a short run on a large batch on a GPU,
-            whose first and last chunk hide the state's transfers).
+            whose first and last chunk hide the state's transfers, or 3 when x0 is page-locked: a first and
+            last chunk of 1/8 of the run each, whose transfers need no host copy, and the rest at once).
         layout: ``"block"`` (a thread block per lattice: the GPU path), ``"thread"`` (a thread per
             lattice: the CPU path) or ``"auto"`` (block on a GPU, thread on the CPU).
         on_chunk: called after every chunk with (t, u, v) of the frames recorded in that chunk,
@@ -1487,7 +1493,10 @@ def simulate(
     if save_every:
         units_per_chunk = min(units_per_chunk, _frames_per_chunk(batch, params.N))
     sizes = [units_per_chunk] * (units_total // units_per_chunk) + [units_total % units_per_chunk]
-    ends = math.ceil(units_total * _SLICED_ENDS) if short and not save_every and _SLICED_ENDS else 0
+    fraction = _SLICED_ENDS
+    if fraction is None and short and (device != "cpu" or _LEASE_ON_CPU) and _pinned_view(x0) is not None:
+        fraction = _LOCKED_ENDS
+    ends = math.ceil(units_total * fraction) if short and not save_every and fraction else 0
     if 0 < ends and 2 * ends < units_total:
         # the sliced first and last chunk only as long as hiding the transfers needs; the rest on the whole
         # batch at once, which runs faster than slice after slice (fuller waves)
