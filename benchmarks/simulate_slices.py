@@ -9,7 +9,9 @@ Variants: ``whole``: no slices, the default chunk count (from the work, at most 
 (``--no-prefault S``): the final state's host array not touched in advance; ``auto``: what ``simulate`` does
 (the final state in page-locked memory lent by ``leases``); ``auto, plain results``: the same with
 ``ensemble._LEASE_RESULTS`` off (a fresh pageable result, touched in advance, as before the leases);
-``auto, x0 page-locked``: x0 given as ``page_locked(x0)`` (as a continued run passes a lent result).
+``auto, x0 page-locked``: x0 given as ``page_locked(x0)`` (as a continued run passes a lent result);
+``auto, driver's pageable upload``: a whole-batch x0 copied by the driver from pageable memory
+(``_UPLOAD_PAGEABLE``), not through our pinned staging buffer.
 ``--record K``: also ``simulate(save_every=K)``, lent frames against plain ones, with the frames' rate.
 ``--ends F``: also ``auto`` with ``ensemble._SLICED_ENDS = F`` (sliced first and last chunks of F of the run
 each, the middle on the whole batch), with x0 plain and page-locked.
@@ -59,6 +61,7 @@ def main():
     variants += [(f"{n} slices, no prefault", {**sliced(n), **no_prefault}, {}, False) for n in args.no_prefault]
     variants += [("auto", {}, {}, False), ("auto, plain results", dict(_LEASE_RESULTS=False), {}, False)]
     variants += [("auto, x0 page-locked", {}, {}, True)]
+    variants += [("auto, driver's pageable upload", dict(_UPLOAD_PAGEABLE=True), {}, False)]
     for f in args.ends:
         variants += [(f"auto, ends {f:g}", dict(_SLICED_ENDS=f), {}, False)]
         variants += [(f"auto, ends {f:g}, x0 page-locked", dict(_SLICED_ENDS=f), {}, True)]

@@ -337,6 +337,7 @@ _SLICED_ENDS: float | None = None  # benchmarks: this fraction for every short s
 #: page-locked host memory lent by ``leases``, which the device copies into directly: no page touching and no
 #: host copy per call (False: plain arrays, as before; benchmarks compare the two)
 _LEASE_RESULTS = True
+_UPLOAD_PAGEABLE = False  # benchmarks: a whole-batch upload from plain memory by the driver, not our staging
 _LEASE_ON_CPU = False  # tests set it to lend (plain Warp host) buffers on the CPU, so CI runs those paths
 #: from this many lattices a launch of a method with few stages would take two lattices per thread block
 #: (None: never). Off: on the H200 it made the Verlet kernel slower, 3.27e11 against 3.56e11 site-steps/s
@@ -1214,6 +1215,10 @@ class _Runner:
             return
         if self.device == "cpu" or x0.size < (1 << 16):
             self.x.assign(np.ascontiguousarray(x0, dtype=np.float64))
+            return
+        if _UPLOAD_PAGEABLE:  # the driver's own staged copy from pageable memory (benchmarks compare)
+            flat = np.ascontiguousarray(x0, dtype=np.float64).reshape(-1)
+            wp.copy(self.x, wp.array(flat, dtype=wp.float64, device="cpu", copy=False), count=x0.size)
             return
         buf = self._pinned("_pinned_up")
         _copy(buf.numpy(), np.ascontiguousarray(x0, dtype=np.float64))
