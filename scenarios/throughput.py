@@ -555,14 +555,17 @@ def _plot_simulate(cx, out, summary) -> None:
         ("default_rate", "s-", "simulate(), default"),
         ("continued_rate", "D-", "simulate(), x0 page-locked (a continued run)"),
         ("recording_pinned_rate", "^--", f"save_every={every} into frame_buffers"),
-        ("recording_rate", "v:", f"save_every={every}, new arrays"),
+        ("recording_rate", "v:", f"save_every={every}, default (lent page-locked arrays where they fit)"),
     )
     for key, style, label in curves:
         cx.loglog(d["batch"], d[key], style, ms=5, label=label)
     for b, k, r in zip(d["batch"], d["kernel_rate"], d["default_rate"]):
         cx.annotate(f"{r / k:.2f}x", (b, r), textcoords="offset points", xytext=(4, -12), fontsize=8)
+    if "continued_rate" in d:
+        for b, k, r in zip(d["batch"], d["kernel_rate"], d["continued_rate"]):
+            cx.annotate(f"{r / k:.2f}x", (b, r), textcoords="offset points", xytext=(4, 5), fontsize=8, color="C2")
     cx.set_xlabel("lattices in the batch")
     cx.set_ylabel("site-steps per second, end to end")
     title = f"simulate() as users call it ({attrs['steps']} Verlet steps) against its kernel;"
-    cx.set_title(title + "\nlabels: simulate() default / kernel", fontsize=9)
+    cx.set_title(title + "\nlabels: simulate() / kernel, default (black) and continued (green)", fontsize=9)
     cx.legend(fontsize=8)
