@@ -267,6 +267,13 @@ def _slices(n: int, device: str) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
 
 
+def _part(arr, lo: int, hi: int):
+    """Lattices (or columns) lo..hi of a Warp array: the array itself when that is all of it (slicing a Warp
+    array costs ~10 us of host time, and a launch takes several; the kept launch commands see the same
+    pointers and shapes either way)."""
+    return arr if lo == 0 and hi == arr.shape[0] else arr[lo:hi]
+
+
 def _in_parallel(tasks) -> None:
     """Run callables concurrently (one thread each); re-raise the first error."""
     if len(tasks) == 1:
@@ -922,7 +929,13 @@ class _BlockSplitting(_Plan):
 
     def step(self, lo, hi, dt, nsteps, save_every, frames, record):
         r = self.r
-        inputs = [r.x[lo:hi], r.inv_mass[lo:hi], r.coupling[lo:hi], *self.coefficients(dt), r.boundary]
+        inputs = [
+            _part(r.x, lo, hi),
+            _part(r.inv_mass, lo, hi),
+            _part(r.coupling, lo, hi),
+            *self.coefficients(dt),
+            r.boundary,
+        ]
         inputs += [r.wp.float64(dt)]
         inputs += [int(nsteps), int(save_every), *frames, int(record), r.hist, *r.losses(lo, hi)]
         from . import block_kernels
@@ -957,7 +970,14 @@ class _BlockSplitting(_Plan):
         r = self.r
         from . import block_kernels
 
-        inputs = [dx[lo:hi], column_base[lo:hi], r.inv_mass, r.coupling, *self.coefficients(dt), r.boundary]
+        inputs = [
+            _part(dx, lo, hi),
+            _part(column_base, lo, hi),
+            r.inv_mass,
+            r.coupling,
+            *self.coefficients(dt),
+            r.boundary,
+        ]
         inputs += [r.wp.float64(dt), int(nsteps), r.hist]
         stages = r.method.stages
         columns = tangent_columns_per_block(hi - lo, stages, r.device)
@@ -981,13 +1001,20 @@ class _BlockRungeKutta(_Plan):
 
     def step(self, lo, hi, dt, nsteps, save_every, frames, record):
         r = self.r
-        inputs = [r.x[lo:hi], r.inv_mass[lo:hi], r.coupling[lo:hi], *self.tableau, r.boundary, r.wp.float64(dt)]
+        inputs = [
+            _part(r.x, lo, hi),
+            _part(r.inv_mass, lo, hi),
+            _part(r.coupling, lo, hi),
+            *self.tableau,
+            r.boundary,
+            r.wp.float64(dt),
+        ]
         inputs += [int(nsteps), int(save_every), *frames, int(record), r.hist]
         r.launch_kernel(r.bk.rk4, (hi - lo, r.block), inputs, r.block)
 
     def tangent(self, dx, column_base, lo, hi, dt, nsteps):
         r = self.r
-        inputs = [dx[lo:hi], column_base[lo:hi], r.inv_mass, r.coupling, *self.tableau, r.boundary]
+        inputs = [_part(dx, lo, hi), _part(column_base, lo, hi), r.inv_mass, r.coupling, *self.tableau, r.boundary]
         inputs += [r.wp.float64(dt), int(nsteps), r.hist]
         r.wp.launch(r.bk.rk4_tangent, dim=(hi - lo, r.block), block_dim=r.block, device=r.device, inputs=inputs)
 
@@ -1004,15 +1031,22 @@ class _ThreadSplitting(_Plan):
 
     def step(self, lo, hi, dt, nsteps, save_every, frames, record):
         r = self.r
-        inputs = [r.x[lo:hi], self.acc[lo:hi], r.inv_mass[lo:hi], r.coupling[lo:hi], self.drifts, self.kicks]
+        inputs = [
+            _part(r.x, lo, hi),
+            _part(self.acc, lo, hi),
+            _part(r.inv_mass, lo, hi),
+            _part(r.coupling, lo, hi),
+            self.drifts,
+            self.kicks,
+        ]
         inputs += [r.boundary, r.wp.float64(dt), int(nsteps), int(save_every), *frames, int(record), r.hist]
         inputs += r.losses(lo, hi)
         r.launch_kernel(r.k.splitting_kernel, hi - lo, inputs)
 
     def tangent(self, dx, column_base, lo, hi, dt, nsteps):
         r, wp = self.r, self.r.wp
-        dacc = self.kept("dacc", (dx.shape[0], 2, r.N))[lo:hi]  # written before it is read
-        inputs = [dx[lo:hi], dacc, column_base[lo:hi], r.inv_mass, r.coupling, self.drifts, self.kicks]
+        dacc = _part(self.kept("dacc", (dx.shape[0], 2, r.N)), lo, hi)  # written before it is read
+        inputs = [_part(dx, lo, hi), dacc, _part(column_base, lo, hi), r.inv_mass, r.coupling, self.drifts, self.kicks]
         inputs += [r.boundary, wp.float64(dt), int(nsteps), r.hist]
         wp.launch(r.k.splitting_tangent_kernel, dim=hi - lo, device=r.device, inputs=inputs)
 
@@ -1029,15 +1063,28 @@ class _ThreadRungeKutta(_Plan):
 
     def step(self, lo, hi, dt, nsteps, save_every, frames, record):
         r = self.r
-        inputs = [r.x[lo:hi], *(a[lo:hi] for a in self.scratch), r.inv_mass[lo:hi], r.coupling[lo:hi]]
+        inputs = [
+            _part(r.x, lo, hi),
+            *(_part(a, lo, hi) for a in self.scratch),
+            _part(r.inv_mass, lo, hi),
+            _part(r.coupling, lo, hi),
+        ]
         inputs += [*self.tableau, r.boundary, r.wp.float64(dt), int(nsteps), int(save_every), *frames]
         inputs += [int(record), r.hist]
         r.launch_kernel(r.k.rk4_kernel, hi - lo, inputs)
 
     def tangent(self, dx, column_base, lo, hi, dt, nsteps):
         r, wp = self.r, self.r.wp
-        scratch = [self.kept(f"stage{i}", (dx.shape[0], 4, r.N))[lo:hi] for i in range(3)]
-        inputs = [dx[lo:hi], *scratch, column_base[lo:hi], r.inv_mass, r.coupling, *self.tableau, r.boundary]
+        scratch = [_part(self.kept(f"stage{i}", (dx.shape[0], 4, r.N)), lo, hi) for i in range(3)]
+        inputs = [
+            _part(dx, lo, hi),
+            *scratch,
+            _part(column_base, lo, hi),
+            r.inv_mass,
+            r.coupling,
+            *self.tableau,
+            r.boundary,
+        ]
         inputs += [wp.float64(dt), int(nsteps), r.hist]
         wp.launch(r.k.rk4_tangent_kernel, dim=hi - lo, device=r.device, inputs=inputs)
 
@@ -1186,7 +1233,7 @@ class _Runner:
 
     def losses(self, lo: int, hi: int) -> list:
         """The kernels' loss arguments (flags, coefficients) for lattices lo..hi."""
-        return [self.lossy[lo:hi], self.damp[lo:hi] if self.damped else self.no_damp]
+        return [_part(self.lossy, lo, hi), _part(self.damp, lo, hi) if self.damped else self.no_damp]
 
     def _pinned(self, name: str):
         """This runner's own pinned host buffer ``name`` of the state's size (made once: the runner is
@@ -1308,8 +1355,16 @@ class _Runner:
         lo, hi = lattices if lattices is not None else (0, self.batch)
         ru, rv = (rec[0][:, lo:hi], rec[1][:, lo:hi]) if rec is not None and n_rec else (self.no_record,) * 2
         out = self.guard_out[slot if slot == 2 else slot % 2]
-        inputs = [self.x[lo:hi], self.mass[lo:hi], self.coupling[lo:hi], self.boundary, ru, rv, int(n_rec)]
-        inputs += [self.contact[lo:hi], out[lo:hi]]
+        inputs = [
+            _part(self.x, lo, hi),
+            _part(self.mass, lo, hi),
+            _part(self.coupling, lo, hi),
+            self.boundary,
+            ru,
+            rv,
+            int(n_rec),
+        ]
+        inputs += [_part(self.contact, lo, hi), _part(out, lo, hi)]
         if self.layout == "block":
             dim = (hi - lo, self.block)
             self.launch_kernel(self.bk.guard, dim, inputs, self.block)
