@@ -584,3 +584,58 @@ def test_lease_pool_rules(monkeypatch):
     assert big is not None and not np.shares_memory(big[0], big[1])
     assert leases.held_bytes("cpu") == 6400  # both free 100-value buffers released to make room
     leases.clear()
+
+
+def test_lease_pool_is_safe_under_gc_and_failures(monkeypatch):
+    """A lent array's finaliser takes no lock (the garbage collector may run it on a thread inside ``lend``);
+    a request that cannot fit releases nothing; a failed allocation gives back what it counted and took."""
+    import gc
+    import threading
+
+    import warp as wp
+
+    from warpchain import leases
+
+    leases.clear()
+    monkeypatch.setattr(leases, "LIMIT_BYTES", 4000)
+    (a,) = leases.lend(wp, "cpu", (5, 10), first=True)
+
+    def drop_while_locked():
+        nonlocal a
+        with leases._LOCK:  # as if the collector ran the finaliser inside lend
+            del a
+            gc.collect()
+
+    worker = threading.Thread(target=drop_while_locked, daemon=True)
+    worker.start()
+    worker.join(10)
+    assert not worker.is_alive(), "a finaliser blocked on the pool's lock"
+    assert leases.held_bytes("cpu") == 400
+    assert leases.lend(wp, "cpu", (60, 10), first=True) is None  # 4800 bytes: more than the limit
+    assert leases.held_bytes("cpu") == 400  # the free buffer was not released for nothing
+    (b,) = leases.lend(wp, "cpu", (5, 10))
+    assert leases.held_bytes("cpu") == 400  # and it is lent again
+
+    class Failing:
+        float64 = wp.float64
+
+        @staticmethod
+        def empty(*args, **kwargs):
+            raise RuntimeError("page-locking failed")
+
+    with pytest.raises(RuntimeError, match="page-locking failed"):
+        leases.lend(Failing, "cpu", (2, 10), first=True)
+    assert leases.held_bytes("cpu") == 400
+    del b
+    leases.clear()
+    assert leases.held_bytes("cpu") == 0
+
+
+def test_frames_out_must_not_share_memory_with_x0(small_chain):
+    p = small_chain
+    x0 = localized_state(p.N, amplitude=0.7, batch=2, seed=1)
+    store = np.zeros((2, 3, 2, p.N))
+    x0_view = store.reshape(-1)[: x0.size].reshape(x0.shape)
+    x0_view[...] = x0
+    with pytest.raises(ValueError, match="must not share memory with x0"):
+        simulate(p, x0_view, 20 * 0.05, 0.05, save_every=10, device="cpu", frames_out=(store[0], store[1]))

@@ -75,7 +75,7 @@ class SimulationResult:
         layout: the kernel layout that ran (``"block"`` or ``"thread"``).
         stats: where the wall time went, host clock (seconds): ``setup`` (checks, buffers, the start's
             upload, until the first chunk is queued; ``runner`` of it: the device buffers taken from the
-            pool and loaded with the batch and its parameters), ``waiting`` (the host blocked on the device's
+            pool and loaded with the batch's parameters), ``waiting`` (the host blocked on the device's
             chunks), ``frames`` (recorded frames copied into ``u`` and ``v``), ``final`` (the final
             state copied into ``x``), and ``chunks``, ``slices`` (lattice slices the state moved in),
             ``sites_per_thread`` (block layout), ``lent`` (``x`` is page-locked memory lent by ``leases``).
@@ -494,7 +494,7 @@ def _prefault(shape) -> "threading.Thread":
     return holder
 
 
-def _check_frames_out(frames_out, save_every, nsteps: int, batch: int, n_sites: int):
+def _check_frames_out(frames_out, save_every, nsteps: int, batch: int, n_sites: int, x0: np.ndarray):
     """``simulate``'s ``frames_out``, checked once at the boundary: (u, v) host arrays of the frames' shape."""
     if save_every is None:
         raise ValueError("frames_out receives recorded frames: give save_every too")
@@ -509,6 +509,8 @@ def _check_frames_out(frames_out, save_every, nsteps: int, batch: int, n_sites: 
             raise ValueError(f"frames_out {name} must be C-contiguous and writeable")
     if np.shares_memory(frames_out[0], frames_out[1]):
         raise ValueError("frames_out u and v must not share memory")
+    if any(np.may_share_memory(arr, x0) for arr in frames_out):
+        raise ValueError("frames_out must not share memory with x0 (the device may still be reading x0)")
     return tuple(frames_out)
 
 
@@ -1257,7 +1259,7 @@ class _Runner:
         if direct is not None:
             src, offset = direct
             wp.copy(self.x, src, src_offset=offset, count=x0.size)
-            if wait:
+            if wait and self.device != "cpu":
                 wp.synchronize_stream(wp.get_stream(self.device))
             return
         if self.device == "cpu" or x0.size < (1 << 16):
@@ -1531,7 +1533,7 @@ def simulate(
     device = resolve_device(device)
     nsteps, dt_used = steps_for(t_final, dt)
     if frames_out is not None:
-        frames_out = _check_frames_out(frames_out, save_every, nsteps, batch, params.N)
+        frames_out = _check_frames_out(frames_out, save_every, nsteps, batch, params.N, x0)
     if save_every is not None and save_every > max(nsteps, 1):
         raise ValueError(
             f"save_every = {save_every} is larger than the run ({nsteps} steps of {dt_used:.6g}): "
@@ -1571,9 +1573,7 @@ def simulate(
     gpu = device != "cpu"
     sliced = sliced and bool(plan)  # a large batch: state moved in slices, overlapped with the first and last chunk
     t_runner = time.perf_counter()
-    runner = _pooled_runner(meth, params, x0, Mb, Kb, device, layout, upload=False)
-    if not sliced:
-        runner.upload(x0, wait=False)  # a page-locked x0 is read by the device later: synchronised below
+    runner = _pooled_runner(meth, params, x0, Mb, Kb, device, layout, upload=False)  # x0: uploaded below
     runner.set_damping(damping, dt_used)
     t_runner = time.perf_counter() - t_runner
     wp = runner.wp
@@ -1584,6 +1584,7 @@ def simulate(
     guard = _GuardReader(runner, gpu)
     transfers = _SlicedTransfers(runner, x0, _slice_count(batch), out=final) if sliced else None
     if not plan:
+        runner.upload(x0)
         E0, finite0, contact = (a.copy() for a in guard.read(runner.guard(), 0))  # of x0, on the device
         if not finite0.all():
             guard.close()
@@ -1675,6 +1676,8 @@ def simulate(
         stats["sites_per_thread"] = sites_per_thread(lattices, params.N, meth.stages, device)
     try:
         if plan:
+            if not sliced:  # a page-locked x0 is read by the device after this returns: the finally waits for it
+                runner.upload(x0, wait=False)
             enqueue(0)
         stats["setup"] = time.perf_counter() - start
         if gpu and final is None and x0.size >= _PREFAULT_MIN_VALUES:

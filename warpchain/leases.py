@@ -8,16 +8,18 @@ result takes the device's copy directly, at the bus's rate, with no host pass at
 
 Page-locking itself is slow (~0.4 s per GiB), so a result's pinned buffer is not freed with the result: the
 array's ``base`` is a :class:`HostLease` whose finaliser puts the buffer back in a pool, and the next call of
-the same size takes it again. A loop ``r = simulate(p, x0, ...)`` therefore page-locks twice in all (the
+the same shape takes it again. A loop ``r = simulate(p, x0, ...)`` therefore page-locks twice in all (the
 result alive during the next call, and that call's own) and then only reuses. Three rules keep it safe:
 
-1. A size is lent only from its second request on: a one-off call pays no page-locking and gets a plain array.
-2. All pinned bytes of the pool (lent and free) stay under ``limit_bytes`` (1/16 of the host's memory, at
-   most 8 GiB); past it, free buffers are released (largest first) and, if that is not enough, the result is a
-   plain array. A study that keeps many results alive falls back to plain arrays, it never pins the host.
-3. Buffers are released only in ``lend`` (the caller's thread, before any work is queued), never in a
-   finaliser: freeing pinned memory synchronises the device, which a finaliser run by the garbage collector
-   in the middle of a chunk must not do.
+1. A shape is lent only from its second request on: a one-off call pays no page-locking and gets a plain array.
+2. All pinned bytes of the pool for a device (lent and free) stay under ``limit_bytes`` (1/16 of the host's
+   memory, at most 8 GiB); past it, free buffers are released (largest first) and, if even releasing all of
+   them would not make room, none is and the result is a plain array. A study that keeps many results alive
+   falls back to plain arrays, it never pins the host.
+3. Buffers are released only in ``lend`` (on the caller's thread; ``simulate`` calls it before it queues any
+   work of its own), never in a finaliser: freeing pinned memory may synchronise the device, which a
+   finaliser run by the garbage collector in the middle of a chunk must not do. Finalisers take no lock
+   either: they put the buffer on a queue that ``lend`` empties.
 
 A lent array is an ordinary, writeable, C-contiguous float64 numpy array; ``pinned_buffer`` finds its Warp
 array again, so that a lent result passed back as ``x0`` (or as ``frames_out``) is copied to the device
@@ -27,22 +29,29 @@ straight from it, without a staging pass.
 from __future__ import annotations
 
 import os
+import queue
 import threading
 
 import numpy as np
 
-#: all pinned bytes of the pool, lent and free, per process (None: from the host's memory, ``limit_bytes``)
+#: all pinned bytes of the pool for one device, lent and free (None: from the host's memory, ``limit_bytes``)
 LIMIT_BYTES: int | None = None
-#: requests of a size before it is lent pinned memory (1: from the second request on)
+#: requests of a shape before it is lent pinned memory (1: from the second request on)
 LEND_AFTER = 1
 _LOCK = threading.Lock()
-_FREE: dict = {}  # device -> [pinned Warp arrays], returned by finalisers, taken again by ``lend``
+#: buffers given back by finalisers, taken into ``_FREE`` under the lock by ``lend``, ``held_bytes``, ``clear``.
+#: A finaliser never takes the lock: the garbage collector can run one on a thread that holds it (a
+#: ``HostLease`` in a reference cycle, e.g. a caught exception's traceback holding simulate's frame, collected
+#: while ``lend`` allocates), and ``threading.Lock`` is not reentrant. ``SimpleQueue.put`` is safe there.
+_RETURNED: queue.SimpleQueue = queue.SimpleQueue()
+_FREE: dict = {}  # device -> [pinned Warp arrays], free to be lent again
 _HELD: dict = {}  # device -> pinned bytes made by the pool and not yet released
-_SEEN: dict = {}  # (device, values) -> requests so far
+_SEEN: dict = {}  # (device, shape) -> requests so far (at most _SEEN_KEPT shapes remembered)
+_SEEN_KEPT = 1024
 
 
 def limit_bytes() -> int:
-    """Pinned bytes the pool may hold (``LIMIT_BYTES``, or 1/16 of physical memory, at most 8 GiB)."""
+    """Pinned bytes the pool may hold per device (``LIMIT_BYTES``, or 1/16 of physical memory, at most 8 GiB)."""
     if LIMIT_BYTES is not None:
         return int(LIMIT_BYTES)
     try:
@@ -69,15 +78,24 @@ class HostLease:
 
     def __del__(self):
         try:
-            with _LOCK:
-                _FREE.setdefault(self.device, []).append(self.buffer)
+            _RETURNED.put((self.device, self.buffer))  # no lock here: see _RETURNED
         except Exception:  # noqa: BLE001 - interpreter shutdown: the module's globals may be gone
             pass
 
 
+def _take_returned() -> None:
+    """Move the buffers finalisers gave back into the free lists (call with ``_LOCK`` held)."""
+    while True:
+        try:
+            device, buf = _RETURNED.get_nowait()
+        except queue.Empty:
+            return
+        _FREE.setdefault(device, []).append(buf)
+
+
 def lend(wp, device: str, shape, count: int = 1, first: bool = False) -> list[np.ndarray] | None:
     """``count`` float64 host arrays of ``shape`` in page-locked memory lent by the pool (one request), or
-    None where the rules above say plain arrays are better (first request of this size, pool full).
+    None where the rules above say plain arrays are better (first request of this shape, pool full).
     ``first``: lend on a first request too (the caller asked for page-locked memory).
     ``device`` names the GPU they serve; on ``"cpu"`` (tests only) the buffers are plain Warp host arrays."""
     shape = tuple(int(s) for s in shape)
@@ -87,31 +105,44 @@ def lend(wp, device: str, shape, count: int = 1, first: bool = False) -> list[np
     nbytes = 8 * values
     taken, release = [], []
     with _LOCK:
+        _take_returned()
         free = _FREE.setdefault(device, [])
-        seen = _SEEN.get((device, values), 0)
-        _SEEN[(device, values)] = seen + 1
+        if len(_SEEN) >= _SEEN_KEPT and (device, shape) not in _SEEN:
+            _SEEN.clear()  # a study of ever-new shapes: forget, and start counting again
+        seen = _SEEN.get((device, shape), 0)
+        _SEEN[(device, shape)] = seen + 1
         while len(taken) < count:
             fits = [i for i, buf in enumerate(free) if values <= buf.size <= 2 * values]
             if not fits:
                 break
             taken.append(free.pop(min(fits, key=lambda i: free[i].size)))
         missing = count - len(taken)
-        if missing and seen < LEND_AFTER and not first:
-            free.extend(taken)  # all or none: a first request gets plain arrays
+        held, limit = _HELD.get(device, 0), limit_bytes()
+        if missing and (seen < LEND_AFTER and not first or held - _bytes(free) + missing * nbytes > limit):
+            free.extend(taken)  # all or none; and nothing released when even that would not make room
             return None
         free.sort(key=lambda b: b.size)
-        while missing and free and _HELD.get(device, 0) + missing * nbytes > limit_bytes():
+        while missing and held + missing * nbytes > limit:
             dropped = free.pop()  # the largest free buffer first
-            _HELD[device] -= 8 * dropped.size
+            held -= 8 * dropped.size
             release.append(dropped)
-        if missing and _HELD.get(device, 0) + missing * nbytes > limit_bytes():
-            free.extend(taken)
-            return None
-        _HELD[device] = _HELD.get(device, 0) + missing * nbytes
+        _HELD[device] = held + missing * nbytes
     del release  # freed here, outside the lock, on the caller's thread
     pinned = device != "cpu"
-    taken += [wp.empty(values, dtype=wp.float64, device="cpu", pinned=pinned) for _ in range(missing)]
-    return [np.asarray(HostLease(buf, device, shape)) for buf in taken]
+    made = []
+    try:
+        for _ in range(missing):
+            made.append(wp.empty(values, dtype=wp.float64, device="cpu", pinned=pinned))
+    except BaseException:  # page-locking failed, or an interrupt: give back what this call holds
+        with _LOCK:
+            _HELD[device] -= (missing - len(made)) * nbytes
+            _FREE.setdefault(device, []).extend(taken + made)
+        raise
+    return [np.asarray(HostLease(buf, device, shape)) for buf in taken + made]
+
+
+def _bytes(buffers) -> int:
+    return sum(8 * b.size for b in buffers)
 
 
 def pinned_buffer(arr: np.ndarray):
@@ -132,13 +163,18 @@ def pinned_buffer(arr: np.ndarray):
 def held_bytes(device: str) -> int:
     """Pinned bytes the pool holds for ``device`` (lent and free)."""
     with _LOCK:
+        _take_returned()
         return _HELD.get(device, 0)
 
 
 def clear() -> None:
-    """Forget every free buffer and every request count (tests; lent arrays stay valid: they hold their own)."""
+    """Forget every free buffer and every request count (tests; lent arrays stay valid: they hold their own).
+    The free buffers are released after the lock is let go."""
     with _LOCK:
-        for device, free in _FREE.items():
-            _HELD[device] = _HELD.get(device, 0) - sum(8 * b.size for b in free)
+        _take_returned()
+        dropped = dict(_FREE)
+        for device, free in dropped.items():
+            _HELD[device] = _HELD.get(device, 0) - _bytes(free)
         _FREE.clear()
         _SEEN.clear()
+    del dropped
