@@ -553,9 +553,9 @@ def _plot_simulate(cx, out, summary) -> None:
     curves = (
         ("kernel_rate", "o-", "kernel alone (time_steps)"),
         ("default_rate", "s-", "simulate(), default"),
-        ("continued_rate", "D-", "simulate(), x0 page-locked (a continued run)"),
-        ("recording_pinned_rate", "^--", f"save_every={every} into frame_buffers"),
-        ("recording_rate", "v:", f"save_every={every}, default (lent page-locked arrays where they fit)"),
+        ("continued_rate", "D-", "simulate(), continued (x0 page-locked)"),
+        ("recording_pinned_rate", "^--", f"save_every={every}, into frame_buffers"),
+        ("recording_rate", "v:", f"save_every={every}, default arrays"),
     )
     for key, style, label in curves:
         cx.loglog(d["batch"], d[key], style, ms=5, label=label)
@@ -568,4 +568,5 @@ def _plot_simulate(cx, out, summary) -> None:
     cx.set_ylabel("site-steps per second, end to end")
     title = f"simulate() as users call it ({attrs['steps']} Verlet steps) against its kernel;"
     cx.set_title(title + "\nlabels: simulate() / kernel, default (black) and continued (green)", fontsize=9)
-    cx.legend(fontsize=8)
+    cx.set_xlim(min(d["batch"]) / 1.6, max(d["batch"]) * 2.5)  # room for the ratio labels
+    cx.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2)  # below: clear of the curves
