@@ -274,6 +274,11 @@ def _part(arr, lo: int, hi: int):
     return arr if lo == 0 and hi == arr.shape[0] else arr[lo:hi]
 
 
+def _parts(lo: int, hi: int, *arrays) -> list:
+    """``_part`` of each array, in order."""
+    return [_part(a, lo, hi) for a in arrays]
+
+
 def _in_parallel(tasks) -> None:
     """Run callables concurrently (one thread each); re-raise the first error."""
     if len(tasks) == 1:
@@ -931,13 +936,7 @@ class _BlockSplitting(_Plan):
 
     def step(self, lo, hi, dt, nsteps, save_every, frames, record):
         r = self.r
-        inputs = [
-            _part(r.x, lo, hi),
-            _part(r.inv_mass, lo, hi),
-            _part(r.coupling, lo, hi),
-            *self.coefficients(dt),
-            r.boundary,
-        ]
+        inputs = [*_parts(lo, hi, r.x, r.inv_mass, r.coupling), *self.coefficients(dt), r.boundary]
         inputs += [r.wp.float64(dt)]
         inputs += [int(nsteps), int(save_every), *frames, int(record), r.hist, *r.losses(lo, hi)]
         from . import block_kernels
@@ -972,14 +971,7 @@ class _BlockSplitting(_Plan):
         r = self.r
         from . import block_kernels
 
-        inputs = [
-            _part(dx, lo, hi),
-            _part(column_base, lo, hi),
-            r.inv_mass,
-            r.coupling,
-            *self.coefficients(dt),
-            r.boundary,
-        ]
+        inputs = [*_parts(lo, hi, dx, column_base), r.inv_mass, r.coupling, *self.coefficients(dt), r.boundary]
         inputs += [r.wp.float64(dt), int(nsteps), r.hist]
         stages = r.method.stages
         columns = tangent_columns_per_block(hi - lo, stages, r.device)
@@ -1003,20 +995,13 @@ class _BlockRungeKutta(_Plan):
 
     def step(self, lo, hi, dt, nsteps, save_every, frames, record):
         r = self.r
-        inputs = [
-            _part(r.x, lo, hi),
-            _part(r.inv_mass, lo, hi),
-            _part(r.coupling, lo, hi),
-            *self.tableau,
-            r.boundary,
-            r.wp.float64(dt),
-        ]
+        inputs = [*_parts(lo, hi, r.x, r.inv_mass, r.coupling), *self.tableau, r.boundary, r.wp.float64(dt)]
         inputs += [int(nsteps), int(save_every), *frames, int(record), r.hist]
         r.launch_kernel(r.bk.rk4, (hi - lo, r.block), inputs, r.block)
 
     def tangent(self, dx, column_base, lo, hi, dt, nsteps):
         r = self.r
-        inputs = [_part(dx, lo, hi), _part(column_base, lo, hi), r.inv_mass, r.coupling, *self.tableau, r.boundary]
+        inputs = [*_parts(lo, hi, dx, column_base), r.inv_mass, r.coupling, *self.tableau, r.boundary]
         inputs += [r.wp.float64(dt), int(nsteps), r.hist]
         r.wp.launch(r.bk.rk4_tangent, dim=(hi - lo, r.block), block_dim=r.block, device=r.device, inputs=inputs)
 
@@ -1033,22 +1018,15 @@ class _ThreadSplitting(_Plan):
 
     def step(self, lo, hi, dt, nsteps, save_every, frames, record):
         r = self.r
-        inputs = [
-            _part(r.x, lo, hi),
-            _part(self.acc, lo, hi),
-            _part(r.inv_mass, lo, hi),
-            _part(r.coupling, lo, hi),
-            self.drifts,
-            self.kicks,
-        ]
+        inputs = [*_parts(lo, hi, r.x, self.acc, r.inv_mass, r.coupling), self.drifts, self.kicks]
         inputs += [r.boundary, r.wp.float64(dt), int(nsteps), int(save_every), *frames, int(record), r.hist]
         inputs += r.losses(lo, hi)
         r.launch_kernel(r.k.splitting_kernel, hi - lo, inputs)
 
     def tangent(self, dx, column_base, lo, hi, dt, nsteps):
         r, wp = self.r, self.r.wp
-        dacc = _part(self.kept("dacc", (dx.shape[0], 2, r.N)), lo, hi)  # written before it is read
-        inputs = [_part(dx, lo, hi), dacc, _part(column_base, lo, hi), r.inv_mass, r.coupling, self.drifts, self.kicks]
+        dacc = self.kept("dacc", (dx.shape[0], 2, r.N))  # written before it is read
+        inputs = [*_parts(lo, hi, dx, dacc, column_base), r.inv_mass, r.coupling, self.drifts, self.kicks]
         inputs += [r.boundary, wp.float64(dt), int(nsteps), r.hist]
         wp.launch(r.k.splitting_tangent_kernel, dim=hi - lo, device=r.device, inputs=inputs)
 
@@ -1065,28 +1043,15 @@ class _ThreadRungeKutta(_Plan):
 
     def step(self, lo, hi, dt, nsteps, save_every, frames, record):
         r = self.r
-        inputs = [
-            _part(r.x, lo, hi),
-            *(_part(a, lo, hi) for a in self.scratch),
-            _part(r.inv_mass, lo, hi),
-            _part(r.coupling, lo, hi),
-        ]
+        inputs = _parts(lo, hi, r.x, *self.scratch, r.inv_mass, r.coupling)
         inputs += [*self.tableau, r.boundary, r.wp.float64(dt), int(nsteps), int(save_every), *frames]
         inputs += [int(record), r.hist]
         r.launch_kernel(r.k.rk4_kernel, hi - lo, inputs)
 
     def tangent(self, dx, column_base, lo, hi, dt, nsteps):
         r, wp = self.r, self.r.wp
-        scratch = [_part(self.kept(f"stage{i}", (dx.shape[0], 4, r.N)), lo, hi) for i in range(3)]
-        inputs = [
-            _part(dx, lo, hi),
-            *scratch,
-            _part(column_base, lo, hi),
-            r.inv_mass,
-            r.coupling,
-            *self.tableau,
-            r.boundary,
-        ]
+        scratch = [self.kept(f"stage{i}", (dx.shape[0], 4, r.N)) for i in range(3)]
+        inputs = [*_parts(lo, hi, dx, *scratch, column_base), r.inv_mass, r.coupling, *self.tableau, r.boundary]
         inputs += [wp.float64(dt), int(nsteps), r.hist]
         wp.launch(r.k.rk4_tangent_kernel, dim=hi - lo, device=r.device, inputs=inputs)
 
@@ -1357,16 +1322,8 @@ class _Runner:
         lo, hi = lattices if lattices is not None else (0, self.batch)
         ru, rv = (rec[0][:, lo:hi], rec[1][:, lo:hi]) if rec is not None and n_rec else (self.no_record,) * 2
         out = self.guard_out[slot if slot == 2 else slot % 2]
-        inputs = [
-            _part(self.x, lo, hi),
-            _part(self.mass, lo, hi),
-            _part(self.coupling, lo, hi),
-            self.boundary,
-            ru,
-            rv,
-            int(n_rec),
-        ]
-        inputs += [_part(self.contact, lo, hi), _part(out, lo, hi)]
+        inputs = [*_parts(lo, hi, self.x, self.mass, self.coupling), self.boundary, ru, rv, int(n_rec)]
+        inputs += _parts(lo, hi, self.contact, out)
         if self.layout == "block":
             dim = (hi - lo, self.block)
             self.launch_kernel(self.bk.guard, dim, inputs, self.block)
