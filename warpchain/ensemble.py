@@ -797,7 +797,8 @@ def page_locked(x, *, device: str | None = None) -> np.ndarray:
     device copies it straight from there, with no staging pass on the host (a result's ``x`` is lent such
     memory already, so a run continued from it needs no call here). On the CPU a plain copy.
 
-    The memory comes from ``leases``' pool and goes back to it when the array is dropped.
+    The memory comes from ``leases``' pool and goes back to it when the array is dropped; when the pool is full
+    (``leases.limit_bytes``) the copy is a plain array.
 
     Raises:
         ValueError: not a real array.
