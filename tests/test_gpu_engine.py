@@ -306,6 +306,7 @@ def test_frames_go_straight_into_page_locked_results(small_chain):
         b.pinned = True  # what frame_buffers allocates on a GPU
     views = tuple(b.numpy()[7:].reshape(5, 3, p.N) for b in base)
     assert _pinned_view(views[0])[1] == 7
+    assert _pinned_view(views[0][:, :, ::2]) is None  # a strided view is not one run of values
     sink = _FrameSink(runner, 5, 2, gpu=True, out=views)
     assert sink.direct is not None and sink.staging == []
     frames = [np.random.default_rng(k).normal(size=(2, 3, p.N)) for k in range(2)]

@@ -350,7 +350,9 @@ _SLICED_ENDS: float | None = None  # benchmarks: this fraction for every short s
 #: host copy per call (False: plain arrays, as before; benchmarks compare the two)
 _LEASE_RESULTS = True
 _UPLOAD_PAGEABLE = False  # benchmarks: a whole-batch upload from plain memory by the driver, not our staging
-_LEASE_ON_CPU = False  # tests set it to lend (plain Warp host) buffers on the CPU, so CI runs those paths
+#: tests set it to lend (plain Warp host) buffers on the CPU, so CI runs the direct copies into and out of them
+#: (those work on any device: only the lending is GPU-only by default)
+_LEASE_ON_CPU = False
 #: from this many lattices a launch of a method with few stages would take two lattices per thread block
 #: (None: never). Off: on the H200 it made the Verlet kernel slower, 3.27e11 against 3.56e11 site-steps/s
 #: at 4096 lattices and 3.41e11 against 3.76e11 at 32768 (benchmarks/h200-2026-11-22b/two-per-block/),
@@ -697,8 +699,8 @@ class _SlicedTransfers:
         bounds = np.linspace(0, runner.batch, n_slices + 1).astype(int)
         self.slices = [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
         self.site_values = 4 * runner.N
-        self.direct_up = _pinned_view(x0) if self.gpu or _LEASE_ON_CPU else None
-        self.direct_down = _pinned_view(out) if out is not None and (self.gpu or _LEASE_ON_CPU) else None
+        self.direct_up = _pinned_view(x0)
+        self.direct_down = _pinned_view(out) if out is not None else None
         self.out = out if self.direct_down is not None else None
         self.up = None if self.direct_up else _take_buffer(wp, runner.device, x0.size, self.gpu)
         self.down = None if self.direct_down else _take_buffer(wp, runner.device, x0.size, self.gpu)
@@ -815,7 +817,10 @@ def page_locked(x, *, device: str | None = None) -> np.ndarray:
 
 def _pinned_view(arr: np.ndarray):
     """(pinned Warp array, offset in values) when ``arr`` views page-locked Warp host memory (as the arrays
-    of ``frame_buffers`` and the results ``simulate`` lends do), else None."""
+    of ``frame_buffers`` and the results ``simulate`` lends do), else None. Only a C-contiguous float64 view
+    qualifies: the copies read and write it as one run of values from the offset."""
+    if arr.dtype != np.float64 or not arr.flags.c_contiguous:
+        return None
     lent = leases.pinned_buffer(arr)
     if lent is not None:
         return lent
@@ -854,7 +859,7 @@ class _FrameSink:
             runner._sink_frames = cached  # kept with the runner (reused by the next call)
         self.rec = cached[1]
         self.device = runner.device
-        direct = [_pinned_view(a) for a in (self.u, self.v)] if (gpu or _LEASE_ON_CPU) and out is not None else [None]
+        direct = [_pinned_view(a) for a in (self.u, self.v)] if out is not None else [None]
         self.direct = direct if all(d is not None for d in direct) else None
         self.staging = []
         if self.direct is None:
@@ -1221,7 +1226,7 @@ class _Runner:
         result ``simulate`` lent). Kernels queued after it see the new state. ``wait=False``: return before
         the device has read a page-locked ``x0``; the caller must not change it until the device is synchronised."""
         wp = self.wp
-        direct = _pinned_view(x0) if x0.flags.c_contiguous and (self.device != "cpu" or _LEASE_ON_CPU) else None
+        direct = _pinned_view(x0)
         if direct is not None:
             src, offset = direct
             wp.copy(self.x, src, src_offset=offset, count=x0.size)
@@ -1245,7 +1250,7 @@ class _Runner:
         write the result: fresh host memory is filled ~5x faster that way than by one thread);
         ``out``: a host array of the state's shape to fill instead (e.g. one touched in advance, or a
         page-locked one, which the device copies into directly)."""
-        direct = _pinned_view(out) if out is not None and (self.device != "cpu" or _LEASE_ON_CPU) else None
+        direct = _pinned_view(out) if out is not None else None
         if direct is not None:
             dst, offset = direct
             self.wp.copy(dst, self.x, dest_offset=offset, count=self.x.size)
@@ -1514,7 +1519,7 @@ def simulate(
         units_per_chunk = min(units_per_chunk, _frames_per_chunk(batch, params.N))
     sizes = [units_per_chunk] * (units_total // units_per_chunk) + [units_total % units_per_chunk]
     fraction = _SLICED_ENDS
-    if fraction is None and short and (device != "cpu" or _LEASE_ON_CPU) and _pinned_view(x0) is not None:
+    if fraction is None and short and _pinned_view(x0) is not None:
         fraction = _LOCKED_ENDS
     ends = math.ceil(units_total * fraction) if short and not save_every and fraction else 0
     if 0 < ends and 2 * ends < units_total:
