@@ -15,9 +15,14 @@ Variants: ``whole``: no slices, the default chunk count (from the work, at most 
 ``--record K``: also ``simulate(save_every=K)``, lent frames against plain ones, with the frames' rate.
 ``--ends F``: also ``auto`` with ``ensemble._SLICED_ENDS = F`` (sliced first and last chunks of F of the run
 each, the middle on the whole batch), with x0 plain and page-locked.
+``auto, equal slices``: the slices as before ``_slice_bounds`` grew them (``_FIRST_SLICE_LATTICES = 4096``:
+equal slices of 4096 lattices, or the whole batch below 5.2k), with x0 plain and page-locked. ``--first F``:
+also slices that grow from F lattices (``_FIRST_SLICE_LATTICES = F``) at every batch, sliced from 1 lattice
+up (``_SLICED_MIN_VALUES = 1``), with ``--growth G`` (``_SLICE_GROWTH``) when given.
 
 Command (GPU): ``python benchmarks/simulate_slices.py [--batch 805 8192 32768] [--slices 2 4 8 16]
-[--one-chunk 4 8] [--no-prefault 8] [--record 20] [--ends 0.125 0.25]``
+[--one-chunk 4 8] [--no-prefault 8] [--record 20] [--ends 0.125 0.25] [--first 256 512] [--growth 1.5]
+[--record 20 --pool-gib 24]``
 """
 
 import argparse
@@ -30,7 +35,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from warpchain import ChainParams, lowest_optical_mode, page_locked, simulate  # noqa: E402
-from warpchain import ensemble  # noqa: E402
+from warpchain import ensemble, leases  # noqa: E402
 from warpchain.ensemble import time_steps  # noqa: E402
 
 
@@ -46,6 +51,9 @@ def main():
     ap.add_argument("--copy-slice", type=int, nargs="*", default=[], help="also: auto, values per copy thread")
     ap.add_argument("--record", type=int, default=None, help="also: save_every=K, lent and plain frames")
     ap.add_argument("--ends", type=float, nargs="*", default=[], help="also: auto with these _SLICED_ENDS")
+    ap.add_argument("--first", type=int, nargs="*", default=[], help="also: sliced, first slice of F lattices")
+    ap.add_argument("--growth", type=float, default=None, help="with --first: _SLICE_GROWTH")
+    ap.add_argument("--pool-gib", type=float, default=None, help="with --record: also lent frames, pool limit G GiB")
     args = ap.parse_args()
     p = ChainParams(30.0, 160.0, 201)
     _, shape = lowest_optical_mode(p)
@@ -61,6 +69,12 @@ def main():
     variants += [(f"{n} slices, no prefault", {**sliced(n), **no_prefault}, {}, False) for n in args.no_prefault]
     variants += [("auto", {}, {}, False), ("auto, plain results", dict(_LEASE_RESULTS=False), {}, False)]
     variants += [("auto, x0 page-locked", {}, {}, True)]
+    equal = dict(_FIRST_SLICE_LATTICES=4096)
+    variants += [("auto, equal slices", equal, {}, False), ("auto, equal slices, x0 page-locked", equal, {}, True)]
+    growth = {} if args.growth is None else dict(_SLICE_GROWTH=args.growth)
+    for f in args.first:
+        grown = dict(_SLICED_MIN_VALUES=1, _SLICES=None, _FIRST_SLICE_LATTICES=f, **growth)
+        variants += [(f"first {f}", grown, {}, False), (f"first {f}, x0 page-locked", grown, {}, True)]
     variants += [("auto, driver's pageable upload", dict(_UPLOAD_PAGEABLE=True), {}, False)]
     for f in args.ends:
         variants += [(f"auto, ends {f:g}", dict(_SLICED_ENDS=f), {}, False)]
@@ -72,8 +86,12 @@ def main():
             ("auto, record", {}, record, False),
             ("auto, record, plain", dict(_LEASE_RESULTS=False), record, False),
         ]
+        if args.pool_gib:
+            pool = dict(LIMIT_BYTES=int(args.pool_gib * (1 << 30)))
+            variants += [(f"auto, record, pool {args.pool_gib:g} GiB", pool, record, False)]
     names = {name for _, settings, _, _ in variants for name in settings}
-    defaults = {name: getattr(ensemble, name) for name in names}
+    owner = lambda name: leases if name == "LIMIT_BYTES" else ensemble  # noqa: E731
+    defaults = {name: getattr(owner(name), name) for name in names}
     print(f"# {args.steps} Verlet steps, N = {p.N}; best of {args.repeats}; ratio = kernel / simulate()", flush=True)
     for batch in args.batch:
         x0 = np.repeat(one[None], batch, 0)
@@ -82,7 +100,7 @@ def main():
         first = None  # the first variant's end state: every other must have the same bits
         for name, settings, keywords, locked in variants:
             for attr, value in {**defaults, **settings}.items():
-                setattr(ensemble, attr, value)
+                setattr(owner(attr), attr, value)
             start = page_locked(x0, device=args.device) if locked else x0
             kw = dict(device=args.device, **keywords)
             simulate(p, start, args.steps * dt, dt, **kw)
@@ -105,7 +123,7 @@ def main():
             )
             del run, start
         for attr, value in defaults.items():
-            setattr(ensemble, attr, value)
+            setattr(owner(attr), attr, value)
 
 
 if __name__ == "__main__":

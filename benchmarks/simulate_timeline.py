@@ -5,7 +5,7 @@ N = 201, 2000 steps, after one untimed call. With ``--device-events`` the device
 recorded around every launch (main stream) and every slice transfer (its own stream), in ms from an event
 recorded just before the call, marked ``[device]``.
 
-Command (GPU): ``python benchmarks/simulate_timeline.py [--batch 32768] [--slices 8] [--chunks 1]
+Command (GPU): ``python benchmarks/simulate_timeline.py [--batch 32768] [--slices 0 8] [--chunks 1]
 [--page-locked] [--device-events]``
 """
 
@@ -63,7 +63,7 @@ def wrap_device(owner, name, label, stream_of):
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--batch", type=int, nargs="+", default=[32768])
-    ap.add_argument("--slices", type=int, nargs="+", default=[8])
+    ap.add_argument("--slices", type=int, nargs="+", default=[0], help="0: simulate's own slices; 1: whole")
     ap.add_argument("--chunks", type=int, default=None)
     ap.add_argument("--device", default="cuda")
     ap.add_argument("--page-locked", action="store_true", help="x0 given as page_locked(x0)")
@@ -89,13 +89,16 @@ def main():
         wrap_device(ensemble._Runner, "guard", "guard kernel", main_stream)
         wrap_device(ensemble._SlicedTransfers, "upload", "slice upload", lambda self: self.up_stream)
         wrap_device(ensemble._SlicedTransfers, "download", "slice download", lambda self: self.down_stream)
+    defaults = ensemble._SLICED_MIN_VALUES, ensemble._SLICES
     for batch in args.batch:
         x0 = np.repeat(one[None], batch, 0)
         if args.page_locked:
             x0 = page_locked(x0, device=args.device)
         kernel = time_steps(p, x0, 2000, 0.1, device=args.device, repeats=3)
         for slices in args.slices:
-            ensemble._SLICED_MIN_VALUES, ensemble._SLICES = (1, slices) if slices > 1 else (1 << 62, None)
+            ensemble._SLICED_MIN_VALUES, ensemble._SLICES = defaults
+            if slices:  # 1: the whole batch at once; S > 1: S equal slices
+                ensemble._SLICED_MIN_VALUES, ensemble._SLICES = (1, slices) if slices > 1 else (1 << 62, None)
             simulate(p, x0, 200.0, 0.1, device=args.device, chunks=args.chunks)
             best = None
             for _ in range(3):
@@ -120,8 +123,8 @@ def main():
                 del run
             wall, t0, events, lent = best
             print(
-                f"\n=== batch {batch}, {slices} slice(s): kernel {1e3 * kernel:.2f} ms, call {1e3 * wall:.2f} ms "
-                f"(x0 {'page-locked' if args.page_locked else 'plain'}, result {lent})"
+                f"\n=== batch {batch}, {slices or 'auto'} slice(s): kernel {1e3 * kernel:.2f} ms, "
+                f"call {1e3 * wall:.2f} ms (x0 {'page-locked' if args.page_locked else 'plain'}, result {lent})"
             )
             for label, a, b in sorted(events, key=lambda e: e[1]):
                 print(f"  {1e3 * a:8.3f} .. {1e3 * b:8.3f}  ({1e3 * (b - a):7.3f})  {label}")

@@ -240,12 +240,32 @@ def test_sliced_transfers_give_the_same_run(layout, monkeypatch):
         simulate(p, bad, 60 * 0.02, 0.02, **kwargs)
 
 
+def test_slice_bounds_grow_from_a_small_first_slice():
+    """``_slice_bounds``: contiguous slices covering the batch, the first ``_FIRST_SLICE_LATTICES``, each later
+    one twice the one before up to a full slice (4096, or 1/8 of a batch past 32768), a short tail merged."""
+    from warpchain import ensemble
+
+    def sizes(batch):
+        bounds = ensemble._slice_bounds(batch)
+        assert bounds[0][0] == 0 and bounds[-1][1] == batch
+        assert all(a[1] == b[0] for a, b in zip(bounds[:-1], bounds[1:]))
+        return [hi - lo for lo, hi in bounds]
+
+    assert sizes(8192) == [1024, 2048, 4096, 1024]
+    assert sizes(32768) == [1024, 2048] + [4096] * 6 + [4096, 1024]
+    assert sizes(65536) == [1024, 2048, 4096] + [8192] * 7 + [1024]
+    assert sizes(6000) == [1024, 2048, 2928]
+    assert sizes(3500) == [1024, 2476]  # a 428-lattice tail (under half the first) joins the slice before
+    assert sizes(700) == [700]
+
+
 @pytest.mark.parametrize("layout", LAYOUTS)
 def test_short_sliced_runs_default_to_two_chunks(layout, monkeypatch):
     """A short run on a large batch (the GPU's sliced path, forced on the CPU) defaults to two chunks, whose
-    kernels hide the slices' transfers, in one slice per ``_SLICE_LATTICES`` lattices: the same end state
-    as a run in more chunks over the whole batch; a blow-up is still reported at a chunk end with its
-    lattice; explicit chunks, progress bars and long runs keep their chunk counts."""
+    kernels hide the slices' transfers, in slices that grow from ``_FIRST_SLICE_LATTICES`` to
+    ``_SLICE_LATTICES`` (the last chunk runs them in reverse): the same end state as a run in more chunks
+    over the whole batch; a blow-up is still reported at a chunk end with its lattice; explicit chunks,
+    progress bars and long runs keep their chunk counts."""
     from warpchain import ensemble
 
     p = ChainParams(30.0, 160.0, 41)
@@ -256,9 +276,11 @@ def test_short_sliced_runs_default_to_two_chunks(layout, monkeypatch):
     monkeypatch.setattr(ensemble, "_SLICE_ON_CPU", True)
     monkeypatch.setattr(ensemble, "_SLICED_MIN_VALUES", 1)
     monkeypatch.setattr(ensemble, "_SLICE_LATTICES", 2)
+    monkeypatch.setattr(ensemble, "_FIRST_SLICE_LATTICES", 1)
     monkeypatch.setattr(ensemble, "_CHUNK_WORK", 1)  # the work alone would ask for 10 chunks
+    assert ensemble._slice_bounds(7) == [(0, 1), (1, 3), (3, 5), (5, 7)]
     run = simulate(p, x0, 60 * 0.02, 0.02, **kwargs)
-    assert (run.stats["chunks"], run.stats["slices"]) == (2, 3)
+    assert (run.stats["chunks"], run.stats["slices"]) == (2, 4)
     assert np.array_equal(run.x, plain.x) and np.array_equal(run.energy_t, [0.0, 0.6, 1.2])
     assert np.array_equal(run.energy_trace[[0, -1]], plain.energy_trace[[0, -1]])
     monkeypatch.setattr(ensemble, "_SLICED_ENDS", 0.1)  # sliced ends of 6 steps, the middle on the whole batch

@@ -325,13 +325,20 @@ def resolve_layout(layout: str, device: str, n_sites: int) -> str:
 #: many values up (fresh memory fills at ~3 GB/s per thread: 0.9 ms for the 805-lattice state)
 _PREFAULT_MIN_VALUES = 1 << 16
 #: ``simulate`` moves the state in lattice slices (overlapped with the kernels) from this many values up
-#: (5.2k lattices of 201 sites), in ``_slice_count`` slices (``_SLICES`` when set)
+#: (5.2k lattices of 201 sites), in the slices of ``_slice_bounds`` (``_SLICES`` equal ones when set)
 _SLICED_MIN_VALUES = 1 << 22
 _SLICES = None
 #: lattices per slice and the most slices: on the H200, 8 slices of 4096 lattices, 2 of 4096 and the whole
-#: batch at 805 were each the best or within 2 % of it (benchmarks/h200-2026-11-22h/slices.txt)
+#: batch at 805 were each the best or within 2 % of it among equal slices (benchmarks/h200-2026-11-22h/slices.txt)
 _SLICE_LATTICES = 4096
 _MAX_SLICES = 8
+#: the first slice's lattices; each later one is ``_SLICE_GROWTH`` times the one before, up to the full slice.
+#: Why: no kernel starts before the first slice's host copy and transfer are done (1.46 + 0.55 ms for 4096
+#: lattices from a plain x0 on the H200 host, benchmarks/h200-2026-11-22m/timeline-8192.txt), and the last
+#: chunk runs the slices in reverse order, so the download that follows the last kernel is the first slice's
+#: too. Later slices are larger, since each one's host copy then hides behind the kernel of the one before.
+_FIRST_SLICE_LATTICES = 1024
+_SLICE_GROWTH = 2.0
 #: a sliced run of at most this many force evaluations per site runs in at most ``_SHORT_RUN_CHUNKS`` chunks
 #: by default: the first and the last chunk, whose kernels hide the slices' transfers, then hold the whole run
 _SHORT_RUN_EVALUATIONS = 1 << 15
@@ -446,11 +453,25 @@ _RUNNER_POOL: dict = {}
 _RUNNER_POOL_SIZE = 4
 
 
-def _slice_count(batch: int) -> int:
-    """Lattice slices of a sliced ``simulate`` run."""
+def _slice_bounds(batch: int) -> list[tuple[int, int]]:
+    """Lattice slices (lo, hi) of a sliced ``simulate`` run, in upload order: ``_FIRST_SLICE_LATTICES``, then
+    each ``_SLICE_GROWTH`` times the one before up to a full slice (``_SLICE_LATTICES``, or 1/``_MAX_SLICES``
+    of a larger batch); what is left after the last full slice is one more slice (merged into the one before
+    when it is under half the first). ``_SLICES``: that many equal slices instead (tests, benchmarks)."""
     if _SLICES is not None:
-        return _SLICES
-    return max(2, min(_MAX_SLICES, batch // _SLICE_LATTICES))
+        bounds = np.linspace(0, batch, _SLICES + 1).astype(int)
+        return [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
+    full = max(1, _SLICE_LATTICES, -(-batch // _MAX_SLICES))
+    size = max(1, min(_FIRST_SLICE_LATTICES, full))
+    sizes, left = [], batch
+    while left > 0:
+        sizes.append(min(size, left))
+        left -= sizes[-1]
+        size = min(full, max(size + 1, int(size * _SLICE_GROWTH)))
+    if len(sizes) > 1 and 2 * sizes[-1] < sizes[0]:
+        sizes[-2:] = [sizes[-2] + sizes[-1]]
+    ends = np.cumsum([0, *sizes])
+    return [(int(a), int(b)) for a, b in zip(ends[:-1], ends[1:])]
 
 
 def _pooled_runner(
@@ -689,15 +710,15 @@ class _SlicedTransfers:
     transfer each way is exposed (on a GPU; on the CPU the same steps run in order). ``simulate`` runs the
     first and the last chunk slice by slice for it; a short run on a large batch has only those two."""
 
-    def __init__(self, runner, x0: np.ndarray, n_slices: int, out: np.ndarray | None = None):
-        """``out``: the final state's host array when it is page-locked (a lent result): the slices are
+    def __init__(self, runner, x0: np.ndarray, slices: list, out: np.ndarray | None = None):
+        """``slices``: (lo, hi) lattice ranges covering the batch, in upload order (``_slice_bounds``).
+        ``out``: the final state's host array when it is page-locked (a lent result): the slices are
         copied into it by the device, and ``take`` only waits for them. A page-locked ``x0`` is likewise
         copied to the device straight from where it is."""
         wp = runner.wp
         self.wp, self.r, self.x0 = wp, runner, x0
         self.gpu = runner.device != "cpu"
-        bounds = np.linspace(0, runner.batch, n_slices + 1).astype(int)
-        self.slices = [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
+        self.slices = [(int(a), int(b)) for a, b in slices]
         self.site_values = 4 * runner.N
         self.direct_up = _pinned_view(x0)
         self.direct_down = _pinned_view(out) if out is not None else None
@@ -1545,7 +1566,7 @@ def simulate(
     final = lent[0] if lent else None  # the final state's page-locked host array, which the device fills
     target = None  # else the final state's host array, touched in the background once the device is busy
     guard = _GuardReader(runner, gpu)
-    transfers = _SlicedTransfers(runner, x0, _slice_count(batch), out=final) if sliced else None
+    transfers = _SlicedTransfers(runner, x0, _slice_bounds(batch), out=final) if sliced else None
     if not plan:
         runner.upload(x0)
         E0, finite0, contact = (a.copy() for a in guard.read(runner.guard(), 0))  # of x0, on the device
@@ -1556,6 +1577,11 @@ def simulate(
         # the start's guard (energy, finite flag, contact of x0) is queued with chunk 0 and read after it,
         # so the host never waits for the device before the first kernel runs
         E0 = contact = None
+    # the last chunk runs (and downloads) the slices in reverse order, so that the download left after the last
+    # kernel is the first slice's, the smallest (a one-chunk run keeps the upload order)
+    last_order = list(range(len(transfers.slices))) if sliced else []
+    if len(plan) > 1:
+        last_order.reverse()
     trace_t, trace_E = [0.0], [E0]
     max_err = np.zeros(batch)
 
@@ -1581,7 +1607,8 @@ def simulate(
         _, steps, n_rec = plan[i]
         rec = sink.rec if n_rec else None
         if sliced and (i == 0 or i == len(plan) - 1):
-            for s, lattices in enumerate(transfers.slices):
+            for s in range(len(transfers.slices)) if i == 0 else last_order:
+                lattices = transfers.slices[s]
                 if i == 0:
                     transfers.upload(s)
                     runner.guard(slot=2, lattices=lattices)  # the start: energy, finite, contact
@@ -1635,7 +1662,7 @@ def simulate(
     stats["slices"] = len(transfers.slices) if sliced else 1
     stats["lent"] = final is not None  # the final state in page-locked memory lent by ``leases``
     if runner.layout == "block" and isinstance(meth, SplittingMethod):
-        lattices = transfers.slices[0][1] if sliced else batch
+        lattices = max(b - a for a, b in transfers.slices) if sliced else batch  # of the largest slice
         stats["sites_per_thread"] = sites_per_thread(lattices, params.N, meth.stages, device)
     try:
         if plan:
@@ -1654,7 +1681,7 @@ def simulate(
                         target.join()
                     final = target.result if target is not None else np.empty(x0.shape)
                 t0 = time.perf_counter()
-                for s_ in range(len(transfers.slices)):
+                for s_ in last_order:
                     transfers.take(s_, final)  # while the device finishes the later slices
                 stats["final"] += time.perf_counter() - t0
             t0 = time.perf_counter()
