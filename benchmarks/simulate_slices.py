@@ -15,6 +15,8 @@ Variants: ``whole``: no slices, the default chunk count (from the work, at most 
 ``--record K``: also ``simulate(save_every=K)``, lent frames against plain ones, with the frames' rate.
 ``--ends F``: also ``auto`` with ``ensemble._SLICED_ENDS = F`` (sliced first and last chunks of F of the run
 each, the middle on the whole batch), with x0 plain and page-locked.
+``auto, uploads inline``: the sliced uploads' host copies on the calling thread, between the slices'
+launches (``_UPLOAD_THREAD`` off), as before; ``auto, equal slices, inline``: both as before.
 ``auto, equal slices``: the slices as before ``_slice_bounds`` grew them (``_FIRST_SLICE_LATTICES = 4096``:
 equal slices of 4096 lattices, or the whole batch below 5.2k), with x0 plain and page-locked. ``--first F``:
 also slices that grow from F lattices (``_FIRST_SLICE_LATTICES = F``) at every batch, sliced from 1 lattice
@@ -71,6 +73,8 @@ def main():
     variants += [("auto, x0 page-locked", {}, {}, True)]
     equal = dict(_FIRST_SLICE_LATTICES=4096)
     variants += [("auto, equal slices", equal, {}, False), ("auto, equal slices, x0 page-locked", equal, {}, True)]
+    variants += [("auto, uploads inline", dict(_UPLOAD_THREAD=False), {}, False)]
+    variants += [("auto, equal slices, inline", dict(_UPLOAD_THREAD=False, **equal), {}, False)]
     growth = {} if args.growth is None else dict(_SLICE_GROWTH=args.growth)
     for f in args.first:
         grown = dict(_SLICED_MIN_VALUES=1, _SLICES=None, _FIRST_SLICE_LATTICES=f, **growth)

@@ -6,7 +6,7 @@ recorded around every launch (main stream) and every slice transfer (its own str
 recorded just before the call, marked ``[device]``.
 
 Command (GPU): ``python benchmarks/simulate_timeline.py [--batch 32768] [--slices 0 8] [--chunks 1]
-[--page-locked] [--device-events]``
+[--page-locked] [--device-events] [--detail]``
 """
 
 import argparse
@@ -19,7 +19,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from warpchain import ChainParams, lowest_optical_mode, page_locked, simulate  # noqa: E402
-from warpchain import ensemble  # noqa: E402
+from warpchain import ensemble, leases  # noqa: E402
 from warpchain.ensemble import time_steps  # noqa: E402
 
 EVENTS = []
@@ -68,6 +68,7 @@ def main():
     ap.add_argument("--device", default="cuda")
     ap.add_argument("--page-locked", action="store_true", help="x0 given as page_locked(x0)")
     ap.add_argument("--device-events", action="store_true", help="also CUDA events around launches, transfers")
+    ap.add_argument("--detail", action="store_true", help="also every host copy (_copy) and wp.copy call")
     args = ap.parse_args()
     p = ChainParams(30.0, 160.0, 201)
     _, shape = lowest_optical_mode(p)
@@ -81,6 +82,22 @@ def main():
     wrap(ensemble._Runner, "download", "whole download")
     wrap(ensemble, "_fill_zero", "prefault fill (thread)")
     wrap(ensemble._GuardReader, "wait", "guard wait")
+    if args.detail:
+        import warp
+
+        wrap(ensemble, "_copy", "  host copy (_copy)")
+        wrap(warp, "copy", "  wp.copy (queue)")
+        for owner, name in [
+            (ensemble, "_as_state"),
+            (ensemble, "per_lattice_parameters"),
+            (ensemble, "_check_step"),
+            (ensemble, "_pooled_runner"),
+            (ensemble._Runner, "set_damping"),
+            (leases, "lend"),
+            (ensemble._GuardReader, "__init__"),
+            (ensemble._SlicedTransfers, "__init__"),
+        ]:
+            wrap(owner, name, f"  set-up: {getattr(owner, '__name__', '')}.{name}")
     if args.device_events:
         import warp as wp
 

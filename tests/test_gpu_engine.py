@@ -240,6 +240,39 @@ def test_sliced_transfers_give_the_same_run(layout, monkeypatch):
         simulate(p, bad, 60 * 0.02, 0.02, **kwargs)
 
 
+def test_sliced_uploads_on_their_own_thread(monkeypatch):
+    """A sliced upload from a plain x0 copies its slices on a thread of its own: the same run as with the
+    copies on the calling thread; an error in a copy reaches the caller, and the call returns only after the
+    uploading thread has stopped."""
+    import threading
+
+    from warpchain import ensemble
+
+    p = ChainParams(30.0, 160.0, 41)
+    x0 = localized_state(p.N, amplitude=0.8, batch=6, seed=4)
+    kwargs = dict(method="verlet", device="cpu", chunks=2)
+    monkeypatch.setattr(ensemble, "_SLICE_ON_CPU", True)
+    monkeypatch.setattr(ensemble, "_SLICED_MIN_VALUES", 1)
+    monkeypatch.setattr(ensemble, "_SLICES", 3)
+    threaded = simulate(p, x0, 40 * 0.02, 0.02, **kwargs)
+    monkeypatch.setattr(ensemble, "_UPLOAD_THREAD", False)
+    inline = simulate(p, x0, 40 * 0.02, 0.02, **kwargs)
+    assert np.array_equal(threaded.x, inline.x) and np.array_equal(threaded.energy_trace, inline.energy_trace)
+    monkeypatch.setattr(ensemble, "_UPLOAD_THREAD", True)
+    copies, real = [], ensemble._copy
+
+    def failing(dst, src):
+        copies.append(threading.current_thread().name)
+        if len(copies) == 2:
+            raise MemoryError("the second slice's copy failed")
+        real(dst, src)
+
+    monkeypatch.setattr(ensemble, "_copy", failing)
+    with pytest.raises(MemoryError, match="second slice"):
+        simulate(p, x0, 40 * 0.02, 0.02, **kwargs)
+    assert len(copies) == 2 and all(name.startswith("warpchain-upload") for name in copies)
+
+
 def test_slice_bounds_grow_from_a_small_first_slice():
     """``_slice_bounds``: contiguous slices covering the batch, the first ``_FIRST_SLICE_LATTICES``, each later
     one twice the one before up to a full slice (4096, or 1/8 of a batch past 32768), a short tail merged."""

@@ -356,6 +356,9 @@ _SLICED_ENDS: float | None = None  # benchmarks: this fraction for every short s
 #: page-locked host memory lent by ``leases``, which the device copies into directly: no page touching and no
 #: host copy per call (False: plain arrays, as before; benchmarks compare the two)
 _LEASE_RESULTS = True
+#: a sliced upload from a plain x0 runs its host copies on a thread of their own (False: on the calling thread,
+#: between the slices' launches, as before; benchmarks compare the two)
+_UPLOAD_THREAD = True
 _UPLOAD_PAGEABLE = False  # benchmarks: a whole-batch upload from plain memory by the driver, not our staging
 #: tests set it to lend (plain Warp host) buffers on the CPU, so CI runs the direct copies into and out of them
 #: (those work on any device: only the lending is GPU-only by default)
@@ -628,6 +631,21 @@ def _fill_zero(arr: np.ndarray) -> None:
         job.result()
 
 
+def _upload_pool():
+    """The threads that run sliced uploads' host copies (``_SlicedTransfers._upload_all``): one per concurrent
+    ``simulate`` call, up to four."""
+    global _UPLOAD_POOL
+    with _STAGING_LOCK:
+        if _UPLOAD_POOL is None:
+            from concurrent.futures import ThreadPoolExecutor
+
+            _UPLOAD_POOL = ThreadPoolExecutor(max_workers=4, thread_name_prefix="warpchain-upload")
+    return _UPLOAD_POOL
+
+
+_UPLOAD_POOL = None
+
+
 def _copy_pool(workers: int):
     """The host copy threads: made once with as many threads as any copy may use (not as the first copy asks:
     a pool sized by a small first copy would serialise every later large one)."""
@@ -708,7 +726,12 @@ class _SlicedTransfers:
     copied (host -> pinned -> device, on an upload stream) while the kernels run on slice s - 1, and its
     final state goes back (on a download stream) while they run on slice s + 1, so only one slice's
     transfer each way is exposed (on a GPU; on the CPU the same steps run in order). ``simulate`` runs the
-    first and the last chunk slice by slice for it; a short run on a large batch has only those two."""
+    first and the last chunk slice by slice for it; a short run on a large batch has only those two.
+
+    From a plain x0 the slices' host copies run on a thread of their own (``_UPLOAD_THREAD``), back to back,
+    each followed by its transfer: on the calling thread they waited behind each slice's launches (0.5-0.8 ms
+    between copies at 8192 lattices on the H200 host, ``benchmarks/h200-2026-11-22n/timeline-detail.txt``),
+    and the host copies, not the kernels, bound the first chunk there."""
 
     def __init__(self, runner, x0: np.ndarray, slices: list, out: np.ndarray | None = None):
         """``slices``: (lo, hi) lattice ranges covering the batch, in upload order (``_slice_bounds``).
@@ -733,25 +756,63 @@ class _SlicedTransfers:
             make = lambda: (wp.Stream(runner.device), wp.Stream(runner.device))  # noqa: E731
             self.up_stream, self.down_stream = held(runner, "transfer streams", make)  # kept with the runner
             self.main = wp.get_stream(runner.device)
+        self.up_events = [None] * len(self.slices)
+        self.worker = None
+        if self.up is not None and len(self.slices) > 1 and _UPLOAD_THREAD:
+            self.ready = [threading.Event() for _ in self.slices]
+            self.error: BaseException | None = None
+            self.cancelled = False
+            self.worker = _upload_pool().submit(self._upload_all)
+
+    def _upload_all(self) -> None:
+        """The uploading thread: every slice's host copy, back to back, each followed by its transfer."""
+        try:
+            for s in range(len(self.slices)):
+                if self.cancelled:
+                    return
+                self._host_copy(s)
+                self._transfer(s)
+                self.ready[s].set()
+        except BaseException as exc:  # re-raised on the calling thread by ``upload``
+            self.error = exc
+        finally:
+            for event in self.ready:
+                event.set()
+
+    def _host_copy(self, s: int) -> None:
+        """Slice s of x0 into the pinned staging buffer."""
+        a, b = self._range(s)
+        lo, hi = self.slices[s]
+        _copy(self.up.numpy()[a:b], np.ascontiguousarray(self.x0[lo:hi]))
+
+    def _transfer(self, s: int) -> None:
+        """Queue slice s's copy to the device (on the upload stream, from the staging buffer or a page-locked
+        x0) and record when it is done."""
+        a, b = self._range(s)
+        src, base = self.direct_up if self.direct_up is not None else (self.up, 0)
+        if self.gpu:
+            self.wp.copy(self.r.x, src, dest_offset=a, src_offset=base + a, count=b - a, stream=self.up_stream)
+            self.up_events[s] = self.up_stream.record_event()
+        else:
+            self.wp.copy(self.r.x, src, dest_offset=a, src_offset=base + a, count=b - a)
 
     def _range(self, s: int):
         lo, hi = self.slices[s]
         return lo * self.site_values, hi * self.site_values
 
     def upload(self, s: int) -> None:
-        """Slice s to the device; the compute stream waits for it."""
-        a, b = self._range(s)
-        lo, hi = self.slices[s]
-        if self.direct_up is not None:
-            src, base = self.direct_up
+        """Slice s to the device (or, with the uploading thread, wait until it has queued it); the compute
+        stream waits for it."""
+        if self.worker is not None:
+            self.ready[s].wait()
+            if self.error is not None:
+                raise self.error
         else:
-            src, base = self.up, 0
-            _copy(self.up.numpy()[a:b], np.ascontiguousarray(self.x0[lo:hi]))
+            if self.direct_up is None:
+                self._host_copy(s)
+            self._transfer(s)
         if self.gpu:
-            self.wp.copy(self.r.x, src, dest_offset=a, src_offset=base + a, count=b - a, stream=self.up_stream)
-            self.main.wait_event(self.up_stream.record_event())
-        else:
-            self.wp.copy(self.r.x, src, dest_offset=a, src_offset=base + a, count=b - a)
+            self.main.wait_event(self.up_events[s])
 
     def download(self, s: int) -> None:
         """Slice s's state back to pinned memory once the kernels queued so far have run."""
@@ -777,6 +838,9 @@ class _SlicedTransfers:
     def close(self) -> None:
         if self.closed:
             return
+        if self.worker is not None:  # no host copy into the staging buffer may outlive the call
+            self.cancelled = True
+            self.worker.result()  # _upload_all keeps its errors for ``upload``: this only waits
         if self.gpu:
             self.wp.synchronize_stream(self.up_stream)
             self.wp.synchronize_stream(self.down_stream)
