@@ -1,6 +1,6 @@
 """``simulate()`` without recording on a GPU: the state moved in S lattice slices (overlapped with the
 kernels; a short run queued slice after slice) against the whole batch at once, beside the kernel's own time
-(``time_steps``), Verlet, N = 201, 2000 steps: the data behind ``ensemble._slice_count``,
+(``time_steps``), Verlet, N = 201, 2000 steps: the data behind ``ensemble._slice_bounds``,
 ``_SLICED_MIN_VALUES`` and the two chunks of a short sliced run. Best of ``--repeats`` calls after one untimed
 call; ``stats`` of the best call (ms); each variant's end state against the first's, bit for bit.
 
@@ -15,15 +15,11 @@ Variants: ``whole``: no slices, the default chunk count (from the work, at most 
 ``--record K``: also ``simulate(save_every=K)``, lent frames against plain ones, with the frames' rate.
 ``--ends F``: also ``auto`` with ``ensemble._SLICED_ENDS = F`` (sliced first and last chunks of F of the run
 each, the middle on the whole batch), with x0 plain and page-locked.
-``auto, uploads inline``: the sliced uploads' host copies on the calling thread, between the slices'
-launches (``_UPLOAD_THREAD`` off), as before; ``auto, equal slices, inline``: both as before.
-``auto, equal slices``: the slices as before ``_slice_bounds`` grew them (``_FIRST_SLICE_LATTICES = 4096``:
-equal slices of 4096 lattices, or the whole batch below 5.2k), with x0 plain and page-locked. ``--first F``:
-also slices that grow from F lattices (``_FIRST_SLICE_LATTICES = F``) at every batch, sliced from 1 lattice
-up (``_SLICED_MIN_VALUES = 1``), with ``--growth G`` (``_SLICE_GROWTH``) when given.
+``auto, staged late``: x0's host copy into page-locked staging on the calling thread after the set-up
+(``_STAGE_EARLY`` off), as before, not on a thread of its own from the top of ``simulate``.
 
 Command (GPU): ``python benchmarks/simulate_slices.py [--batch 805 8192 32768] [--slices 2 4 8 16]
-[--one-chunk 4 8] [--no-prefault 8] [--record 20] [--ends 0.125 0.25] [--first 256 512] [--growth 1.5]
+[--one-chunk 4 8] [--no-prefault 8] [--record 20] [--ends 0.125 0.25]
 [--record 20 --pool-gib 24]``
 """
 
@@ -53,8 +49,6 @@ def main():
     ap.add_argument("--copy-slice", type=int, nargs="*", default=[], help="also: auto, values per copy thread")
     ap.add_argument("--record", type=int, default=None, help="also: save_every=K, lent and plain frames")
     ap.add_argument("--ends", type=float, nargs="*", default=[], help="also: auto with these _SLICED_ENDS")
-    ap.add_argument("--first", type=int, nargs="*", default=[], help="also: sliced, first slice of F lattices")
-    ap.add_argument("--growth", type=float, default=None, help="with --first: _SLICE_GROWTH")
     ap.add_argument("--pool-gib", type=float, default=None, help="with --record: also lent frames, pool limit G GiB")
     args = ap.parse_args()
     p = ChainParams(30.0, 160.0, 201)
@@ -71,14 +65,7 @@ def main():
     variants += [(f"{n} slices, no prefault", {**sliced(n), **no_prefault}, {}, False) for n in args.no_prefault]
     variants += [("auto", {}, {}, False), ("auto, plain results", dict(_LEASE_RESULTS=False), {}, False)]
     variants += [("auto, x0 page-locked", {}, {}, True)]
-    equal = dict(_FIRST_SLICE_LATTICES=4096)
-    variants += [("auto, equal slices", equal, {}, False), ("auto, equal slices, x0 page-locked", equal, {}, True)]
-    variants += [("auto, uploads inline", dict(_UPLOAD_THREAD=False), {}, False)]
-    variants += [("auto, equal slices, inline", dict(_UPLOAD_THREAD=False, **equal), {}, False)]
-    growth = {} if args.growth is None else dict(_SLICE_GROWTH=args.growth)
-    for f in args.first:
-        grown = dict(_SLICED_MIN_VALUES=1, _SLICES=None, _FIRST_SLICE_LATTICES=f, **growth)
-        variants += [(f"first {f}", grown, {}, False), (f"first {f}, x0 page-locked", grown, {}, True)]
+    variants += [("auto, staged late", dict(_STAGE_EARLY=False), {}, False)]
     variants += [("auto, driver's pageable upload", dict(_UPLOAD_PAGEABLE=True), {}, False)]
     for f in args.ends:
         variants += [(f"auto, ends {f:g}", dict(_SLICED_ENDS=f), {}, False)]

@@ -240,65 +240,59 @@ def test_sliced_transfers_give_the_same_run(layout, monkeypatch):
         simulate(p, bad, 60 * 0.02, 0.02, **kwargs)
 
 
-def test_sliced_uploads_on_their_own_thread(monkeypatch):
-    """A sliced upload from a plain x0 copies its slices on a thread of its own: the same run as with the
-    copies on the calling thread; an error in a copy reaches the caller, and the call returns only after the
-    uploading thread has stopped."""
+@pytest.mark.parametrize("sliced", [False, True])
+def test_x0_staged_on_its_own_thread(sliced, monkeypatch):
+    """x0 staged into the upload buffer by a thread of its own from the top of ``simulate`` (the GPU path,
+    forced on the CPU): the same run as without; an error in the staging copy reaches the caller; a call that
+    fails its validation after staging began returns only once the staging thread has stopped."""
     import threading
 
     from warpchain import ensemble
+    from warpchain.ensemble import StepSizeError
 
     p = ChainParams(30.0, 160.0, 41)
-    x0 = localized_state(p.N, amplitude=0.8, batch=6, seed=4)
+    x0 = localized_state(p.N, amplitude=0.8, batch=420, seed=4)  # 68,880 values: staged (from 2^16)
     kwargs = dict(method="verlet", device="cpu", chunks=2)
-    monkeypatch.setattr(ensemble, "_SLICE_ON_CPU", True)
-    monkeypatch.setattr(ensemble, "_SLICED_MIN_VALUES", 1)
-    monkeypatch.setattr(ensemble, "_SLICES", 3)
-    threaded = simulate(p, x0, 40 * 0.02, 0.02, **kwargs)
-    monkeypatch.setattr(ensemble, "_UPLOAD_THREAD", False)
-    inline = simulate(p, x0, 40 * 0.02, 0.02, **kwargs)
-    assert np.array_equal(threaded.x, inline.x) and np.array_equal(threaded.energy_trace, inline.energy_trace)
-    monkeypatch.setattr(ensemble, "_UPLOAD_THREAD", True)
-    copies, real = [], ensemble._copy
+    if sliced:
+        monkeypatch.setattr(ensemble, "_SLICE_ON_CPU", True)
+        monkeypatch.setattr(ensemble, "_SLICED_MIN_VALUES", 1)
+        monkeypatch.setattr(ensemble, "_SLICES", 3)
+    plain = simulate(p, x0, 40 * 0.02, 0.02, **kwargs)
+    monkeypatch.setattr(ensemble, "_STAGE_ON_CPU", True)
+    staged = simulate(p, x0, 40 * 0.02, 0.02, **kwargs)
+    assert np.array_equal(staged.x, plain.x) and np.array_equal(staged.energy_trace, plain.energy_trace)
+    nothing = simulate(p, x0, 0.0, 0.02, **kwargs)  # no step: x0 uploaded and guarded, from the stage
+    assert np.array_equal(nothing.x, x0)
+    copies, real, stages = [], ensemble._copy, []
+    real_stage = ensemble._HostStage
 
     def failing(dst, src):
         copies.append(threading.current_thread().name)
-        if len(copies) == 2:
-            raise MemoryError("the second slice's copy failed")
+        if len(copies) == 1 + sliced:
+            raise MemoryError("the staging copy failed")
         real(dst, src)
 
+    def recorded(*args):
+        stages.append(real_stage(*args))
+        return stages[-1]
+
     monkeypatch.setattr(ensemble, "_copy", failing)
-    with pytest.raises(MemoryError, match="second slice"):
+    with pytest.raises(MemoryError, match="staging copy failed"):
         simulate(p, x0, 40 * 0.02, 0.02, **kwargs)
-    assert len(copies) == 2 and all(name.startswith("warpchain-upload") for name in copies)
-
-
-def test_slice_bounds_grow_from_a_small_first_slice():
-    """``_slice_bounds``: contiguous slices covering the batch, the first ``_FIRST_SLICE_LATTICES``, each later
-    one twice the one before up to a full slice (4096, or 1/8 of a batch past 32768), a short tail merged."""
-    from warpchain import ensemble
-
-    def sizes(batch):
-        bounds = ensemble._slice_bounds(batch)
-        assert bounds[0][0] == 0 and bounds[-1][1] == batch
-        assert all(a[1] == b[0] for a, b in zip(bounds[:-1], bounds[1:]))
-        return [hi - lo for lo, hi in bounds]
-
-    assert sizes(8192) == [1024, 2048, 4096, 1024]
-    assert sizes(32768) == [1024, 2048] + [4096] * 6 + [4096, 1024]
-    assert sizes(65536) == [1024, 2048, 4096] + [8192] * 7 + [1024]
-    assert sizes(6000) == [1024, 2048, 2928]
-    assert sizes(3500) == [1024, 2476]  # a 428-lattice tail (under half the first) joins the slice before
-    assert sizes(700) == [700]
+    assert copies and all(name.startswith("warpchain-stage") for name in copies)
+    monkeypatch.setattr(ensemble, "_copy", real)
+    monkeypatch.setattr(ensemble, "_HostStage", recorded)
+    with pytest.raises(StepSizeError):
+        simulate(p, x0, 40 * 0.02, 5.0, **kwargs)  # dt far above the stability limit
+    assert len(stages) == 1 and stages[0].job is None  # closed: the thread stopped, the buffer returned
 
 
 @pytest.mark.parametrize("layout", LAYOUTS)
 def test_short_sliced_runs_default_to_two_chunks(layout, monkeypatch):
     """A short run on a large batch (the GPU's sliced path, forced on the CPU) defaults to two chunks, whose
-    kernels hide the slices' transfers, in slices that grow from ``_FIRST_SLICE_LATTICES`` to
-    ``_SLICE_LATTICES`` (the last chunk runs them in reverse): the same end state as a run in more chunks
-    over the whole batch; a blow-up is still reported at a chunk end with its lattice; explicit chunks,
-    progress bars and long runs keep their chunk counts."""
+    kernels hide the slices' transfers, in one slice per ``_SLICE_LATTICES`` lattices: the same end state
+    as a run in more chunks over the whole batch; a blow-up is still reported at a chunk end with its
+    lattice; explicit chunks, progress bars and long runs keep their chunk counts."""
     from warpchain import ensemble
 
     p = ChainParams(30.0, 160.0, 41)
@@ -309,11 +303,9 @@ def test_short_sliced_runs_default_to_two_chunks(layout, monkeypatch):
     monkeypatch.setattr(ensemble, "_SLICE_ON_CPU", True)
     monkeypatch.setattr(ensemble, "_SLICED_MIN_VALUES", 1)
     monkeypatch.setattr(ensemble, "_SLICE_LATTICES", 2)
-    monkeypatch.setattr(ensemble, "_FIRST_SLICE_LATTICES", 1)
     monkeypatch.setattr(ensemble, "_CHUNK_WORK", 1)  # the work alone would ask for 10 chunks
-    assert ensemble._slice_bounds(7) == [(0, 1), (1, 3), (3, 5), (5, 7)]
     run = simulate(p, x0, 60 * 0.02, 0.02, **kwargs)
-    assert (run.stats["chunks"], run.stats["slices"]) == (2, 4)
+    assert (run.stats["chunks"], run.stats["slices"]) == (2, 3)
     assert np.array_equal(run.x, plain.x) and np.array_equal(run.energy_t, [0.0, 0.6, 1.2])
     assert np.array_equal(run.energy_trace[[0, -1]], plain.energy_trace[[0, -1]])
     monkeypatch.setattr(ensemble, "_SLICED_ENDS", 0.1)  # sliced ends of 6 steps, the middle on the whole batch

@@ -325,20 +325,13 @@ def resolve_layout(layout: str, device: str, n_sites: int) -> str:
 #: many values up (fresh memory fills at ~3 GB/s per thread: 0.9 ms for the 805-lattice state)
 _PREFAULT_MIN_VALUES = 1 << 16
 #: ``simulate`` moves the state in lattice slices (overlapped with the kernels) from this many values up
-#: (5.2k lattices of 201 sites), in the slices of ``_slice_bounds`` (``_SLICES`` equal ones when set)
+#: (5.2k lattices of 201 sites), in the slices of ``_slice_bounds``
 _SLICED_MIN_VALUES = 1 << 22
 _SLICES = None
 #: lattices per slice and the most slices: on the H200, 8 slices of 4096 lattices, 2 of 4096 and the whole
-#: batch at 805 were each the best or within 2 % of it among equal slices (benchmarks/h200-2026-11-22h/slices.txt)
+#: batch at 805 were each the best or within 2 % of it (benchmarks/h200-2026-11-22h/slices.txt)
 _SLICE_LATTICES = 4096
 _MAX_SLICES = 8
-#: the first slice's lattices; each later one is ``_SLICE_GROWTH`` times the one before, up to the full slice.
-#: Why: no kernel starts before the first slice's host copy and transfer are done (1.46 + 0.55 ms for 4096
-#: lattices from a plain x0 on the H200 host, benchmarks/h200-2026-11-22m/timeline-8192.txt), and the last
-#: chunk runs the slices in reverse order, so the download that follows the last kernel is the first slice's
-#: too. Later slices are larger, since each one's host copy then hides behind the kernel of the one before.
-_FIRST_SLICE_LATTICES = 1024
-_SLICE_GROWTH = 2.0
 #: a sliced run of at most this many force evaluations per site runs in at most ``_SHORT_RUN_CHUNKS`` chunks
 #: by default: the first and the last chunk, whose kernels hide the slices' transfers, then hold the whole run
 _SHORT_RUN_EVALUATIONS = 1 << 15
@@ -356,9 +349,11 @@ _SLICED_ENDS: float | None = None  # benchmarks: this fraction for every short s
 #: page-locked host memory lent by ``leases``, which the device copies into directly: no page touching and no
 #: host copy per call (False: plain arrays, as before; benchmarks compare the two)
 _LEASE_RESULTS = True
-#: a sliced upload from a plain x0 runs its host copies on a thread of their own (False: on the calling thread,
-#: between the slices' launches, as before; benchmarks compare the two)
-_UPLOAD_THREAD = True
+#: on a GPU ``simulate`` copies a plain x0 into page-locked staging on a thread of its own from its start
+#: (``_HostStage``), while the calling thread validates the arguments and sets the run up (False: the copy runs
+#: on the calling thread after the set-up, as before; benchmarks compare the two)
+_STAGE_EARLY = True
+_STAGE_ON_CPU = False  # tests set it to stage on the CPU too
 _UPLOAD_PAGEABLE = False  # benchmarks: a whole-batch upload from plain memory by the driver, not our staging
 #: tests set it to lend (plain Warp host) buffers on the CPU, so CI runs the direct copies into and out of them
 #: (those work on any device: only the lending is GPU-only by default)
@@ -457,24 +452,13 @@ _RUNNER_POOL_SIZE = 4
 
 
 def _slice_bounds(batch: int) -> list[tuple[int, int]]:
-    """Lattice slices (lo, hi) of a sliced ``simulate`` run, in upload order: ``_FIRST_SLICE_LATTICES``, then
-    each ``_SLICE_GROWTH`` times the one before up to a full slice (``_SLICE_LATTICES``, or 1/``_MAX_SLICES``
-    of a larger batch); what is left after the last full slice is one more slice (merged into the one before
-    when it is under half the first). ``_SLICES``: that many equal slices instead (tests, benchmarks)."""
-    if _SLICES is not None:
-        bounds = np.linspace(0, batch, _SLICES + 1).astype(int)
-        return [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
-    full = max(1, _SLICE_LATTICES, -(-batch // _MAX_SLICES))
-    size = max(1, min(_FIRST_SLICE_LATTICES, full))
-    sizes, left = [], batch
-    while left > 0:
-        sizes.append(min(size, left))
-        left -= sizes[-1]
-        size = min(full, max(size + 1, int(size * _SLICE_GROWTH)))
-    if len(sizes) > 1 and 2 * sizes[-1] < sizes[0]:
-        sizes[-2:] = [sizes[-2] + sizes[-1]]
-    ends = np.cumsum([0, *sizes])
-    return [(int(a), int(b)) for a, b in zip(ends[:-1], ends[1:])]
+    """Lattice slices (lo, hi) of a sliced ``simulate`` run: ``_SLICES`` (else one per ``_SLICE_LATTICES``
+    lattices, 2 to ``_MAX_SLICES``) equal slices. Slices that grow from a small first one (so that the first
+    kernel starts sooner) were slower on the H200: 13.7 against 12.0 ms at 8192 lattices, as the host copies,
+    not the kernels, bound the first chunk there (``benchmarks/h200-2026-11-22n/slices-grown.txt``)."""
+    n = _SLICES if _SLICES is not None else max(2, min(_MAX_SLICES, batch // _SLICE_LATTICES))
+    bounds = np.linspace(0, batch, n + 1).astype(int)
+    return [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
 
 
 def _pooled_runner(
@@ -631,21 +615,6 @@ def _fill_zero(arr: np.ndarray) -> None:
         job.result()
 
 
-def _upload_pool():
-    """The threads that run sliced uploads' host copies (``_SlicedTransfers._upload_all``): one per concurrent
-    ``simulate`` call, up to four."""
-    global _UPLOAD_POOL
-    with _STAGING_LOCK:
-        if _UPLOAD_POOL is None:
-            from concurrent.futures import ThreadPoolExecutor
-
-            _UPLOAD_POOL = ThreadPoolExecutor(max_workers=4, thread_name_prefix="warpchain-upload")
-    return _UPLOAD_POOL
-
-
-_UPLOAD_POOL = None
-
-
 def _copy_pool(workers: int):
     """The host copy threads: made once with as many threads as any copy may use (not as the first copy asks:
     a pool sized by a small first copy would serialise every later large one)."""
@@ -662,11 +631,17 @@ def _copy_pool(workers: int):
 class _GuardReader:
     """The guard's per-lattice scalars on their way to the host: two slots (chunk i uses slot i % 2),
     pinned host buffers and an event per slot on a GPU, so the host can read chunk i while the device
-    runs chunk i + 1."""
+    runs chunk i + 1. ``simulate`` keeps one per runner (``of``): its buffers and events are made once (on
+    the H200 host making them cost ~0.08 ms per call), and a runner serves one call at a time."""
 
-    def __init__(self, runner, gpu: bool):
+    @classmethod
+    def of(cls, runner, gpu: bool) -> "_GuardReader":
+        """The reader kept with ``runner`` (made on first use; its ``close`` keeps the buffers)."""
+        return held(runner, ("guard reader", gpu), lambda: cls(runner, gpu, kept=True))
+
+    def __init__(self, runner, gpu: bool, kept: bool = False):
         wp = runner.wp
-        self.wp, self.gpu, self.runner = wp, gpu, runner
+        self.wp, self.gpu, self.runner, self.kept = wp, gpu, runner, kept
         self.last = None
         if gpu:
             self.flat = [_take_buffer(wp, runner.device, 3 * runner.batch, True) for _ in range(2)]
@@ -692,6 +667,8 @@ class _GuardReader:
         return g[:, 0].copy(), g[:, 1] > 0.5, g[:, 2].copy()
 
     def close(self) -> None:
+        if self.kept:
+            return  # the buffers stay with the runner, for its next call
         if self.gpu and self.flat:
             for buf in self.flat:
                 _give_buffer(self.runner.device, True, buf)
@@ -721,32 +698,103 @@ class _GuardReader:
         return self.wait(i)
 
 
+class _HostStage:
+    """x0 copied into a page-locked staging buffer by a thread of its own, started at the top of ``simulate``:
+    the copy then runs while the calling thread validates the arguments and sets the run up, instead of after.
+    On the H200 host the two are about as long: 0.54 ms to copy the 805-lattice state (5.2 MB; the host moves
+    ~10 GB/s per thread) and 0.5 ms of set-up before the upload could start
+    (``benchmarks/h200-2026-11-22n/timeline-detail-*.txt``). The slices are staged in order (the sliced
+    path's, or the whole batch as one); ``wait(s)`` returns once slice s is in the buffer, at the same offsets
+    as in x0. ``close`` (once the device has read the buffer) stops the thread and returns the buffer."""
+
+    def __init__(self, wp, device: str, x0: np.ndarray, slices: list):
+        self.x0, self.slices, self.device = x0, slices, device
+        self.pinned = device != "cpu"
+        self.buffer = _take_buffer(wp, device, x0.size, self.pinned)
+        self.ready = [threading.Event() for _ in slices]
+        self.error: BaseException | None = None
+        self.cancelled = False
+        self.job = _stage_pool().submit(self._run)
+
+    def _run(self) -> None:
+        try:
+            flat, per_lattice = self.buffer.numpy(), self.x0[0].size
+            for s, (lo, hi) in enumerate(self.slices):
+                if self.cancelled:
+                    return
+                _copy(flat[lo * per_lattice : hi * per_lattice], self.x0[lo:hi])
+                self.ready[s].set()
+        except BaseException as exc:  # raised on the calling thread by ``wait``
+            self.error = exc
+        finally:
+            for event in self.ready:
+                event.set()
+
+    def wait(self, s: int | None = None) -> None:
+        """Until slice s (None: every slice) is staged; re-raises the staging thread's error."""
+        for event in self.ready if s is None else self.ready[s : s + 1]:
+            event.wait()
+        if self.error is not None:
+            raise self.error
+
+    def close(self) -> None:
+        """Stop staging and return the buffer (call once no device copy from it is left in flight)."""
+        if self.job is None:
+            return
+        self.cancelled = True
+        self.job.result()  # _run keeps its errors for ``wait``: this only waits for the thread
+        _give_buffer(self.device, self.pinned, self.buffer)
+        self.job = None
+
+
+def _start_stage(wp, device: str, x0: np.ndarray, slices: list) -> _HostStage | None:
+    """A ``_HostStage`` of x0 where it pays: on a GPU (or ``_STAGE_ON_CPU``), a plain (not page-locked) x0 of at
+    least 2^16 values (smaller ones are assigned directly), ``_STAGE_EARLY`` and not ``_UPLOAD_PAGEABLE``."""
+    if not _STAGE_EARLY or _UPLOAD_PAGEABLE or (device == "cpu" and not _STAGE_ON_CPU) or x0.size < (1 << 16):
+        return None
+    if _pinned_view(x0) is not None:
+        return None
+    return _HostStage(wp, device, x0, slices)
+
+
+def _stage_pool():
+    """The threads that stage x0 (``_HostStage``): one per concurrent ``simulate`` call, up to four."""
+    global _STAGE_POOL
+    with _STAGING_LOCK:
+        if _STAGE_POOL is None:
+            from concurrent.futures import ThreadPoolExecutor
+
+            _STAGE_POOL = ThreadPoolExecutor(max_workers=4, thread_name_prefix="warpchain-stage")
+    return _STAGE_POOL
+
+
+_STAGE_POOL = None
+
+
 class _SlicedTransfers:
     """The state's trip to the device and back in lattice slices, overlapped with kernels: slice s is
     copied (host -> pinned -> device, on an upload stream) while the kernels run on slice s - 1, and its
     final state goes back (on a download stream) while they run on slice s + 1, so only one slice's
     transfer each way is exposed (on a GPU; on the CPU the same steps run in order). ``simulate`` runs the
-    first and the last chunk slice by slice for it; a short run on a large batch has only those two.
+    first and the last chunk slice by slice for it; a short run on a large batch has only those two."""
 
-    From a plain x0 the slices' host copies run on a thread of their own (``_UPLOAD_THREAD``), back to back,
-    each followed by its transfer: on the calling thread they waited behind each slice's launches (0.5-0.8 ms
-    between copies at 8192 lattices on the H200 host, ``benchmarks/h200-2026-11-22n/timeline-detail.txt``),
-    and the host copies, not the kernels, bound the first chunk there."""
-
-    def __init__(self, runner, x0: np.ndarray, slices: list, out: np.ndarray | None = None):
-        """``slices``: (lo, hi) lattice ranges covering the batch, in upload order (``_slice_bounds``).
-        ``out``: the final state's host array when it is page-locked (a lent result): the slices are
-        copied into it by the device, and ``take`` only waits for them. A page-locked ``x0`` is likewise
-        copied to the device straight from where it is."""
+    def __init__(
+        self, runner, x0: np.ndarray, slices: list, out: np.ndarray | None = None, stage: _HostStage | None = None
+    ):
+        """``slices``: (lo, hi) lattice ranges covering the batch (``_slice_bounds``). ``out``: the final
+        state's host array when it is page-locked (a lent result): the slices are copied into it by the device,
+        and ``take`` only waits for them. A page-locked ``x0`` is likewise copied to the device straight from
+        where it is; ``stage``: x0 being staged in these slices by a ``_HostStage``, copied from there."""
         wp = runner.wp
-        self.wp, self.r, self.x0 = wp, runner, x0
+        self.wp, self.r, self.x0, self.stage = wp, runner, x0, stage
         self.gpu = runner.device != "cpu"
-        self.slices = [(int(a), int(b)) for a, b in slices]
+        self.slices = list(slices)
         self.site_values = 4 * runner.N
         self.direct_up = _pinned_view(x0)
         self.direct_down = _pinned_view(out) if out is not None else None
         self.out = out if self.direct_down is not None else None
-        self.up = None if self.direct_up else _take_buffer(wp, runner.device, x0.size, self.gpu)
+        staged = self.direct_up or stage is not None
+        self.up = None if staged else _take_buffer(wp, runner.device, x0.size, self.gpu)
         self.down = None if self.direct_down else _take_buffer(wp, runner.device, x0.size, self.gpu)
         self.closed = False
         self.events = {}
@@ -756,63 +804,28 @@ class _SlicedTransfers:
             make = lambda: (wp.Stream(runner.device), wp.Stream(runner.device))  # noqa: E731
             self.up_stream, self.down_stream = held(runner, "transfer streams", make)  # kept with the runner
             self.main = wp.get_stream(runner.device)
-        self.up_events = [None] * len(self.slices)
-        self.worker = None
-        if self.up is not None and len(self.slices) > 1 and _UPLOAD_THREAD:
-            self.ready = [threading.Event() for _ in self.slices]
-            self.error: BaseException | None = None
-            self.cancelled = False
-            self.worker = _upload_pool().submit(self._upload_all)
-
-    def _upload_all(self) -> None:
-        """The uploading thread: every slice's host copy, back to back, each followed by its transfer."""
-        try:
-            for s in range(len(self.slices)):
-                if self.cancelled:
-                    return
-                self._host_copy(s)
-                self._transfer(s)
-                self.ready[s].set()
-        except BaseException as exc:  # re-raised on the calling thread by ``upload``
-            self.error = exc
-        finally:
-            for event in self.ready:
-                event.set()
-
-    def _host_copy(self, s: int) -> None:
-        """Slice s of x0 into the pinned staging buffer."""
-        a, b = self._range(s)
-        lo, hi = self.slices[s]
-        _copy(self.up.numpy()[a:b], np.ascontiguousarray(self.x0[lo:hi]))
-
-    def _transfer(self, s: int) -> None:
-        """Queue slice s's copy to the device (on the upload stream, from the staging buffer or a page-locked
-        x0) and record when it is done."""
-        a, b = self._range(s)
-        src, base = self.direct_up if self.direct_up is not None else (self.up, 0)
-        if self.gpu:
-            self.wp.copy(self.r.x, src, dest_offset=a, src_offset=base + a, count=b - a, stream=self.up_stream)
-            self.up_events[s] = self.up_stream.record_event()
-        else:
-            self.wp.copy(self.r.x, src, dest_offset=a, src_offset=base + a, count=b - a)
 
     def _range(self, s: int):
         lo, hi = self.slices[s]
         return lo * self.site_values, hi * self.site_values
 
     def upload(self, s: int) -> None:
-        """Slice s to the device (or, with the uploading thread, wait until it has queued it); the compute
-        stream waits for it."""
-        if self.worker is not None:
-            self.ready[s].wait()
-            if self.error is not None:
-                raise self.error
+        """Slice s to the device; the compute stream waits for it."""
+        a, b = self._range(s)
+        lo, hi = self.slices[s]
+        if self.direct_up is not None:
+            src, base = self.direct_up
+        elif self.stage is not None:
+            self.stage.wait(s)
+            src, base = self.stage.buffer, 0
         else:
-            if self.direct_up is None:
-                self._host_copy(s)
-            self._transfer(s)
+            src, base = self.up, 0
+            _copy(self.up.numpy()[a:b], np.ascontiguousarray(self.x0[lo:hi]))
         if self.gpu:
-            self.main.wait_event(self.up_events[s])
+            self.wp.copy(self.r.x, src, dest_offset=a, src_offset=base + a, count=b - a, stream=self.up_stream)
+            self.main.wait_event(self.up_stream.record_event())
+        else:
+            self.wp.copy(self.r.x, src, dest_offset=a, src_offset=base + a, count=b - a)
 
     def download(self, s: int) -> None:
         """Slice s's state back to pinned memory once the kernels queued so far have run."""
@@ -838,9 +851,6 @@ class _SlicedTransfers:
     def close(self) -> None:
         if self.closed:
             return
-        if self.worker is not None:  # no host copy into the staging buffer may outlive the call
-            self.cancelled = True
-            self.worker.result()  # _upload_all keeps its errors for ``upload``: this only waits
         if self.gpu:
             self.wp.synchronize_stream(self.up_stream)
             self.wp.synchronize_stream(self.down_stream)
@@ -1305,12 +1315,19 @@ class _Runner:
             self.wp.synchronize_event(done)
         return buf
 
-    def upload(self, x0: np.ndarray, wait: bool = True) -> None:
+    def upload(self, x0: np.ndarray, wait: bool = True, stage: _HostStage | None = None) -> None:
         """Copy a batch state to the device (on a GPU through this runner's pinned buffer: ~55 GB/s instead
         of the ~15 GB/s of pageable memory; straight from ``x0`` when it is page-locked itself, e.g. a
-        result ``simulate`` lent). Kernels queued after it see the new state. ``wait=False``: return before
-        the device has read a page-locked ``x0``; the caller must not change it until the device is synchronised."""
+        result ``simulate`` lent; from ``stage``'s buffer when x0 is being staged there). Kernels queued after
+        it see the new state. ``wait=False``: return before the device has read a page-locked ``x0`` (or the
+        stage); the caller must not change it until the device is synchronised."""
         wp = self.wp
+        if stage is not None:
+            stage.wait()
+            wp.copy(self.x, stage.buffer, count=x0.size)
+            if wait and self.device != "cpu":
+                wp.synchronize_stream(wp.get_stream(self.device))
+            return
         direct = _pinned_view(x0)
         if direct is not None:
             src, offset = direct
@@ -1564,174 +1581,177 @@ def simulate(
     meth = get_method(method)
     x0 = _as_state(x0, params.N)  # the check for non-finite values runs on the device (the guard)
     batch = x0.shape[0]
-    Mb, Kb = per_lattice_parameters(params, batch, M, K)
-    damping = as_damping(damping)
-    if damping is not None:
-        damping.per_lattice(batch)  # validated here, at the boundary
-        require_splitting(meth)
-    t_final = real_number("t_final", t_final, nonnegative=True)
-    limit = _check_step(meth, params, dt, Mb, Kb, allow_unstable_step)
-    dt = real_number("dt", dt, positive=True)
-    if save_every is not None:
-        save_every = whole_number("save_every", save_every, minimum=1)
-    if max_energy_error is not None:
-        max_energy_error = real_number("max_energy_error", max_energy_error, positive=True)
-    if chunks is not None:
-        chunks = whole_number("chunks", chunks, minimum=1)
     device = resolve_device(device)
-    nsteps, dt_used = steps_for(t_final, dt)
-    if frames_out is not None:
-        frames_out = _check_frames_out(frames_out, save_every, nsteps, batch, params.N, x0)
-    if save_every is not None and save_every > max(nsteps, 1):
-        raise ValueError(
-            f"save_every = {save_every} is larger than the run ({nsteps} steps of {dt_used:.6g}): "
-            f"no frame after t = 0 would be saved; use save_every <= {max(nsteps, 1)}"
-        )
-
-    # chunk length: a whole number of save intervals, at least _CHUNK_WORK force evaluations of the whole
-    # batch (launch, guard and transfer costs stay small against the kernel), at most 10 chunks (50 with a
-    # progress bar), and, when recording, at most the frames that fit the host staging buffers
-    unit = save_every or 1
-    units_total = max(1, math.ceil(nsteps / unit))
-    work = batch * params.N * max(nsteps, 1) * meth.force_evaluations
-    n_chunks = chunks or max(1, min(50 if progress else 10, math.ceil(work / _CHUNK_WORK)))
-    sliced = x0.size >= _SLICED_MIN_VALUES and (device != "cpu" or _SLICE_ON_CPU)
-    short = sliced and chunks is None and not progress and nsteps * meth.force_evaluations <= _SHORT_RUN_EVALUATIONS
-    if short:
-        n_chunks = min(n_chunks, _SHORT_RUN_CHUNKS)
-    units_per_chunk = max(1, math.ceil(units_total / n_chunks))
-    if save_every:
-        units_per_chunk = min(units_per_chunk, _frames_per_chunk(batch, params.N))
-    sizes = [units_per_chunk] * (units_total // units_per_chunk) + [units_total % units_per_chunk]
-    fraction = _SLICED_ENDS
-    if fraction is None and short and _pinned_view(x0) is not None:
-        fraction = _LOCKED_ENDS
-    ends = math.ceil(units_total * fraction) if short and not save_every and fraction else 0
-    if 0 < ends and 2 * ends < units_total:
-        # the sliced first and last chunk only as long as hiding the transfers needs; the rest on the whole
-        # batch at once, which runs faster than slice after slice (fuller waves)
-        sizes = [ends, units_total - 2 * ends, ends]
-    plan = []  # (first step, steps, frames) of each chunk
-    for size in sizes:
-        first = sum(p[1] for p in plan)
-        steps = min(size * unit, nsteps - first)
-        if steps > 0:
-            plan.append((first, steps, steps // save_every if save_every else 0))
-
-    gpu = device != "cpu"
-    sliced = sliced and bool(plan)  # a large batch: state moved in slices, overlapped with the first and last chunk
-    t_runner = time.perf_counter()
-    runner = _pooled_runner(meth, params, x0, Mb, Kb, device, layout, upload=False)  # x0: uploaded below
-    runner.set_damping(damping, dt_used)
-    t_runner = time.perf_counter() - t_runner
-    wp = runner.wp
-    lend = _LEASE_RESULTS and (gpu or _LEASE_ON_CPU)
-    lent = leases.lend(wp, device, x0.shape) if lend and plan else None
-    final = lent[0] if lent else None  # the final state's page-locked host array, which the device fills
-    target = None  # else the final state's host array, touched in the background once the device is busy
-    guard = _GuardReader(runner, gpu)
-    transfers = _SlicedTransfers(runner, x0, _slice_bounds(batch), out=final) if sliced else None
-    if not plan:
-        runner.upload(x0)
-        E0, finite0, contact = (a.copy() for a in guard.read(runner.guard(), 0))  # of x0, on the device
-        if not finite0.all():
-            guard.close()
-            raise ValueError(f"x0 has non-finite entries in lattice(s) {np.flatnonzero(~finite0).tolist()}")
-    else:
-        # the start's guard (energy, finite flag, contact of x0) is queued with chunk 0 and read after it,
-        # so the host never waits for the device before the first kernel runs
-        E0 = contact = None
-    # the last chunk runs (and downloads) the slices in reverse order, so that the download left after the last
-    # kernel is the first slice's, the smallest (a one-chunk run keeps the upload order)
-    last_order = list(range(len(transfers.slices))) if sliced else []
-    if len(plan) > 1:
-        last_order.reverse()
-    trace_t, trace_E = [0.0], [E0]
-    max_err = np.zeros(batch)
-
-    sink = None
-    if save_every:
-        n_saved = 1 + nsteps // save_every
-        if frames_out is None and lend:
-            lent_frames = leases.lend(wp, device, (n_saved, batch, params.N), count=2)
-            frames_out = tuple(lent_frames) if lent_frames else None
-        sink = _FrameSink(runner, n_saved, max(p[2] for p in plan) if plan else 0, gpu, out=frames_out)
-        sink.put_initial(x0)
-        if on_chunk is not None:
-            on_chunk(np.array([0.0]), *sink.view(0, 1))
-
-    bar = None
-    if progress:
-        from tqdm.auto import tqdm
-
-        bar = tqdm(total=nsteps, desc=f"{meth.name} dt={dt_used:.4g}", unit="step", leave=False)
-
-    def enqueue(i):
-        """Queue chunk i on the device: kernel, guard, and the copies of its scalars and frames."""
-        _, steps, n_rec = plan[i]
-        rec = sink.rec if n_rec else None
-        if sliced and (i == 0 or i == len(plan) - 1):
-            for s in range(len(transfers.slices)) if i == 0 else last_order:
-                lattices = transfers.slices[s]
-                if i == 0:
-                    transfers.upload(s)
-                    runner.guard(slot=2, lattices=lattices)  # the start: energy, finite, contact
-                runner.launch(steps, dt_used, save_every or 0, rec, lattices=lattices)
-                if i == len(plan) - 1:
-                    transfers.download(s)
-            if i == 0:
-                guard.enqueue_init(runner.guard_out[2])
-        else:
-            if i == 0:
-                runner.guard(slot=2)
-                guard.enqueue_init(runner.guard_out[2])
-            runner.launch(steps, dt_used, save_every or 0, rec)
-        guard.enqueue(runner.guard(rec, n_rec, i), i)
-        if n_rec:
-            sink.enqueue(n_rec, i, 1 + plan[i][0] // save_every)
-        guard.record(i)
-
-    def check(i, E, finite, low):
-        """Chunk i's guard on the host: trace the energy, raise on a blow-up."""
-        nonlocal max_err, contact
-        first, steps, _ = plan[i]
-        t_now = (first + steps) * dt_used
-        change = _signed_energy_change(E, E0, params.N)  # lattices with losses: only growth is an error
-        err = np.where(runner.lossy_host, np.maximum(change, 0.0), np.abs(change))
-        err = np.where(finite, err, np.inf)
-        max_err = np.maximum(max_err, err)
-        trace_t.append(t_now)
-        trace_E.append(E.copy())
-        bad = ~finite | ((err > max_energy_error) if max_energy_error is not None else False)
-        if np.any(bad):
-            if gpu:
-                wp.synchronize_device(device)  # the next chunk may still be running; let it finish
-            failed = np.flatnonzero(bad).tolist()
-            what = "non-finite state" if not finite.all() else f"energy error above {max_energy_error:g}"
-            raise IntegrationError(
-                f"integration blew up ({what}) at t = {t_now:.6g} with method '{meth.name}', "
-                f"dt = {dt_used:.6g} (linear stability limit {limit:.6g}); failing lattices: {failed[:20]}"
-                + (" ..." if len(failed) > 20 else "")
-                + f"; largest relative energy error {np.nanmax(err):.3g}. Reduce dt or choose another method.",
-                method=meth.name,
-                dt=dt_used,
-                stability_limit=limit,
-                failed=failed,
-                t=t_now,
+    # x0 staged into page-locked memory on a thread of its own while the rest is validated and set up
+    sliceable = x0.size >= _SLICED_MIN_VALUES and (device != "cpu" or _SLICE_ON_CPU)
+    slices = _slice_bounds(batch) if sliceable else [(0, batch)]
+    stage = _start_stage(_warp(), device, x0, slices) if device != "cpu" or _STAGE_ON_CPU else None
+    try:
+        Mb, Kb = per_lattice_parameters(params, batch, M, K)
+        damping = as_damping(damping)
+        if damping is not None:
+            damping.per_lattice(batch)  # validated here, at the boundary
+            require_splitting(meth)
+        t_final = real_number("t_final", t_final, nonnegative=True)
+        limit = _check_step(meth, params, dt, Mb, Kb, allow_unstable_step)
+        dt = real_number("dt", dt, positive=True)
+        if save_every is not None:
+            save_every = whole_number("save_every", save_every, minimum=1)
+        if max_energy_error is not None:
+            max_energy_error = real_number("max_energy_error", max_energy_error, positive=True)
+        if chunks is not None:
+            chunks = whole_number("chunks", chunks, minimum=1)
+        nsteps, dt_used = steps_for(t_final, dt)
+        if frames_out is not None:
+            frames_out = _check_frames_out(frames_out, save_every, nsteps, batch, params.N, x0)
+        if save_every is not None and save_every > max(nsteps, 1):
+            raise ValueError(
+                f"save_every = {save_every} is larger than the run ({nsteps} steps of {dt_used:.6g}): "
+                f"no frame after t = 0 would be saved; use save_every <= {max(nsteps, 1)}"
             )
-        contact = low.copy()
 
-    saved = 1
-    stats = {"chunks": len(plan), "runner": t_runner, "waiting": 0.0, "frames": 0.0, "final": 0.0}
-    stats["slices"] = len(transfers.slices) if sliced else 1
-    stats["lent"] = final is not None  # the final state in page-locked memory lent by ``leases``
-    if runner.layout == "block" and isinstance(meth, SplittingMethod):
-        lattices = max(b - a for a, b in transfers.slices) if sliced else batch  # of the largest slice
-        stats["sites_per_thread"] = sites_per_thread(lattices, params.N, meth.stages, device)
+        # chunk length: a whole number of save intervals, at least _CHUNK_WORK force evaluations of the whole
+        # batch (launch, guard and transfer costs stay small against the kernel), at most 10 chunks (50 with a
+        # progress bar), and, when recording, at most the frames that fit the host staging buffers
+        unit = save_every or 1
+        units_total = max(1, math.ceil(nsteps / unit))
+        work = batch * params.N * max(nsteps, 1) * meth.force_evaluations
+        n_chunks = chunks or max(1, min(50 if progress else 10, math.ceil(work / _CHUNK_WORK)))
+        sliced = sliceable
+        short = sliced and chunks is None and not progress and nsteps * meth.force_evaluations <= _SHORT_RUN_EVALUATIONS
+        if short:
+            n_chunks = min(n_chunks, _SHORT_RUN_CHUNKS)
+        units_per_chunk = max(1, math.ceil(units_total / n_chunks))
+        if save_every:
+            units_per_chunk = min(units_per_chunk, _frames_per_chunk(batch, params.N))
+        sizes = [units_per_chunk] * (units_total // units_per_chunk) + [units_total % units_per_chunk]
+        fraction = _SLICED_ENDS
+        if fraction is None and short and _pinned_view(x0) is not None:
+            fraction = _LOCKED_ENDS
+        ends = math.ceil(units_total * fraction) if short and not save_every and fraction else 0
+        if 0 < ends and 2 * ends < units_total:
+            # the sliced first and last chunk only as long as hiding the transfers needs; the rest on the whole
+            # batch at once, which runs faster than slice after slice (fuller waves)
+            sizes = [ends, units_total - 2 * ends, ends]
+        plan = []  # (first step, steps, frames) of each chunk
+        for size in sizes:
+            first = sum(p[1] for p in plan)
+            steps = min(size * unit, nsteps - first)
+            if steps > 0:
+                plan.append((first, steps, steps // save_every if save_every else 0))
+
+        gpu = device != "cpu"
+        sliced = sliced and bool(plan)  # a large batch: state moved in slices, overlapped with the first and last chunk
+        t_runner = time.perf_counter()
+        runner = _pooled_runner(meth, params, x0, Mb, Kb, device, layout, upload=False)  # x0: uploaded below
+        runner.set_damping(damping, dt_used)
+        t_runner = time.perf_counter() - t_runner
+        wp = runner.wp
+        lend = _LEASE_RESULTS and (gpu or _LEASE_ON_CPU)
+        lent = leases.lend(wp, device, x0.shape) if lend and plan else None
+        final = lent[0] if lent else None  # the final state's page-locked host array, which the device fills
+        target = None  # else the final state's host array, touched in the background once the device is busy
+        guard = _GuardReader.of(runner, gpu)
+        transfers = _SlicedTransfers(runner, x0, slices, out=final, stage=stage) if sliced else None
+        if not plan:
+            runner.upload(x0, stage=stage)
+            E0, finite0, contact = (a.copy() for a in guard.read(runner.guard(), 0))  # of x0, on the device
+            if not finite0.all():
+                guard.close()
+                raise ValueError(f"x0 has non-finite entries in lattice(s) {np.flatnonzero(~finite0).tolist()}")
+        else:
+            # the start's guard (energy, finite flag, contact of x0) is queued with chunk 0 and read after it,
+            # so the host never waits for the device before the first kernel runs
+            E0 = contact = None
+        trace_t, trace_E = [0.0], [E0]
+        max_err = np.zeros(batch)
+
+        sink = None
+        if save_every:
+            n_saved = 1 + nsteps // save_every
+            if frames_out is None and lend:
+                lent_frames = leases.lend(wp, device, (n_saved, batch, params.N), count=2)
+                frames_out = tuple(lent_frames) if lent_frames else None
+            sink = _FrameSink(runner, n_saved, max(p[2] for p in plan) if plan else 0, gpu, out=frames_out)
+            sink.put_initial(x0)
+            if on_chunk is not None:
+                on_chunk(np.array([0.0]), *sink.view(0, 1))
+
+        bar = None
+        if progress:
+            from tqdm.auto import tqdm
+
+            bar = tqdm(total=nsteps, desc=f"{meth.name} dt={dt_used:.4g}", unit="step", leave=False)
+
+        def enqueue(i):
+            """Queue chunk i on the device: kernel, guard, and the copies of its scalars and frames."""
+            _, steps, n_rec = plan[i]
+            rec = sink.rec if n_rec else None
+            if sliced and (i == 0 or i == len(plan) - 1):
+                for s, lattices in enumerate(transfers.slices):
+                    if i == 0:
+                        transfers.upload(s)
+                        runner.guard(slot=2, lattices=lattices)  # the start: energy, finite, contact
+                    runner.launch(steps, dt_used, save_every or 0, rec, lattices=lattices)
+                    if i == len(plan) - 1:
+                        transfers.download(s)
+                if i == 0:
+                    guard.enqueue_init(runner.guard_out[2])
+            else:
+                if i == 0:
+                    runner.guard(slot=2)
+                    guard.enqueue_init(runner.guard_out[2])
+                runner.launch(steps, dt_used, save_every or 0, rec)
+            guard.enqueue(runner.guard(rec, n_rec, i), i)
+            if n_rec:
+                sink.enqueue(n_rec, i, 1 + plan[i][0] // save_every)
+            guard.record(i)
+
+        def check(i, E, finite, low):
+            """Chunk i's guard on the host: trace the energy, raise on a blow-up."""
+            nonlocal max_err, contact
+            first, steps, _ = plan[i]
+            t_now = (first + steps) * dt_used
+            change = _signed_energy_change(E, E0, params.N)  # lattices with losses: only growth is an error
+            err = np.where(runner.lossy_host, np.maximum(change, 0.0), np.abs(change))
+            err = np.where(finite, err, np.inf)
+            max_err = np.maximum(max_err, err)
+            trace_t.append(t_now)
+            trace_E.append(E.copy())
+            bad = ~finite | ((err > max_energy_error) if max_energy_error is not None else False)
+            if np.any(bad):
+                if gpu:
+                    wp.synchronize_device(device)  # the next chunk may still be running; let it finish
+                failed = np.flatnonzero(bad).tolist()
+                what = "non-finite state" if not finite.all() else f"energy error above {max_energy_error:g}"
+                raise IntegrationError(
+                    f"integration blew up ({what}) at t = {t_now:.6g} with method '{meth.name}', "
+                    f"dt = {dt_used:.6g} (linear stability limit {limit:.6g}); failing lattices: {failed[:20]}"
+                    + (" ..." if len(failed) > 20 else "")
+                    + f"; largest relative energy error {np.nanmax(err):.3g}. Reduce dt or choose another method.",
+                    method=meth.name,
+                    dt=dt_used,
+                    stability_limit=limit,
+                    failed=failed,
+                    t=t_now,
+                )
+            contact = low.copy()
+
+        saved = 1
+        stats = {"chunks": len(plan), "runner": t_runner, "waiting": 0.0, "frames": 0.0, "final": 0.0}
+        stats["slices"] = len(transfers.slices) if sliced else 1
+        stats["lent"] = final is not None  # the final state in page-locked memory lent by ``leases``
+        if runner.layout == "block" and isinstance(meth, SplittingMethod):
+            lattices = transfers.slices[0][1] if sliced else batch
+            stats["sites_per_thread"] = sites_per_thread(lattices, params.N, meth.stages, device)
+    except BaseException:
+        if stage is not None:
+            stage.close()
+        raise
     try:
         if plan:
             if not sliced:  # a page-locked x0 is read by the device after this returns: the finally waits for it
-                runner.upload(x0, wait=False)
+                runner.upload(x0, wait=False, stage=stage)
             enqueue(0)
         stats["setup"] = time.perf_counter() - start
         if gpu and final is None and x0.size >= _PREFAULT_MIN_VALUES:
@@ -1745,7 +1765,7 @@ def simulate(
                         target.join()
                     final = target.result if target is not None else np.empty(x0.shape)
                 t0 = time.perf_counter()
-                for s_ in last_order:
+                for s_ in range(len(transfers.slices)):
                     transfers.take(s_, final)  # while the device finishes the later slices
                 stats["final"] += time.perf_counter() - t0
             t0 = time.perf_counter()
@@ -1777,6 +1797,8 @@ def simulate(
             sink.close()
         if transfers is not None:
             transfers.close()
+        if stage is not None:
+            stage.close()  # after the synchronisation above: no copy from its buffer is in flight
         if target is not None:
             target.join()
     t0 = time.perf_counter()
