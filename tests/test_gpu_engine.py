@@ -263,24 +263,24 @@ def test_x0_staged_on_its_own_thread(sliced, monkeypatch):
     assert np.array_equal(staged.x, plain.x) and np.array_equal(staged.energy_trace, plain.energy_trace)
     nothing = simulate(p, x0, 0.0, 0.02, **kwargs)  # no step: x0 uploaded and guarded, from the stage
     assert np.array_equal(nothing.x, x0)
-    copies, real, stages = [], ensemble._copy, []
+    copies, real, stages = [], ensemble._HostStage._copy_slice, []
     real_stage = ensemble._HostStage
 
-    def failing(dst, src):
+    def failing(self, dst, src):
         copies.append(threading.current_thread().name)
         if len(copies) == 1 + sliced:
             raise MemoryError("the staging copy failed")
-        real(dst, src)
+        real(self, dst, src)
 
     def recorded(*args):
         stages.append(real_stage(*args))
         return stages[-1]
 
-    monkeypatch.setattr(ensemble, "_copy", failing)
+    monkeypatch.setattr(ensemble._HostStage, "_copy_slice", failing)
     with pytest.raises(MemoryError, match="staging copy failed"):
         simulate(p, x0, 40 * 0.02, 0.02, **kwargs)
     assert copies and all(name.startswith("warpchain-stage") for name in copies)
-    monkeypatch.setattr(ensemble, "_copy", real)
+    monkeypatch.setattr(ensemble._HostStage, "_copy_slice", real)
     monkeypatch.setattr(ensemble, "_HostStage", recorded)
     with pytest.raises(StepSizeError):
         simulate(p, x0, 40 * 0.02, 5.0, **kwargs)  # dt far above the stability limit
