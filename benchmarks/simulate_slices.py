@@ -15,8 +15,6 @@ Variants: ``whole``: no slices, the default chunk count (from the work, at most 
 ``--record K``: also ``simulate(save_every=K)``, lent frames against plain ones, with the frames' rate.
 ``--ends F``: also ``auto`` with ``ensemble._SLICED_ENDS = F`` (sliced first and last chunks of F of the run
 each, the middle on the whole batch), with x0 plain and page-locked.
-``auto, staged late``: x0's host copy into page-locked staging on the calling thread after the set-up
-(``_STAGE_EARLY`` off), as before, not on a thread of its own from the top of ``simulate``.
 
 Command (GPU): ``python benchmarks/simulate_slices.py [--batch 805 8192 32768] [--slices 2 4 8 16]
 [--one-chunk 4 8] [--no-prefault 8] [--record 20] [--ends 0.125 0.25]
@@ -65,7 +63,6 @@ def main():
     variants += [(f"{n} slices, no prefault", {**sliced(n), **no_prefault}, {}, False) for n in args.no_prefault]
     variants += [("auto", {}, {}, False), ("auto, plain results", dict(_LEASE_RESULTS=False), {}, False)]
     variants += [("auto, x0 page-locked", {}, {}, True)]
-    variants += [("auto, staged late", dict(_STAGE_EARLY=False), {}, False)]
     variants += [("auto, driver's pageable upload", dict(_UPLOAD_PAGEABLE=True), {}, False)]
     for f in args.ends:
         variants += [(f"auto, ends {f:g}", dict(_SLICED_ENDS=f), {}, False)]

@@ -87,7 +87,6 @@ def main():
 
         wrap(ensemble, "_copy", "  host copy (_copy)")
         wrap(warp, "copy", "  wp.copy (queue)")
-        wrap(ensemble._HostStage, "wait", "  wait for the staged x0")
         for owner, name in [
             (ensemble, "_as_state"),
             (ensemble, "per_lattice_parameters"),
@@ -97,7 +96,6 @@ def main():
             (leases, "lend"),
             (ensemble._GuardReader, "__init__"),
             (ensemble._SlicedTransfers, "__init__"),
-            (ensemble._HostStage, "__init__"),
         ]:
             wrap(owner, name, f"  set-up: {getattr(owner, '__name__', '')}.{name}")
     if args.device_events:

@@ -240,51 +240,19 @@ def test_sliced_transfers_give_the_same_run(layout, monkeypatch):
         simulate(p, bad, 60 * 0.02, 0.02, **kwargs)
 
 
-@pytest.mark.parametrize("sliced", [False, True])
-def test_x0_staged_on_its_own_thread(sliced, monkeypatch):
-    """x0 staged into the upload buffer by a thread of its own from the top of ``simulate`` (the GPU path,
-    forced on the CPU): the same run as without; an error in the staging copy reaches the caller; a call that
-    fails its validation after staging began returns only once the staging thread has stopped."""
-    import threading
-
+def test_guard_reader_kept_with_the_runner():
+    """``simulate`` keeps one guard reader per runner: the same object on the next call, whose ``close``
+    keeps its buffers (a pooled GPU runner then makes no events or pinned buffers per call)."""
     from warpchain import ensemble
-    from warpchain.ensemble import StepSizeError
 
     p = ChainParams(30.0, 160.0, 41)
-    x0 = localized_state(p.N, amplitude=0.8, batch=420, seed=4)  # 68,880 values: staged (from 2^16)
-    kwargs = dict(method="verlet", device="cpu", chunks=2)
-    if sliced:
-        monkeypatch.setattr(ensemble, "_SLICE_ON_CPU", True)
-        monkeypatch.setattr(ensemble, "_SLICED_MIN_VALUES", 1)
-        monkeypatch.setattr(ensemble, "_SLICES", 3)
-    plain = simulate(p, x0, 40 * 0.02, 0.02, **kwargs)
-    monkeypatch.setattr(ensemble, "_STAGE_ON_CPU", True)
-    staged = simulate(p, x0, 40 * 0.02, 0.02, **kwargs)
-    assert np.array_equal(staged.x, plain.x) and np.array_equal(staged.energy_trace, plain.energy_trace)
-    nothing = simulate(p, x0, 0.0, 0.02, **kwargs)  # no step: x0 uploaded and guarded, from the stage
-    assert np.array_equal(nothing.x, x0)
-    copies, real, stages = [], ensemble._HostStage._copy_slice, []
-    real_stage = ensemble._HostStage
-
-    def failing(self, dst, src):
-        copies.append(threading.current_thread().name)
-        if len(copies) == 1 + sliced:
-            raise MemoryError("the staging copy failed")
-        real(self, dst, src)
-
-    def recorded(*args):
-        stages.append(real_stage(*args))
-        return stages[-1]
-
-    monkeypatch.setattr(ensemble._HostStage, "_copy_slice", failing)
-    with pytest.raises(MemoryError, match="staging copy failed"):
-        simulate(p, x0, 40 * 0.02, 0.02, **kwargs)
-    assert copies and all(name.startswith("warpchain-stage") for name in copies)
-    monkeypatch.setattr(ensemble._HostStage, "_copy_slice", real)
-    monkeypatch.setattr(ensemble, "_HostStage", recorded)
-    with pytest.raises(StepSizeError):
-        simulate(p, x0, 40 * 0.02, 5.0, **kwargs)  # dt far above the stability limit
-    assert len(stages) == 1 and stages[0].job is None  # closed: the thread stopped, the buffer returned
+    x0 = localized_state(p.N, amplitude=0.8, batch=3, seed=2)
+    M, K = ensemble.per_lattice_parameters(p, 3, None, None)
+    runner = ensemble._Runner(ensemble.get_method("verlet"), p, x0, M, K, "cpu")
+    reader = ensemble._GuardReader.of(runner, False)
+    reader.close()
+    assert ensemble._GuardReader.of(runner, False) is reader and reader.kept
+    assert not ensemble._GuardReader(runner, False).kept
 
 
 @pytest.mark.parametrize("layout", LAYOUTS)

@@ -349,11 +349,6 @@ _SLICED_ENDS: float | None = None  # benchmarks: this fraction for every short s
 #: page-locked host memory lent by ``leases``, which the device copies into directly: no page touching and no
 #: host copy per call (False: plain arrays, as before; benchmarks compare the two)
 _LEASE_RESULTS = True
-#: on a GPU ``simulate`` copies a plain x0 into page-locked staging on a thread of its own from its start
-#: (``_HostStage``), while the calling thread validates the arguments and sets the run up (False: the copy runs
-#: on the calling thread after the set-up, as before; benchmarks compare the two)
-_STAGE_EARLY = True
-_STAGE_ON_CPU = False  # tests set it to stage on the CPU too
 _UPLOAD_PAGEABLE = False  # benchmarks: a whole-batch upload from plain memory by the driver, not our staging
 #: tests set it to lend (plain Warp host) buffers on the CPU, so CI runs the direct copies into and out of them
 #: (those work on any device: only the lending is GPU-only by default)
@@ -453,9 +448,9 @@ _RUNNER_POOL_SIZE = 4
 
 def _slice_bounds(batch: int) -> list[tuple[int, int]]:
     """Lattice slices (lo, hi) of a sliced ``simulate`` run: ``_SLICES`` (else one per ``_SLICE_LATTICES``
-    lattices, 2 to ``_MAX_SLICES``) equal slices. Slices that grow from a small first one (so that the first
-    kernel starts sooner) were slower on the H200: 13.7 against 12.0 ms at 8192 lattices, as the host copies,
-    not the kernels, bound the first chunk there (``benchmarks/h200-2026-11-22n/slices-grown.txt``)."""
+    lattices, 2 to ``_MAX_SLICES``) equal slices. Slices that grow from a small first one, so that the first
+    kernel starts sooner, were slower on the H200 (13.7 against 12.0 ms at 8192 lattices): the uploads' host
+    copies, not the kernels, bound the first chunk there (``benchmarks/h200-2026-11-22n``)."""
     n = _SLICES if _SLICES is not None else max(2, min(_MAX_SLICES, batch // _SLICE_LATTICES))
     bounds = np.linspace(0, batch, n + 1).astype(int)
     return [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
@@ -642,7 +637,6 @@ class _GuardReader:
     def __init__(self, runner, gpu: bool, kept: bool = False):
         wp = runner.wp
         self.wp, self.gpu, self.runner, self.kept = wp, gpu, runner, kept
-        self.last = None
         if gpu:
             self.flat = [_take_buffer(wp, runner.device, 3 * runner.batch, True) for _ in range(2)]
             self.host = [buf[: 3 * runner.batch].reshape((runner.batch, 3)) for buf in self.flat]
@@ -689,100 +683,12 @@ class _GuardReader:
         if self.gpu:
             self.wp.synchronize_event(self.events[i % 2])
         g = self.host[i % 2].numpy()
-        self.last = g
         return g[:, 0], g[:, 1] > 0.5, g[:, 2]
 
     def read(self, out, i: int):
         self.enqueue(out, i)
         self.record(i)
         return self.wait(i)
-
-
-class _HostStage:
-    """x0 copied into a page-locked staging buffer by a thread of its own, started at the top of ``simulate``:
-    the copy then runs while the calling thread validates the arguments and sets the run up, instead of after.
-    On the H200 host the two are about as long: 0.54 ms to copy the 805-lattice state (5.2 MB; the host moves
-    ~10 GB/s per thread) and 0.5 ms of set-up before the upload could start
-    (``benchmarks/h200-2026-11-22n/timeline-detail-*.txt``). The slices are staged in order (the sliced
-    path's, or the whole batch as one); ``wait(s)`` returns once slice s is in the buffer, at the same offsets
-    as in x0. ``close`` (once the device has read the buffer) stops the thread and returns the buffer."""
-
-    def __init__(self, wp, device: str, x0: np.ndarray, slices: list):
-        self.x0, self.slices, self.device = x0, slices, device
-        self.pinned = device != "cpu"
-        self.buffer = _take_buffer(wp, device, x0.size, self.pinned)
-        self.ready = [threading.Event() for _ in slices]
-        self.started = threading.Event()
-        self.error: BaseException | None = None
-        self.cancelled = False
-        self.job = _stage_pool().submit(self._run)
-        # wait until the copy has begun: the new thread needs the interpreter lock to start, and the calling
-        # thread, busy with the set-up, would hold it for up to 0.4 ms (measured on the H200 host); the copy
-        # itself runs without the lock
-        self.started.wait()
-
-    def _run(self) -> None:
-        try:
-            flat, per_lattice = self.buffer.numpy(), self.x0[0].size
-            for s, (lo, hi) in enumerate(self.slices):
-                if self.cancelled:
-                    return
-                dst, src = flat[lo * per_lattice : hi * per_lattice], self.x0[lo:hi].reshape(-1)
-                self.started.set()
-                self._copy_slice(dst, src)
-                self.ready[s].set()
-        except BaseException as exc:  # raised on the calling thread by ``wait``
-            self.error = exc
-        finally:
-            self.started.set()
-            for event in self.ready:
-                event.set()
-
-    def _copy_slice(self, dst: np.ndarray, src: np.ndarray) -> None:
-        if len(self.slices) == 1:
-            np.copyto(dst, src)  # one thread: no hand-offs to the copy pool, which need the interpreter lock
-        else:
-            _copy(dst, src)
-
-    def wait(self, s: int | None = None) -> None:
-        """Until slice s (None: every slice) is staged; re-raises the staging thread's error."""
-        for event in self.ready if s is None else self.ready[s : s + 1]:
-            event.wait()
-        if self.error is not None:
-            raise self.error
-
-    def close(self) -> None:
-        """Stop staging and return the buffer (call once no device copy from it is left in flight)."""
-        if self.job is None:
-            return
-        self.cancelled = True
-        self.job.result()  # _run keeps its errors for ``wait``: this only waits for the thread
-        _give_buffer(self.device, self.pinned, self.buffer)
-        self.job = None
-
-
-def _start_stage(wp, device: str, x0: np.ndarray, slices: list) -> _HostStage | None:
-    """A ``_HostStage`` of x0 where it pays: on a GPU (or ``_STAGE_ON_CPU``), a plain (not page-locked) x0 of at
-    least 2^16 values (smaller ones are assigned directly), ``_STAGE_EARLY`` and not ``_UPLOAD_PAGEABLE``."""
-    if not _STAGE_EARLY or _UPLOAD_PAGEABLE or (device == "cpu" and not _STAGE_ON_CPU) or x0.size < (1 << 16):
-        return None
-    if _pinned_view(x0) is not None:
-        return None
-    return _HostStage(wp, device, x0, slices)
-
-
-def _stage_pool():
-    """The threads that stage x0 (``_HostStage``): one per concurrent ``simulate`` call, up to four."""
-    global _STAGE_POOL
-    with _STAGING_LOCK:
-        if _STAGE_POOL is None:
-            from concurrent.futures import ThreadPoolExecutor
-
-            _STAGE_POOL = ThreadPoolExecutor(max_workers=4, thread_name_prefix="warpchain-stage")
-    return _STAGE_POOL
-
-
-_STAGE_POOL = None
 
 
 class _SlicedTransfers:
@@ -792,23 +698,20 @@ class _SlicedTransfers:
     transfer each way is exposed (on a GPU; on the CPU the same steps run in order). ``simulate`` runs the
     first and the last chunk slice by slice for it; a short run on a large batch has only those two."""
 
-    def __init__(
-        self, runner, x0: np.ndarray, slices: list, out: np.ndarray | None = None, stage: _HostStage | None = None
-    ):
+    def __init__(self, runner, x0: np.ndarray, slices: list, out: np.ndarray | None = None):
         """``slices``: (lo, hi) lattice ranges covering the batch (``_slice_bounds``). ``out``: the final
         state's host array when it is page-locked (a lent result): the slices are copied into it by the device,
         and ``take`` only waits for them. A page-locked ``x0`` is likewise copied to the device straight from
-        where it is; ``stage``: x0 being staged in these slices by a ``_HostStage``, copied from there."""
+        where it is."""
         wp = runner.wp
-        self.wp, self.r, self.x0, self.stage = wp, runner, x0, stage
+        self.wp, self.r, self.x0 = wp, runner, x0
         self.gpu = runner.device != "cpu"
         self.slices = list(slices)
         self.site_values = 4 * runner.N
         self.direct_up = _pinned_view(x0)
         self.direct_down = _pinned_view(out) if out is not None else None
         self.out = out if self.direct_down is not None else None
-        staged = self.direct_up or stage is not None
-        self.up = None if staged else _take_buffer(wp, runner.device, x0.size, self.gpu)
+        self.up = None if self.direct_up else _take_buffer(wp, runner.device, x0.size, self.gpu)
         self.down = None if self.direct_down else _take_buffer(wp, runner.device, x0.size, self.gpu)
         self.closed = False
         self.events = {}
@@ -829,9 +732,6 @@ class _SlicedTransfers:
         lo, hi = self.slices[s]
         if self.direct_up is not None:
             src, base = self.direct_up
-        elif self.stage is not None:
-            self.stage.wait(s)
-            src, base = self.stage.buffer, 0
         else:
             src, base = self.up, 0
             _copy(self.up.numpy()[a:b], np.ascontiguousarray(self.x0[lo:hi]))
@@ -1329,19 +1229,12 @@ class _Runner:
             self.wp.synchronize_event(done)
         return buf
 
-    def upload(self, x0: np.ndarray, wait: bool = True, stage: _HostStage | None = None) -> None:
+    def upload(self, x0: np.ndarray, wait: bool = True) -> None:
         """Copy a batch state to the device (on a GPU through this runner's pinned buffer: ~55 GB/s instead
         of the ~15 GB/s of pageable memory; straight from ``x0`` when it is page-locked itself, e.g. a
-        result ``simulate`` lent; from ``stage``'s buffer when x0 is being staged there). Kernels queued after
-        it see the new state. ``wait=False``: return before the device has read a page-locked ``x0`` (or the
-        stage); the caller must not change it until the device is synchronised."""
+        result ``simulate`` lent). Kernels queued after it see the new state. ``wait=False``: return before
+        the device has read a page-locked ``x0``; the caller must not change it until the device is synchronised."""
         wp = self.wp
-        if stage is not None:
-            stage.wait()
-            wp.copy(self.x, stage.buffer, count=x0.size)
-            if wait and self.device != "cpu":
-                wp.synchronize_stream(wp.get_stream(self.device))
-            return
         direct = _pinned_view(x0)
         if direct is not None:
             src, offset = direct
@@ -1595,177 +1488,168 @@ def simulate(
     meth = get_method(method)
     x0 = _as_state(x0, params.N)  # the check for non-finite values runs on the device (the guard)
     batch = x0.shape[0]
+    Mb, Kb = per_lattice_parameters(params, batch, M, K)
+    damping = as_damping(damping)
+    if damping is not None:
+        damping.per_lattice(batch)  # validated here, at the boundary
+        require_splitting(meth)
+    t_final = real_number("t_final", t_final, nonnegative=True)
+    limit = _check_step(meth, params, dt, Mb, Kb, allow_unstable_step)
+    dt = real_number("dt", dt, positive=True)
+    if save_every is not None:
+        save_every = whole_number("save_every", save_every, minimum=1)
+    if max_energy_error is not None:
+        max_energy_error = real_number("max_energy_error", max_energy_error, positive=True)
+    if chunks is not None:
+        chunks = whole_number("chunks", chunks, minimum=1)
     device = resolve_device(device)
-    # x0 staged into page-locked memory on a thread of its own while the rest is validated and set up
-    sliceable = x0.size >= _SLICED_MIN_VALUES and (device != "cpu" or _SLICE_ON_CPU)
-    slices = _slice_bounds(batch) if sliceable else [(0, batch)]
-    stage = _start_stage(_warp(), device, x0, slices) if device != "cpu" or _STAGE_ON_CPU else None
-    try:
-        Mb, Kb = per_lattice_parameters(params, batch, M, K)
-        damping = as_damping(damping)
-        if damping is not None:
-            damping.per_lattice(batch)  # validated here, at the boundary
-            require_splitting(meth)
-        t_final = real_number("t_final", t_final, nonnegative=True)
-        limit = _check_step(meth, params, dt, Mb, Kb, allow_unstable_step)
-        dt = real_number("dt", dt, positive=True)
-        if save_every is not None:
-            save_every = whole_number("save_every", save_every, minimum=1)
-        if max_energy_error is not None:
-            max_energy_error = real_number("max_energy_error", max_energy_error, positive=True)
-        if chunks is not None:
-            chunks = whole_number("chunks", chunks, minimum=1)
-        nsteps, dt_used = steps_for(t_final, dt)
-        if frames_out is not None:
-            frames_out = _check_frames_out(frames_out, save_every, nsteps, batch, params.N, x0)
-        if save_every is not None and save_every > max(nsteps, 1):
-            raise ValueError(
-                f"save_every = {save_every} is larger than the run ({nsteps} steps of {dt_used:.6g}): "
-                f"no frame after t = 0 would be saved; use save_every <= {max(nsteps, 1)}"
-            )
+    nsteps, dt_used = steps_for(t_final, dt)
+    if frames_out is not None:
+        frames_out = _check_frames_out(frames_out, save_every, nsteps, batch, params.N, x0)
+    if save_every is not None and save_every > max(nsteps, 1):
+        raise ValueError(
+            f"save_every = {save_every} is larger than the run ({nsteps} steps of {dt_used:.6g}): "
+            f"no frame after t = 0 would be saved; use save_every <= {max(nsteps, 1)}"
+        )
 
-        # chunk length: a whole number of save intervals, at least _CHUNK_WORK force evaluations of the whole
-        # batch (launch, guard and transfer costs stay small against the kernel), at most 10 chunks (50 with a
-        # progress bar), and, when recording, at most the frames that fit the host staging buffers
-        unit = save_every or 1
-        units_total = max(1, math.ceil(nsteps / unit))
-        work = batch * params.N * max(nsteps, 1) * meth.force_evaluations
-        n_chunks = chunks or max(1, min(50 if progress else 10, math.ceil(work / _CHUNK_WORK)))
-        sliced = sliceable
-        short = sliced and chunks is None and not progress and nsteps * meth.force_evaluations <= _SHORT_RUN_EVALUATIONS
-        if short:
-            n_chunks = min(n_chunks, _SHORT_RUN_CHUNKS)
-        units_per_chunk = max(1, math.ceil(units_total / n_chunks))
-        if save_every:
-            units_per_chunk = min(units_per_chunk, _frames_per_chunk(batch, params.N))
-        sizes = [units_per_chunk] * (units_total // units_per_chunk) + [units_total % units_per_chunk]
-        fraction = _SLICED_ENDS
-        if fraction is None and short and _pinned_view(x0) is not None:
-            fraction = _LOCKED_ENDS
-        ends = math.ceil(units_total * fraction) if short and not save_every and fraction else 0
-        if 0 < ends and 2 * ends < units_total:
-            # the sliced first and last chunk only as long as hiding the transfers needs; the rest on the whole
-            # batch at once, which runs faster than slice after slice (fuller waves)
-            sizes = [ends, units_total - 2 * ends, ends]
-        plan = []  # (first step, steps, frames) of each chunk
-        for size in sizes:
-            first = sum(p[1] for p in plan)
-            steps = min(size * unit, nsteps - first)
-            if steps > 0:
-                plan.append((first, steps, steps // save_every if save_every else 0))
+    # chunk length: a whole number of save intervals, at least _CHUNK_WORK force evaluations of the whole
+    # batch (launch, guard and transfer costs stay small against the kernel), at most 10 chunks (50 with a
+    # progress bar), and, when recording, at most the frames that fit the host staging buffers
+    unit = save_every or 1
+    units_total = max(1, math.ceil(nsteps / unit))
+    work = batch * params.N * max(nsteps, 1) * meth.force_evaluations
+    n_chunks = chunks or max(1, min(50 if progress else 10, math.ceil(work / _CHUNK_WORK)))
+    sliced = x0.size >= _SLICED_MIN_VALUES and (device != "cpu" or _SLICE_ON_CPU)
+    short = sliced and chunks is None and not progress and nsteps * meth.force_evaluations <= _SHORT_RUN_EVALUATIONS
+    if short:
+        n_chunks = min(n_chunks, _SHORT_RUN_CHUNKS)
+    units_per_chunk = max(1, math.ceil(units_total / n_chunks))
+    if save_every:
+        units_per_chunk = min(units_per_chunk, _frames_per_chunk(batch, params.N))
+    sizes = [units_per_chunk] * (units_total // units_per_chunk) + [units_total % units_per_chunk]
+    fraction = _SLICED_ENDS
+    if fraction is None and short and _pinned_view(x0) is not None:
+        fraction = _LOCKED_ENDS
+    ends = math.ceil(units_total * fraction) if short and not save_every and fraction else 0
+    if 0 < ends and 2 * ends < units_total:
+        # the sliced first and last chunk only as long as hiding the transfers needs; the rest on the whole
+        # batch at once, which runs faster than slice after slice (fuller waves)
+        sizes = [ends, units_total - 2 * ends, ends]
+    plan = []  # (first step, steps, frames) of each chunk
+    for size in sizes:
+        first = sum(p[1] for p in plan)
+        steps = min(size * unit, nsteps - first)
+        if steps > 0:
+            plan.append((first, steps, steps // save_every if save_every else 0))
 
-        gpu = device != "cpu"
-        sliced = sliced and bool(plan)  # a large batch: state moved in slices, overlapped with the first and last chunk
-        t_runner = time.perf_counter()
-        runner = _pooled_runner(meth, params, x0, Mb, Kb, device, layout, upload=False)  # x0: uploaded below
-        runner.set_damping(damping, dt_used)
-        t_runner = time.perf_counter() - t_runner
-        wp = runner.wp
-        lend = _LEASE_RESULTS and (gpu or _LEASE_ON_CPU)
-        lent = leases.lend(wp, device, x0.shape) if lend and plan else None
-        final = lent[0] if lent else None  # the final state's page-locked host array, which the device fills
-        target = None  # else the final state's host array, touched in the background once the device is busy
-        guard = _GuardReader.of(runner, gpu)
-        transfers = _SlicedTransfers(runner, x0, slices, out=final, stage=stage) if sliced else None
-        if not plan:
-            runner.upload(x0, stage=stage)
-            E0, finite0, contact = (a.copy() for a in guard.read(runner.guard(), 0))  # of x0, on the device
-            if not finite0.all():
-                guard.close()
-                raise ValueError(f"x0 has non-finite entries in lattice(s) {np.flatnonzero(~finite0).tolist()}")
+    gpu = device != "cpu"
+    sliced = sliced and bool(plan)  # a large batch: state moved in slices, overlapped with the first and last chunk
+    t_runner = time.perf_counter()
+    runner = _pooled_runner(meth, params, x0, Mb, Kb, device, layout, upload=False)  # x0: uploaded below
+    runner.set_damping(damping, dt_used)
+    t_runner = time.perf_counter() - t_runner
+    wp = runner.wp
+    lend = _LEASE_RESULTS and (gpu or _LEASE_ON_CPU)
+    lent = leases.lend(wp, device, x0.shape) if lend and plan else None
+    final = lent[0] if lent else None  # the final state's page-locked host array, which the device fills
+    target = None  # else the final state's host array, touched in the background once the device is busy
+    guard = _GuardReader.of(runner, gpu)
+    transfers = _SlicedTransfers(runner, x0, _slice_bounds(batch), out=final) if sliced else None
+    if not plan:
+        runner.upload(x0)
+        E0, finite0, contact = (a.copy() for a in guard.read(runner.guard(), 0))  # of x0, on the device
+        if not finite0.all():
+            guard.close()
+            raise ValueError(f"x0 has non-finite entries in lattice(s) {np.flatnonzero(~finite0).tolist()}")
+    else:
+        # the start's guard (energy, finite flag, contact of x0) is queued with chunk 0 and read after it,
+        # so the host never waits for the device before the first kernel runs
+        E0 = contact = None
+    trace_t, trace_E = [0.0], [E0]
+    max_err = np.zeros(batch)
+
+    sink = None
+    if save_every:
+        n_saved = 1 + nsteps // save_every
+        if frames_out is None and lend:
+            lent_frames = leases.lend(wp, device, (n_saved, batch, params.N), count=2)
+            frames_out = tuple(lent_frames) if lent_frames else None
+        sink = _FrameSink(runner, n_saved, max(p[2] for p in plan) if plan else 0, gpu, out=frames_out)
+        sink.put_initial(x0)
+        if on_chunk is not None:
+            on_chunk(np.array([0.0]), *sink.view(0, 1))
+
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=nsteps, desc=f"{meth.name} dt={dt_used:.4g}", unit="step", leave=False)
+
+    def enqueue(i):
+        """Queue chunk i on the device: kernel, guard, and the copies of its scalars and frames."""
+        _, steps, n_rec = plan[i]
+        rec = sink.rec if n_rec else None
+        if sliced and (i == 0 or i == len(plan) - 1):
+            for s, lattices in enumerate(transfers.slices):
+                if i == 0:
+                    transfers.upload(s)
+                    runner.guard(slot=2, lattices=lattices)  # the start: energy, finite, contact
+                runner.launch(steps, dt_used, save_every or 0, rec, lattices=lattices)
+                if i == len(plan) - 1:
+                    transfers.download(s)
+            if i == 0:
+                guard.enqueue_init(runner.guard_out[2])
         else:
-            # the start's guard (energy, finite flag, contact of x0) is queued with chunk 0 and read after it,
-            # so the host never waits for the device before the first kernel runs
-            E0 = contact = None
-        trace_t, trace_E = [0.0], [E0]
-        max_err = np.zeros(batch)
+            if i == 0:
+                runner.guard(slot=2)
+                guard.enqueue_init(runner.guard_out[2])
+            runner.launch(steps, dt_used, save_every or 0, rec)
+        guard.enqueue(runner.guard(rec, n_rec, i), i)
+        if n_rec:
+            sink.enqueue(n_rec, i, 1 + plan[i][0] // save_every)
+        guard.record(i)
 
-        sink = None
-        if save_every:
-            n_saved = 1 + nsteps // save_every
-            if frames_out is None and lend:
-                lent_frames = leases.lend(wp, device, (n_saved, batch, params.N), count=2)
-                frames_out = tuple(lent_frames) if lent_frames else None
-            sink = _FrameSink(runner, n_saved, max(p[2] for p in plan) if plan else 0, gpu, out=frames_out)
-            sink.put_initial(x0)
-            if on_chunk is not None:
-                on_chunk(np.array([0.0]), *sink.view(0, 1))
+    def check(i, E, finite, low):
+        """Chunk i's guard on the host: trace the energy, raise on a blow-up."""
+        nonlocal max_err, contact
+        first, steps, _ = plan[i]
+        t_now = (first + steps) * dt_used
+        change = _signed_energy_change(E, E0, params.N)  # lattices with losses: only growth is an error
+        err = np.where(runner.lossy_host, np.maximum(change, 0.0), np.abs(change))
+        err = np.where(finite, err, np.inf)
+        max_err = np.maximum(max_err, err)
+        trace_t.append(t_now)
+        trace_E.append(E.copy())
+        bad = ~finite | ((err > max_energy_error) if max_energy_error is not None else False)
+        if np.any(bad):
+            if gpu:
+                wp.synchronize_device(device)  # the next chunk may still be running; let it finish
+            failed = np.flatnonzero(bad).tolist()
+            what = "non-finite state" if not finite.all() else f"energy error above {max_energy_error:g}"
+            raise IntegrationError(
+                f"integration blew up ({what}) at t = {t_now:.6g} with method '{meth.name}', "
+                f"dt = {dt_used:.6g} (linear stability limit {limit:.6g}); failing lattices: {failed[:20]}"
+                + (" ..." if len(failed) > 20 else "")
+                + f"; largest relative energy error {np.nanmax(err):.3g}. Reduce dt or choose another method.",
+                method=meth.name,
+                dt=dt_used,
+                stability_limit=limit,
+                failed=failed,
+                t=t_now,
+            )
+        contact = low.copy()
 
-        bar = None
-        if progress:
-            from tqdm.auto import tqdm
-
-            bar = tqdm(total=nsteps, desc=f"{meth.name} dt={dt_used:.4g}", unit="step", leave=False)
-
-        def enqueue(i):
-            """Queue chunk i on the device: kernel, guard, and the copies of its scalars and frames."""
-            _, steps, n_rec = plan[i]
-            rec = sink.rec if n_rec else None
-            if sliced and (i == 0 or i == len(plan) - 1):
-                for s, lattices in enumerate(transfers.slices):
-                    if i == 0:
-                        transfers.upload(s)
-                        runner.guard(slot=2, lattices=lattices)  # the start: energy, finite, contact
-                    runner.launch(steps, dt_used, save_every or 0, rec, lattices=lattices)
-                    if i == len(plan) - 1:
-                        transfers.download(s)
-                if i == 0:
-                    guard.enqueue_init(runner.guard_out[2])
-            else:
-                if i == 0:
-                    runner.guard(slot=2)
-                    guard.enqueue_init(runner.guard_out[2])
-                runner.launch(steps, dt_used, save_every or 0, rec)
-            guard.enqueue(runner.guard(rec, n_rec, i), i)
-            if n_rec:
-                sink.enqueue(n_rec, i, 1 + plan[i][0] // save_every)
-            guard.record(i)
-
-        def check(i, E, finite, low):
-            """Chunk i's guard on the host: trace the energy, raise on a blow-up."""
-            nonlocal max_err, contact
-            first, steps, _ = plan[i]
-            t_now = (first + steps) * dt_used
-            change = _signed_energy_change(E, E0, params.N)  # lattices with losses: only growth is an error
-            err = np.where(runner.lossy_host, np.maximum(change, 0.0), np.abs(change))
-            err = np.where(finite, err, np.inf)
-            max_err = np.maximum(max_err, err)
-            trace_t.append(t_now)
-            trace_E.append(E.copy())
-            bad = ~finite | ((err > max_energy_error) if max_energy_error is not None else False)
-            if np.any(bad):
-                if gpu:
-                    wp.synchronize_device(device)  # the next chunk may still be running; let it finish
-                failed = np.flatnonzero(bad).tolist()
-                what = "non-finite state" if not finite.all() else f"energy error above {max_energy_error:g}"
-                raise IntegrationError(
-                    f"integration blew up ({what}) at t = {t_now:.6g} with method '{meth.name}', "
-                    f"dt = {dt_used:.6g} (linear stability limit {limit:.6g}); failing lattices: {failed[:20]}"
-                    + (" ..." if len(failed) > 20 else "")
-                    + f"; largest relative energy error {np.nanmax(err):.3g}. Reduce dt or choose another method.",
-                    method=meth.name,
-                    dt=dt_used,
-                    stability_limit=limit,
-                    failed=failed,
-                    t=t_now,
-                )
-            contact = low.copy()
-
-        saved = 1
-        stats = {"chunks": len(plan), "runner": t_runner, "waiting": 0.0, "frames": 0.0, "final": 0.0}
-        stats["slices"] = len(transfers.slices) if sliced else 1
-        stats["lent"] = final is not None  # the final state in page-locked memory lent by ``leases``
-        if runner.layout == "block" and isinstance(meth, SplittingMethod):
-            lattices = transfers.slices[0][1] if sliced else batch
-            stats["sites_per_thread"] = sites_per_thread(lattices, params.N, meth.stages, device)
-    except BaseException:
-        if stage is not None:
-            stage.close()
-        raise
+    saved = 1
+    stats = {"chunks": len(plan), "runner": t_runner, "waiting": 0.0, "frames": 0.0, "final": 0.0}
+    stats["slices"] = len(transfers.slices) if sliced else 1
+    stats["lent"] = final is not None  # the final state in page-locked memory lent by ``leases``
+    if runner.layout == "block" and isinstance(meth, SplittingMethod):
+        lattices = transfers.slices[0][1] if sliced else batch
+        stats["sites_per_thread"] = sites_per_thread(lattices, params.N, meth.stages, device)
     try:
         if plan:
             if not sliced:  # a page-locked x0 is read by the device after this returns: the finally waits for it
-                runner.upload(x0, wait=False, stage=stage)
+                runner.upload(x0, wait=False)
             enqueue(0)
         stats["setup"] = time.perf_counter() - start
         if gpu and final is None and x0.size >= _PREFAULT_MIN_VALUES:
@@ -1811,8 +1695,6 @@ def simulate(
             sink.close()
         if transfers is not None:
             transfers.close()
-        if stage is not None:
-            stage.close()  # after the synchronisation above: no copy from its buffer is in flight
         if target is not None:
             target.join()
     t0 = time.perf_counter()
