@@ -1169,7 +1169,7 @@ class _Runner:
         self.boundary = BOUNDARY_CODES[params.boundary]
         f64 = wp.float64
         # pinned host staging of the state (made on first use), and the event after the last copy from each
-        self._pinned_up = self._pinned_down = self._pinned_up_done = self._pinned_down_done = None
+        self._pinned_up_done = self._pinned_down_done = None
         self.x = wp.empty(x0.shape, dtype=f64, device=device)
         if upload:
             self.upload(x0)
@@ -1218,12 +1218,9 @@ class _Runner:
         return [_part(self.lossy, lo, hi), _part(self.damp, lo, hi) if self.damped else self.no_damp]
 
     def _pinned(self, name: str):
-        """This runner's own pinned host buffer ``name`` of the state's size (made once: the runner is
-        pooled, so later calls on the same batch shape reuse it), after any copy from it has finished."""
-        buf = getattr(self, name)
-        if buf is None:
-            buf = self.wp.empty(self.x.size, dtype=self.wp.float64, device="cpu", pinned=True)
-            setattr(self, name, buf)
+        """This runner's own pinned host buffer ``name`` of the state's size (``host_buffer``: made once, the
+        runner is pooled, so later calls on the same batch shape reuse it), after any copy from it has finished."""
+        buf = self.host_buffer(name, self.x.size)
         done = getattr(self, name + "_done")
         if done is not None:
             self.wp.synchronize_event(done)
