@@ -10,6 +10,7 @@ Variants: ``whole``: no slices, the default chunk count (from the work, at most 
 (the final state in page-locked memory lent by ``leases``); ``auto, plain results``: the same with
 ``ensemble._LEASE_RESULTS`` off (a fresh pageable result, touched in advance, as before the leases);
 ``auto, x0 page-locked``: x0 given as ``page_locked(x0)`` (as a continued run passes a lent result);
+``on the device``: x0 a ``DeviceState`` and ``keep_on_device=True`` (a run continued on the device);
 ``auto, driver's pageable upload``: a whole-batch x0 copied by the driver from pageable memory
 (``_UPLOAD_PAGEABLE``), not through our pinned staging buffer.
 ``--record K``: also ``simulate(save_every=K)``, lent frames against plain ones, with the frames' rate.
@@ -30,7 +31,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from warpchain import ChainParams, lowest_optical_mode, page_locked, simulate  # noqa: E402
+from warpchain import ChainParams, DeviceState, lowest_optical_mode, page_locked, simulate  # noqa: E402
 from warpchain import ensemble, leases  # noqa: E402
 from warpchain.ensemble import time_steps  # noqa: E402
 
@@ -55,7 +56,7 @@ def main():
     one[:2] = 0.3 * shape / np.max(np.abs(shape))
     dt = 0.1
     whole, sliced = dict(_SLICED_MIN_VALUES=1 << 62, _SLICES=None), lambda n: dict(_SLICED_MIN_VALUES=1, _SLICES=n)
-    # (name, ensemble attributes to set, simulate keywords, x0 page-locked)
+    # (name, ensemble attributes to set, simulate keywords, x0: False plain, True page-locked, "device")
     variants = [("whole", whole, {}, False), ("whole, 2 chunks", whole, dict(chunks=2), False)]
     variants += [(f"{n} slices", sliced(n), {}, False) for n in args.slices]
     variants += [(f"{n} slices, 1 chunk", sliced(n), dict(chunks=1), False) for n in args.one_chunk]
@@ -63,6 +64,7 @@ def main():
     variants += [(f"{n} slices, no prefault", {**sliced(n), **no_prefault}, {}, False) for n in args.no_prefault]
     variants += [("auto", {}, {}, False), ("auto, plain results", dict(_LEASE_RESULTS=False), {}, False)]
     variants += [("auto, x0 page-locked", {}, {}, True)]
+    variants += [("on the device", {}, dict(keep_on_device=True), "device")]
     variants += [("auto, driver's pageable upload", dict(_UPLOAD_PAGEABLE=True), {}, False)]
     for f in args.ends:
         variants += [(f"auto, ends {f:g}", dict(_SLICED_ENDS=f), {}, False)]
@@ -90,6 +92,8 @@ def main():
             for attr, value in {**defaults, **settings}.items():
                 setattr(owner(attr), attr, value)
             start = page_locked(x0, device=args.device) if locked else x0
+            if locked == "device":
+                start = DeviceState.of(x0, device=args.device)
             kw = dict(device=args.device, **keywords)
             simulate(p, start, args.steps * dt, dt, **kw)
             walls, stats = [], []
@@ -99,10 +103,12 @@ def main():
                 walls.append(time.perf_counter() - t0)
                 stats.append(run.stats)
             best = int(np.argmin(walls))
-            first = run.x if first is None else first
-            same = "same bits" if np.array_equal(run.x, first) else f"DIFFERS by {np.max(np.abs(run.x - first)):.3g}"
+            x = np.asarray(run.x)  # a DeviceState's host copy, outside the timed calls
+            first = x if first is None else first
+            same = "same bits" if np.array_equal(x, first) else f"DIFFERS by {np.max(np.abs(x - first)):.3g}"
             st = {k: round(1e3 * v, 3) if isinstance(v, float) else v for k, v in stats[best].items()}
-            lent = "lent" if ensemble._pinned_view(run.x) is not None else "plain"
+            lent = "on the device" if isinstance(run.x, DeviceState) else "plain"
+            lent = "lent" if lent == "plain" and ensemble._pinned_view(run.x) is not None else lent
             rate = f", frames {2 * run.u.nbytes / walls[best] / 1e9:.1f} GB/s" if run.u is not None else ""
             print(
                 f"  {name:32s} best {1e3 * walls[best]:8.3f} ms ({kernel / walls[best]:.2f}x kernel{rate}), "

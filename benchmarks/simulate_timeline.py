@@ -6,7 +6,9 @@ recorded around every launch (main stream) and every slice transfer (its own str
 recorded just before the call, marked ``[device]``.
 
 Command (GPU): ``python benchmarks/simulate_timeline.py [--batch 32768] [--slices 0 8] [--chunks 1]
-[--page-locked] [--device-events] [--detail]``
+[--page-locked | --on-device] [--device-events] [--detail]``
+
+``--on-device``: x0 a ``DeviceState`` and ``keep_on_device=True`` (a run continued on the device: no transfer).
 """
 
 import argparse
@@ -18,7 +20,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from warpchain import ChainParams, lowest_optical_mode, page_locked, simulate  # noqa: E402
+from warpchain import ChainParams, DeviceState, lowest_optical_mode, page_locked, simulate  # noqa: E402
 from warpchain import ensemble, leases  # noqa: E402
 from warpchain.ensemble import time_steps  # noqa: E402
 
@@ -67,6 +69,7 @@ def main():
     ap.add_argument("--chunks", type=int, default=None)
     ap.add_argument("--device", default="cuda")
     ap.add_argument("--page-locked", action="store_true", help="x0 given as page_locked(x0)")
+    ap.add_argument("--on-device", action="store_true", help="x0 a DeviceState, keep_on_device=True")
     ap.add_argument("--device-events", action="store_true", help="also CUDA events around launches, transfers")
     ap.add_argument("--detail", action="store_true", help="also every host copy (_copy) and wp.copy call")
     args = ap.parse_args()
@@ -80,6 +83,7 @@ def main():
     wrap(ensemble._Runner, "guard", "guard launch")
     wrap(ensemble._Runner, "upload", "whole upload")
     wrap(ensemble._Runner, "download", "whole download")
+    wrap(ensemble._Runner, "enqueue_download", "final copy (queue)")
     wrap(ensemble, "_fill_zero", "prefault fill (thread)")
     wrap(ensemble._GuardReader, "wait", "guard wait")
     if args.detail:
@@ -109,14 +113,17 @@ def main():
     defaults = ensemble._SLICED_MIN_VALUES, ensemble._SLICES
     for batch in args.batch:
         x0 = np.repeat(one[None], batch, 0)
+        kernel = time_steps(p, x0, 2000, 0.1, device=args.device, repeats=3)
         if args.page_locked:
             x0 = page_locked(x0, device=args.device)
-        kernel = time_steps(p, x0, 2000, 0.1, device=args.device, repeats=3)
+        if args.on_device:
+            x0 = DeviceState.of(x0, device=args.device)
+        kw = dict(device=args.device, chunks=args.chunks, keep_on_device=args.on_device)
         for slices in args.slices:
             ensemble._SLICED_MIN_VALUES, ensemble._SLICES = defaults
             if slices:  # 1: the whole batch at once; S > 1: S equal slices
                 ensemble._SLICED_MIN_VALUES, ensemble._SLICES = (1, slices) if slices > 1 else (1 << 62, None)
-            simulate(p, x0, 200.0, 0.1, device=args.device, chunks=args.chunks)
+            simulate(p, x0, 200.0, 0.1, **kw)
             best = None
             for _ in range(3):
                 EVENTS.clear()
@@ -126,7 +133,7 @@ def main():
                     origin = wp.Event(enable_timing=True)
                     wp.get_stream(args.device).record_event(origin)
                 t0 = time.perf_counter()
-                run = simulate(p, x0, 200.0, 0.1, device=args.device, chunks=args.chunks)
+                run = simulate(p, x0, 200.0, 0.1, **kw)
                 wall = time.perf_counter() - t0
                 device_rows = []
                 if origin is not None:
@@ -139,9 +146,10 @@ def main():
                     best = (wall, t0, [(label, a - t0, b - t0) for label, a, b in EVENTS] + device_rows, lent)
                 del run
             wall, t0, events, lent = best
+            start = "on the device" if args.on_device else "page-locked" if args.page_locked else "plain"
             print(
                 f"\n=== batch {batch}, {slices or 'auto'} slice(s): kernel {1e3 * kernel:.2f} ms, "
-                f"call {1e3 * wall:.2f} ms (x0 {'page-locked' if args.page_locked else 'plain'}, result {lent})"
+                f"call {1e3 * wall:.2f} ms (x0 {start}, result {'on the device' if args.on_device else lent})"
             )
             for label, a, b in sorted(events, key=lambda e: e[1]):
                 print(f"  {1e3 * a:8.3f} .. {1e3 * b:8.3f}  ({1e3 * (b - a):7.3f})  {label}")

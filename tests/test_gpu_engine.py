@@ -655,3 +655,49 @@ def test_frames_out_must_not_share_memory_with_x0(small_chain):
     x0_view[...] = x0
     with pytest.raises(ValueError, match="must not share memory with x0"):
         simulate(p, x0_view, 20 * 0.05, 0.05, save_every=10, device="cpu", frames_out=(store[0], store[1]))
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_a_run_continued_on_the_device_gives_the_same_bits(layout, monkeypatch):
+    """``keep_on_device=True`` leaves the final state on the device (a ``DeviceState``); passed back as x0 it
+    is copied device to device. Chained that way, runs give the bits of the same runs through host arrays,
+    recorded frames and energies included; zero steps return x0; misuse is refused with the reason."""
+    from warpchain import DeviceState, ensemble, leases
+
+    p = ChainParams(30.0, 160.0, 41)
+    x0 = localized_state(p.N, amplitude=0.8, batch=4, seed=7)
+    kwargs = dict(device="cpu", layout=layout, chunks=2)
+    first = simulate(p, x0, 40 * 0.02, 0.02, **kwargs)
+    second = simulate(p, first.x, 40 * 0.02, 0.02, save_every=10, **kwargs)
+    kept = simulate(p, x0, 40 * 0.02, 0.02, keep_on_device=True, **kwargs)
+    assert isinstance(kept.x, DeviceState) and kept.x.shape == x0.shape and kept.x.device == "cpu"
+    assert kept.stats["kept_on_device"] and not kept.stats["x0_on_device"]
+    assert np.array_equal(kept.x.numpy(), first.x) and np.array_equal(np.asarray(kept.x), first.x)
+    for lent in (False, True):  # with lent results (emulated) the host path's final copy is queued the same way
+        monkeypatch.setattr(ensemble, "_LEASE_ON_CPU", lent)
+        again = simulate(p, kept.x, 40 * 0.02, 0.02, save_every=10, keep_on_device=True, **kwargs)
+        assert again.stats["x0_on_device"] and isinstance(again.x, DeviceState)
+        assert np.array_equal(again.x.numpy(), second.x)
+        assert np.array_equal(again.u, second.u) and np.array_equal(again.v, second.v)
+        assert np.array_equal(again.energy_trace, second.energy_trace)
+        assert np.array_equal(again.min_contact, second.min_contact)
+        for _ in range(2):  # from the device back to the host (lent from the second request on)
+            host = simulate(p, kept.x, 40 * 0.02, 0.02, **kwargs)
+            assert isinstance(host.x, np.ndarray) and np.array_equal(host.x, second.x)
+        assert (leases.pinned_buffer(host.x) is not None) == lent
+    leases.clear()
+    assert np.array_equal(kept.x.numpy(), first.x)  # x0 is never written
+    still = simulate(p, kept.x, 0.0, 0.02, keep_on_device=True, **kwargs)
+    assert np.array_equal(still.x.numpy(), first.x)
+    with pytest.raises(ValueError, match="does not fit a chain of N = 40"):
+        simulate(ChainParams(30.0, 160.0, 40), kept.x, 0.2, 0.02, device="cpu")
+    with pytest.raises(ValueError, match="unknown or unavailable device"):
+        simulate(p, kept.x, 0.2, 0.02, device="cuda:7")
+    bad = x0.copy()
+    bad[1, 2, 5] = np.inf
+    with pytest.raises(ValueError, match=r"non-finite entries in lattice\(s\) \[1\]"):
+        simulate(p, DeviceState.of(bad, device="cpu"), 0.2, 0.02, **kwargs)
+    with pytest.raises(ValueError, match="shape"):
+        DeviceState.of(np.zeros((3, 5)), device="cpu")
+    with pytest.raises(TypeError, match="Warp array"):
+        DeviceState(np.zeros((1, 4, 5)))

@@ -4,6 +4,7 @@ The model (``model``), float64 Warp ensemble integrators (``ensemble``, ``kernel
 reference of every scheme (``reference``), and zarr output (``store``).
 """
 
+from .device_state import DeviceState
 from .ensemble import (
     IntegrationError,
     SimulationResult,
@@ -44,6 +45,7 @@ __all__ = [
     "BOUNDARIES",
     "ChainParams",
     "Damping",
+    "DeviceState",
     "Observation",
     "ObservedRun",
     "RungeKuttaMethod",

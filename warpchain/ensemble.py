@@ -10,6 +10,7 @@ progress bar advances.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import os
 import threading
@@ -31,6 +32,7 @@ from .model import (
     real_number,
     whole_number,
 )
+from .device_state import DeviceState
 from .reference import inverse_mass
 
 
@@ -61,7 +63,7 @@ class SimulationResult:
     """Outcome of ``simulate``.
 
     Attributes:
-        x: final state, shape (batch, 4, N).
+        x: final state, shape (batch, 4, N): a numpy array, or with ``keep_on_device`` a ``DeviceState``.
         t: times of the recorded fields, shape (n_saved,); ``[0, t_final]`` when nothing was saved.
         u, v: recorded fields, shape (n_saved, batch, N) each, or None without ``save_every``.
         energy_initial, energy_final: Hamiltonian of each lattice, shape (batch,).
@@ -85,7 +87,7 @@ class SimulationResult:
     go back to a pool when dropped, and a run continued from ``x`` is uploaded straight from it.
     """
 
-    x: np.ndarray
+    x: np.ndarray | DeviceState
     t: np.ndarray
     u: np.ndarray | None
     v: np.ndarray | None
@@ -193,6 +195,8 @@ def stability_limit(method: Method | str, params: ChainParams, M=None, K=None) -
     """Linear stability limit on dt of ``method`` for these parameters (smallest over a batch),
     from the top of the optical band, w_max: dt < bound / w_max (bound = 2 for Verlet)."""
     method = get_method(method)
+    if M is None and K is None:  # one chain for the whole batch (simulate's set-up: kept per chain)
+        return method.linear_stability_limit(_optical_top(params.M, params.K))
     Ms = np.atleast_1d(params.M if M is None else M).astype(float)
     Ks = np.atleast_1d(params.K if K is None else K).astype(float)
     Ms, Ks = np.broadcast_arrays(Ms, Ks)
@@ -204,6 +208,11 @@ def stability_limit(method: Method | str, params: ChainParams, M=None, K=None) -
     return method.linear_stability_limit(w_max)
 
 
+@functools.lru_cache(maxsize=256)
+def _optical_top(M: float, K: float) -> float:
+    return band_edges(M, K)["optical_top"]
+
+
 def _as_state(x0, N: int) -> np.ndarray:
     """``model.as_batch`` without its scan for non-finite values (``simulate`` runs that check on the
     device, in its guard: on a large batch the host scan alone cost twice the kernel)."""
@@ -213,6 +222,19 @@ def _as_state(x0, N: int) -> np.ndarray:
     if arr.dtype == np.float64 and arr.ndim == 2 and arr.shape == (4, N):
         return np.ascontiguousarray(arr[None])
     return as_batch(x0, N, "x0")  # anything else: the full validation, with its messages
+
+
+def _state_device(x0: DeviceState, n_sites: int, device: str | None) -> str:
+    """The device a ``DeviceState`` x0 runs on (its own), checked against the chain and ``device``."""
+    if x0.shape[2] != n_sites:
+        raise ValueError(f"x0 (a DeviceState of shape {x0.shape}) does not fit a chain of N = {n_sites} cells")
+    own = x0.device
+    if device is not None and resolve_device(device) != own:
+        raise ValueError(
+            f"x0 lives on {own!r} but device={device!r}: run on {own!r} (device=None), or pass x0.numpy() "
+            "to move the state"
+        )
+    return own
 
 
 def _check_step(method: Method, params, dt, M, K, allow_unstable_step: bool) -> float:
@@ -504,8 +526,9 @@ def _prefault(shape) -> "threading.Thread":
     return holder
 
 
-def _check_frames_out(frames_out, save_every, nsteps: int, batch: int, n_sites: int, x0: np.ndarray):
-    """``simulate``'s ``frames_out``, checked once at the boundary: (u, v) host arrays of the frames' shape."""
+def _check_frames_out(frames_out, save_every, nsteps: int, batch: int, n_sites: int, x0: np.ndarray | None):
+    """``simulate``'s ``frames_out``, checked once at the boundary: (u, v) host arrays of the frames' shape
+    (``x0``: the host x0 they must not overlap; None for a ``DeviceState``)."""
     if save_every is None:
         raise ValueError("frames_out receives recorded frames: give save_every too")
     if not isinstance(frames_out, (tuple, list)) or len(frames_out) != 2:
@@ -519,7 +542,7 @@ def _check_frames_out(frames_out, save_every, nsteps: int, batch: int, n_sites: 
             raise ValueError(f"frames_out {name} must be C-contiguous and writeable")
     if np.shares_memory(frames_out[0], frames_out[1]):
         raise ValueError("frames_out u and v must not share memory")
-    if any(np.may_share_memory(arr, x0) for arr in frames_out):
+    if x0 is not None and any(np.may_share_memory(arr, x0) for arr in frames_out):
         raise ValueError("frames_out must not share memory with x0 (the device may still be reading x0)")
     return tuple(frames_out)
 
@@ -1232,6 +1255,9 @@ class _Runner:
         result ``simulate`` lent). Kernels queued after it see the new state. ``wait=False``: return before
         the device has read a page-locked ``x0``; the caller must not change it until the device is synchronised."""
         wp = self.wp
+        if isinstance(x0, DeviceState):  # device to device, on the compute stream: no wait needed
+            wp.copy(self.x, x0.array, count=x0.size)
+            return
         direct = _pinned_view(x0)
         if direct is not None:
             src, offset = direct
@@ -1256,10 +1282,7 @@ class _Runner:
         write the result: fresh host memory is filled ~5x faster that way than by one thread);
         ``out``: a host array of the state's shape to fill instead (e.g. one touched in advance, or a
         page-locked one, which the device copies into directly)."""
-        direct = _pinned_view(out) if out is not None else None
-        if direct is not None:
-            dst, offset = direct
-            self.wp.copy(dst, self.x, dest_offset=offset, count=self.x.size)
+        if self.enqueue_download(out):
             self.wp.synchronize_device(self.device)
             return out
         if self.device == "cpu":
@@ -1272,6 +1295,20 @@ class _Runner:
         out = np.empty(self.x.shape) if out is None else out
         _copy(out, buf.numpy().reshape(self.x.shape))
         return out
+
+    def enqueue_download(self, out) -> bool:
+        """Queue the state's copy into ``out`` behind the work queued so far, without waiting, when the device
+        can write ``out`` itself: a ``DeviceState`` or page-locked host memory (True); else False (``download``
+        then stages it)."""
+        if isinstance(out, DeviceState):
+            self.wp.copy(out.array, self.x, count=self.x.size)
+            return True
+        direct = _pinned_view(out) if out is not None else None
+        if direct is None:
+            return False
+        dst, offset = direct
+        self.wp.copy(dst, self.x, dest_offset=offset, count=self.x.size)
+        return True
 
     def load(self, x0: np.ndarray, M, K, upload: bool = True) -> None:
         """Copy a new batch (same shape) and its parameters into the existing device buffers."""
@@ -1438,17 +1475,20 @@ def simulate(
     on_chunk: Callable[[np.ndarray, np.ndarray, np.ndarray], None] | None = None,
     damping: Damping | tuple | None = None,
     frames_out: tuple[np.ndarray, np.ndarray] | None = None,
+    keep_on_device: bool = False,
 ) -> SimulationResult:
     """Integrate a batch of lattices with a float64 Warp kernel.
 
     Args:
         params: the chain (N, boundary, and M, K unless given per lattice).
-        x0: initial state, shape (4, N) (a batch of one) or (batch, 4, N), ordered (u, v, u', v').
+        x0: initial state, shape (4, N) (a batch of one) or (batch, 4, N), ordered (u, v, u', v'); or a
+            ``DeviceState`` (e.g. an earlier result's ``x`` with ``keep_on_device``), copied device to device.
         t_final: final time (>= 0). When it is not a whole multiple of ``dt`` the step is
             shortened slightly so that it is; the result reports the step used.
         dt: time step (> 0), below the method's linear stability limit.
         method: a name in ``METHODS`` (``verlet``, ``yoshida4``, ``yoshida6``, ``rk4``).
-        device: ``"cpu"``, ``"cuda"`` or ``"cuda:N"``; None picks CUDA when Warp sees a GPU.
+        device: ``"cpu"``, ``"cuda"`` or ``"cuda:N"``; None picks CUDA when Warp sees a GPU (or, for a
+            ``DeviceState`` x0, the device it lives on).
         save_every: record u and v every this many steps (and at t = 0).
         progress: show a tqdm progress bar.
         M, K: per-lattice parameters, shape (batch,), so that a sweep runs in one launch.
@@ -1472,6 +1512,9 @@ def simulate(
         damping: losses (``losses.Damping`` or a (contact, substrate) pair of rates, scalars or per
             lattice), splitting methods only. Energy then decays; the guard flags a lattice whose
             energy *grows* by more than ``max_energy_error`` (relative), which no lossy run can do.
+        keep_on_device: leave the final state on the device: the result's ``x`` is a ``DeviceState``, which
+            the next call takes as its ``x0`` with no transfer either way (``warpchain.device_state``). Only
+            the guard's scalars (and recorded frames) reach the host.
 
     Returns:
         SimulationResult.
@@ -1483,7 +1526,11 @@ def simulate(
     """
     start = time.perf_counter()
     meth = get_method(method)
-    x0 = _as_state(x0, params.N)  # the check for non-finite values runs on the device (the guard)
+    resident = isinstance(x0, DeviceState)  # x0 in device memory: no transfer at all
+    if resident:
+        device = _state_device(x0, params.N, device)
+    else:
+        x0 = _as_state(x0, params.N)  # the check for non-finite values runs on the device (the guard)
     batch = x0.shape[0]
     Mb, Kb = per_lattice_parameters(params, batch, M, K)
     damping = as_damping(damping)
@@ -1491,7 +1538,7 @@ def simulate(
         damping.per_lattice(batch)  # validated here, at the boundary
         require_splitting(meth)
     t_final = real_number("t_final", t_final, nonnegative=True)
-    limit = _check_step(meth, params, dt, Mb, Kb, allow_unstable_step)
+    limit = _check_step(meth, params, dt, M if M is None else Mb, K if K is None else Kb, allow_unstable_step)
     dt = real_number("dt", dt, positive=True)
     if save_every is not None:
         save_every = whole_number("save_every", save_every, minimum=1)
@@ -1502,7 +1549,7 @@ def simulate(
     device = resolve_device(device)
     nsteps, dt_used = steps_for(t_final, dt)
     if frames_out is not None:
-        frames_out = _check_frames_out(frames_out, save_every, nsteps, batch, params.N, x0)
+        frames_out = _check_frames_out(frames_out, save_every, nsteps, batch, params.N, None if resident else x0)
     if save_every is not None and save_every > max(nsteps, 1):
         raise ValueError(
             f"save_every = {save_every} is larger than the run ({nsteps} steps of {dt_used:.6g}): "
@@ -1516,7 +1563,8 @@ def simulate(
     units_total = max(1, math.ceil(nsteps / unit))
     work = batch * params.N * max(nsteps, 1) * meth.force_evaluations
     n_chunks = chunks or max(1, min(50 if progress else 10, math.ceil(work / _CHUNK_WORK)))
-    sliced = x0.size >= _SLICED_MIN_VALUES and (device != "cpu" or _SLICE_ON_CPU)
+    # a large batch from and to the host: the state moved in slices, overlapped with the first and last chunk
+    sliced = not (resident or keep_on_device) and x0.size >= _SLICED_MIN_VALUES and (device != "cpu" or _SLICE_ON_CPU)
     short = sliced and chunks is None and not progress and nsteps * meth.force_evaluations <= _SHORT_RUN_EVALUATIONS
     if short:
         n_chunks = min(n_chunks, _SHORT_RUN_CHUNKS)
@@ -1547,8 +1595,10 @@ def simulate(
     t_runner = time.perf_counter() - t_runner
     wp = runner.wp
     lend = _LEASE_RESULTS and (gpu or _LEASE_ON_CPU)
-    lent = leases.lend(wp, device, x0.shape) if lend and plan else None
+    lent = leases.lend(wp, device, x0.shape) if lend and plan and not keep_on_device else None
     final = lent[0] if lent else None  # the final state's page-locked host array, which the device fills
+    if keep_on_device:
+        final = DeviceState.empty(x0.shape, device)  # filled device to device behind the last chunk
     target = None  # else the final state's host array, touched in the background once the device is busy
     guard = _GuardReader.of(runner, gpu)
     transfers = _SlicedTransfers(runner, x0, _slice_bounds(batch), out=final) if sliced else None
@@ -1572,7 +1622,7 @@ def simulate(
             lent_frames = leases.lend(wp, device, (n_saved, batch, params.N), count=2)
             frames_out = tuple(lent_frames) if lent_frames else None
         sink = _FrameSink(runner, n_saved, max(p[2] for p in plan) if plan else 0, gpu, out=frames_out)
-        sink.put_initial(x0)
+        sink.put_initial(x0.numpy() if resident else x0)
         if on_chunk is not None:
             on_chunk(np.array([0.0]), *sink.view(0, 1))
 
@@ -1599,12 +1649,16 @@ def simulate(
         else:
             if i == 0:
                 runner.guard(slot=2)
-                guard.enqueue_init(runner.guard_out[2])
             runner.launch(steps, dt_used, save_every or 0, rec)
+            if i == 0:
+                guard.enqueue_init(runner.guard_out[2])  # after the kernel's launch: it need not wait for this
         guard.enqueue(runner.guard(rec, n_rec, i), i)
         if n_rec:
             sink.enqueue(n_rec, i, 1 + plan[i][0] // save_every)
         guard.record(i)
+        if i == len(plan) - 1 and not sliced:
+            # the final state's copy right behind the last chunk, while the host still checks the chunks
+            queued_final[0] = runner.enqueue_download(final)
 
     def check(i, E, finite, low):
         """Chunk i's guard on the host: trace the energy, raise on a blow-up."""
@@ -1636,10 +1690,12 @@ def simulate(
             )
         contact = low.copy()
 
+    queued_final = [False]
     saved = 1
     stats = {"chunks": len(plan), "runner": t_runner, "waiting": 0.0, "frames": 0.0, "final": 0.0}
     stats["slices"] = len(transfers.slices) if sliced else 1
-    stats["lent"] = final is not None  # the final state in page-locked memory lent by ``leases``
+    stats["lent"] = lent is not None  # the final state in page-locked memory lent by ``leases``
+    stats["x0_on_device"], stats["kept_on_device"] = resident, bool(keep_on_device)
     if runner.layout == "block" and isinstance(meth, SplittingMethod):
         lattices = transfers.slices[0][1] if sliced else batch
         stats["sites_per_thread"] = sites_per_thread(lattices, params.N, meth.stages, device)
@@ -1695,8 +1751,8 @@ def simulate(
         if target is not None:
             target.join()
     t0 = time.perf_counter()
-    if sliced:
-        x = final
+    if sliced or queued_final[0]:
+        x = final  # the device wrote it (and the finally waited for that)
     else:
         x = runner.download(final if final is not None else target.result if target is not None else None)
     stats["final"] += time.perf_counter() - t0

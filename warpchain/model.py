@@ -360,6 +360,8 @@ def state_from_positions(u, v, du=None, dv=None) -> np.ndarray:
 
 def per_lattice_parameters(params: ChainParams, batch: int, M: Sequence | None, K: Sequence | None):
     """Per-lattice (M, K) arrays of shape (batch,), validated."""
+    if M is None and K is None:  # the chain's own values, validated by ChainParams (a fast path: simulate's set-up)
+        return np.full(batch, params.M), np.full(batch, params.K)
     out = []
     for name, value, default in (("M", M, params.M), ("K", K, params.K)):
         arr = np.asarray(default if value is None else value, dtype=np.float64)
