@@ -2,7 +2,9 @@
 
 Every method, both kernel layouts: 1000 steps of a localized large-amplitude state with per-lattice
 (M, K), and 40 steps of tangent columns (full Jacobians of two base states); the Flow replayed as CUDA graphs
-against its launches issued one by one. Prints and writes the largest relative differences as JSON.
+against its launches issued one by one; a run continued on the device (``keep_on_device``, a ``DeviceState``
+x0) against the same runs through host arrays, plain and lent. Prints and writes the largest relative
+differences as JSON.
 
 Command: ``python benchmarks/gpu_check.py [--device cuda] [--out check.json]`` (about 30 s).
 """
@@ -87,12 +89,36 @@ def main(argv=None):
             out["tangent"][f"{method}/block-2-columns"] = err
             print(f"tangent  {method:9s} 2 columns/block, odd count, rel diff {err:.2e}", flush=True)
     out["flow_replay"] = flow_replay(q, xt, args.device)
-    worst = max(max(out["ensemble"].values()), max(out["tangent"].values()), max(out["flow_replay"].values()))
+    out["on_device"] = on_device(p, x0, M, K, dt, args.device)
+    worst = max(max(out[key].values()) for key in ("ensemble", "tangent", "flow_replay", "on_device"))
     out["worst"] = worst
     print(f"worst relative difference {worst:.2e}")
     if args.out:
         Path(args.out).write_text(json.dumps(out, indent=2) + "\n")
     return 0 if worst <= 1e-12 else 1
+
+
+def on_device(p, x0, M, K, dt, device):
+    """Two 500-step runs chained on the device (a ``DeviceState`` in between) against the same two runs through
+    host arrays (the second call of a shape gets lent page-locked results): the same bits (a difference is
+    reported as 1.0), and the relative difference to 1000 steps of the numpy reference."""
+    from warpchain import DeviceState
+
+    ref = reference.integrate("verlet", p, x0, dt, 1000, M=M, K=K)["x"]
+    out = {}
+    for layout in ("block", "thread"):
+        kw = dict(device=device, M=M, K=K, layout=layout)
+        ends = []
+        for _ in range(2):  # plain results, then lent ones
+            ends.append(simulate(p, simulate(p, x0, 500 * dt, dt, **kw).x, 500 * dt, dt, **kw).x)
+        kept = simulate(p, x0, 500 * dt, dt, keep_on_device=True, **kw).x
+        ends.append(simulate(p, kept, 500 * dt, dt, keep_on_device=True, **kw).x.numpy())
+        ends.append(simulate(p, DeviceState.of(x0, device=device), 1000 * dt, dt, **kw).x)
+        same = all(np.array_equal(e, ends[0]) for e in ends[1:])
+        err = float(np.max(np.abs(ends[0] - ref)) / np.max(np.abs(ref)))
+        out[f"verlet/{layout}"] = err if same else 1.0
+        print(f"on device  {layout:6s} same bits as through the host: {same}, rel diff {err:.2e}", flush=True)
+    return out
 
 
 def flow_replay(q, xt, device):
