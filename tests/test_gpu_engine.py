@@ -701,3 +701,22 @@ def test_a_run_continued_on_the_device_gives_the_same_bits(layout, monkeypatch):
         DeviceState.of(np.zeros((3, 5)), device="cpu")
     with pytest.raises(TypeError, match="Warp array"):
         DeviceState(np.zeros((1, 4, 5)))
+
+
+def test_a_short_run_on_a_large_batch_has_the_same_chunks_on_the_device(monkeypatch):
+    """A short run on a large batch runs in two chunks whether its state moves in slices (from a plain x0) or
+    stays on the device: the same energy trace, the same bits (the sliced path emulated on the CPU)."""
+    from warpchain import DeviceState, ensemble
+
+    monkeypatch.setattr(ensemble, "_SLICE_ON_CPU", True)
+    monkeypatch.setattr(ensemble, "_SLICED_MIN_VALUES", 1)
+    monkeypatch.setattr(ensemble, "_SLICES", 2)
+    monkeypatch.setattr(ensemble, "_CHUNK_WORK", 100)  # the work alone would ask for 10 chunks
+    p = ChainParams(30.0, 160.0, 41)
+    x0 = localized_state(p.N, amplitude=0.8, batch=4, seed=9)
+    plain = simulate(p, x0, 40 * 0.02, 0.02, device="cpu")
+    kept = simulate(p, DeviceState.of(x0, device="cpu"), 40 * 0.02, 0.02, device="cpu", keep_on_device=True)
+    assert plain.stats["slices"] == 2 and kept.stats["slices"] == 1
+    assert plain.stats["chunks"] == kept.stats["chunks"] == 2
+    assert np.array_equal(plain.energy_t, kept.energy_t) and np.array_equal(plain.energy_trace, kept.energy_trace)
+    assert np.array_equal(plain.x, kept.x.numpy())

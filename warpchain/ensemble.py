@@ -1563,9 +1563,12 @@ def simulate(
     units_total = max(1, math.ceil(nsteps / unit))
     work = batch * params.N * max(nsteps, 1) * meth.force_evaluations
     n_chunks = chunks or max(1, min(50 if progress else 10, math.ceil(work / _CHUNK_WORK)))
+    large = x0.size >= _SLICED_MIN_VALUES and (device != "cpu" or _SLICE_ON_CPU)
     # a large batch from and to the host: the state moved in slices, overlapped with the first and last chunk
-    sliced = not (resident or keep_on_device) and x0.size >= _SLICED_MIN_VALUES and (device != "cpu" or _SLICE_ON_CPU)
-    short = sliced and chunks is None and not progress and nsteps * meth.force_evaluations <= _SHORT_RUN_EVALUATIONS
+    sliced = large and not (resident or keep_on_device)
+    # a short run on a large batch: two chunks, whether its state moves or stays on the device (a run continued
+    # on the device has the chunks, hence the energy trace, of the same run from a plain x0)
+    short = large and chunks is None and not progress and nsteps * meth.force_evaluations <= _SHORT_RUN_EVALUATIONS
     if short:
         n_chunks = min(n_chunks, _SHORT_RUN_CHUNKS)
     units_per_chunk = max(1, math.ceil(units_total / n_chunks))
@@ -1573,9 +1576,9 @@ def simulate(
         units_per_chunk = min(units_per_chunk, _frames_per_chunk(batch, params.N))
     sizes = [units_per_chunk] * (units_total // units_per_chunk) + [units_total % units_per_chunk]
     fraction = _SLICED_ENDS
-    if fraction is None and short and _pinned_view(x0) is not None:
+    if fraction is None and short and sliced and _pinned_view(x0) is not None:
         fraction = _LOCKED_ENDS
-    ends = math.ceil(units_total * fraction) if short and not save_every and fraction else 0
+    ends = math.ceil(units_total * fraction) if short and sliced and not save_every and fraction else 0
     if 0 < ends and 2 * ends < units_total:
         # the sliced first and last chunk only as long as hiding the transfers needs; the rest on the whole
         # batch at once, which runs faster than slice after slice (fuller waves)
