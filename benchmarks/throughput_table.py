@@ -29,26 +29,27 @@ def print_simulate(s):
         every = s["simulate"]["record_every"]
         print()
         print(
-            f"| batch | kernel (`time_steps`) | `simulate()` default | continued (x0 page-locked) "
+            f"| batch | kernel (`time_steps`) | `simulate()` default | continued (x0 page-locked) | on the device "
             f"| `simulate(save_every={every})` "
             "| frames to host | same into reused `frames_out` | into reused page-locked `frame_buffers` |"
         )
-        print("| --- | --- | --- | --- | --- | --- | --- | --- |")
+        print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
 
         def recording(r, name):
             if r.get(f"{name}_seconds") is None:
                 return "-"
             return f"{r[f'{name}_rate']:.2e} ({r[f'{name}_over_kernel']:.2f}x), {r[f'{name}_gb_per_second']:.1f} GB/s"
 
-        def continued(r):  # summaries before the leases have no such row
-            if r.get("continued_rate") is None:
+        def continued(r, name="continued"):  # older summaries have no such row (before the leases, the DeviceState)
+            if r.get(f"{name}_rate") is None:
                 return "-"
-            return f"{r['continued_rate']:.2e} ({r['continued_over_kernel']:.2f}x)"
+            return f"{r[f'{name}_rate']:.2e} ({r[f'{name}_over_kernel']:.2f}x)"
 
         for r in sim:
             print(
                 f"| {r['batch']} | {r['kernel_rate']:.2e} | {r['default_rate']:.2e} ({r['default_over_kernel']:.2f}x) "
-                f"| {continued(r)} | {r['recording_rate']:.2e} ({r['recording_over_kernel']:.2f}x) "
+                f"| {continued(r)} | {continued(r, 'on_device')} "
+                f"| {r['recording_rate']:.2e} ({r['recording_over_kernel']:.2f}x) "
                 f"| {r['recording_gb_per_second']:.1f} GB/s | {recording(r, 'recording_reused')} "
                 f"| {recording(r, 'recording_pinned')} |"
             )

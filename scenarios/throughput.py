@@ -14,7 +14,8 @@ Three parts:
   transfers, linear solve).
 * **kernels** (GPU): registers per thread, local memory and theoretical occupancy of each kernel.
 * **simulate**: ``simulate()`` end to end as users call it (validation, upload, chunks, the guard,
-  the final state back on the host), with default arguments and recording a frame every
+  the final state back on the host), with default arguments, continued from a page-locked x0 (a lent result),
+  continued on the device (``DeviceState`` x0, ``keep_on_device``), and recording a frame every
   ``record_every`` steps, beside the kernel's own rate on the same batch (``time_steps``), all Verlet
   over ``simulate_steps`` steps; recording also as GB/s of frames reaching host memory. Measured first,
   before the baselines load JAX and CuPy into the process (which slow ``simulate()`` on small batches).
@@ -38,6 +39,7 @@ import numpy as np
 from warpchain import (
     METHODS,
     ChainParams,
+    DeviceState,
     frame_buffers,
     page_locked,
     lowest_optical_mode,
@@ -246,6 +248,8 @@ def _simulate_end_to_end(ctx, P: Parameters, params, one, gpu):
             # a run continued from an earlier result: its x is page-locked memory lent by simulate, which the
             # device reads straight from (page_locked makes the same from x0 here)
             ("continued", lambda: {"x0": page_locked(x0, device=ctx.device)}),
+            # a run continued on the device: x0 an earlier result's DeviceState (keep_on_device), no transfer
+            ("on_device", lambda: {"x0": DeviceState.of(x0, device=ctx.device), "keep_on_device": True}),
             ("recording", lambda: {"save_every": every}),
             # an ensemble study's frame arrays, allocated once: plain, and page-locked by frame_buffers (which
             # simulate copies the frames into straight from the device)
@@ -278,7 +282,7 @@ def _simulate_end_to_end(ctx, P: Parameters, params, one, gpu):
         rows.append(row)
         ctx.log(
             "simulate() batch %6d, %d steps: kernel %.3g site-steps/s; default %.3g (%.2fx kernel); continued "
-            "from a page-locked x0 %.3g (%.2fx); "
+            "from a page-locked x0 %.3g (%.2fx); on the device %.3g (%.2fx); "
             "recording every %d steps %.3g (%.2fx kernel, %.3g GB/s of frames; into reused arrays %.3g GB/s, "
             "into reused page-locked arrays %.3g GB/s)",
             batch,
@@ -288,6 +292,8 @@ def _simulate_end_to_end(ctx, P: Parameters, params, one, gpu):
             row["default_over_kernel"],
             row["continued_rate"],
             row["continued_over_kernel"],
+            row["on_device_rate"],
+            row["on_device_over_kernel"],
             P.record_every,
             row["recording_rate"],
             row["recording_over_kernel"],
@@ -469,7 +475,7 @@ def run(ctx: Context) -> dict:
         attrs={"implementation_names": impls, "method_names": methods},
     )
     if end_to_end:
-        names = ("kernel", "default", "continued", "recording", "recording_reused", "recording_pinned")
+        names = ("kernel", "default", "continued", "on_device", "recording", "recording_reused", "recording_pinned")
         write_table(
             root,
             "simulate",
@@ -554,19 +560,24 @@ def _plot_simulate(cx, out, summary) -> None:
         ("kernel_rate", "o-", "kernel alone (time_steps)"),
         ("default_rate", "s-", "simulate(), default"),
         ("continued_rate", "D-", "simulate(), continued (x0 page-locked)"),
+        ("on_device_rate", "P-", "simulate(), continued on the device"),
         ("recording_pinned_rate", "^--", f"save_every={every}, into frame_buffers"),
         ("recording_rate", "v:", f"save_every={every}, default arrays"),
     )
     for key, style, label in curves:
-        cx.loglog(d["batch"], d[key], style, ms=5, label=label)
+        if key in d:  # a store written before the on-device variant has no such column
+            cx.loglog(d["batch"], d[key], style, ms=5, label=label)
     for b, k, r in zip(d["batch"], d["kernel_rate"], d["default_rate"]):
         cx.annotate(f"{r / k:.2f}x", (b, r), textcoords="offset points", xytext=(4, -12), fontsize=8)
-    if "continued_rate" in d:
-        for b, k, r in zip(d["batch"], d["kernel_rate"], d["continued_rate"]):
-            cx.annotate(f"{r / k:.2f}x", (b, r), textcoords="offset points", xytext=(4, 5), fontsize=8, color="C2")
+    for key, color, dy in (("continued_rate", "C2", 5), ("on_device_rate", "C3", 14)):
+        if key in d:
+            for b, k, r in zip(d["batch"], d["kernel_rate"], d[key]):
+                label = f"{r / k:.2f}x"
+                cx.annotate(label, (b, r), textcoords="offset points", xytext=(4, dy), fontsize=8, color=color)
     cx.set_xlabel("lattices in the batch")
     cx.set_ylabel("site-steps per second, end to end")
     title = f"simulate() as users call it ({attrs['steps']} Verlet steps) against its kernel;"
-    cx.set_title(title + "\nlabels: simulate() / kernel, default (black) and continued (green)", fontsize=9)
+    labels = "default (black), continued (green), on the device (red)"
+    cx.set_title(title + f"\nlabels: simulate() / kernel, {labels}", fontsize=9)
     cx.set_xlim(min(d["batch"]) / 1.6, max(d["batch"]) * 2.5)  # room for the ratio labels
     cx.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2)  # below: clear of the curves
