@@ -281,12 +281,16 @@ def cpu_threads() -> int:
     return usable_cores()
 
 
+def _even_slices(n: int, parts: int) -> list[tuple[int, int]]:
+    """``parts`` (at least one) contiguous near-equal ranges (lo, hi) covering 0..n, empty ones left out."""
+    bounds = np.linspace(0, n, max(int(parts), 1) + 1).astype(int)
+    return [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
+
+
 def _slices(n: int, device: str) -> list[tuple[int, int]]:
     """Contiguous slices of n lattices: one per CPU thread (Warp runs a CPU launch on one core,
     so concurrent launches on disjoint slices use the others), or one slice on a GPU."""
-    k = min(cpu_threads(), n) if device == "cpu" else 1
-    bounds = np.linspace(0, n, max(k, 1) + 1).astype(int)
-    return [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
+    return _even_slices(n, min(cpu_threads(), n) if device == "cpu" else 1)
 
 
 def _part(arr, lo: int, hi: int):
@@ -473,9 +477,7 @@ def _slice_bounds(batch: int) -> list[tuple[int, int]]:
     lattices, 2 to ``_MAX_SLICES``) equal slices. Slices that grow from a small first one, so that the first
     kernel starts sooner, were slower on the H200 (13.7 against 12.0 ms at 8192 lattices): the uploads' host
     copies, not the kernels, bound the first chunk there (``benchmarks/h200-2026-11-22n``)."""
-    n = _SLICES if _SLICES is not None else max(2, min(_MAX_SLICES, batch // _SLICE_LATTICES))
-    bounds = np.linspace(0, batch, n + 1).astype(int)
-    return [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
+    return _even_slices(batch, _SLICES if _SLICES is not None else max(2, min(_MAX_SLICES, batch // _SLICE_LATTICES)))
 
 
 def _pooled_runner(
@@ -601,8 +603,7 @@ def _copy(dst: np.ndarray, src: np.ndarray) -> None:
         np.copyto(d, s_)
         return
     _copy_pool(workers)
-    bounds = np.linspace(0, d.size, workers + 1).astype(int)
-    jobs = [_COPY_POOL.submit(np.copyto, d[a:b], s_[a:b]) for a, b in zip(bounds[:-1], bounds[1:])]
+    jobs = [_COPY_POOL.submit(np.copyto, d[a:b], s_[a:b]) for a, b in _even_slices(d.size, workers)]
     for job in jobs:
         job.result()
 
@@ -627,8 +628,7 @@ def _fill_zero(arr: np.ndarray) -> None:
         flat.fill(0.0)
         return
     _copy_pool(workers)
-    bounds = np.linspace(0, flat.size, workers + 1).astype(int)
-    jobs = [_COPY_POOL.submit(flat[a:b].fill, 0.0) for a, b in zip(bounds[:-1], bounds[1:])]
+    jobs = [_COPY_POOL.submit(flat[a:b].fill, 0.0) for a, b in _even_slices(flat.size, workers)]
     for job in jobs:
         job.result()
 
