@@ -54,23 +54,25 @@ class DeviceState:
             x: host array of shape (batch, 4, N) or (4, N), finite float64 values (``simulate`` checks them on
                 the device when it starts from the state).
         """
-        from .ensemble import _warp, resolve_device
+        from .ensemble import _warp, device_lock, resolve_device
 
         arr = np.asarray(x, dtype=np.float64)
         if arr.ndim == 2:
             arr = arr[None]
         if arr.ndim != 3 or arr.shape[1] != 4 or arr.shape[0] < 1:
             raise ValueError(f"a batch state has shape (batch, 4, N) or (4, N); got {np.shape(x)}")
-        wp = _warp()
-        return cls(wp.array(np.ascontiguousarray(arr), dtype=wp.float64, device=resolve_device(device)))
+        wp, device = _warp(), resolve_device(device)
+        with device_lock(device):
+            return cls(wp.array(np.ascontiguousarray(arr), dtype=wp.float64, device=device))
 
     @classmethod
     def empty(cls, shape: tuple, device: str) -> "DeviceState":
         """An unfilled state of ``shape`` (batch, 4, N) on ``device`` (``simulate`` fills it)."""
-        from .ensemble import _warp
+        from .ensemble import _warp, device_lock
 
         wp = _warp()
-        return cls(wp.empty(tuple(int(s) for s in shape), dtype=wp.float64, device=device))
+        with device_lock(device):
+            return cls(wp.empty(tuple(int(s) for s in shape), dtype=wp.float64, device=device))
 
     @property
     def shape(self) -> tuple:
@@ -89,7 +91,10 @@ class DeviceState:
 
     def numpy(self) -> np.ndarray:
         """A host copy, shape (batch, 4, N) (waits for the device's queued work on the state)."""
-        out = self.array.numpy()
+        from .ensemble import device_lock
+
+        with device_lock(self.device):
+            out = self.array.numpy()
         return out.copy() if self.array.device.is_cpu else out  # on the CPU .numpy() is a view of the buffer
 
     def __array__(self, dtype=None, copy=None):

@@ -199,11 +199,19 @@ class Flow:
         runner.generation += 1
         return runner
 
+    def _lock(self):
+        """The device's lock (``ensemble.device_lock``): each operation holds it from its first launch to its
+        last wait, so Flows on several threads never enter each other's graph captures."""
+        from .ensemble import device_lock, resolve_device
+
+        return device_lock(resolve_device(self.device))
+
     def run(self, params: ChainParams, x0, nsteps: int, dt: float) -> Trajectory:
         """Advance a batch by ``nsteps`` steps of ``dt``; end states and min contact."""
         x0 = as_batch(x0, params.N, "x0")
-        runner = self._runner(params, x0, nsteps, record=False)
-        x_end, contact = _base_run(runner, x0, int(nsteps), float(dt), record_stiffness=False)
+        with self._lock():
+            runner = self._runner(params, x0, nsteps, record=False)
+            x_end, contact = _base_run(runner, x0, int(nsteps), float(dt), record_stiffness=False)
         return Trajectory(x_end=x_end, min_contact=contact)
 
     def linearize(self, params: ChainParams, x0, nsteps: int, dt: float) -> Linearization:
@@ -213,33 +221,39 @@ class Flow:
             raise ValueError(f"linearize takes one lattice, got a batch of {x0.shape[0]}")
         from .ensemble import _copy
 
-        runner = self._runner(params, x0, nsteps, record=True)
-        x_end, contact = _base_run(runner, x0, int(nsteps), float(dt), record_stiffness=True)
-        generation = runner.generation
+        lock = self._lock()
+        with lock:
+            runner = self._runner(params, x0, nsteps, record=True)
+            x_end, contact = _base_run(runner, x0, int(nsteps), float(dt), record_stiffness=True)
+            generation = runner.generation
         wp = runner.wp
 
         def propagate(fill, count, key=None):
             """Tangent columns from ``fill(dx)`` (dx: a device (count, 4, N) buffer) back on the host; with a
             ``key`` naming ``fill``'s arguments the operations are replayed (``_Replay``: a CUDA graph from
             the second call with that key)."""
-            if runner.generation != generation:  # the buffers were handed to another run since
-                runner.load(x0, *_parameters(params))
-                runner.launch(int(nsteps), float(dt), record_stiffness=True)
-            dx, base = _column_buffers(runner, count)
-            out_host = runner.host_buffer("columns", dx.size)
+            nonlocal generation
+            with lock:
+                if runner.generation != generation:  # the buffers were handed to another run since
+                    runner.load(x0, *_parameters(params))
+                    runner.launch(int(nsteps), float(dt), record_stiffness=True)
+                    runner.generation += 1  # its own history again: later calls need not re-run it
+                    generation = runner.generation
+                dx, base = _column_buffers(runner, count)
+                out_host = runner.host_buffer("columns", dx.size)
 
-            def enqueue():
-                fill(dx)
-                runner.launch_tangent(dx, base, int(nsteps), float(dt))
-                wp.copy(out_host, dx, count=dx.size)
+                def enqueue():
+                    fill(dx)
+                    runner.launch_tangent(dx, base, int(nsteps), float(dt))
+                    wp.copy(out_host, dx, count=dx.size)
 
-            if key is None:
-                enqueue()
-            else:
-                runner.replay(("columns", *key, int(nsteps), float(dt)), enqueue)()
-            wp.synchronize_device(runner.device)
-            out = np.empty(dx.shape)
-            _copy(out, out_host.numpy().reshape(dx.shape))
+                if key is None:
+                    enqueue()
+                else:
+                    runner.replay(("columns", *key, int(nsteps), float(dt)), enqueue)()
+                wp.synchronize_device(runner.device)
+                out = np.empty(dx.shape)
+                _copy(out, out_host.numpy().reshape(dx.shape))
             if not np.isfinite(out).all():
                 from .ensemble import IntegrationError, stability_limit
 
@@ -259,7 +273,8 @@ class Flow:
             return propagate(lambda dx: dx.assign(directions), len(directions))
 
         def unit(first, count):
-            eye = _unit_directions(runner)  # the 4N unit directions, made once on the device
+            with lock:  # made once on the device: an allocation, never inside another thread's capture
+                eye = _unit_directions(runner)
             n = 4 * params.N
             return propagate(
                 lambda dx: wp.copy(dx, eye, src_offset=first * n, count=count * n), count, key=("unit", first, count)

@@ -1,0 +1,129 @@
+"""The engine under threads: several Flows driven from several host threads at once (as site-bond's
+workers do) give the bits of the same solves run one after the other, with graphs captured and replayed
+(Warp's CPU graphs here; CUDA graphs on a GPU, checked by ``benchmarks/thread_check.py``)."""
+
+import threading
+
+import numpy as np
+import pytest
+
+import continuation as ct
+from warpchain import ChainParams, simulate
+from warpchain.flow import Flow
+
+OMEGAS = (1.01, 1.012, 1.015)
+
+
+def _solves(flow: Flow, params: ChainParams, omegas) -> list:
+    """Newton + Floquet at each frequency; what each solve gives, as arrays."""
+    out = []
+    for omega in omegas:
+        b = ct.require(ct.find_breather(params, omega, ct.nls_seed(params, omega), flow=flow))
+        fl = ct.floquet(b, flow=flow)
+        out.append((b.state, np.array([b.energy, b.residual]), fl.multipliers))
+    return out
+
+
+@pytest.mark.parametrize("layout", ["thread", "block"])
+def test_four_threads_give_the_bits_of_one(layout, monkeypatch):
+    from warpchain import ensemble
+
+    monkeypatch.setattr(ensemble, "_GRAPH_ON_CPU", True)  # captures on every thread, as on a GPU
+    monkeypatch.setenv("WARPCHAIN_CPU_THREADS", "1")  # one slice per launch, as on a GPU (a CPU graph needs it)
+    params = ChainParams(30.0, 160.0, 21)
+    sequential = [_solves(Flow("kahan8", 16, device="cpu", layout=layout), params, OMEGAS) for _ in range(4)]
+    results, errors = [None] * 4, []
+    barrier = threading.Barrier(4)
+
+    def work(i):
+        try:
+            barrier.wait()  # start together, so that captures and launches interleave
+            results[i] = _solves(Flow("kahan8", 16, device="cpu", layout=layout), params, OMEGAS)
+        except BaseException as exc:  # surfaced below
+            errors.append(exc)
+
+    threads = [threading.Thread(target=work, args=(i,)) for i in range(4)]
+    for t in threads:
+        t.start()
+    # a plain simulate() on the main thread meanwhile: its launches must not enter the workers' graphs
+    x0 = np.zeros((2, 4, params.N))
+    x0[:, 1, params.N // 2] = -0.3
+    run = simulate(params, x0, 40 * 0.05, 0.05, method="kahan8", device="cpu")
+    for t in threads:
+        t.join()
+    assert not errors, errors
+    alone = simulate(params, x0, 40 * 0.05, 0.05, method="kahan8", device="cpu")
+    assert np.array_equal(run.x, alone.x)
+    for got, want in zip(results, sequential):
+        for a, b in zip(got, want):
+            for x, y in zip(a, b):
+                assert np.array_equal(x, y)
+
+
+def test_a_task_that_raises_is_retried_once_then_fails_the_scene():
+    """site-bond's worker tasks: an engine error is retried once on a fresh Flow, a second one is raised (the
+    scene fails); a mathematical outcome (``NotLocated``) is never retried."""
+    from continuation.bifurcation import NotLocated
+    from scenarios import site_bond
+
+    lines, calls = [], []
+    workers = site_bond._Workers(site_bond.Parameters(workers=2), "cpu", lambda *a: lines.append(a[0] % a[1:]))
+    try:
+
+        def flaky(flow, fails):
+            calls.append(flow)
+            if len(calls) <= fails:
+                raise RuntimeError("Warp copy error: operation failed due to a previous error during capture")
+            return "found"
+
+        assert workers.submit("task A", flaky, 1).result() == "found"
+        assert len(calls) == 2 and calls[0] is not calls[1]  # the retry ran on a new Flow
+        assert any("task A raised RuntimeError" in line and "retrying once" in line for line in lines)
+        calls.clear()
+        with pytest.raises(site_bond.TaskError, match="task B failed twice: RuntimeError: Warp copy error"):
+            workers.submit("task B", flaky, 2).result()
+
+        def no_crossing(flow):
+            calls.append(flow)
+            raise NotLocated("no sign change of the test function")
+
+        calls.clear()
+        with pytest.raises(NotLocated):
+            workers.submit("task C", no_crossing).result()
+        assert len(calls) == 1
+    finally:
+        workers.close()
+
+
+def test_paper_in_order_counts_a_failed_scene_and_runs_the_rest(tmp_path, monkeypatch, capsys):
+    import scenarios.__main__ as cli
+
+    ran = []
+
+    def fake_run_scene(name, out, device, quick, command_line=""):
+        ran.append(name)
+        if name == "nls":
+            raise RuntimeError("Graph capture already in progress on this stream")
+
+    monkeypatch.setattr(cli, "run_scene", fake_run_scene)
+    assert cli.run_in_order(["dispersion", "nls", "breather"], tmp_path, "cpu", True, "") == 1
+    assert ran == ["dispersion", "nls", "breather"]
+    assert "error: scene nls failed: RuntimeError: Graph capture already in progress" in capsys.readouterr().err
+
+
+def test_a_failed_scene_leaves_failed_json_and_no_stale_summary(tmp_path, monkeypatch):
+    import json
+
+    from scenarios import _common, nls
+
+    first = _common.run_scene("nls", tmp_path, "cpu", True)
+    assert (tmp_path / "nls" / "summary.json").exists() and first
+
+    def broken(ctx):
+        raise RuntimeError("Failed to allocate 8 bytes")
+
+    monkeypatch.setattr(nls, "run", broken)
+    with pytest.raises(RuntimeError):
+        _common.run_scene("nls", tmp_path, "cpu", True)
+    assert not (tmp_path / "nls" / "summary.json").exists()  # the earlier run's summary does not stand for this one
+    assert "Failed to allocate" in json.loads((tmp_path / "nls" / "failed.json").read_text())["error"]
