@@ -58,9 +58,18 @@ from .floquet import (
 from .newton import NewtonSettings
 from .shooting import find_breather, is_mirror_symmetric
 
+
+class NotLocated(ValueError):
+    """A branch point that is not there to locate, by the mathematics: the test function does not change
+    sign in the bracket, or it jumps from one sign to the other (its multiplier changed identity) instead of
+    passing zero. Every other error while locating (a solve that fails, an engine error) is not this: a
+    scene retries it once and otherwise fails."""
+
+
 __all__ = [
     "BifurcationPoint",
     "Located",
+    "NotLocated",
     "brackets",
     "central_weight",
     "energy_centre",
@@ -126,7 +135,7 @@ def locate_zero(
         max_evaluations: give up (``converged`` False) after this many evaluations.
 
     Raises:
-        ValueError: no sign change in [a, b].
+        NotLocated: no sign change in [a, b].
     """
     from scipy.optimize import brentq
 
@@ -142,7 +151,7 @@ def locate_zero(
         x = a if fa == 0.0 else b
         return Located(x, (x, x), 0.0, len(seen), True, seen[x][1])
     if np.sign(fa) == np.sign(fb):
-        raise ValueError(f"no sign change of the test function in [{a:.10g}, {b:.10g}] ({fa:.3g}, {fb:.3g})")
+        raise NotLocated(f"no sign change of the test function in [{a:.10g}, {b:.10g}] ({fa:.3g}, {fb:.3g})")
     x, info = brentq(
         value, a, b, xtol=atol, rtol=4 * np.finfo(float).eps, maxiter=max_evaluations, full_output=True, disp=False
     )
@@ -369,7 +378,7 @@ def locate_real_pair(
 
     Raises:
         RuntimeError: a solve inside the bracket failed.
-        ValueError: no sign change where the step said there was one, or the test function jumps
+        NotLocated: no sign change where the step said there was one, or the test function jumps
             there (its mode changed identity) instead of passing zero.
     """
     ca, cb = math.log10(a.K), math.log10(b.K)
@@ -407,7 +416,7 @@ def locate_real_pair(
     for lo, hi in intervals:
         loc = locate_zero(test, lo, hi, atol=atol)
         if not abs(loc.test) <= JUMP_TOLERANCE:
-            raise ValueError(
+            raise NotLocated(
                 f"mu - 1 jumps from one sign to the other at K = {10**loc.value:.10g} (|mu - 1| = {abs(loc.test):.2g} "
                 "there): the most central real multiplier changed identity; no crossing of +1"
             )

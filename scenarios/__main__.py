@@ -1,4 +1,4 @@
-"""Command line: python -m scenarios list | run NAME [...] | paper [...]."""
+"""Command line: python -m scenarios list | run NAME [...] | paper [...] | compare A B [...]."""
 
 from __future__ import annotations
 
@@ -43,6 +43,11 @@ def main(argv=None) -> int:
         help="scenes run at once, each in its own process (default auto: one per 2 usable CPU cores, at most 4; "
         "1: in order, in this process)",
     )
+    compare = sub.add_parser("compare", help="do two result folders hold the same science? (exit 0 yes, 1 no)")
+    compare.add_argument("a", type=Path, help="a result folder (OUT of run/paper, or one holding summaries alone)")
+    compare.add_argument("b", type=Path, help="the other result folder")
+    compare.add_argument("--scenes", default=None, help="comma-separated scenes to compare (default: all found)")
+    compare.add_argument("--json", default=None, type=Path, metavar="FILE", help="write the differences as JSON")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s", datefmt="%H:%M:%S")
 
@@ -50,6 +55,10 @@ def main(argv=None) -> int:
         for name in SCENES:
             print(f"{name:20s} {first_sentence(load_scene(name).__doc__)}")
         return 0
+    if args.command == "compare":  # the rules: scenarios/compare.py
+        from .compare import main as compare_main
+
+        return compare_main(args.a, args.b, args.scenes, args.json)
     if args.device is not None and args.device.lower() not in ("cpu", "cuda") and not args.device.startswith("cuda:"):
         parser.error(f"--device must be cpu or cuda, got {args.device!r}")
     names = [args.name] if args.command == "run" else PAPER_SCENES
@@ -81,8 +90,10 @@ def main(argv=None) -> int:
                 print(f"error: scene {name} failed (exit {code}); its last lines:", file=sys.stderr)
                 print("\n".join("    " + line for line in tail), file=sys.stderr)
             return 0 if not failures else max(code for _, code, _ in failures)
-        for name in names:
-            run_scene(name, args.out, args.device, args.quick, overrides, args.resume, command_line)
+        if args.command == "run":
+            run_scene(args.name, args.out, args.device, args.quick, overrides, args.resume, command_line)
+            return 0
+        return run_in_order(names, args.out, args.device, args.quick, command_line)
     except (ValueError, OSError) as exc:  # bad input, damaged store, unusable --out: one line, exit 2
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -93,6 +104,26 @@ def main(argv=None) -> int:
         )
         return 130
     return 0
+
+
+def run_in_order(names, out, device, quick: bool, command_line: str) -> int:
+    """``paper --jobs 1``: the scenes one after the other in this process. A scene that raises is logged with
+    its traceback and counted; the others still run; the exit status is 1 when any failed (a Ctrl-C stops all)."""
+    import time
+    import traceback
+
+    log = logging.getLogger("scenarios")
+    start, failures = time.perf_counter(), []
+    for name in names:
+        try:
+            run_scene(name, out, device, quick, command_line=command_line)
+        except Exception as exc:
+            log.error("paper: %s FAILED: %s: %s\n%s", name, type(exc).__name__, exc, traceback.format_exc())
+            failures.append((name, exc))
+    log.info("paper: %d scenes in %.1f s, %d failed", len(names), time.perf_counter() - start, len(failures))
+    for name, exc in failures:
+        print(f"error: scene {name} failed: {type(exc).__name__}: {exc}", file=sys.stderr)
+    return 1 if failures else 0
 
 
 def first_sentence(doc: str | None) -> str:

@@ -202,7 +202,15 @@ def _run_in(module, ctx: Context) -> dict:
     ctx.log("start (device %s%s) -> %s", ctx.device, ", quick" if ctx.quick else "", out)
     if params is not None:
         ctx.log("parameters: %s", ", ".join(f"{k}={v}" for k, v in dataclasses.asdict(params).items()))
-    summary = module.run(ctx)
+    # an earlier run's summary never stands for this one: gone now, written again only when this run succeeds,
+    # and a run that raises leaves failed.json (what ``compare`` and ``paper`` report) instead
+    for stale in ("summary.json", "failed.json"):
+        (out / stale).unlink(missing_ok=True)
+    try:
+        summary = module.run(ctx)
+    except Exception as exc:
+        (out / "failed.json").write_text(json.dumps({"scene": ctx.name, "error": f"{type(exc).__name__}: {exc}"}))
+        raise
     summary.setdefault("wall_seconds", time.perf_counter() - start)
     if params is not None:
         summary.setdefault("parameters", dataclasses.asdict(params))

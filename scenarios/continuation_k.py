@@ -100,7 +100,7 @@ def _symmetry_breaking(ctx, P: Parameters, branch, params, flow) -> list:
         if len([e for e in out if e["located"]]) < P.locate_first:
             try:
                 found = bf.locate_real_pair("site", params, P.omega, a, b, flow, parity=-1, vertex=vertex)
-            except (ValueError, RuntimeError) as exc:
+            except bf.NotLocated as exc:  # the mathematics says no; any other error fails the scene
                 ctx.log("no symmetry-breaking point located between K = %.8g and %.8g: %s", a.K, b.K, exc)
                 found = []
             for bif in found:

@@ -181,6 +181,10 @@ def _finite_size(flow, P: Parameters, K: float, site_points):
     return None if site is None else bf.finite_size_check(ChainParams(P.M, K, P.N), P.omega, site.state, flow)
 
 
+class TaskError(RuntimeError):
+    """A branch-point or finite-size task that raised twice: the scene fails (it is never a log line)."""
+
+
 class _Workers:
     """Independent solves on a few host threads, each with its own Flow (a Flow keeps device buffers
     between calls, so threads do not share one). The solves spend most of their time in LAPACK and in
@@ -188,10 +192,11 @@ class _Workers:
     most 4); even with one, that thread's solves run beside the main thread's later steps (the
     asymmetric family, the barrier), which use the main Flow."""
 
-    def __init__(self, P: Parameters, device: str):
+    def __init__(self, P: Parameters, device: str, log=None):
         from concurrent.futures import ThreadPoolExecutor
 
-        self.P, self.device = P, device
+        self.P, self.device, self.log = P, device, log
+        self.blas = None  # the one-thread BLAS limit while tasks run (``_one_blas_thread``)
         self.local = threading.local()
         if P.workers < 0:
             raise ValueError(f"workers must be >= 0 (0: one per two CPU cores), got {P.workers}")
@@ -203,13 +208,47 @@ class _Workers:
             self.local.flow = self.P.flow(self.device)
         return self.local.flow
 
-    def submit(self, fn, *args):
-        """fn(flow, *args) on a worker thread; returns its Future."""
-        return self.pool.submit(lambda: fn(self._flow(), *args))
+    def _one_blas_thread(self) -> None:
+        """From the first task to ``close``, the host BLAS on one thread: its thread limit is the process's
+        (``continuation.hostblas``), and with several threads in LAPACK at once, each changing the limit
+        around its Floquet blocks, how many BLAS threads a factorisation got, hence its rounding, depended on
+        which thread ran when (``benchmarks/thread_check.py``). One thread per solve gives every solve the
+        bits it has alone, on every device; the workers keep the cores busy instead."""
+        if self.blas is None:
+            import contextlib
+
+            from continuation.hostblas import blas_threads
+
+            self.blas = contextlib.ExitStack()
+            self.blas.enter_context(blas_threads(1))
+
+    def submit(self, what: str, fn, *args):
+        """fn(flow, *args) on a worker thread; returns its Future. A task that raises (anything but
+        ``bf.NotLocated``, a mathematical outcome) is retried once on a fresh Flow; a second failure is raised
+        by the Future's ``result()`` as a ``TaskError`` naming ``what``, so that it fails the scene."""
+
+        def attempt():
+            try:
+                return fn(self._flow(), *args)
+            except bf.NotLocated:
+                raise
+            except Exception as first:
+                if self.log:
+                    self.log("%s raised %s: %s; retrying once", what, type(first).__name__, first)
+                self.local.flow = None  # new buffers and graphs for the retry
+                try:
+                    return fn(self._flow(), *args)
+                except Exception as exc:
+                    raise TaskError(f"{what} failed twice: {type(exc).__name__}: {exc}") from exc
+
+        self._one_blas_thread()
+        return self.pool.submit(attempt)
 
     def close(self) -> None:
         """Cancel what has not started (after success nothing is left); a running solve finishes."""
         self.pool.shutdown(wait=False, cancel_futures=True)
+        if self.blas is not None:
+            self.blas.close()
 
 
 def _folds(family: str, points) -> list:
@@ -266,7 +305,7 @@ def _other_events(family: str, points) -> list:
 
 
 def run(ctx: Context) -> dict:
-    workers = _Workers(ctx.params, ctx.device)
+    workers = _Workers(ctx.params, ctx.device, ctx.log)
     try:
         return _run(ctx, workers)
     finally:
@@ -304,15 +343,21 @@ def _run(ctx: Context, workers: "_Workers") -> dict:
             return bf.locate_real_pair(
                 family, chain, P.omega, a, b, flow, parity=parity, vertex=vertex, atol=P.locate_atol
             )
-        except (ValueError, RuntimeError) as exc:
+        except bf.NotLocated as exc:  # the mathematics says no: reported; any other error fails the scene
             return exc
 
-    located = [workers.submit(locate, *task) for task in tasks]
+    located = [
+        workers.submit(f"{t[0]}: locating the branch point between K = {t[1].K:.8g} and {t[2].K:.8g}", locate, *t)
+        for t in tasks
+    ]
     # the finite-size checks (step 5) only need the site family: they run beside the rest
-    finite_jobs = {K: workers.submit(_finite_size, P, K, branches["site"].points) for K in P.finite_size_K}
+    finite_jobs = {
+        K: workers.submit(f"the finite-size check at K = {K:g}", _finite_size, P, K, branches["site"].points)
+        for K in P.finite_size_K
+    }
     for (family, a, b, _, _), job in zip(tasks, located):
         found = job.result()
-        if isinstance(found, Exception):
+        if isinstance(found, bf.NotLocated):
             ctx.log("%s: the branch point between K = %.8g and %.8g was not located: %s", family, a.K, b.K, found)
             continue
         for bif in found:
