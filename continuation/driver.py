@@ -13,12 +13,18 @@ the hook through which a caller records points (``on_point``: continuation itsel
    nearest critical place (+1, -1, or the nearest elliptic mu of opposite signature that it can
    interact with), with a floor of ``settings.multiplier_floor`` in mu so that near-collisions do
    not stall the branch.
-2. A step across which the verdict (stable/unstable) or the kinds of unstable multipliers change is
-   bisected (``settings.bisect_counts`` adds steps where only the number of one kind changed, which
-   inside the acoustic band happens at nearly every step): the point in the middle of the step is
-   solved and analysed, and both halves are examined
-   again, until the bracket is below ``settings.resolution`` (in the continuation coordinate). Every
-   trial point is a solved, analysed branch point and is kept.
+2. A step across which the verdict (stable/unstable) or the set of unstable multipliers changes (a kind,
+   a parity, a count, or one that left while another arrived: ``events.changed``) is bisected: the point
+   in the middle of the step is solved and analysed, and both halves are examined again, until the
+   bracket is below ``settings.resolution`` (in the continuation coordinate). Every trial point is a
+   solved, analysed branch point and is kept. The rule holds between unstable ends too: two unstable
+   points whose unstable multipliers differ can hide a stable window between them (one instability
+   closed before the other opened), and a step between them that was examined only when its ends were
+   weakly unstable stepped over windows 3e-4 and 1.4e-3 wide in w_b on a chain checked against AUTO.
+   Steps whose ends carry the same unstable multipliers (same kinds, parities, counts, each mu within
+   ``events.IDENTITY_TOL``) are not examined. The stated limit: an instability that closes and opens
+   again within one step, its mu back within ``IDENTITY_TOL`` of where it was, leaves a window unseen
+   (``benchmarks/branch_check.py`` compares a branch with a dense fixed-step scan).
 3. A step across which elliptic multipliers of opposite Krein signature passed each other (the Krein
    order of ``events`` changed) with no instability at either end is where a bubble could hide. When
    a localized mode (participation below ``floquet.LOCALIZED_FRACTION`` N: an internal mode of the
@@ -73,6 +79,10 @@ AUTO_ALL_SITES = 64
 
 KREIN_MODES = ("auto", "localized", "predict", "all", "none")
 
+#: where a step under examination is split: its middle, or, when the middle's solve fails, a quarter from
+#: either end
+SPLITS = (0.5, 0.25, 0.75)
+
 #: ``bubble_width`` defaults to resolution / BUBBLE_FRACTION. On the paper's frequency branch
 #: (resolution 1e-3 in arclength, ~2e-5 in w_b) 46 of the 594 bubbles predicted in its stable steps are
 #: that wide (~2e-6 in w_b or more) and are solved for (29 confirmed); each narrower one would be hit by
@@ -103,8 +113,6 @@ class ContinuationSettings:
             counted in the branch's ``stats`` (``bubbles_below_width``).
         chord: start each corrector with chord steps on the neighbouring point's Jacobian (from its
             Floquet analysis), forming true Jacobians only when they converge slowly.
-        bisect_counts: also bisect steps across which only the number of unstable multipliers of
-            a kind changed (inside an unstable stretch; recorded as ``instability_count`` events).
         floquet: compute multipliers at every point (False: energies only, no stability).
         max_seconds: opt-in time budget (None: stop only on physics or max_points).
         blas_threads: threads of the host BLAS during the walk: ``"auto"`` (default: one on the CPU
@@ -124,7 +132,6 @@ class ContinuationSettings:
     resolution: float = 1e-3
     bisect_krein: str = "auto"
     bubble_width: float | None = None
-    bisect_counts: bool = False
     chord: bool = True
     floquet: bool = True
     max_seconds: float | None = None
@@ -552,7 +559,7 @@ def _walk(problem, settings, resume, on_point, on_event, log, progress) -> Branc
                 return chased
         if what is None:
             return leaf(a, b, h)
-        if what == "count" and not settings.bisect_counts:
+        if what == "count":  # unstable throughout (events.persistent): recorded, no window to look for
             note(ev.stability_change_event(a, b, par))
             return leaf(a, b, h)
         if what == "krein" and not (
@@ -562,18 +569,21 @@ def _walk(problem, settings, resume, on_point, on_event, log, progress) -> Branc
             note(ev.krein_event(a, b, par, bisected=False))
             return leaf(a, b, h)
         if h <= settings.resolution or depth > 40:
-            note(ev.krein_event(a, b, par) if what == "krein" else ev.stability_change_event(a, b, par))
+            if what != "suspect":  # a suspect step resolved down to here without a change holds none
+                note(ev.krein_event(a, b, par) if what == "krein" else ev.stability_change_event(a, b, par))
             return leaf(a, b, h)
-        stats["bisection_solves"] += 1
-        m = solve(problem.between, a, b)
-        if isinstance(m, Failure) or not problem.is_between(a, m, b):
+        for t in SPLITS:  # the middle, else nearer either end (a long step's middle may not converge)
+            stats["bisection_solves"] += 1
+            m = solve(problem.between, a, b, t)
+            if not isinstance(m, Failure) and problem.is_between(a, m, b):
+                return refine(a, m, t * h, depth + 1, misses) + refine(m, b, (1.0 - t) * h, depth + 1, misses)
+        if what != "suspect":
             e = ev.krein_event(a, b, par) if what == "krein" else ev.stability_change_event(a, b, par)
-            e["message"] += " (not bisected further: the midpoint " + (
+            e["message"] += " (not bisected further: the point " + (
                 "did not converge)" if isinstance(m, Failure) else "fell outside the bracket)"
             )
             note(e)
-            return leaf(a, b, h)
-        return refine(a, m, 0.5 * h, depth + 1, misses) + refine(m, b, 0.5 * h, depth + 1, misses)
+        return leaf(a, b, h)
 
     bar = None
     if progress:
