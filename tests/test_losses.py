@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from warpchain import ChainParams, reference, simulate
-from warpchain.losses import Damping, damping_matrix, dissipation, kick_matrices, rhs_flat
+from warpchain.losses import Damping, damping_matrix, dissipation, kick_dissipation, kick_matrices, rhs_flat
 from warpchain.observe import Observation, observe, peak_mask, peak_tracks, reference_observe
 
 N = 41
@@ -24,22 +24,30 @@ DAMPING = Damping(np.array([0.0, 0.05, 0.02, 0.0]), np.array([0.0, 0.0, 0.01, 0.
 
 
 def test_kick_matrices_solve_the_damped_velocity_equation():
-    """E and F against a fine explicit integration of w' = a - G w, and the exact zero-damping form."""
+    """E, F, H and the energy a kick dissipates against a fine explicit integration of w' = a - G w (with
+    int w dt and int P dt as extra states), and the exact zero-damping form."""
     M, gc, gs, h = 30.0, 0.2, 0.05, 0.37
     coef = kick_matrices((1.0,), h, [M], Damping(gc, gs), 1)[0, 0]
-    E, F = coef[:4].reshape(2, 2), coef[4:].reshape(2, 2)
+    E, F, H = coef[:4].reshape(2, 2), coef[4:8].reshape(2, 2), coef[8:].reshape(2, 2)
     G = damping_matrix(M, gc, gs)
+    C = np.diag([M, 1.0]) @ G  # the power lost is w . C w
     w0, a = np.array([0.3, -0.7]), np.array([1.1, 0.4])
-    w = w0.copy()
+    y = np.concatenate([w0, [0.0, 0.0, 0.0]])  # w, int w dt, int P dt
     n = 20000
     for _ in range(n):  # RK4, far below its error scale
-        f = lambda w: a - G @ w  # noqa: E731
-        k1 = f(w)
-        k2 = f(w + 0.5 * h / n * k1)
-        k3 = f(w + 0.5 * h / n * k2)
-        k4 = f(w + h / n * k3)
-        w = w + h / n / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-    np.testing.assert_allclose(E @ w0 + F @ a, w, rtol=1e-12)
+        f = lambda y: np.concatenate([a - G @ y[:2], y[:2], [y[:2] @ C @ y[:2]]])  # noqa: E731
+        k1 = f(y)
+        k2 = f(y + 0.5 * h / n * k1)
+        k3 = f(y + 0.5 * h / n * k2)
+        k4 = f(y + h / n * k3)
+        y = y + h / n / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    np.testing.assert_allclose(E @ w0 + F @ a, y[:2], rtol=1e-12)
+    np.testing.assert_allclose(F @ w0 + H @ a, y[2:4], rtol=1e-12)
+    lost = kick_dissipation(w0.reshape(1, 2, 1), a.reshape(1, 2, 1), coef[None], [M])
+    np.testing.assert_allclose(lost, [y[4]], rtol=1e-11)
+    # C is the matrix of the power ``dissipation`` reports
+    state = np.concatenate([[0.0, 0.0], w0]).reshape(1, 4, 1)
+    np.testing.assert_allclose(dissipation(state, M, Damping(gc, gs)), [w0 @ C @ w0], rtol=1e-14)
     # d(u' - v')/dt from the losses is -gamma_c (u' - v') - gamma_s u' (so z'' = ... - gamma_c z')
     np.testing.assert_allclose(-(G[0] - G[1]), [-gc - gs, gc], rtol=1e-14)
     zero = kick_matrices((0.5, 0.25), 0.1, [M], Damping(0.0, 0.0), 1)[0]
@@ -64,22 +72,34 @@ def test_damped_schemes_keep_their_order_against_dop853(method):
     assert np.log2(errors[0] / errors[1]) == pytest.approx(order, abs=0.25)
 
 
-def test_energy_balance_of_a_damped_run():
-    """E(0) - E(t) equals the integrated dissipation (trapezoid over fine steps), to the scheme's accuracy."""
-    x = _spots(1)
-    damping = Damping(0.04, 0.01)
-    E0 = reference.model.energy(PARAMS, x)[0]
-    dt, n = 0.01, 400
-    lost = 0.0
-    p_prev = dissipation(x, 30.0, damping)[0]
-    for _ in range(n):
-        x = reference.step("yoshida4", PARAMS, x, dt, damping=damping)
-        p = dissipation(x, 30.0, damping)[0]
-        lost += 0.5 * dt * (p + p_prev)
-        p_prev = p
-    E = reference.model.energy(PARAMS, x)[0]
-    assert lost > 1e-3 * E0
-    assert E0 - E == pytest.approx(lost, rel=1e-4)
+@pytest.mark.parametrize("method", ["yoshida4", "kahan6"])
+def test_dissipated_energy_keeps_the_scheme_order_against_dop853(method):
+    """``dissipated`` (exact over each damped kick) against DOP853 with the dissipation integral as an extra
+    state: its error falls at the scheme's order, and so does E + D - E0 (the trapezoid rule made it 2)."""
+    from scipy.integrate import solve_ivp
+
+    x0 = _spots(1)
+    gc, gs = 0.05, 0.02
+    damping, T = Damping(gc, gs), 4.0
+    rhs = rhs_flat(PARAMS, None, None, gc, gs)
+
+    def extended(t, y):
+        return np.append(rhs(t, y[:-1]), dissipation(y[:-1].reshape(1, 4, N), PARAMS.M, damping)[0])
+
+    sol = solve_ivp(extended, (0, T), np.append(x0[0].ravel(), 0.0), "DOP853", rtol=1e-13, atol=1e-14)
+    D_exact = sol.y[-1, -1]
+    E0 = reference.model.energy(PARAMS, x0)[0]
+    errors, balance = [], []
+    for n in (40, 80):
+        x, lost = x0.copy(), np.zeros(1)
+        for _ in range(n):
+            x = reference.step(method, PARAMS, x, T / n, damping=damping, dissipated=lost)
+        errors.append(abs(lost[0] - D_exact))
+        balance.append(abs(reference.model.energy(PARAMS, x)[0] + lost[0] - E0))
+    order = {"yoshida4": 4, "kahan6": 6}[method]
+    assert D_exact > 1e-3 * E0
+    assert np.log2(errors[0] / errors[1]) == pytest.approx(order, abs=0.5)
+    assert np.log2(balance[0] / balance[1]) > order - 0.5
 
 
 @pytest.mark.parametrize("layout", ["thread", "block"])

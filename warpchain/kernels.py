@@ -455,6 +455,28 @@ def any_kick(
         kick(x, acc, b, n, h)
 
 
+@wp.func
+def kick_loss(
+    pu: wp.float64,
+    pv: wp.float64,
+    au: wp.float64,
+    av: wp.float64,
+    damp: wp.array3d(dtype=wp.float64),
+    b: int,
+    i: int,
+    mass: wp.float64,
+) -> wp.float64:
+    """The energy damped kick i dissipates at one site from its velocities before the kick and its
+    accelerations, exactly: f . (F w + H a) - (T(w') - T(w)) (``losses.kick_dissipation``)."""
+    pu1 = damp[b, i, 0] * pu + damp[b, i, 1] * pv + (damp[b, i, 4] * au + damp[b, i, 5] * av)
+    pv1 = damp[b, i, 2] * pu + damp[b, i, 3] * pv + (damp[b, i, 6] * au + damp[b, i, 7] * av)
+    iu = damp[b, i, 4] * pu + damp[b, i, 5] * pv + (damp[b, i, 8] * au + damp[b, i, 9] * av)
+    iv = damp[b, i, 6] * pu + damp[b, i, 7] * pv + (damp[b, i, 10] * au + damp[b, i, 11] * av)
+    work = mass * au * iu + av * iv
+    kinetic = HALF * (mass * (pu1 - pu) * (pu1 + pu) + (pv1 - pv) * (pv1 + pv))
+    return work - kinetic
+
+
 @wp.kernel
 def splitting_kernel(
     x: wp.array3d(dtype=wp.float64),

@@ -19,9 +19,10 @@ since the last frame; at each frame (every ``frame_every`` steps) it reduces ove
 * ``max_envelope``: max_j env_j.
 * ``min_contact``: min over the interval's steps and the sites of 1 + z_j (<= 0: contact lost).
 * ``energy``: sum_j e_j at the frame.
-* ``dissipated``: energy lost to damping since t = 0 (the trapezoid rule over every damped kick, per
-  site; ``reference.step(dissipated=...)``), so that ``energy + dissipated`` stays the initial energy to
-  the scheme's accuracy: that is what the guard checks for lattices with losses.
+* ``dissipated``: energy lost to damping since t = 0 (exact over every damped kick, per site:
+  ``losses.kick_dissipation``; ``reference.step(dissipated=...)``), so that ``energy + dissipated`` stays
+  the initial energy to the scheme's accuracy, at its order: that is what the guard checks for lattices
+  with losses.
 
 The envelope profile of the last frame is kept on the device; ``observe`` reads it once
 ``lag_frames`` frames before the end and once at the end, and ``peak_tracks`` turns the two into
@@ -38,6 +39,7 @@ import time
 import numpy as np
 
 from .ensemble import (
+    on_one_thread,
     IntegrationError,
     _check_step,
     _signed_energy_change,
@@ -45,7 +47,7 @@ from .ensemble import (
     resolve_layout,
 )
 from .integrators import SplittingMethod, get_method, steps_for
-from .losses import KICK_ENTRIES, Damping, as_damping, kick_matrices, lossless, power_coefficients
+from .losses import KICK_ENTRIES, Damping, as_damping, kick_matrices, lossless
 from .model import (
     BOUNDARY_CODES,
     ChainParams,
@@ -304,7 +306,7 @@ def peak_tracks(env_lag, env_end, dt_lag: float, observation: Observation, max_s
 def _thread_kernel():
     import warp as wp
 
-    from .kernels import HALF, NO_CONTACT, ONE, ZERO, any_kick, compute_accelerations, drift, site_energy
+    from .kernels import NO_CONTACT, ONE, ZERO, any_kick, compute_accelerations, drift, kick_loss, site_energy
 
     @wp.func
     def frame(
@@ -381,16 +383,6 @@ def _thread_kernel():
         obs[r, b, 6] = dissipated
 
     @wp.func
-    def lattice_power(x: wp.array3d(dtype=wp.float64), b: int, n: int, cs: wp.float64, cc: wp.float64) -> wp.float64:
-        """Power lost by lattice b, sum_j cs u_j'^2 + cc (u_j' - v_j')^2 (``reference._power``)."""
-        total = ZERO
-        for j in range(n):
-            pu = x[b, 2, j]
-            rel = pu - x[b, 3, j]
-            total = total + (cs * (pu * pu) + cc * (rel * rel))
-        return total
-
-    @wp.func
     def lossy_kick(
         x: wp.array3d(dtype=wp.float64),
         acc: wp.array3d(dtype=wp.float64),
@@ -400,16 +392,15 @@ def _thread_kernel():
         loss: int,
         damp: wp.array3d(dtype=wp.float64),
         i: int,
-        cs: wp.float64,
-        cc: wp.float64,
+        mass: wp.float64,
     ) -> wp.float64:
-        """Kick i (``kernels.any_kick``); returns the energy it dissipates (trapezoid over the kick)."""
-        if loss == 0:
-            any_kick(x, acc, b, n, h, loss, damp, i)
-            return ZERO
-        before = lattice_power(x, b, n, cs, cc)
+        """Kick i (``kernels.any_kick``); returns the energy it dissipates (``kernels.kick_loss``, exact)."""
+        spent = ZERO
+        if loss != 0:
+            for j in range(n):
+                spent = spent + kick_loss(x[b, 2, j], x[b, 3, j], acc[b, 0, j], acc[b, 1, j], damp, b, i, mass)
         any_kick(x, acc, b, n, h, loss, damp, i)
-        return h * HALF * (before + lattice_power(x, b, n, cs, cc))
+        return spent
 
     @wp.kernel(enable_backward=False)
     def observed_splitting(
@@ -425,7 +416,6 @@ def _thread_kernel():
         nsteps: int,
         lossy: wp.array(dtype=wp.int32),
         damp: wp.array3d(dtype=wp.float64),
-        power: wp.array2d(dtype=wp.float64),
         first_step: int,
         frame_every: int,
         threshold: wp.float64,
@@ -447,8 +437,7 @@ def _thread_kernel():
         m = inv_mass[b]
         k = coupling[b]
         loss = lossy[b]
-        cs = power[b, 0]
-        cc = power[b, 1]
+        mb = mass[b]
         dissipated = ZERO
         if first_step != 0:
             dissipated = lost[b, 0]
@@ -462,12 +451,12 @@ def _thread_kernel():
         compute_accelerations(x, acc, b, n, boundary, m, k, acc, 0, 0)  # no stiffness history (acc: unused)
         for step in range(first, nsteps):
             if step >= 0:
-                dissipated = dissipated + lossy_kick(x, acc, b, n, kicks[0] * dt, loss, damp, 0, cs, cc)
+                dissipated = dissipated + lossy_kick(x, acc, b, n, kicks[0] * dt, loss, damp, 0, mb)
                 for s in range(stages):
                     drift(x, b, n, drifts[s] * dt)
                     compute_accelerations(x, acc, b, n, boundary, m, k, acc, 0, 0)
                     h = kicks[s + 1] * dt
-                    dissipated = dissipated + lossy_kick(x, acc, b, n, h, loss, damp, s + 1, cs, cc)
+                    dissipated = dissipated + lossy_kick(x, acc, b, n, h, loss, damp, s + 1, mb)
                 for j in range(n):
                     z = x[b, 0, j] - x[b, 1, j]
                     z_low[b, j] = wp.min(z_low[b, j], z)
@@ -489,7 +478,7 @@ def _block_kernel(block: int, stages: int):
     import warp as wp
 
     from . import block_kernels as bk
-    from .kernels import HALF, NO_CONTACT, ONE, ZERO, site_energy
+    from .kernels import NO_CONTACT, ONE, ZERO, kick_loss, site_energy
 
     halves = 2 * block
 
@@ -504,11 +493,6 @@ def _block_kernel(block: int, stages: int):
         return wp.vec2d(left, right)
 
     @wp.func
-    def site_power(pu: wp.float64, pv: wp.float64, cs: wp.float64, cc: wp.float64) -> wp.float64:
-        rel = pu - pv
-        return cs * (pu * pu) + cc * (rel * rel)
-
-    @wp.func
     def kick_with_loss(
         pu: wp.float64,
         pv: wp.float64,
@@ -518,15 +502,14 @@ def _block_kernel(block: int, stages: int):
         damp: wp.array3d(dtype=wp.float64),
         b: int,
         i: int,
-        cs: wp.float64,
-        cc: wp.float64,
+        mass: wp.float64,
     ) -> wp.vec3d:
-        """``block_kernels.site_kick`` and the energy it dissipates at this site (trapezoid over the kick):
-        (u', v', lost)."""
+        """``block_kernels.site_kick`` and the energy it dissipates at this site (``kernels.kick_loss``,
+        exact): (u', v', lost)."""
         w = bk.site_kick(pu, pv, a, h, loss, damp, b, i)
         spent = ZERO
         if loss != 0:
-            spent = h * HALF * (site_power(pu, pv, cs, cc) + site_power(w[0], w[1], cs, cc))
+            spent = kick_loss(pu, pv, a[0], a[1], damp, b, i, mass)
         return wp.vec3d(w[0], w[1], spent)
 
     @wp.func
@@ -625,7 +608,6 @@ def _block_kernel(block: int, stages: int):
         nsteps: int,
         lossy: wp.array(dtype=wp.int32),
         damp: wp.array3d(dtype=wp.float64),
-        power: wp.array2d(dtype=wp.float64),
         first_step: int,
         frame_every: int,
         threshold: wp.float64,
@@ -654,9 +636,7 @@ def _block_kernel(block: int, stages: int):
         mb = mass[b]
         loss = lossy[b]
         half_width = spot[b]
-        cs = power[b, 0]
-        cc = power[b, 1]
-        lost_site = ZERO  # energy this site has dissipated (trapezoid over each damped kick)
+        lost_site = ZERO  # energy this site has dissipated (exact over each damped kick)
         z_low = u - v
         z_high = u - v
         if active and first_step != 0:
@@ -672,7 +652,7 @@ def _block_kernel(block: int, stages: int):
             first = -1  # an extra pass without a step: frame 0, the start (envelope |z|)
         for step in range(first, nsteps):
             if step >= 0:
-                w = kick_with_loss(pu, pv, a, kicks[0], loss, damp, b, 0, cs, cc)
+                w = kick_with_loss(pu, pv, a, kicks[0], loss, damp, b, 0, mb)
                 pu = w[0]
                 pv = w[1]
                 lost_site = lost_site + w[2]
@@ -683,7 +663,7 @@ def _block_kernel(block: int, stages: int):
                     parity = 1 - parity
                     nb = exchange(buf, u, parity, nbr, boundary)
                     a = bk.site_acceleration(u, v, nb[0], nb[1], m, k)
-                    w = kick_with_loss(pu, pv, a, kicks[s + 1], loss, damp, b, s + 1, cs, cc)
+                    w = kick_with_loss(pu, pv, a, kicks[s + 1], loss, damp, b, s + 1, mb)
                     pu = w[0]
                     pv = w[1]
                     lost_site = lost_site + w[2]
@@ -731,6 +711,7 @@ def _block_kernel(block: int, stages: int):
 # ----------------------------------------------------------------------------- driver
 
 
+@on_one_thread
 def observe(
     params: ChainParams,
     x0,
@@ -808,8 +789,6 @@ def observe(
     else:
         lossy = wp.zeros(batch, dtype=wp.int32, device=device)
         damp = wp.zeros((1, 1, KICK_ENTRIES), dtype=f64, device=device)
-    power_host = power_coefficients(Mb, damping, batch) if damping is not None else np.zeros((batch, 2))
-    power = wp.array(power_host, dtype=f64, device=device)
     spot = wp.array(np.broadcast_to(np.asarray(observation.spot, dtype=np.float64), (batch,)), dtype=f64, device=device)
     # the tracked z extremes (set by the kernels at frame 0), the last frame's envelope, the observables
     zlo = wp.empty((batch, params.N), dtype=f64, device=device)
@@ -830,7 +809,7 @@ def observe(
             wp.config.enable_cpu_blocks = True
 
         def launch(first, steps):
-            inputs = [x, inv_mass, mass, coupling, drifts, kicks, boundary, int(steps), lossy, damp, power]
+            inputs = [x, inv_mass, mass, coupling, drifts, kicks, boundary, int(steps), lossy, damp]
             inputs += [int(first), fe, threshold, radius, contrast, spot, zlo, zhi, lost, envelope, obs]
             wp.launch(kernel, dim=(batch, block), block_dim=block, device=device, inputs=inputs)
 
@@ -845,7 +824,7 @@ def observe(
             def task(lo, hi):
                 inputs = [x[lo:hi], acc[lo:hi], inv_mass[lo:hi], mass[lo:hi], coupling[lo:hi], drifts, kicks]
                 inputs += [boundary, f64(dt_used), int(steps), lossy[lo:hi], damp[lo:hi] if damping else damp]
-                inputs += [power[lo:hi], int(first), fe, threshold, radius, contrast, spot[lo:hi], zlo[lo:hi]]
+                inputs += [int(first), fe, threshold, radius, contrast, spot[lo:hi], zlo[lo:hi]]
                 inputs += [zhi[lo:hi], lost[lo:hi], envelope[lo:hi], obs[:, lo:hi]]
                 wp.launch(kernel, dim=hi - lo, device=device, inputs=inputs)
 

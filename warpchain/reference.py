@@ -80,8 +80,7 @@ def step(
             kick becomes the exact damped kick; lattices without losses keep the plain kick, so zero
             damping is today's scheme bit for bit.
         dissipated: with ``damping``, an array (batch,) to which each damped kick adds the energy it
-            dissipates, by the trapezoid rule over the kick (h/2 (P(w) + P(w')), P the power lost;
-            ``observe``'s kernels do the same per site).
+            dissipates, exactly (``losses.kick_dissipation``; ``observe``'s kernels do the same per site).
 
     Returns:
         the new state, or (state, tangent columns) when ``dx`` is given.
@@ -104,7 +103,6 @@ def step(
         plain = damped = None
         if damping is not None:
             coefficients = losses.kick_matrices(method.kicks, float(dt), M_b, damping, batch)
-            power = losses.power_coefficients(M_b, damping, batch)
             no_loss = losses.lossless(coefficients)
             plain, damped = np.flatnonzero(no_loss), np.flatnonzero(~no_loss)
             coefficients = coefficients[damped]
@@ -115,11 +113,10 @@ def step(
                 return
             x[plain, 2:] += kicks[i] * dt * acc[plain]  # lattices without losses: the plain kick
             sub = x[damped]
-            before = losses.power(sub, power[damped]) if dissipated is not None else None
+            if dissipated is not None:
+                dissipated[damped] += losses.kick_dissipation(sub[:, 2:], acc[damped], coefficients[:, i], M_b[damped])
             damped_kick(sub, acc[damped], coefficients[:, i])
             x[damped] = sub
-            if dissipated is not None:
-                dissipated[damped] += (kicks[i] * dt) * 0.5 * (before + losses.power(sub, power[damped]))
 
         acc = accelerations(params, x, inv_M, K)
         dacc = None if dx is None else _linear_accelerations(params, x[:, :2], dx[:, :, :2], inv_M, K)
