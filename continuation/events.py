@@ -141,24 +141,33 @@ IDENTITY_TOL = 0.02
 
 
 def instability_set(point, significant: bool = False) -> dict:
-    """The unstable multipliers of a point by (kind, parity): each class's mu (imaginary part folded to >= 0,
-    so that a quadruplet's two mu are one), sorted. ``significant``: without the weak extended ones
+    """The unstable multipliers of a point by (kind, parity), each class sorted by mu (imaginary part folded
+    to >= 0, so that a quadruplet's two mu are one). ``significant``: without the weak extended ones
     (``weak_extended_instability``)."""
     out: dict = {}
     for inst in point.instabilities:
-        if significant and weak_extended_instability(inst):
-            continue
-        out.setdefault((inst.kind, int(inst.parity)), []).append(complex(inst.mu.real, abs(inst.mu.imag)))
-    return {key: sorted(mus, key=lambda z: (z.real, z.imag)) for key, mus in out.items()}
+        if not (significant and weak_extended_instability(inst)):
+            out.setdefault((inst.kind, int(inst.parity)), []).append(inst)
+    return {key: sorted(v, key=lambda i: (i.mu.real, abs(i.mu.imag))) for key, v in out.items()}
 
 
 def _same_instabilities(a, b, significant: bool = False) -> bool:
-    """The same unstable multipliers at both ends: the same kinds, parities and counts, each mu near its
-    counterpart (``IDENTITY_TOL``); ``significant``: of those that are not weak and extended."""
+    """The same unstable multipliers at both ends: the same kinds, parities and counts, each (in mu order)
+    with mu near its counterpart's (``IDENTITY_TOL``) and, where both are known, its Floquet vector's
+    participation within a factor 2 (two weak quadruplets near one mu can be different modes: 121 and 49
+    sites on either side of a stable window of the paper's frequency branch); ``significant``: of those
+    that are not weak and extended."""
     sa, sb = instability_set(a, significant), instability_set(b, significant)
     if sa.keys() != sb.keys():
         return False
-    return all(len(sa[k]) == len(sb[k]) and all(abs(x - y) <= IDENTITY_TOL for x, y in zip(sa[k], sb[k])) for k in sa)
+    return all(len(sa[k]) == len(sb[k]) and all(_alike(x, y) for x, y in zip(sa[k], sb[k])) for k in sa)
+
+
+def _alike(x, y) -> bool:
+    """Two instabilities that can be one multiplier at the two ends of a step (``_same_instabilities``)."""
+    mx, my = complex(x.mu.real, abs(x.mu.imag)), complex(y.mu.real, abs(y.mu.imag))
+    px, py = x.participation, y.participation
+    return abs(mx - my) <= IDENTITY_TOL and (not (px > 0 and py > 0) or 0.5 <= px / py <= 2.0)
 
 
 def kinds_present(point) -> tuple:
@@ -210,59 +219,64 @@ def weak_extended_instability(inst) -> bool:
     return inst.modulus - 1.0 < WEAK_INSTABILITY and not inst.localized
 
 
-#: an instability at least this strong (|l| - 1) at both ends of a step, of the same kind, parity and extent,
-#: whose log |l| moved by less than ``TOUCH_FRACTION`` of its smaller end value, keeps the step unstable
-#: throughout (``persistent``)
-ROBUST_INSTABILITY = 3e-3
-
-
 def persistent(a, b) -> bool:
-    """Whether one instability stays strong across the step: of the same kind, parity and extent at both
-    ends, |l| - 1 >= ``ROBUST_INSTABILITY`` at each, log |l| changed by less than ``TOUCH_FRACTION`` of its
-    smaller value, and not ``near_critical``. No stable window can then sit inside the step, whatever else
-    comes and goes (inside and below the acoustic band, extended quadruplets change at nearly every step
-    while one such instability holds)."""
-    strong = {}
+    """Whether one significant instability (not weak and extended) holds across the step: of the same kind,
+    parity and extent at both ends, with log |l| changed by less than ``TOUCH_FRACTION`` of its smaller
+    value, its participation within a factor 2, and not ``near_critical``. No stable window can then sit
+    inside the step, whatever else comes and goes (along the paper's K branch a localized real pair of
+    |l| - 1 ~ 3e-4 holds while extended quadruplets at |l| - 1 ~ 1e-3 come and go at nearly every step;
+    examining those changes took the branch from 203 to 1423 points)."""
+    held = {}
     for point, side in ((a, 0), (b, 1)):
         for inst in point.instabilities:
-            if inst.modulus - 1.0 >= ROBUST_INSTABILITY:
-                strong.setdefault((inst.kind, int(inst.parity), bool(inst.localized)), ([], []))[side].append(inst)
-    for (kind, _, _), (xs, ys) in strong.items():
+            if not weak_extended_instability(inst):
+                held.setdefault((inst.kind, int(inst.parity), bool(inst.localized)), ([], []))[side].append(inst)
+    for (kind, _, _), (xs, ys) in held.items():
         for x in xs:
             for y in ys:
                 lx, ly = math.log(x.modulus), math.log(y.modulus)
-                if abs(ly - lx) < TOUCH_FRACTION * min(lx, ly) and not _touches(kind, x.mu, y.mu):
+                px, py = x.participation, y.participation
+                alike = not (px > 0 and py > 0) or 0.5 <= px / py <= 2.0  # NaN on the full path: not compared
+                if alike and abs(ly - lx) < TOUCH_FRACTION * min(lx, ly) and not _touches(kind, x.mu, y.mu):
                     return True
     return False
 
 
 def changed(a, b) -> str | None:
-    """What changed between two consecutive points: ``"stability"`` (the verdict or the kinds present; the set
-    of significant unstable multipliers, i.e. all but the weak extended ones: a parity, a count, or one that
-    left while another arrived; between two weakly unstable points, the whole set), ``"suspect"`` (the same
-    significant multipliers at both ends, but one moved far enough to have closed and opened again inside
-    the step: ``near_critical``), ``"count"`` (the counts changed, but one strong instability holds across
-    the step, ``persistent``, so that no window can sit inside: recorded, not examined), ``"krein"``
-    (elliptic multipliers of opposite signature passed each other, no instability at either end) or None.
+    """What changed between two consecutive points, in this order:
 
-    A change of the unstable set is a change of stability like a verdict change: between two unstable points
-    whose unstable multipliers differ, one instability may have closed before the other opened, leaving a
-    stable window inside the step (measured: windows 3e-4 and 1.4e-3 wide in w_b between points with
-    max |l| - 1 of 4e-3 to 2e-2, stepped over when only weak ends were examined). The weak extended
-    instabilities are left out of the set except between weakly unstable ends: inside the acoustic band they
-    come and go at nearly every step, and bisecting each such change took the paper's frequency branch
-    from 314 to over 3000 points; the stable windows between them are the foam that
-    ``unresolved_bubbles`` states as fractions."""
+    1. ``"stability"``: the verdict or the kinds present changed.
+    2. ``"count"`` (recorded, not examined) or None: one significant instability holds across the step
+       (``persistent``), so that no stable window can sit inside it.
+    3. ``"stability"``: the significant unstable multipliers (all but the weak extended ones) differ: a
+       parity, a count, or one that left while another arrived (``IDENTITY_TOL``). Between two unstable
+       points whose unstable multipliers differ one instability may close before the other opens, leaving
+       a stable window inside the step (measured on a chain checked against AUTO: windows 3e-4 and 1.4e-3
+       wide in w_b between points with max |l| - 1 of 4e-3 to 2e-2, stepped over when only weakly
+       unstable ends were examined).
+    4. ``"suspect"``: the same significant multipliers at both ends, but one moved far enough to have
+       closed and opened again inside the step (``near_critical``).
+    5. Only weak extended instabilities at both ends (the foam of finite-size phonon resonances): a change
+       is ``"stability"`` when the same counts are different multipliers, or when the end with fewer has at
+       most one (one closing is enough for a window: the paper's frequency branch has one 2.4e-5 wide in
+       w_b between one weak quadruplet and two); other count changes are ``"count"`` (recorded as
+       ``instability_count``, not examined): a window there needs several to close together, and the
+       foam's windows are its own bubbles, which ``unresolved_bubbles`` states as fractions. Examining
+       every count change took the paper's K branch from 203 to 1812 points.
+    6. ``"krein"``: elliptic multipliers of opposite signature passed each other; else None.
+    """
     if a.stable != b.stable or kinds_present(a) != kinds_present(b):
         return "stability"
     if not a.stable and persistent(a, b):
         return None if stability_signature(a) == stability_signature(b) else "count"
     if not _same_instabilities(a, b, significant=True):
         return "stability"
-    if not a.stable and _weak(a) and _weak(b) and not _same_instabilities(a, b):
-        return "stability"
-    if near_critical(a, b):
-        return "suspect"
+    if instability_set(a, significant=True):  # the same significant ones at both ends: a window needs them to close
+        if near_critical(a, b):
+            return "suspect"
+    elif not _same_instabilities(a, b):  # only weak extended ones at both ends: the foam
+        fewer = min(len(a.instabilities), len(b.instabilities))
+        return "count" if stability_signature(a) != stability_signature(b) and fewer > 1 else "stability"
     if krein_crossings(a, b) != 0:
         return "krein"
     return None
