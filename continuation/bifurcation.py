@@ -61,9 +61,9 @@ from .shooting import find_breather, is_mirror_symmetric
 
 class NotLocated(ValueError):
     """A branch point that is not there to locate, by the mathematics: the test function does not change
-    sign in the bracket, or it jumps from one sign to the other (its multiplier changed identity) instead of
-    passing zero. Every other error while locating (a solve that fails, an engine error) is not this: a
-    scene retries it once and otherwise fails."""
+    sign in the bracket, it jumps from one sign to the other (its multiplier changed identity) instead of
+    passing zero, or there is no real multiplier of the parity to follow. Every other error while locating
+    (a solve that fails, an engine error) is not this: a scene retries it once and otherwise fails."""
 
 
 __all__ = [
@@ -378,8 +378,8 @@ def locate_real_pair(
 
     Raises:
         RuntimeError: a solve inside the bracket failed.
-        NotLocated: no sign change where the step said there was one, or the test function jumps
-            there (its mode changed identity) instead of passing zero.
+        NotLocated: no sign change where the step said there was one, the test function jumps there
+            (its mode changed identity) instead of passing zero, or it has no real multiplier of the parity.
     """
     ca, cb = math.log10(a.K), math.log10(b.K)
     symmetric = is_mirror_symmetric(a.state, 1e-9) and is_mirror_symmetric(b.state, 1e-9)
@@ -398,7 +398,7 @@ def locate_real_pair(
         mu, vec, vec_parity = _mu_and_vectors(res)
         k = _pinning_index(mu, vec_parity, central_weight(vec, params.M, energy_centre(res.state)), parity)
         if k is None:
-            raise RuntimeError(f"no real multiplier of parity {parity} near K = {10**c:.8g} on the {family} family")
+            raise NotLocated(f"no real multiplier of parity {parity} near K = {10**c:.8g} on the {family} family")
         pr = float(participation(vec[:, k : k + 1], params.M)[0])
         noise = float(np.min(np.abs(mu - 1.0)))  # the trivial mu's distance from 1
         cache[c] = (float(mu[k].real - 1.0), (res, np.real(vec[:, k]), pr, noise))

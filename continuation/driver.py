@@ -572,16 +572,16 @@ def _walk(problem, settings, resume, on_point, on_event, log, progress) -> Branc
             if what != "suspect":  # a suspect step resolved down to here without a change holds none
                 note(ev.krein_event(a, b, par) if what == "krein" else ev.stability_change_event(a, b, par))
             return leaf(a, b, h)
+        outcomes = []
         for t in SPLITS:  # the middle, else nearer either end (a long step's middle may not converge)
             stats["bisection_solves"] += 1
             m = solve(problem.between, a, b, t)
             if not isinstance(m, Failure) and problem.is_between(a, m, b):
                 return refine(a, m, t * h, depth + 1, misses) + refine(m, b, (1.0 - t) * h, depth + 1, misses)
+            outcomes.append(f"at {t:g}: " + ("did not converge" if isinstance(m, Failure) else "outside the bracket"))
         if what != "suspect":
             e = ev.krein_event(a, b, par) if what == "krein" else ev.stability_change_event(a, b, par)
-            e["message"] += " (not bisected further: the point " + (
-                "did not converge)" if isinstance(m, Failure) else "fell outside the bracket)"
-            )
+            e["message"] += " (not bisected further: the points " + "; ".join(outcomes) + ")"
             note(e)
         return leaf(a, b, h)
 

@@ -225,7 +225,12 @@ def persistent(a, b) -> bool:
     value, its participation within a factor 2, and not ``near_critical``. No stable window can then sit
     inside the step, whatever else comes and goes (along the paper's K branch a localized real pair of
     |l| - 1 ~ 3e-4 holds while extended quadruplets at |l| - 1 ~ 1e-3 come and go at nearly every step;
-    examining those changes took the branch from 203 to 1423 points)."""
+    examining those changes took the branch from 203 to 1423 points).
+
+    The stated limit: the test reads the two ends only. An instability that dips through the unit circle and
+    comes back within the step with a similar |l| at both ends (for a real pair near +1 the mu test is weak:
+    mu - 1 grows like (|l| - 1)^2 / 2) is taken for one that held, and a window inside that step, if every
+    other instability closed there too, goes unseen. Any instability is matched with any of its class."""
     held = {}
     for point, side in ((a, 0), (b, 1)):
         for inst in point.instabilities:

@@ -93,7 +93,10 @@ def main(argv=None) -> int:
         if args.command == "run":
             run_scene(args.name, args.out, args.device, args.quick, overrides, args.resume, command_line)
             return 0
-        return run_in_order(names, args.out, args.device, args.quick, command_line)
+        from warpchain import resolve_device
+
+        device = resolve_device(args.device)  # once, here: a missing GPU is one error, not one per scene
+        return run_in_order(names, args.out, device, args.quick, command_line)
     except (ValueError, OSError) as exc:  # bad input, damaged store, unusable --out: one line, exit 2
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -238,6 +238,8 @@ class _Workers:
                 self.local.flow = None  # new buffers and graphs for the retry
                 try:
                     return fn(self._flow(), *args)
+                except bf.NotLocated:
+                    raise
                 except Exception as exc:
                     raise TaskError(f"{what} failed twice: {type(exc).__name__}: {exc}") from exc
 
@@ -245,10 +247,13 @@ class _Workers:
         return self.pool.submit(attempt)
 
     def close(self) -> None:
-        """Cancel what has not started (after success nothing is left); a running solve finishes."""
-        self.pool.shutdown(wait=False, cancel_futures=True)
+        """Cancel what has not started (after success nothing is left), let a running solve finish, then give
+        the host BLAS its thread count back (a solve still running would otherwise restore the one-thread
+        limit it found, after this, for the rest of the process)."""
+        self.pool.shutdown(wait=True, cancel_futures=True)
         if self.blas is not None:
             self.blas.close()
+            self.blas = None
 
 
 def _folds(family: str, points) -> list:

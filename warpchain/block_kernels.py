@@ -331,7 +331,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0, lattices: int = 1) -> 
             """``nsteps`` steps of a kick-drift splitting method; lattice b, thread j = site (one or, with
             ``lattices`` = 2, two lattices per block). hist slot 0 holds f'(z) at the start, slot
             step*s + k + 1 after drift k of ``step``. Compiled ``damped``: lattices with ``lossy[b]``
-            set take the damped kicks of ``damp`` (batch, stages + 1, 8)."""
+            set take the damped kicks of ``damp`` (batch, stages + 1, 12: E, F, and H for the energy dissipated)."""
             b, j = wp.tid()
             n = x.shape[2]
             nbr = site_neighbours(j, n, boundary)

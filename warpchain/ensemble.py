@@ -471,7 +471,8 @@ def device_lock(device: str) -> threading.RLock:
     synchronisation from a second thread during one thread's capture breaks that capture, or enters it.
     Streams of our own per thread cannot help here: the current stream is per device, not per thread, and
     ``wp.synchronize_device`` waits on all of them. Every entry point that touches the device (``simulate``,
-    ``observe``, ``Flow.run``, ``Flow.linearize`` and its columns, ``DeviceState`` copies) holds this lock from
+    ``observe``, ``propagate_tangent``, ``time_steps``, ``Flow.run``, ``Flow.linearize`` and its columns,
+    ``DeviceState`` copies) holds this lock from
     its first launch to its last wait. Several threads can drive Flows on one device (site-bond's workers do):
     their host work (LAPACK, Python) runs in parallel, their device work in turn. Reentrant: a callback under
     the lock (``on_chunk``) may call the engine again. Work must never wait, under the lock, for another thread
@@ -1858,6 +1859,7 @@ class TangentResult:
     launch_seconds: float = float("nan")
 
 
+@on_one_thread
 def propagate_tangent(
     params: ChainParams,
     x0,
@@ -1952,6 +1954,7 @@ def propagate_tangent(
     )
 
 
+@on_one_thread
 def time_steps(
     params: ChainParams,
     x0,

@@ -499,7 +499,8 @@ def splitting_kernel(
     """``nsteps`` steps of a kick-drift splitting method for lattice b = tid.
 
     hist slot 0 holds f'(z) at the start, slot step*s + k + 1 after drift k of ``step``. Lattices with
-    ``lossy[b]`` set take the damped kicks of ``damp`` (batch, stages + 1, 8) (``losses``).
+    ``lossy[b]`` set take the damped kicks of ``damp`` (batch, stages + 1, 12: E, F, then H for the energy
+    dissipated) (``losses``).
     """
     b = wp.tid()
     n = x.shape[2]

@@ -49,7 +49,7 @@ def _linear_accelerations(params: ChainParams, q, dq, inv_M, K):
 
 def damped_kick(x, acc, coefficients) -> None:
     """In place, the exact damped kick w <- E w + F a of every lattice (``losses``), in the kernels'
-    operation order; ``coefficients`` (batch, 8) holds E00, E01, E10, E11, F00, F01, F10, F11."""
+    operation order; ``coefficients`` (batch, 12) holds E00, E01, E10, E11, F00, F01, F10, F11 (then H, unused here)."""
     e = [coefficients[:, i, None] for i in range(8)]
     pu, pv, au, av = x[:, 2].copy(), x[:, 3].copy(), acc[:, 0], acc[:, 1]
     x[:, 2] = e[0] * pu + e[1] * pv + (e[4] * au + e[5] * av)
