@@ -162,6 +162,11 @@ def scene_parameters(module, quick: bool, overrides: dict | None = None):
     return dataclasses.replace(params, **changes)
 
 
+class Refused(ValueError):
+    """A scene's input refused before the scene wrote anything (e.g. a resume with other settings than the
+    stored branch's): its folder is left as it was, summary included."""
+
+
 def run_scene(
     name: str,
     out_root: Path,
@@ -204,10 +209,15 @@ def _run_in(module, ctx: Context) -> dict:
         ctx.log("parameters: %s", ", ".join(f"{k}={v}" for k, v in dataclasses.asdict(params).items()))
     # an earlier run's summary never stands for this one: gone now, written again only when this run succeeds,
     # and a run that raises leaves failed.json (what ``compare`` and ``paper`` report) instead
-    for stale in ("summary.json", "failed.json"):
-        (out / stale).unlink(missing_ok=True)
+    before = {name: (out / name).read_bytes() for name in ("summary.json", "failed.json") if (out / name).is_file()}
+    for name in before:
+        (out / name).unlink()
     try:
         summary = module.run(ctx)
+    except Refused:  # refused before anything was written: the folder stays as it was
+        for name, content in before.items():
+            (out / name).write_bytes(content)
+        raise
     except Exception as exc:
         (out / "failed.json").write_text(json.dumps({"scene": ctx.name, "error": f"{type(exc).__name__}: {exc}"}))
         raise

@@ -3,16 +3,16 @@ summary fields, and the stability strip of the figures."""
 
 from __future__ import annotations
 
-import numpy as np
-
 import dataclasses
+
+import numpy as np
 
 from continuation.driver import Branch, ContinuationSettings, continuation
 from continuation.floquet import KINDS
 from warpchain import Flow
 
 from ._branch_store import BranchStore, StoreError, load_branch
-from ._common import BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD, PAPER_M, PAPER_N
+from ._common import BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD, PAPER_M, PAPER_N, Refused
 
 
 @dataclasses.dataclass(frozen=True)
@@ -65,16 +65,13 @@ def run_branch(
     """Run (or with ``ctx.resume`` continue) the branch, streaming points into OUT/data.zarr (group
     ``group``; ``new_store=False`` adds it to the scene's existing store)."""
     path = ctx.out / "data.zarr"
-    resume = None
+    resume, stored_events = None, []
     if ctx.resume:
         stored_params, resume, stored_attrs = load_branch(path, group)
-        if stored_params.N != params.N or stored_params.M != params.M:
-            raise StoreError(
-                f"{path} holds a branch of N = {stored_params.N}, M = {stored_params.M}, not "
-                f"N = {params.N}, M = {params.M}: use the same --set values as the stored run"
-            )
+        _check_resume(path, group, stored_params, stored_attrs, params, attrs)
+        stored_events = list(stored_attrs.get("events") or [])
         if len(resume) < 2:
-            raise StoreError(f"{path} holds {len(resume)} point(s); resuming needs two: run without --resume")
+            raise ResumeRefused(f"{path} holds {len(resume)} point(s); resuming needs two: run without --resume")
         ctx.log(
             "resuming from %d stored points (%s at %s)",
             len(resume),
@@ -104,6 +101,8 @@ def run_branch(
     except Exception as exc:
         store.interrupted(f"stopped by {type(exc).__name__}: {exc}; the stored points are complete")
         raise
+    if stored_events:  # the stored walk's events (stability changes, Krein passes, foam) stay the branch's
+        branch = dataclasses.replace(branch, events=tuple(stored_events) + tuple(branch.events))
     store.finish(branch)
     ctx.log(
         "%s: stop: %s (%d points, %.0f s, %.2f s per point)",
@@ -114,6 +113,43 @@ def run_branch(
         branch.stats["seconds_per_point"],
     )
     return branch
+
+
+class ResumeRefused(StoreError, Refused):
+    """A resume refused before anything was written (``_check_resume``)."""
+
+
+#: settings that do not define a branch (where it stops, how long it may take, host threads): a resume may change them
+RESUME_MAY_CHANGE = frozenset({"max_points", "max_seconds", "blas_threads"})
+
+
+def _check_resume(path, group: str, stored_params, stored_attrs: dict, params, attrs: dict) -> None:
+    """Refuse to continue a stored branch with other values of what defines it: the chain (N, M, boundary, and
+    K where it is not the continued parameter), and every attribute the scene stores with it (w_b or K, method,
+    steps per period, the continuation settings but for ``RESUME_MAY_CHANGE``). One error names them all."""
+    from warpchain.store import jsonable
+
+    differ = []
+    for name in ("N", "M", "boundary") + (("K",) if "K" in attrs else ()):
+        a, b = getattr(stored_params, name), getattr(params, name)
+        if a != b:
+            differ.append(f"{name} = {a} (stored) vs {b}")
+    new = jsonable(attrs)
+    for key, value in new.items():
+        if key not in stored_attrs or key in ("N", "M", "boundary", "K"):  # the chain's: compared above
+            continue
+        old = stored_attrs[key]
+        if isinstance(value, dict) and isinstance(old, dict):
+            for k in sorted(set(value) | set(old)):
+                if k not in RESUME_MAY_CHANGE and value.get(k) != old.get(k):
+                    differ.append(f"{key}.{k} = {old.get(k)!r} (stored) vs {value.get(k)!r}")
+        elif value != old:
+            differ.append(f"{key} = {old!r} (stored) vs {value!r}")
+    if differ:
+        raise ResumeRefused(
+            f"{path}, group {group}: the stored branch was computed with other settings: {'; '.join(differ)}. "
+            "Resume with the stored run's --set values, or run without --resume into another --out"
+        )
 
 
 def branch_summary(branch: Branch, parameter: str) -> dict:
