@@ -49,6 +49,7 @@ def main(argv=None) -> int:
     compare.add_argument("--scenes", default=None, help="comma-separated scenes to compare (default: all found)")
     compare.add_argument("--json", default=None, type=Path, metavar="FILE", help="write the differences as JSON")
     args = parser.parse_args(argv)
+    _terminate_like_interrupt()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s", datefmt="%H:%M:%S")
 
     if args.command == "list":
@@ -100,13 +101,30 @@ def main(argv=None) -> int:
     except (ValueError, OSError) as exc:  # bad input, damaged store, unusable --out: one line, exit 2
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
+        how = "terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted"
         print(
-            "interrupted: what was stored so far is complete and marked so; branch scenes continue with --resume",
+            f"{how}: what was stored so far is complete and marked so; branch scenes continue with --resume",
             file=sys.stderr,
         )
-        return 130
+        return 143 if isinstance(exc, Terminated) else 130
     return 0
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, handled as Ctrl-C is: the stores are flushed and marked interrupted, the exit status is 143."""
+
+
+def _terminate_like_interrupt() -> None:
+    """SIGTERM raises ``Terminated`` in the main thread (only there can a handler be installed)."""
+    import signal
+    import threading
+
+    def handler(signum, frame):
+        raise Terminated()
+
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, handler)
 
 
 def run_in_order(names, out, device, quick: bool, command_line: str) -> int:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import importlib
 import json
@@ -167,6 +168,55 @@ class Refused(ValueError):
     stored branch's): its folder is left as it was, summary included."""
 
 
+@contextlib.contextmanager
+def scene_lock(out: Path):
+    """Hold ``out/.lock`` (pid, host, start) while a scene runs in ``out``: a second run or a resume on the same
+    folder meanwhile is refused (``Refused``, one line naming the holder), so two walks never interleave in one
+    store. A lock left by a process that is gone (same host, no such pid) is taken over; one from another host
+    is never judged stale here: its message says to remove it by hand."""
+    import os
+    import socket
+
+    lock, me = out / ".lock", {"pid": os.getpid(), "host": socket.gethostname(), "started": time.time()}
+    for _ in range(2):
+        try:
+            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
+            break
+        except FileExistsError:
+            try:
+                held = json.loads(lock.read_text())
+                pid, host = int(held["pid"]), str(held["host"])
+            except (OSError, ValueError, KeyError, TypeError):
+                pid, host = None, "?"
+            if pid is not None and host == me["host"] and not _alive(pid):
+                lock.unlink(missing_ok=True)  # stale: its process is gone
+                continue
+            raise Refused(
+                f"{out} is in use by process {pid} on {host} (lock {lock}); wait for that run to end, or remove "
+                "the lock if it is gone"
+            ) from None
+    else:
+        raise Refused(f"{out}: could not take the lock {lock}")
+    with os.fdopen(fd, "w") as f:
+        json.dump(me, f)
+    try:
+        yield
+    finally:
+        lock.unlink(missing_ok=True)
+
+
+def _alive(pid: int) -> bool:
+    import os
+
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
 def run_scene(
     name: str,
     out_root: Path,
@@ -193,8 +243,9 @@ def run_scene(
     from continuation.hostblas import blas_threads, threads_for
 
     try:
-        with blas_threads(threads_for(resolved)):  # one on the CPU device, where Warp needs the cores (hostblas)
-            return _run_in(module, ctx)
+        with scene_lock(out):  # one run per scene folder at a time
+            with blas_threads(threads_for(resolved)):  # one on the CPU device, where Warp needs the cores (hostblas)
+                return _run_in(module, ctx)
     except BaseException:
         if created and not any(out.iterdir()):  # nothing was written: leave no empty folder
             out.rmdir()

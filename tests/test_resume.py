@@ -24,3 +24,52 @@ def test_resume_keeps_the_events_and_refuses_other_settings(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "K = 160.0 (stored) vs 100.0" in err and "steps_per_period = 32" in err
     assert _summary(tmp_path)["points"] == first["points"]  # the refused resume wrote nothing
+
+
+def test_a_scene_folder_in_use_is_refused_and_a_stale_lock_taken_over(tmp_path, capsys):
+    import os
+    import socket
+    import subprocess
+    import sys
+
+    folder = tmp_path / "nls"
+    folder.mkdir()
+    lock = folder / ".lock"
+    lock.write_text(json.dumps({"pid": os.getpid(), "host": socket.gethostname(), "started": 0}))  # a live holder
+    args = ["run", "nls", "--quick", "--device", "cpu", "--out", str(tmp_path)]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and f"in use by process {os.getpid()}" in err
+    assert not (folder / "summary.json").exists() and lock.exists()
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    lock.write_text(json.dumps({"pid": int(gone.stdout), "host": socket.gethostname(), "started": 0}))  # stale
+    assert main(args) == 0
+    assert (folder / "summary.json").exists() and not lock.exists()
+
+
+def test_sigterm_marks_the_store_interrupted_like_ctrl_c(tmp_path):
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    import zarr
+
+    cmd = [sys.executable, "-m", "scenarios", "run", "continuation-omega", "--quick", "--device", "cpu"]
+    proc = subprocess.Popen(cmd + ["--out", str(tmp_path)], stderr=subprocess.PIPE, text=True)
+    store = tmp_path / "continuation-omega" / "data.zarr"
+    deadline = time.time() + 120
+    while time.time() < deadline:  # until a few points are stored
+        try:
+            if zarr.open_group(str(store), mode="r")["branch"].attrs.get("n_points", 0) >= 3:
+                break
+        except Exception:  # not made yet
+            pass
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 143, err[-2000:]
+    assert "terminated (SIGTERM): what was stored so far is complete" in err
+    attrs = zarr.open_group(str(store), mode="r")["branch"].attrs
+    assert attrs["stop_reason"] == "interrupted" and attrs["n_points"] >= 3
+    assert not (tmp_path / "continuation-omega" / ".lock").exists()
