@@ -95,15 +95,15 @@ def run_branch(
             branch = continuation(
                 problem, settings, resume=resume, on_point=store.append, log=ctx.log, progress=progress
             )
+        if stored_events:  # the stored walk's events (stability changes, Krein passes, foam) stay the branch's
+            branch = dataclasses.replace(branch, events=tuple(stored_events) + tuple(branch.events))
+        store.finish(branch)  # inside: an interrupt while the writer catches up still marks the store interrupted
     except KeyboardInterrupt:
-        store.interrupted("interrupted by the user (Ctrl-C); the stored points are complete: resume with --resume")
+        store.interrupted("interrupted (Ctrl-C or SIGTERM); the stored points are complete: resume with --resume")
         raise
     except Exception as exc:
         store.interrupted(f"stopped by {type(exc).__name__}: {exc}; the stored points are complete")
         raise
-    if stored_events:  # the stored walk's events (stability changes, Krein passes, foam) stay the branch's
-        branch = dataclasses.replace(branch, events=tuple(stored_events) + tuple(branch.events))
-    store.finish(branch)
     ctx.log(
         "%s: stop: %s (%d points, %.0f s, %.2f s per point)",
         group,
