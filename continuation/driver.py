@@ -13,18 +13,18 @@ the hook through which a caller records points (``on_point``: continuation itsel
    nearest critical place (+1, -1, or the nearest elliptic mu of opposite signature that it can
    interact with), with a floor of ``settings.multiplier_floor`` in mu so that near-collisions do
    not stall the branch.
-2. A step across which the verdict (stable/unstable) or the set of unstable multipliers changes (a kind,
-   a parity, a count, or one that left while another arrived: ``events.changed``) is bisected: the point
-   in the middle of the step is solved and analysed, and both halves are examined again, until the
-   bracket is below ``settings.resolution`` (in the continuation coordinate). Every trial point is a
-   solved, analysed branch point and is kept. The rule holds between unstable ends too: two unstable
-   points whose unstable multipliers differ can hide a stable window between them (one instability
-   closed before the other opened), and a step between them that was examined only when its ends were
-   weakly unstable stepped over windows 3e-4 and 1.4e-3 wide in w_b on a chain checked against AUTO.
-   Steps whose ends carry the same unstable multipliers (same kinds, parities, counts, each mu within
-   ``events.IDENTITY_TOL``) are not examined. The stated limit: an instability that closes and opens
-   again within one step, its mu back within ``IDENTITY_TOL`` of where it was, leaves a window unseen
-   (``benchmarks/branch_check.py`` compares a branch with a dense fixed-step scan).
+2. A step across which the verdict (stable/unstable) changes, or across which it may hide a stable window
+   between unstable ends, is bisected: the point in the middle of the step is solved and analysed, and
+   both halves are examined again, until the bracket is below ``settings.resolution`` (in the
+   continuation coordinate). Every trial point is a solved, analysed branch point and is kept. A window
+   between unstable ends is possible when their significant unstable multipliers (all but the weak
+   extended ones) differ, since one instability may close before another opens, or when the same one
+   moved far enough to have closed and opened again; not when one significant instability holds across
+   the step. ``events.changed`` states the rules, their order and what each cost on the paper's branches:
+   a step examined only between weakly unstable ends stepped over windows 3e-4 and 1.4e-3 wide in w_b
+   on a chain checked against AUTO. The stated limit: the rules read the step's two ends, so an
+   instability that closes and opens again within one step, back near where it was, can hide a window
+   (``events.persistent``; ``benchmarks/branch_check.py`` compares a branch with a dense scan).
 3. A step across which elliptic multipliers of opposite Krein signature passed each other (the Krein
    order of ``events`` changed) with no instability at either end is where a bubble could hide. When
    a localized mode (participation below ``floquet.LOCALIZED_FRACTION`` N: an internal mode of the
@@ -559,7 +559,7 @@ def _walk(problem, settings, resume, on_point, on_event, log, progress) -> Branc
                 return chased
         if what is None:
             return leaf(a, b, h)
-        if what == "count":  # unstable throughout (events.persistent): recorded, no window to look for
+        if what == "count":  # recorded, not examined (events.changed, rules 2 and 5)
             note(ev.stability_change_event(a, b, par))
             return leaf(a, b, h)
         if what == "krein" and not (
