@@ -314,6 +314,13 @@ def is_mirror_symmetric(state, rtol: float) -> bool:
     return bool(np.max(np.abs(q - q[:, ::-1])) <= rtol * max(float(np.max(np.abs(q))), 1e-300))
 
 
+#: an orbit whose max |u - v| is below this is the rest state, whatever its seed: the residual tolerance is
+#: absolute (1e-10), so a seed of amplitude 1e-10 met it at once and "converged" to the rest state (E ~ 1e-15),
+#: which the collapse test relative to the seed cannot see. Breathers of the gap have max |u - v| of 1e-2 and up
+#: (the frequency branch starts from the eigenmode at 0.03).
+REST_AMPLITUDE = 1e-6
+
+
 def find_breather(
     params: ChainParams,
     omega: float,
@@ -345,8 +352,9 @@ def find_breather(
             ``steps_per_period`` (default kahan8, 32 steps per period) and ``device``.
         tol: convergence threshold on the residual's 2-norm.
         jacobian: ``"tangent"`` (exact derivative of the discrete map) or ``"finite-difference"``.
-        collapse_ratio: an iterate whose max |u - v| falls below this fraction of the seed's is
-            reported as ``TRIVIAL`` (the rest state is not a breather).
+        collapse_ratio: an iterate whose max |u - v| falls below this fraction of the seed's (0 < ratio < 1),
+            or below ``REST_AMPLITUDE`` whatever the seed, is reported as ``TRIVIAL`` (the rest state is not a
+            breather).
         symmetric: keep every iterate mirror-symmetric (j -> N + 1 - j). None (default): when the
             seed is (to 1e-9 of its size) and the formulation is reversible. Newton then cannot drift
             off a site-centred family through round-off amplified by a near-symmetry-breaking
@@ -373,6 +381,9 @@ def find_breather(
     settings = NewtonSettings(tol=real_number("tol", tol, positive=True), max_iterations=max_iterations)
     pmap = PeriodMap(params, omega, flow, formulation, jacobian, real_number("fd_step", fd_step, positive=True), seed)
     seed_amplitude = float(np.max(np.abs(seed[0] - seed[1])))
+    collapse_ratio = real_number("collapse_ratio", collapse_ratio, positive=True)
+    if collapse_ratio >= 1.0:
+        raise ValueError(f"collapse_ratio must be below 1 (a fraction of the seed's amplitude), got {collapse_ratio}")
 
     def amplitude(unknowns):
         x = pmap.to_state(unknowns)
@@ -388,7 +399,7 @@ def find_breather(
         settings,
         chord=chord_solver(jacobian_hint) if jacobian_hint is not None else None,
         amplitude=amplitude,
-        collapse_below=collapse_ratio * seed_amplitude,
+        collapse_below=max(collapse_ratio * seed_amplitude, REST_AMPLITUDE),
         project=mirror_projector(params.N) if symmetric else None,
         log=log,
     )

@@ -154,3 +154,16 @@ def test_unstable_spectrum_is_flagged():
     lam = np.array([1.0 + 1e-7, 1.0 - 1e-7, 1.01, 1 / 1.01, np.exp(0.3j), np.exp(-0.3j)])
     info = ct.analyse_multipliers(lam)
     assert not info["stable"] and info["max_modulus"] == pytest.approx(1.01)
+
+
+def test_a_tiny_seed_is_the_rest_state_not_a_breather():
+    """The residual tolerance is absolute: a seed of amplitude 1e-10 met it at once and was called converged
+    (E ~ 1e-15); the absolute floor (``shooting.REST_AMPLITUDE``) reports it as the rest state."""
+    from continuation.shooting import ShootingStatus
+
+    p = ChainParams(30.0, 160.0, 41)
+    res = ct.find_breather(p, 1.0164, ct.eigenmode_seed(p, 1e-10), device="cpu")
+    assert not res.success and res.status is ShootingStatus.TRIVIAL and "rest state" in res.message
+    for bad in (float("nan"), -1.0, 0.0, 1.5):
+        with pytest.raises(ValueError, match="collapse_ratio"):
+            ct.find_breather(p, 1.0164, ct.eigenmode_seed(p, 1e-2), device="cpu", collapse_ratio=bad)
