@@ -67,6 +67,7 @@ import warnings
 import numpy as np
 
 from warpchain import ChainParams, Flow, get_method, propagate_tangent
+from warpchain.model import real_number
 
 from .hostblas import blas_threads
 
@@ -719,8 +720,8 @@ def floquet(
             f"floquet() of a failed solve: there is no periodic orbit to analyse "
             f"({breather.status.value}: {breather.message})"
         )
-    if tolerance is not None and not (isinstance(tolerance, (int, float, np.floating)) and tolerance >= 0):
-        raise ValueError(f"tolerance must be a number >= 0, got {tolerance!r}")
+    if tolerance is not None:  # a real number >= 0 (True is no tolerance: it read as 1.0, every point stable)
+        tolerance = real_number("tolerance", tolerance, nonnegative=True)
     flow = flow or breather.flow
     if device is not None:
         flow = flow.replace(device=device)

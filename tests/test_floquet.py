@@ -135,3 +135,13 @@ def test_fused_products_equal_the_separate_reduced_matrix_symplecticity_and_sign
     a = np.random.default_rng(0).standard_normal((n2, 5))
     act = np.sum((A[:n2, :n2] @ a) * m[:, None] * (A[n2:, :n2] @ a), axis=0)
     assert np.allclose(np.sum(a * (P @ a), axis=0), act, rtol=1e-10, atol=1e-12 * np.max(np.abs(act)))
+
+
+def test_a_tolerance_must_be_a_real_number():
+    """``floquet(tolerance=True)`` read as 1.0 (every point stable); NaN and negative values are refused too."""
+    p = ChainParams(30.0, 160.0, 21)
+    b = ct.require(ct.find_breather(p, 1.01, ct.nls_seed(p, 1.01), device="cpu"))
+    for bad in (True, float("nan"), -1e-9, "1e-9"):
+        with pytest.raises(ValueError, match="tolerance"):
+            ct.floquet(b, tolerance=bad)
+    assert ct.floquet(b, tolerance=1e-9).tolerance == 1e-9
