@@ -135,6 +135,14 @@ def elliptic_table(point) -> dict:
     }
 
 
+#: max |l| - 1 below which a point's instability is weak (``weak_extended``, ``weak_extended_instability``)
+WEAK_INSTABILITY = 1e-3
+
+
+def _weak(point) -> bool:
+    return point.max_modulus - 1.0 < WEAK_INSTABILITY
+
+
 #: two unstable multipliers at the two ends of a step are taken for the same one when their mu (of the same
 #: kind and parity) differ by at most this much; otherwise one left and another arrived in the step
 IDENTITY_TOL = 0.02
@@ -163,11 +171,20 @@ def _same_instabilities(a, b, significant: bool = False) -> bool:
     return all(len(sa[k]) == len(sb[k]) and all(_alike(x, y) for x, y in zip(sa[k], sb[k])) for k in sa)
 
 
+def _folded(mu: complex) -> complex:
+    """mu with its imaginary part folded to >= 0 (a quadruplet's two mu are one)."""
+    return complex(mu.real, abs(mu.imag))
+
+
+def _same_extent(x, y) -> bool:
+    """Floquet vectors' participations within a factor 2 (NaN, on the full path: not compared)."""
+    px, py = x.participation, y.participation
+    return not (px > 0 and py > 0) or 0.5 <= px / py <= 2.0
+
+
 def _alike(x, y) -> bool:
     """Two instabilities that can be one multiplier at the two ends of a step (``_same_instabilities``)."""
-    mx, my = complex(x.mu.real, abs(x.mu.imag)), complex(y.mu.real, abs(y.mu.imag))
-    px, py = x.participation, y.participation
-    return abs(mx - my) <= IDENTITY_TOL and (not (px > 0 and py > 0) or 0.5 <= px / py <= 2.0)
+    return abs(_folded(x.mu) - _folded(y.mu)) <= IDENTITY_TOL and _same_extent(x, y)
 
 
 def kinds_present(point) -> tuple:
@@ -189,27 +206,19 @@ def _critical_distance(kind: str, mu: complex) -> float:
 
 
 def near_critical(a, b) -> bool:
-    """Whether an unstable multiplier matched across the step (same kind and parity, sorted) moved far
+    """Whether an unstable multiplier matched across the step (same kind and parity, in mu order) moved far
     enough to have touched the critical set inside it and come back: |mu_b - mu_a| above ``TOUCH_FRACTION``
     of the sum of its distances to the critical set at the two ends (a quadruplet that closes onto the
     unit circle and opens again within one step leaves a stable window and the same set at both ends).
-    Weak extended instabilities at both ends (max |l| - 1 < ``WEAK_INSTABILITY``: the phonon foam, stated
-    as fractions by ``unresolved_bubbles``) are left out."""
-    by_kind = {}
-    for point, side in ((a, 0), (b, 1)):
-        for inst in point.instabilities:
-            if not weak_extended_instability(inst):
-                by_kind.setdefault((inst.kind, int(inst.parity)), ([], []))[side].append(inst)
-    for (kind, _), (xs, ys) in by_kind.items():
-        order = lambda i: (i.mu.real, abs(i.mu.imag))  # noqa: E731
-        if any(_touches(kind, x.mu, y.mu) for x, y in zip(sorted(xs, key=order), sorted(ys, key=order))):
-            return True
-    return False
+    Weak extended instabilities (the phonon foam, stated as fractions by ``unresolved_bubbles``) are left
+    out."""
+    sa, sb = instability_set(a, significant=True), instability_set(b, significant=True)
+    return any(_touches(key[0], x.mu, y.mu) for key in sa.keys() & sb.keys() for x, y in zip(sa[key], sb[key]))
 
 
 def _touches(kind: str, mu_a: complex, mu_b: complex) -> bool:
     """An instability moved further than ``TOUCH_FRACTION`` of its summed distances to the critical set."""
-    ma, mb = complex(mu_a.real, abs(mu_a.imag)), complex(mu_b.real, abs(mu_b.imag))
+    ma, mb = _folded(mu_a), _folded(mu_b)
     return abs(mb - ma) > TOUCH_FRACTION * (_critical_distance(kind, ma) + _critical_distance(kind, mb))
 
 
@@ -231,18 +240,17 @@ def persistent(a, b) -> bool:
     comes back within the step with a similar |l| at both ends (for a real pair near +1 the mu test is weak:
     mu - 1 grows like (|l| - 1)^2 / 2) is taken for one that held, and a window inside that step, if every
     other instability closed there too, goes unseen. Any instability is matched with any of its class."""
-    held = {}
-    for point, side in ((a, 0), (b, 1)):
-        for inst in point.instabilities:
-            if not weak_extended_instability(inst):
-                held.setdefault((inst.kind, int(inst.parity), bool(inst.localized)), ([], []))[side].append(inst)
-    for (kind, _, _), (xs, ys) in held.items():
-        for x in xs:
-            for y in ys:
+    sa, sb = instability_set(a, significant=True), instability_set(b, significant=True)
+    for key in sa.keys() & sb.keys():
+        for x in sa[key]:
+            for y in sb[key]:
                 lx, ly = math.log(x.modulus), math.log(y.modulus)
-                px, py = x.participation, y.participation
-                alike = not (px > 0 and py > 0) or 0.5 <= px / py <= 2.0  # NaN on the full path: not compared
-                if alike and abs(ly - lx) < TOUCH_FRACTION * min(lx, ly) and not _touches(kind, x.mu, y.mu):
+                if (
+                    x.localized == y.localized
+                    and _same_extent(x, y)
+                    and abs(ly - lx) < TOUCH_FRACTION * min(lx, ly)
+                    and not _touches(key[0], x.mu, y.mu)
+                ):
                     return True
     return False
 
@@ -413,14 +421,6 @@ def parametric_event(a, b, parameter: str, M: float) -> dict | None:
         "message": f"phonon-phonon parametric resonance w_k + w_k' = n w_b: {', '.join(words)} "
         f"at {parameter} = {at:.8g}",
     }
-
-
-#: max |l| - 1 below which a point's instability is weak (``weak_extended``)
-WEAK_INSTABILITY = 1e-3
-
-
-def _weak(point) -> bool:
-    return point.max_modulus - 1.0 < WEAK_INSTABILITY
 
 
 def weak_extended(point) -> bool:
