@@ -7,6 +7,8 @@ import dataclasses
 import importlib
 import json
 import logging
+import os
+import socket
 import time
 from pathlib import Path
 
@@ -174,9 +176,6 @@ def scene_lock(out: Path):
     folder meanwhile is refused (``Refused``, one line naming the holder), so two walks never interleave in one
     store. A lock left by a process that is gone (same host, no such pid) is taken over; one from another host
     is never judged stale here: its message says to remove it by hand."""
-    import os
-    import socket
-
     lock, me = out / ".lock", {"pid": os.getpid(), "host": socket.gethostname(), "started": time.time()}
     for _ in range(2):
         try:
@@ -206,8 +205,6 @@ def scene_lock(out: Path):
 
 
 def _alive(pid: int) -> bool:
-    import os
-
     try:
         os.kill(pid, 0)
     except ProcessLookupError:

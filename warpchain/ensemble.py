@@ -188,6 +188,45 @@ def resolve_device(device: str | None) -> str:
     return name
 
 
+_DEVICE_LOCKS: dict = {}
+
+
+def device_lock(device: str) -> threading.RLock:
+    """The lock that one thread holds while it issues work to ``device`` and waits for it.
+
+    Warp keeps one current stream per device and one capture state per process (a CUDA graph is captured
+    from the device's current stream; a CPU graph records every launch made anywhere while it is open), and
+    refuses to synchronise a device while a capture is active on it. So a launch, copy, allocation or
+    synchronisation from a second thread during one thread's capture breaks that capture, or enters it.
+    Streams of our own per thread cannot help here: the current stream is per device, not per thread, and
+    ``wp.synchronize_device`` waits on all of them. Every entry point that touches the device (``simulate``,
+    ``observe``, ``propagate_tangent``, ``time_steps``, ``Flow.run``, ``Flow.linearize`` and its columns,
+    ``DeviceState`` copies) holds this lock from its first launch to its last wait. Several threads can drive
+    Flows on one device (site-bond's workers do): their host work (LAPACK, Python) runs in parallel, their
+    device work in turn. Reentrant: a callback under
+    the lock (``on_chunk``) may call the engine again. Work must never wait, under the lock, for another thread
+    that needs it (the lock is held only inside the engine's own calls, so only a callback can do that)."""
+    name = str(device)
+    lock = _DEVICE_LOCKS.get(name)
+    if lock is None:
+        with _WARP_LOCK:
+            lock = _DEVICE_LOCKS.setdefault(name, threading.RLock())
+    return lock
+
+
+def on_one_thread(fn):
+    """``fn(params, x0, ..., device=...)`` under ``device_lock`` of its device (a ``DeviceState`` x0's own when
+    ``device`` is None)."""
+
+    @functools.wraps(fn)
+    def wrapper(params, x0, *args, device: str | None = None, **kwargs):
+        where = x0.device if isinstance(x0, DeviceState) and device is None else resolve_device(device)
+        with device_lock(where):
+            return fn(params, x0, *args, device=device, **kwargs)
+
+    return wrapper
+
+
 # ----------------------------------------------------------------------------- helpers
 
 
@@ -457,45 +496,6 @@ _TANGENT_PAIR_MIN_BLOCKS = {True: 4, False: 0}
 #: the tangent kernel loads each history entry one force evaluation ahead: None does so with one column per
 #: block (where it paid) and not with two (the extra registers cost more than it saved); True/False force it
 _TANGENT_PREFETCH: bool | None = None
-
-
-_DEVICE_LOCKS: dict = {}
-
-
-def device_lock(device: str) -> threading.RLock:
-    """The lock that one thread holds while it issues work to ``device`` and waits for it.
-
-    Warp keeps one current stream per device and one capture state per process (a CUDA graph is captured
-    from the device's current stream; a CPU graph records every launch made anywhere while it is open), and
-    refuses to synchronise a device while a capture is active on it. So a launch, copy, allocation or
-    synchronisation from a second thread during one thread's capture breaks that capture, or enters it.
-    Streams of our own per thread cannot help here: the current stream is per device, not per thread, and
-    ``wp.synchronize_device`` waits on all of them. Every entry point that touches the device (``simulate``,
-    ``observe``, ``propagate_tangent``, ``time_steps``, ``Flow.run``, ``Flow.linearize`` and its columns,
-    ``DeviceState`` copies) holds this lock from
-    its first launch to its last wait. Several threads can drive Flows on one device (site-bond's workers do):
-    their host work (LAPACK, Python) runs in parallel, their device work in turn. Reentrant: a callback under
-    the lock (``on_chunk``) may call the engine again. Work must never wait, under the lock, for another thread
-    that needs it (the lock is held only inside the engine's own calls, so only a callback can do that)."""
-    name = str(device)
-    lock = _DEVICE_LOCKS.get(name)
-    if lock is None:
-        with _WARP_LOCK:
-            lock = _DEVICE_LOCKS.setdefault(name, threading.RLock())
-    return lock
-
-
-def on_one_thread(fn):
-    """``fn(params, x0, ..., device=...)`` under ``device_lock`` of its device (a ``DeviceState`` x0's own when
-    ``device`` is None)."""
-
-    @functools.wraps(fn)
-    def wrapper(params, x0, *args, device: str | None = None, **kwargs):
-        where = x0.device if isinstance(x0, DeviceState) and device is None else resolve_device(device)
-        with device_lock(where):
-            return fn(params, x0, *args, device=device, **kwargs)
-
-    return wrapper
 
 
 def tangent_columns_per_block(ncols: int, stages: int, device: str) -> int:
