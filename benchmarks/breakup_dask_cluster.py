@@ -1,11 +1,12 @@
 """breakup-statistics on a running Dask cluster (one worker per GPU), against the in-process run.
 
 Command (on a machine with two GPUs): ``python benchmarks/breakup_dask_cluster.py OUT_DIR``. Starts a
-scheduler and two single-threaded workers, each seeing one GPU (``CUDA_VISIBLE_DEVICES``), as a cluster
-that is already up would be; runs the quick grid once through it (the workers import the packages, make
-their CUDA contexts and load the kernels), then the full grid through it (``--set scheduler=...``,
-``--set gpus=1``: every worker uses its own ``cuda:0``), and the full grid in-process on one GPU.
-Writes ``breakup-dask-cluster.json`` with each run's sweep seconds and the throughput ratio.
+scheduler and two workers of two threads (two tasks in flight), each seeing one GPU
+(``CUDA_VISIBLE_DEVICES``), as a cluster that is already up would be; runs the quick grid once through
+it (the workers import the packages, make their CUDA contexts and load the kernels), then the full grid
+through it (``--set scheduler=...``, ``--set gpus=1``: every worker uses its own ``cuda:0``), and the
+full grid in-process on one GPU. Writes ``breakup-dask-cluster.json`` with each run's sweep seconds and
+the throughput ratio.
 """
 
 import json
@@ -50,7 +51,7 @@ def main(out_dir: Path) -> None:
     time.sleep(3)
     for gpu in (0, 1):
         worker_env = dict(env, CUDA_VISIBLE_DEVICES=str(gpu))
-        cmd = [sys.executable, "-m", "distributed.cli.dask_worker", ADDRESS, "--nthreads", "1", "--name", f"gpu{gpu}"]
+        cmd = [sys.executable, "-m", "distributed.cli.dask_worker", ADDRESS, "--nthreads", "2", "--name", f"gpu{gpu}"]
         procs.append(subprocess.Popen(cmd, env=worker_env))
     time.sleep(5)
     try:

@@ -184,6 +184,7 @@ class SweepReport:
     task_seconds: list[float]
     task_indices: list[tuple[int, ...]] = dataclasses.field(default_factory=list)
     failed: list[tuple[int, ...]] = dataclasses.field(default_factory=list)
+    start_seconds: float = 0.0  # from the call to the first task handed out (cluster start, warm-up)
 
 
 # --------------------------------------------------------------------------------------------- store
@@ -453,26 +454,59 @@ def _import_distributed():
     return distributed
 
 
-def _path_plugin(paths: list[str]):
+_ALLOCATOR: dict = {}  # what host_allocator set in this process
+
+
+def host_allocator() -> None:
+    """Lets glibc keep freed memory of this process for reuse (Linux; elsewhere nothing).
+
+    Dask's nanny starts workers with ``MALLOC_TRIM_THRESHOLD_=65536``, which returns freed memory to the
+    system at once and turns off glibc's adaptive mmap threshold: every array of more than 128 KiB then
+    comes from fresh, zero-filled pages. A task's host work (reductions over arrays of a few MB) ran
+    ~1.8x slower for it. Setting both thresholds here (mmap threshold 32 MiB, glibc's own adaptive
+    maximum; trim threshold 128 MiB) gives the same steady state in every process, worker or not."""
+    if not sys.platform.startswith("linux"):
+        return
+    import ctypes
+    import ctypes.util
+
+    with contextlib.suppress(OSError, AttributeError, TypeError):
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        if libc.mallopt(-3, 32 << 20) and libc.mallopt(-1, 128 << 20):  # M_MMAP_, M_TRIM_THRESHOLD
+            _ALLOCATOR["mmap_threshold"] = 32 << 20
+
+
+def _worker_plugin(paths: list[str], ordinals: dict, gpus: int, warm_up):
     """A worker plugin (defined here so that cloudpickle sends it by value: a worker that cannot import
-    ``scenarios`` yet can still unpickle it) appending the client's sys.path entries that exist there."""
+    ``scenarios`` yet can still unpickle it): appends the client's sys.path entries that exist there,
+    sets the allocator as :func:`host_allocator` does, and runs ``warm_up(device)`` once."""
     from distributed.diagnostics.plugin import WorkerPlugin
 
-    class AddClientPaths(WorkerPlugin):
-        name = "warpchain-sweep-sys-path"
+    class SweepWorker(WorkerPlugin):
+        name = "warpchain-sweep-worker"
 
-        def __init__(self, entries):
-            self.entries = list(entries)
+        def __init__(self, entries, ordinals, gpus, warm_up):
+            self.entries, self.ordinals, self.gpus, self.warm_up = list(entries), ordinals, gpus, warm_up
 
         def setup(self, worker):
+            import contextlib as _contextlib
             import os as _os
             import sys as _sys
 
             for entry in self.entries:
                 if entry and entry not in _sys.path and _os.path.isdir(entry):
                     _sys.path.append(entry)
+            from scenarios._sweep import _device, _int_name, host_allocator
 
-    return AddClientPaths(paths)
+            host_allocator()
+            if self.warm_up is not None:
+                ordinal = self.ordinals.get(worker.address)
+                if ordinal is None:
+                    ordinal = _int_name(worker.name) or 0
+                with _contextlib.suppress(Exception):
+                    self.warm_up(_device(ordinal, self.gpus))
+
+    return SweepWorker(paths, ordinals, gpus, warm_up)
 
 
 def run_sweep(
@@ -486,6 +520,8 @@ def run_sweep(
     progress: bool = True,
     log=None,
     fail_fast: bool = True,
+    tasks_per_worker: int = 2,
+    warm_up=None,
 ) -> SweepReport:
     """Runs every task of ``spec`` not yet completed in ``store_path`` and writes its region.
 
@@ -501,6 +537,11 @@ def run_sweep(
         gpus: 0: every task gets ``"cpu"``; G: ``f"cuda:{worker ordinal % G}"`` (in-process: ``cuda:0``).
         progress: a tqdm bar over the tasks to run.
         log: ``log(message)`` for a start line (mode, workers, tasks to run and skipped) and an end line.
+        tasks_per_worker: tasks in flight at once in each process (in-process: threads of this process;
+            a local cluster: threads per worker; a running cluster: its workers' ``--nthreads``). Two
+            overlap one task's kernels with another's host work and zarr write; results do not change.
+        warm_up: ``warm_up(device)``, run once in each Dask worker when the sweep starts (loads kernels,
+            fills memory pools) so that no task pays for it; its errors are left to the tasks to meet.
         fail_fast: True: the first failing task raises :class:`SweepTaskError` naming its index, the
             others are cancelled (those already written stay completed). False: every task runs, then
             one :class:`SweepTaskError` names all that failed (its ``report`` holds the report).
@@ -510,6 +551,8 @@ def run_sweep(
     """
     if workers < 0 or gpus < 0:
         raise ValueError("workers and gpus must be >= 0")
+    if int(tasks_per_worker) < 1:
+        raise ValueError(f"tasks_per_worker must be >= 1, got {tasks_per_worker}")
     if workers and scheduler:
         raise ValueError("give workers= (a local cluster) or scheduler= (a running one), not both")
     if not callable(task):
@@ -529,19 +572,23 @@ def run_sweep(
     mode = "dask" if use_dask else "in-process"
     seconds: dict[tuple, float] = {}
     failures: list[tuple[tuple, str]] = []
-    n_workers = 0
+    n_workers, t_ready = 0, t_start
     try:
         if not todo:
             say(f"sweep {spec.group}: all {n_tasks} tasks already completed, nothing to run")
         with contextlib.ExitStack() as stack:
             if todo and use_dask:
                 n_workers, where, outcomes = _dask_outcomes(
-                    stack, store_path, task, todo, layout, workers, scheduler, gpus
+                    stack, store_path, task, todo, layout, workers, scheduler, gpus, tasks_per_worker, warm_up
                 )
             elif todo:
-                where, outcomes = f"on {_device(0, gpus)}", _local_outcomes(task, group, layout, todo, gpus)
+                host_allocator()
+                outcomes = _Pipeline(task, group, layout, todo, _device(0, gpus), tasks_per_worker, fail_fast)
+                stack.push(lambda kind, *_: outcomes.close(wait=not (kind and issubclass(kind, KeyboardInterrupt))))
+                where = f"on {_device(0, gpus)}, {len(outcomes._threads)} tasks in flight"
             else:
                 outcomes = iter(())
+            t_ready = time.perf_counter()
             if todo:
                 say(f"sweep {spec.group}: {mode} {where}, {len(todo)} of {n_tasks} tasks to run, {skipped} skipped")
             bar = stack.enter_context(_progress_bar(len(todo), progress and bool(todo), spec.group))
@@ -572,6 +619,7 @@ def run_sweep(
         task_seconds=[seconds[index] for index in ran_indices],
         task_indices=ran_indices,
         failed=[index for index, _ in failures],
+        start_seconds=t_ready - t_start,
     )
     say(
         f"sweep {spec.group}: {report.ran} tasks ran in {report.wall_seconds:.1f} s wall"
@@ -588,17 +636,64 @@ def run_sweep(
     return report
 
 
-def _local_outcomes(task, group, layout, todo, gpus):
-    """In-process: the tasks in grid order, each written before the next starts."""
-    device = _device(0, gpus)
-    for index in todo:
-        try:
-            yield {"index": index, "ok": True, "seconds": _call_task(task, group, layout, index, device)}
-        except Exception as exc:
-            yield {"index": index, "ok": False, "error": repr(exc), "exception": exc}
+class _Pipeline:
+    """In-process tasks on ``in_flight`` daemon threads, in grid order, outcomes as they finish.
+
+    With two in flight, one task's kernels run while the other's host work (reductions, its zarr write)
+    proceeds; :func:`warpchain.ensemble.device_lock` keeps the kernels of one device from interleaving.
+    With ``fail_fast`` a failure stops handing out tasks at once, and :meth:`close` does too; its
+    ``wait=True`` also waits for the running ones (nothing writes into the store after the sweep returns
+    or raises), ``wait=False`` (Ctrl-C) does not: a task cut off by the process's exit never set its
+    completed flag and runs again on resume."""
+
+    def __init__(self, task, group, layout, todo, device: str, in_flight: int, fail_fast: bool):
+        import queue
+        import threading
+
+        self._todo = iter(todo)
+        self._take = threading.Lock()
+        self._stop = threading.Event()
+        self._results = queue.Queue()
+        self._n = len(todo)
+        self._args = (task, group, layout)
+        self._device = device
+        self._fail_fast = fail_fast
+        self._threads = [
+            threading.Thread(target=self._work, name=f"sweep-task-{k}", daemon=True)
+            for k in range(max(1, min(int(in_flight), len(todo))))
+        ]
+        for thread in self._threads:
+            thread.start()
+
+    def _work(self) -> None:
+        task, group, layout = self._args
+        while not self._stop.is_set():
+            with self._take:
+                index = next(self._todo, None)
+            if index is None:
+                return
+            try:
+                out = {"index": index, "ok": True, "seconds": _call_task(task, group, layout, index, self._device)}
+            except BaseException as exc:  # noqa: BLE001 - reported to the client, which decides
+                out = {"index": index, "ok": False, "error": repr(exc), "exception": exc}
+                if self._fail_fast:
+                    self._stop.set()  # no new task after a failure
+            self._results.put(out)
+
+    def __iter__(self):
+        for _ in range(self._n):
+            yield self._results.get()
+
+    def close(self, wait: bool = True) -> None:
+        self._stop.set()
+        if wait:
+            for thread in self._threads:
+                thread.join()
 
 
-def _dask_outcomes(stack: contextlib.ExitStack, store_path, task, todo, layout, workers, scheduler, gpus):
+def _dask_outcomes(
+    stack: contextlib.ExitStack, store_path, task, todo, layout, workers, scheduler, gpus, tasks_per_worker, warm_up
+):
     """Starts (``workers``) or connects to (``scheduler``) a cluster, registered on ``stack`` for closing,
     submits every task and returns (number of workers, description, iterator of outcomes as they come).
     Leaving ``stack`` cancels what has not run (fail_fast) and closes the client and the local cluster."""
@@ -611,7 +706,7 @@ def _dask_outcomes(stack: contextlib.ExitStack, store_path, task, todo, layout, 
         cluster = stack.enter_context(
             distributed.LocalCluster(
                 n_workers=int(workers),
-                threads_per_worker=1,
+                threads_per_worker=int(tasks_per_worker),
                 processes=True,
                 dashboard_address=None,
                 silence_logs=logging.ERROR,
@@ -624,8 +719,8 @@ def _dask_outcomes(stack: contextlib.ExitStack, store_path, task, todo, layout, 
         client.wait_for_workers(1, timeout=120)
     info = client.scheduler_info().get("workers", {})
     paths = [os.path.abspath(p) for p in sys.path if p] + [os.getcwd()]
-    client.register_plugin(_path_plugin(list(dict.fromkeys(paths))))
     ordinals = _worker_ordinals(info)
+    client.register_plugin(_worker_plugin(list(dict.fromkeys(paths)), ordinals, gpus, warm_up))
     devices = sorted({_device(k, gpus) for k in ordinals.values()}) or [_device(0, gpus)]
     where = f"({where}, {len(info)} workers on {', '.join(devices)})"
 
@@ -662,6 +757,14 @@ def _demo_task(index: dict, device: str, *, n_r: int = 4, n_f: int = 5, seed: in
     }
 
 
+def _demo_warm_up(device: str, *, folder: str) -> None:
+    """A warm-up for tests: writes ``folder/<pid>`` with the device it was given and the mmap threshold
+    that :func:`host_allocator` set in this process."""
+    os.makedirs(folder, exist_ok=True)
+    with open(os.path.join(folder, str(os.getpid())), "w") as fh:
+        fh.write(f"{device} {_ALLOCATOR.get('mmap_threshold', 0) / 2**20:.1f} MiB")
+
+
 def _demo_spec(
     group: str = "observables", n_a: int = 3, n_b: int = 2, n_r: int = 4, n_f: int = 5, **attrs
 ) -> SweepSpec:
@@ -689,5 +792,6 @@ __all__ = [
     "Variable",
     "completed",
     "open_sweep",
+    "host_allocator",
     "run_sweep",
 ]

@@ -179,6 +179,15 @@ def _task(index: dict, device: str, *, config: dict) -> dict:
     return observe_batch(P, float(A_values[index["A"]]), widths, R, float(gc), float(gs), device)
 
 
+def _warm_up(device: str, *, config: dict) -> None:
+    """Loads the task's kernels on ``device`` and fills its memory pool: one task's launch (every W and
+    realisation, a lossless and a damped case) for 2 periods instead of ``periods``."""
+    P = dataclasses.replace(Parameters(**config), periods=2)
+    A_values, widths, damping_cases, R = grid(P)
+    for gc, gs in {(0.0, 0.0), tuple(damping_cases[-1])}:
+        observe_batch(P, float(A_values[0]), widths, R, float(gc), float(gs), device)
+
+
 def observe_batch(P: Parameters, A: float, widths, R: int, gc: float, gs: float, device: str) -> dict:
     """Every W (of ``widths``) and realisation of one (A, damping) in one ``observe`` launch; arrays shaped
     (W, realisation, ...) for the sweep's variables."""
@@ -291,6 +300,7 @@ def run(ctx: Context) -> dict:
         store,
         spec,
         task,
+        warm_up=functools.partial(_warm_up, config=dataclasses.asdict(P)),
         workers=P.workers,
         scheduler=P.scheduler or None,
         gpus=gpus if ctx.device != "cpu" else 0,
@@ -351,6 +361,7 @@ def run(ctx: Context) -> dict:
             "ran": report.ran,
             "skipped": report.skipped,
             "wall_seconds": sweep_seconds,
+            "start_seconds": report.start_seconds,  # cluster start and warm-up, inside wall_seconds
             "lattice_periods_per_second": (n_lattices * P.periods / sweep_seconds)
             if report.ran == report.tasks
             else None,

@@ -11,6 +11,7 @@ import pytest
 import zarr
 
 from scenarios._sweep import (
+    _demo_warm_up,
     COMPLETED,
     SweepMismatchError,
     SweepTaskError,
@@ -99,9 +100,17 @@ def test_two_workers_equal_in_process(tmp_path, clean_store):
     path = tmp_path / "data.zarr"
     lines = []
     report = run_sweep(
-        path, _demo_spec(), functools.partial(_demo_task, n_f=5), workers=2, progress=False, log=lines.append
+        path,
+        _demo_spec(),
+        functools.partial(_demo_task, n_f=5),
+        workers=2,
+        progress=False,
+        log=lines.append,
+        warm_up=functools.partial(_demo_warm_up, folder=str(tmp_path / "warm")),
     )
     assert (report.mode, report.workers, report.ran, report.skipped) == ("dask", 2, 6, 0)
+    warmed = sorted(p.read_text() for p in (tmp_path / "warm").iterdir())  # once per worker, before its tasks
+    assert warmed == ["cpu 32.0 MiB", "cpu 32.0 MiB"]
     assert sorted(report.task_indices) == report.task_indices and len(report.task_seconds) == 6
     assert "dask (local cluster, 2 workers on cpu)" in lines[0]
     assert_same_store(clean_store, path)
@@ -143,7 +152,7 @@ def test_resume_after_failure(tmp_path, clean_store):
     path = tmp_path / "data.zarr"
     spec = _demo_spec()
     with pytest.raises(SweepTaskError, match=r"task \(a=1, b=1\) failed.*demo failure") as err:
-        run_sweep(path, spec, functools.partial(_demo_task, fail_at=(1, 1)), progress=False)
+        run_sweep(path, spec, functools.partial(_demo_task, fail_at=(1, 1)), progress=False, tasks_per_worker=1)
     assert err.value.failed == ((1, 1),)
     done = completed(path, spec)
     np.testing.assert_array_equal(done, [[True, True], [True, False], [False, False]])
@@ -235,3 +244,34 @@ def test_dask_is_optional(tmp_path, monkeypatch):
         run_sweep(tmp_path / "d.zarr", _demo_spec(), _demo_task, workers=2, progress=False)
     assert not (tmp_path / "d.zarr").exists()
     assert run_sweep(tmp_path / "d.zarr", _demo_spec(), _demo_task, progress=False).ran == 6
+
+
+def _slow_demo_task(index: dict, device: str, **kwargs) -> dict:
+    import time
+
+    time.sleep(0.05 * (1 + sum(index.values()) % 3))  # uneven tasks finish out of grid order
+    return _demo_task(index, device, **kwargs)
+
+
+def test_tasks_in_flight_give_the_same_store(tmp_path, clean_store):
+    """Three tasks at once in-process: the same bytes as one at a time; a failure stops handing out
+    tasks and run_sweep returns only after the running ones have finished writing."""
+    spec = _demo_spec()
+    report = run_sweep(tmp_path / "a.zarr", spec, _slow_demo_task, progress=False, tasks_per_worker=3)
+    assert report.ran == 6 and sorted(report.task_indices) == report.task_indices
+    assert_same_store(clean_store, tmp_path / "a.zarr")
+
+    path = tmp_path / "b.zarr"
+    with pytest.raises(SweepTaskError, match=r"task \(a=0, b=1\) failed"):
+        run_sweep(path, spec, functools.partial(_slow_demo_task, fail_at=(0, 1)), progress=False, tasks_per_worker=3)
+    done = completed(path, spec).copy()
+    assert not done[0, 1] and done.sum() <= 3
+    import time
+
+    time.sleep(0.4)
+    np.testing.assert_array_equal(completed(path, spec), done)  # nothing finished writing after the return
+    report = run_sweep(path, spec, _demo_task, progress=False, tasks_per_worker=2)
+    assert report.ran == 6 - int(done.sum())
+    assert_same_store(clean_store, path)
+    with pytest.raises(ValueError, match="tasks_per_worker must be >= 1"):
+        run_sweep(path, spec, _demo_task, progress=False, tasks_per_worker=0)
