@@ -9,10 +9,14 @@ most ``MAX_INSTABILITIES`` per point, largest first). Scenes with several branch
 keep one such group per family in one store. Float arrays have a NaN
 fill value and integer arrays a -128 fill value, so a missing chunk can never read as a valid point.
 The group's attributes hold ``n_points`` (updated after every whole point), ``complete``,
-``stop_reason``, ``message`` and ``events``.
+``stop_reason``, ``message`` and ``events``. ``checksum`` (point, array) holds the CRC-32 of every
+array's row of every point (started from the point's index), written after the rows, in the order of
+the group's ``checksum_arrays`` attribute: a row lost, altered, or swapped with another point's (two
+valid chunks exchanged) no longer matches, and ``n_points`` must agree with the checksum rows.
 
-``load_branch`` validates what it reads (every array has ``n_points`` rows; states, parameters and
-multipliers finite; frequencies and couplings positive; flags in range) and raises ``StoreError``
+``load_branch`` validates what it reads (every array has ``n_points`` rows and matches its checksum;
+states, parameters and multipliers finite; frequencies and couplings positive; flags in range; every
+array the writer writes is checked, integer ones included) and raises ``StoreError``
 naming the store, the array and the point; a damaged point is never returned, so it is never resumed
 from.
 """
@@ -22,6 +26,7 @@ from __future__ import annotations
 import json
 import queue
 import threading
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -34,6 +39,7 @@ from warpchain import store
 from warpchain.store import consolidate, jsonable, open_store, provenance
 
 MAX_INSTABILITIES = 16
+CHECKSUM = "checksum"
 #: consolidated metadata (a convenience for xarray; load_branch never uses it) is refreshed every this
 #: many points and at the end: rewriting it after every point cost 13 ms of a 49 ms append
 CONSOLIDATE_EVERY = 25
@@ -125,6 +131,11 @@ class BranchStore:
             if name.startswith("instability_"):
                 dims[name] = ("point", "instability")
         existing = set(g.array_keys()) if resume else set()
+        if resume and existing and CHECKSUM not in existing:
+            raise StoreError(
+                f"{self.path}/{group}: written before points carried checksums; recompute the branch "
+                "(run the scene without --resume)"
+            )
         self.arrays = {}
         for name, (shape, dtype, fill) in spec.items():
             if name in existing:
@@ -139,9 +150,23 @@ class BranchStore:
                     dimension_names=dims.get(name, ("point",)),
                     overwrite=True,
                 )
+        names = list(self.arrays)
+        if CHECKSUM in existing:
+            self.checksum = g[CHECKSUM]
+        else:
+            self.checksum = g.create_array(
+                CHECKSUM,
+                shape=(0, len(names)),
+                chunks=(1, len(names)),
+                dtype="i8",
+                fill_value=-1,
+                dimension_names=("point", "stored_array"),
+                overwrite=True,
+            )
         if not resume:
             g.attrs.update(
                 {
+                    "checksum_arrays": names,
                     **jsonable(attrs),
                     "complete": False,
                     "n_points": 0,
@@ -245,9 +270,14 @@ class BranchStore:
             "instability_localized": table(lambda i: int(i.localized), INT_FILL),
             "instability_parity": table(lambda i: i.parity, INT_FILL),
         }
+        crc = []
         for name, arr in self.arrays.items():
+            row = np.asarray(values[name], dtype=arr.dtype).reshape(arr.shape[1:])
             arr.resize((n + 1, *arr.shape[1:]))
-            arr[n] = values[name]
+            arr[n] = row
+            crc.append(row_checksum(row, n))
+        self.checksum.resize((n + 1, self.checksum.shape[1]))
+        self.checksum[n] = crc  # after the rows: a point whose rows were not all written does not match
         self.group.attrs.update({"n_points": n + 1})
         if (n + 1) % CONSOLIDATE_EVERY == 0:  # the consolidated view (what xarray reads) lags by < 25 points
             consolidate(self.path)
@@ -269,6 +299,12 @@ class BranchStore:
         self.flush()
         self.group.attrs.update({"complete": False, "stop_reason": "interrupted", "message": why})
         consolidate(self.path)
+
+
+def row_checksum(row: np.ndarray, point: int) -> int:
+    """CRC-32 of point ``point``'s row of an array, as stored (dtype and shape of the array's chunk),
+    started from the point's index: a whole point moved to another index no longer matches either."""
+    return zlib.crc32(np.ascontiguousarray(row).tobytes(), int(point))
 
 
 def _fail(path, group, name, i, what):
@@ -321,6 +357,20 @@ def load_branch(path, group: str = "branch") -> tuple[ChainParams, list, dict]:
     for name in required:
         if name not in a:
             _fail(path, group, name, None, "missing")
+    if CHECKSUM in names and not n <= g[CHECKSUM].shape[0] <= n + 1:  # n + 1: a point being written
+        _fail(path, group, CHECKSUM, None, f"{g[CHECKSUM].shape[0]} rows but the group says {n} points")
+    order = attrs.get("checksum_arrays")
+    if CHECKSUM not in a or not isinstance(order, list) or sorted(order) != sorted(required):
+        _fail(path, group, CHECKSUM, None, "missing, or not naming every array (a store older than checksums?)")
+    for i in range(n):
+        for k, name in enumerate(order):
+            if int(a[CHECKSUM][i][k]) != row_checksum(a[name][i], i):
+                if int(a[CHECKSUM][i][k]) == -1:
+                    _fail(path, group, CHECKSUM, i, "reads as its fill value (a lost chunk)")
+                row = a[name][i]
+                fill = np.isnan(row).all() if row.dtype.kind == "f" else (row == INT_FILL).all()
+                why = "reads as its fill value: a lost chunk" if fill else "an altered or misplaced chunk"
+                _fail(path, group, name, i, f"does not match the point's checksum ({why})")
     N = params.N
     for i in range(n):
         for name in ("K", "omega", "energy", "min_contact"):

@@ -1,4 +1,5 @@
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -87,7 +88,55 @@ def test_a_missing_chunk_is_an_error_not_zeros(k_branch, tmp_path):
     bad = _copy(path, tmp_path / "bad.zarr")
     chunk = next((bad / "branch" / "energy" / "c").iterdir())  # the first point's chunk
     chunk.unlink()
-    with pytest.raises(StoreError, match=r"energy.*point \d+.*not a finite number"):
+    with pytest.raises(StoreError, match=r"energy.*point \d+.*checksum \(reads as its fill value: a lost chunk"):
+        load_branch(bad, "branch")
+
+
+@pytest.mark.parametrize(
+    "damage, match",
+    [
+        ("lose instability_kind unstable", r"'instability_kind', point \d+\): .*lost chunk"),
+        ("lose signature 1", r"'signature', point 1\): .*lost chunk"),
+        ("lose stable 0", r"'stable', point 0\): .*lost chunk"),
+        ("lose checksum 3", r"'checksum', point 3\): reads as its fill value"),
+        ("alter s 4", r"'s', point 4\): .*altered or misplaced"),
+        ("swap energy 0 5", r"'energy', point 0\): .*altered or misplaced"),
+        ("swap all 1 2", r"point 1\): .*altered or misplaced"),
+        ("lower n_points 2", r"'checksum'\): \d+ rows but the group says \d+ points"),
+    ],
+)
+def test_every_array_is_checked_against_its_point(k_branch, tmp_path, damage, match):
+    """Lost chunks of integer arrays, altered values, chunks swapped between points (of one array, or a
+    whole point moved) and an edited point count are refused, naming array and point."""
+    import zarr
+
+    path, branch = k_branch
+    bad = _copy(path, tmp_path / "bad.zarr")
+    what, *args = damage.rsplit(" ", 2) if damage.startswith("swap") else damage.rsplit(" ", 1)
+    g = bad / "branch"
+    if args == ["unstable"]:
+        args = [str(next(i for i, p in enumerate(branch.points) if p.instabilities))]
+    if what.startswith("lose"):
+        chunk = g / what.split()[1] / "c" / args[0]  # point i's chunk (a folder for arrays of more dims)
+        shutil.rmtree(chunk) if chunk.is_dir() else chunk.unlink()
+    elif what == "alter s":
+        zarr.open_array(str(g / "s"), mode="r+")[int(args[0])] = 123.0
+    elif what.startswith("swap"):
+        names = [n.name for n in g.iterdir() if n.is_dir()] if what == "swap all" else [what.split()[1]]
+        i, j = args
+        for name in names:  # chunks equal to the fill value are not written: move what exists
+            a, b, tmp = g / name / "c" / i, g / name / "c" / j, g / name / "c" / "tmp"
+            if a.exists():
+                a.rename(tmp)
+            if b.exists():
+                b.rename(a)
+            if tmp.exists():
+                tmp.rename(b)
+    else:
+        meta = json.loads((g / "zarr.json").read_text())
+        meta["attributes"]["n_points"] -= int(args[0])
+        (g / "zarr.json").write_text(json.dumps(meta))
+    with pytest.raises(StoreError, match=match):
         load_branch(bad, "branch")
 
 
