@@ -1,4 +1,4 @@
-"""Command line: python -m scenarios list | run NAME [...] | paper [...] | compare A B [...]."""
+"""Command line: python -m scenarios list | params [NAME ...] | run NAME [...] | paper [...] | compare A B [...]."""
 
 from __future__ import annotations
 
@@ -18,6 +18,8 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m scenarios", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
     sub.add_parser("list", help="list the scenes")
+    params = sub.add_parser("params", help="a scene's parameters: defaults, types, allowed values (for --set)")
+    params.add_argument("names", nargs="*", metavar="NAME", help="scene names (default: every scene)")
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--out", default="results", type=Path, help="output root (default: results/)")
     common.add_argument("--device", default=None, help="cpu or cuda (default: cuda when Warp sees a GPU)")
@@ -27,7 +29,7 @@ def main(argv=None) -> int:
         action="append",
         default=[],
         metavar="KEY=VALUE",
-        help="override a scene parameter (repeatable), e.g. --set N=401",
+        help="override a scene parameter (repeatable), e.g. --set N=401; 'params NAME' lists them",
     )
     common.add_argument(
         "--resume", action="store_true", help="continue a stored branch (continuation-k, continuation-omega)"
@@ -55,6 +57,13 @@ def main(argv=None) -> int:
     if args.command == "list":
         for name in SCENES:
             print(f"{name:20s} {first_sentence(load_scene(name).__doc__)}")
+        return 0
+    if args.command == "params":
+        unknown = [name for name in args.names if name not in SCENES]
+        if unknown:
+            parser.error(f"unknown scene {unknown[0]!r}; known scenes: {', '.join(SCENES)}")
+        for k, name in enumerate(args.names or SCENES):
+            print(("\n" if k else "") + "\n".join(scene_listing(name)))
         return 0
     if args.command == "compare":  # the rules: scenarios/compare.py
         from .compare import main as compare_main
@@ -145,6 +154,22 @@ def run_in_order(names, out, device, quick: bool, command_line: str) -> int:
     for name, exc in failures:
         print(f"error: scene {name} failed: {type(exc).__name__}: {exc}", file=sys.stderr)
     return 1 if failures else 0
+
+
+def scene_listing(name: str) -> list[str]:
+    """``params NAME``: the scene's parameters (``scenarios._params.listing``) under a header."""
+    from ._params import listing
+
+    module = load_scene(name)
+    cls = getattr(module, "Parameters", None)
+    head = f"{name}: {first_sentence(module.__doc__)}"
+    if cls is None:
+        return [head, "  no parameters"]
+    return [
+        head,
+        f"  python -m scenarios run {name} --set KEY=VALUE (tuples comma-separated); default [--quick's], allowed:",
+        *listing(cls, getattr(module, "QUICK", {})),
+    ]
 
 
 def first_sentence(doc: str | None) -> str:

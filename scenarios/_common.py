@@ -119,34 +119,13 @@ def pyplot():
     return plt
 
 
-def _convert(value: str, kind, key: str):
-    """A --set value as the field's type (int, float, bool, str, tuples of numbers)."""
-    kind = kind if isinstance(kind, str) else getattr(kind, "__name__", str(kind))
-    kind = kind.replace(" ", "")
-    try:
-        if kind in ("int",):
-            return int(value)
-        if kind in ("float",):
-            return float(value)
-        if kind in ("bool",):
-            if value.lower() in ("1", "true", "yes", "on"):
-                return True
-            if value.lower() in ("0", "false", "no", "off"):
-                return False
-            raise ValueError
-        if kind.startswith("tuple"):
-            return tuple(float(v) for v in value.split(",") if v.strip())
-        if kind in ("float|None", "None|float"):
-            return None if value.lower() == "none" else float(value)
-        if kind in ("int|None", "None|int"):
-            return None if value.lower() == "none" else int(value)
-    except ValueError:
-        raise ValueError(f"--set {key}={value}: expected {kind}") from None
-    return value
-
-
 def scene_parameters(module, quick: bool, overrides: dict | None = None):
-    """The scene's ``Parameters`` (quick variant from its ``QUICK`` dict, then ``--set`` overrides)."""
+    """The scene's ``Parameters``: the quick variant from its ``QUICK`` dict, then the overrides (text typed
+    after --set, read as the field's type, or values given through the API), checked against every field's
+    allowed values and the class's rules across fields (``scenarios._params``). A value that is not allowed
+    is a ``ValueError`` of one line naming the parameter, the value and what is allowed."""
+    from ._params import API, SET, UNREADABLE, allowed_of, check, convert, kind_of, refused
+
     cls = getattr(module, "Parameters", None)
     overrides = dict(overrides or {})
     if cls is None:
@@ -157,12 +136,24 @@ def scene_parameters(module, quick: bool, overrides: dict | None = None):
     if quick:
         params = dataclasses.replace(params, **getattr(module, "QUICK", {}))
     fields = {f.name: f for f in dataclasses.fields(cls)}
-    changes = {}
+    changes, given, raw = {}, {}, {}
     for key, value in overrides.items():
         if key not in fields:
             raise ValueError(f"unknown parameter {key!r} for this scene; known: {', '.join(fields)}")
-        changes[key] = _convert(value, fields[key].type, key) if isinstance(value, str) else value
-    return dataclasses.replace(params, **changes)
+        kind = kind_of(fields[key].type)
+        if isinstance(value, str):
+            given[key], raw[key] = SET, value
+            value = convert(value, kind)
+            if value is UNREADABLE:
+                raise refused(f"--set {key}={raw[key]}", allowed_of(fields[key]), kind)
+        else:
+            given[key] = API
+            if kind.base is tuple and isinstance(value, list):
+                value = tuple(value)
+        changes[key] = value
+    params = dataclasses.replace(params, **changes)
+    check(params, given, quick, raw)
+    return params
 
 
 class Refused(ValueError):

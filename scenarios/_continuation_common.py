@@ -7,32 +7,46 @@ import dataclasses
 
 import numpy as np
 
-from continuation.driver import Branch, ContinuationSettings, continuation
+from continuation.driver import AUTO_ALL_SITES, KREIN_MODES, Branch, ContinuationSettings, continuation
 from continuation.floquet import KINDS
 from warpchain import Flow
 
 from ._branch_store import BranchStore, StoreError, load_branch
 from ._common import BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD, PAPER_M, PAPER_N, Refused
+from ._params import Rule, min_steps_per_period, number, param, splitting_methods, stability_dt
 
 
 @dataclasses.dataclass(frozen=True)
 class BranchParameters:
-    """What both branch scenes share; each scene's ``Parameters`` adds its own fields and defaults.
+    """What both branch scenes share; each scene's ``Parameters`` adds its own fields, defaults and ``RULES``.
     Steps and the resolution are in the scene's continuation coordinate."""
 
-    N: int = PAPER_N
-    M: float = PAPER_M
-    ds: float = 0.05
-    ds_max: float = 0.5
-    ds_min: float = 1e-4
-    grow: float = 1.5  # step growth after an easy Newton solve
-    resolution: float = 1e-3  # smallest bracket of a stability change
-    max_newton: int = 8
-    max_points: int | None = None
-    method: str = BREATHER_METHOD
-    steps_per_period: int = BREATHER_STEPS_PER_PERIOD
-    max_seconds: float | None = None  # opt-in time budget
-    bisect_krein: str = "auto"  # opposite-signature passes bisected: auto (all for N <= 64), localized, all, none
+    N: int = param(PAPER_N, "sites of the chain; N = 1 has no odd mode for the multipliers' parity split", ge=2)
+    M: float = param(PAPER_M, "mass ratio m1 / m2", gt=0)
+    ds: float = param(0.05, "first step", gt=0)
+    ds_max: float = param(0.5, "largest step", gt=0)
+    ds_min: float = param(1e-4, "smallest step: a point that fails below it ends the branch", gt=0)
+    grow: float = param(1.5, "step growth after an easy Newton solve", ge=1)
+    resolution: float = param(1e-3, "smallest bracket of a stability change", gt=0)
+    max_newton: int = param(8, "Newton iterations per point", ge=1)
+    max_points: int | None = param(None, "stop after this many points; none: no limit", ge=1)
+    method: str = param(
+        BREATHER_METHOD,
+        "integrator: a palindromic splitting method, as the reduced Floquet analysis needs a time-reversible map",
+        choices=splitting_methods,
+    )
+    steps_per_period: int = param(
+        BREATHER_STEPS_PER_PERIOD,
+        "integrator steps per period, even so that the half period is whole steps",
+        ge=2,
+        multiple_of=2,
+    )
+    max_seconds: float | None = param(None, "opt-in time budget in seconds; none: no limit", gt=0)
+    bisect_krein: str = param(
+        "auto",
+        f"passes of opposite Krein signature bisected: auto is all for N <= {AUTO_ALL_SITES}, predict above",
+        choices=KREIN_MODES,
+    )
 
     def settings(self) -> ContinuationSettings:
         return ContinuationSettings(
@@ -49,6 +63,28 @@ class BranchParameters:
 
     def flow(self, device) -> Flow:
         return Flow(self.method, self.steps_per_period, device)
+
+
+def step_rule(omega: str, K: str) -> Rule:
+    """steps_per_period, method: the step 2 pi / (w_b steps_per_period) below the method's linear stability
+    limit where it is longest against it on the branch: at the frequency ``omega`` and the coupling ``K`` (names
+    of fields)."""
+
+    def needed(P) -> int:
+        return min_steps_per_period(P.method, P.M, getattr(P, K), getattr(P, omega), multiple_of=2)
+
+    def wording(P) -> str:
+        return (
+            f"steps_per_period >= {needed(P)} for {P.method} at w_b = {omega} = {number(getattr(P, omega))} and "
+            f"{K} = {number(getattr(P, K))}: a step below its linear stability limit dt < "
+            f"{number(stability_dt(P.method, P.M, getattr(P, K)))}"
+        )
+
+    return Rule(("steps_per_period", "method", omega, K), wording, lambda P: P.steps_per_period >= needed(P))
+
+
+#: the rules across fields every branch scene has (its ``RULES`` add a ``step_rule`` after its own)
+BRANCH_RULES = (Rule(("ds", "ds_min", "ds_max"), "ds_min <= ds <= ds_max", lambda P: P.ds_min <= P.ds <= P.ds_max),)
 
 
 KIND_COLOURS = {"real_pair": "tab:red", "period_doubling": "tab:purple", "complex_quadruplet": "tab:orange"}

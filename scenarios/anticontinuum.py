@@ -19,20 +19,38 @@ from warpchain import ChainParams
 from warpchain.store import open_store, provenance, read_group, write_table
 
 from ._common import PAPER_M, PAPER_N, PAPER_OMEGA, Context, pyplot, read_summary, save_figure
+from ._params import Rule, anticontinuum_rule, param
 
 
 @dataclasses.dataclass(frozen=True)
 class Parameters:
     """The scene's parameters (``--set KEY=VALUE`` overrides any of them)."""
 
-    M: float = PAPER_M
-    N: int = PAPER_N
-    omega: float = PAPER_OMEGA
-    K_seed: float = 0.01  # coupling stored with the seed (the K = 0 orbit does not depend on it)
-    amplitude_min: float = 1e-3  # frequency-amplitude curve: upper turning points z_max, log-spaced
-    amplitude_max: float = 3.0
-    amplitude_points: int = 60
-    amplitude_stride: int = 1  # use every n-th point of that grid
+    M: float = param(PAPER_M, "mass ratio m1 / m2", gt=0)
+    N: int = param(PAPER_N, "sites of the chain the seed is stored on", ge=1)
+    omega: float = param(PAPER_OMEGA, "frequency w_b of the single-site orbit", gt=0)
+    K_seed: float = param(0.01, "coupling stored with the seed; the K = 0 orbit does not depend on it", ge=0)
+    amplitude_min: float = param(
+        1e-3,
+        "frequency-amplitude curve: the smallest upper turning point z_max, log-spaced to amplitude_max; below "
+        "0.05, where the Lindstedt expansion is checked",
+        gt=0,
+        lt=0.05,
+    )
+    amplitude_max: float = param(
+        3.0, "the largest z_max; the period solver follows a half period up to t = 100 / w0, z_max ~ 35.9", gt=0, le=35
+    )
+    amplitude_points: int = param(60, "points of that grid", ge=2)
+    amplitude_stride: int = param(1, "use every n-th point of that grid", ge=1)
+
+    RULES = (
+        anticontinuum_rule("omega"),
+        Rule(
+            ("amplitude_max", "amplitude_min"),
+            "amplitude_min < amplitude_max",
+            lambda P: P.amplitude_min < P.amplitude_max,
+        ),
+    )
 
 
 QUICK = {"amplitude_stride": 4}

@@ -68,6 +68,7 @@ from ._common import (
     read_summary,
     save_figure,
 )
+from ._params import Rule, min_steps_per_period, number, param, splitting_methods, stability_dt
 from ._sweep import SweepSpec, Variable, run_sweep
 
 GROUP = "observables"
@@ -89,37 +90,92 @@ GRIDS = {
 }
 
 
+def _stable_steps(method: str) -> int:
+    """The fewest steps per period T = 2 pi / 1.01 below the method's linear stability limit on the chain."""
+    return min_steps_per_period(method, PAPER_M, PAPER_K, PAPER_OMEGA)
+
+
 @dataclasses.dataclass(frozen=True)
 class Parameters:
     """The scene's parameters (``--set KEY=VALUE`` overrides any of them)."""
 
-    grid: str = (
-        "cpu"  # quick (--quick), cpu (default: 8 A x 4 W x 5 damping x 16 = 2 560 lattices), full (GPU: 100 320)
+    grid: str = param(
+        "cpu",
+        "named grid of A, W, damping and realisations: quick is --quick's; cpu, the default, 8 A x 4 W x 5 damping x "
+        "16 = 2 560 lattices; full, for GPUs, 100 320",
+        choices=GRIDS,
     )
-    realisations: int = 0  # 0: the grid's own count
-    periods: int = 200  # of T = 2 pi / 1.01, as Fig. 9
-    steps_per_period: int = 32
-    method: str = "kahan6"  # Kahan-Li order 6, 9 force evaluations per step (see the module docstring)
-    impulse: str = "velocity"  # velocity | displacement (of the substrate)
-    noise: float = 0.02  # relative per-site perturbation of the impulse
-    seed: int = 20261122
-    threshold: float = 0.1  # envelope |z| above which a peak counts as a breather
-    radius: int = 10  # a peak is the largest envelope within this many sites, and localized within them:
-    contrast: float = 0.5  # the envelope falls to this fraction of the peak on both sides
-    final_frames: int = 10  # periods over which the final count is a median
-    persist_frames: int = 3  # time to breakup: the first of this many periods in a row with >= 2 peaks
-    velocity_lag: int = 4  # periods between the envelope profiles that give the drift velocities
-    max_speed: float = 0.25  # sites per unit time: the farthest a peak is matched over the lag
-    max_peaks: int = 24  # peaks stored per lattice at the end
-    check_method: str = "kahan8"  # the accuracy re-run of one W column (lossless) ...
-    check_steps_per_period: int = 64  # ... with this many steps per period
-    fields: bool = True  # full fields of two representative lattices
-    checks: bool = True  # the accuracy checks (zero damping, DOP853, step)
-    mi_min_width: float = 20.0  # spots at least this wide (sites) are compared with the MI rate of a wide packet
-    workers: int = 0  # >0: a local Dask cluster of this many workers
-    scheduler: str = ""  # address of a running Dask scheduler
-    gpus: int = 0  # GPUs the workers share (cuda:k, k = worker ordinal mod gpus); 0 with a CUDA device: 1
-    fresh: bool = False  # start the sweep over instead of resuming
+    realisations: int = param(0, "realisations per cell; 0: the grid's own count", ge=0)
+    periods: int = param(200, "periods of T = 2 pi / 1.01 simulated, as Fig. 9", ge=1)
+    steps_per_period: int = param(32, "integrator steps per period", ge=1)
+    method: str = param(
+        "kahan6",
+        "integrator, a splitting method as observe runs: kahan6 is Kahan-Li order 6, 9 force evaluations per step",
+        choices=splitting_methods,
+    )
+    impulse: str = param(
+        "velocity",
+        "what the Gaussian impulse sets: the substrate's velocity or displacement",
+        choices=("velocity", "displacement"),
+    )
+    noise: float = param(0.02, "relative per-site perturbation of the impulse", ge=0, le=1)
+    seed: int = param(20261122, "seed of the noise: realisation r draws from numpy's default_rng of [seed, r]", ge=0)
+    threshold: float = param(0.1, "envelope |z| above which a peak counts as a breather", gt=0)
+    radius: int = param(
+        10, "a peak is the largest envelope within this many sites, and localized within them", ge=1, lt=PAPER_N
+    )
+    contrast: float = param(0.5, "localized: the envelope falls to this fraction of the peak on both sides", gt=0, le=1)
+    final_frames: int = param(10, "periods over which the final count is a median", ge=1)
+    persist_frames: int = param(3, "time to breakup: the first of this many periods in a row with >= 2 peaks", ge=1)
+    velocity_lag: int = param(4, "periods between the envelope profiles that give the drift velocities", ge=1)
+    max_speed: float = param(0.25, "sites per unit time: the farthest a peak is matched over the lag", gt=0)
+    max_peaks: int = param(24, "peaks stored per lattice at the end", ge=1)
+    check_method: str = param(
+        "kahan8", "integrator of the accuracy re-run of one lossless W column", choices=splitting_methods
+    )
+    check_steps_per_period: int = param(64, "steps per period of that re-run", ge=1)
+    fields: bool = param(True, "store the full fields of two representative lattices")
+    checks: bool = param(True, "run the accuracy checks: zero damping, DOP853, the step")
+    mi_min_width: float = param(
+        20.0, "spots at least this wide, in sites, are compared with the MI rate of a wide packet", ge=0
+    )
+    workers: int = param(0, "a local Dask cluster of this many workers; 0: none", ge=0)
+    scheduler: str = param("", "address of a running Dask scheduler, e.g. tcp://HOST:8786; empty: none")
+    gpus: int = param(0, "GPUs the workers share, cuda:k for worker k mod gpus; 0 with a CUDA device: 1", ge=0)
+    fresh: bool = param(False, "start the sweep over instead of resuming it")
+
+    RULES = (
+        *(
+            Rule((name, "periods"), f"{name} <= periods", lambda P, name=name: getattr(P, name) <= P.periods)
+            for name in ("final_frames", "persist_frames", "velocity_lag")
+        ),
+        Rule(
+            ("steps_per_period", "method"),
+            lambda P: (
+                f"steps_per_period >= {_stable_steps(P.method)}: the step T / steps_per_period below "
+                f"{P.method}'s linear stability limit {number(stability_dt(P.method, PAPER_M, PAPER_K))}"
+            ),
+            lambda P: P.steps_per_period >= _stable_steps(P.method),
+        ),
+        Rule(
+            ("check_steps_per_period", "check_method", "checks"),
+            lambda P: (
+                f"check_steps_per_period >= {_stable_steps(P.check_method)} with checks on: the step below "
+                f"{P.check_method}'s linear stability limit {number(stability_dt(P.check_method, PAPER_M, PAPER_K))}"
+            ),
+            lambda P: not P.checks or P.check_steps_per_period >= _stable_steps(P.check_method),
+        ),
+        Rule(
+            ("steps_per_period", "fields"),
+            "steps_per_period a multiple of 4 with fields on: the fields are stored every quarter period",
+            lambda P: not P.fields or P.steps_per_period % 4 == 0,
+        ),
+        Rule(
+            ("workers", "scheduler"),
+            "workers = 0 or no scheduler: a local cluster or a running one, not both",
+            lambda P: not (P.workers and P.scheduler),
+        ),
+    )
 
 
 QUICK = {"grid": "quick", "periods": 80, "final_frames": 5, "check_steps_per_period": 32}

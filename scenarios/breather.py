@@ -35,17 +35,26 @@ from ._common import (
     read_summary,
     save_figure,
 )
+from ._params import param
 
 
 @dataclasses.dataclass(frozen=True)
 class Parameters:
     """The scene's parameters (``--set KEY=VALUE`` overrides any of them)."""
 
-    periods: int = 100  # direct-simulation check with the breather's own integrator
-    dop853_periods: int = 100  # independent scipy check
-    fd_steps: tuple = (1e-3, 1e-5, 1e-7, 1e-9)  # finite-difference steps h of the Jacobian comparison
-    contact_loss_scale: float = 3.0  # the breather profile scaled up until resonators lose contact
-    general_seed_near_solution: bool = False  # seed the general formulation next to the solution, not from NLS
+    periods: int = param(100, "periods of the direct-simulation check with the breather's own integrator", ge=1)
+    dop853_periods: int = param(100, "periods of the independent scipy DOP853 check", ge=1)
+    fd_steps: tuple[float, ...] = param(
+        (1e-3, 1e-5, 1e-7, 1e-9),
+        "finite-difference steps h of the Jacobian comparison; contact is lost at a displacement of 1",
+        gt=0,
+        lt=1,
+        length=(1, None),
+    )
+    contact_loss_scale: float = param(3.0, "the breather profile scaled up until resonators lose contact", gt=1)
+    general_seed_near_solution: bool = param(
+        False, "seed the general formulation next to the solution, not from the NLS profile"
+    )
 
 
 QUICK = {"dop853_periods": 10, "general_seed_near_solution": True}

@@ -29,13 +29,15 @@ from warpchain import ChainParams, energy
 from ._branch_store import load_branch
 from ._common import (
     PAPER_K,
+    PAPER_N,
     PAPER_OMEGA,
     Context,
     pyplot,
     read_summary,
     save_figure,
 )
-from ._continuation_common import BranchParameters, branch_summary, run_branch, stability_strip
+from ._continuation_common import BRANCH_RULES, BranchParameters, branch_summary, run_branch, stability_strip, step_rule
+from ._params import Rule, anticontinuum_rule, param
 
 RESUMABLE = True
 
@@ -44,14 +46,35 @@ RESUMABLE = True
 class Parameters(BranchParameters):
     """The scene's parameters (``--set KEY=VALUE`` overrides any of them); steps in log10 K."""
 
-    omega: float = PAPER_OMEGA
-    K_start: float = 0.01
-    K_end: float = PAPER_K
-    profile_K: tuple = (5.0, 20.0, PAPER_K)
-    ds: float = 0.15
-    ds_max: float = 0.3
-    resolution: float = 1e-3  # in log10 K: 0.23 % in K
-    locate_first: int = 1  # symmetry-breaking points located by the secant (the rest: their brackets)
+    N: int = param(PAPER_N, "sites of the chain; the figure draws the 31 central ones", ge=31)
+    omega: float = param(PAPER_OMEGA, "breather frequency w_b", gt=0)
+    K_start: float = param(0.01, "coupling of the anti-continuum seed, where the branch starts", gt=0)
+    K_end: float = param(PAPER_K, "coupling where the branch ends", gt=0)
+    profile_K: tuple[float, ...] = param(
+        (5.0, 20.0, PAPER_K), "couplings the branch lands on exactly: the profiles I, II, III", gt=0, length=(1, 3)
+    )
+    ds: float = param(0.15, "first step, in log10 K", gt=0)
+    ds_max: float = param(0.3, "largest step, in log10 K", gt=0)
+    resolution: float = param(1e-3, "smallest bracket of a stability change, in log10 K: 1e-3 is 0.23 % in K", gt=0)
+    locate_first: int = param(
+        1, "symmetry-breaking points located by the secant; the rest are given by their brackets", ge=0
+    )
+
+    RULES = (
+        Rule(
+            ("K_start", "K_end"),
+            "K_start < K_end: the branch goes up from the anti-continuum seed",
+            lambda P: P.K_start < P.K_end,
+        ),
+        Rule(
+            ("profile_K", "K_start", "K_end"),
+            "every profile_K in (K_start, K_end], where the branch lands on it",
+            lambda P: all(P.K_start < k <= P.K_end for k in P.profile_K),
+        ),
+        anticontinuum_rule("omega"),
+        *BRANCH_RULES,
+        step_rule("omega", "K_end"),  # the longest step against the limit: at the largest K, the lowest w_b
+    )
 
 
 QUICK = {"N": 101, "ds": 0.5, "ds_max": 1.0, "resolution": 1e-2}

@@ -35,7 +35,16 @@ from ._common import (
     read_summary,
     save_figure,
 )
-from ._continuation_common import KIND_COLOURS, BranchParameters, branch_summary, run_branch, stability_strip
+from ._continuation_common import (
+    BRANCH_RULES,
+    KIND_COLOURS,
+    BranchParameters,
+    branch_summary,
+    run_branch,
+    stability_strip,
+    step_rule,
+)
+from ._params import Rule, number, param
 
 RESUMABLE = True
 
@@ -44,11 +53,24 @@ RESUMABLE = True
 class Parameters(BranchParameters):
     """The scene's parameters (``--set KEY=VALUE`` overrides any of them); steps in arclength."""
 
-    K: float = PAPER_K
-    omega_min: float = 0.8  # a floor; the branch is expected to stop at contact loss first
-    ds: float = 0.05  # arclength in the weighted norm (theta = 1 / gap width)
-    ds_max: float = 0.6
-    grow: float = 1.3
+    K: float = param(PAPER_K, "coupling", gt=0)
+    omega_min: float = param(0.8, "a floor on w_b; the branch is expected to stop at contact loss first", gt=0)
+    ds: float = param(0.05, "first step: arclength in the weighted norm, theta = 1 / gap width", gt=0)
+    ds_max: float = param(0.6, "largest step, arclength", gt=0)
+    grow: float = param(1.3, "step growth after an easy Newton solve", ge=1)
+
+    RULES = (
+        Rule(
+            ("omega_min", "K", "M"),
+            lambda P: (
+                f"omega_min < {number(band_edges(P.M, P.K)['optical_bottom'])}, the optical band bottom of M "
+                "and K: the branch starts at the lowest optical eigenmode and goes down"
+            ),
+            lambda P: P.omega_min < band_edges(P.M, P.K)["optical_bottom"],
+        ),
+        *BRANCH_RULES,
+        step_rule("omega_min", "K"),  # the longest step against the limit: at the largest K, the lowest w_b
+    )
 
 
 QUICK = {"N": 101, "omega_min": 1.005, "resolution": 1e-2}

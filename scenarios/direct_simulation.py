@@ -28,6 +28,7 @@ from warpchain import ChainParams, simulate
 from warpchain.store import FieldWriter, open_store, provenance, read_group
 
 from ._common import (
+    BREATHER_STEPS_PER_PERIOD,
     PAPER_K,
     PAPER_M,
     PAPER_N,
@@ -38,6 +39,7 @@ from ._common import (
     read_summary,
     save_figure,
 )
+from ._params import param
 
 CASES = ("eigenmode-low", "breather-low", "eigenmode-high", "breather-high")  # Fig. 9 (a)-(d)
 
@@ -46,8 +48,13 @@ CASES = ("eigenmode-low", "breather-low", "eigenmode-high", "breather-high")  # 
 class Parameters:
     """The scene's parameters (``--set KEY=VALUE`` overrides any of them)."""
 
-    periods: int = 200  # breather periods T = 2 pi / w_b simulated
-    frames_per_period: int = 16  # stored frames per period: enough for the per-period envelope of the maps
+    periods: int = param(200, "breather periods T = 2 pi / w_b simulated", ge=1)
+    frames_per_period: int = param(
+        16,
+        f"stored frames per period: a divisor of the breather's {BREATHER_STEPS_PER_PERIOD} steps per period, "
+        "enough for the per-period envelope of the maps",
+        choices=tuple(n for n in range(1, BREATHER_STEPS_PER_PERIOD + 1) if BREATHER_STEPS_PER_PERIOD % n == 0),
+    )
 
 
 QUICK = {"periods": 20}

@@ -27,6 +27,7 @@ from warpchain import physical
 from warpchain.store import open_store, provenance, write_table
 
 from ._common import PAPER_K, PAPER_M, PAPER_N, Context, pyplot, read_summary, save_figure
+from ._params import param
 
 MATERIALS = physical.SILICA_SPHERES_ON_GLASS
 SENSITIVITY_PARAMETERS = (
@@ -43,13 +44,13 @@ SENSITIVITY_PARAMETERS = (
 class Parameters:
     """The scene's parameters (``--set KEY=VALUE`` overrides any of them)."""
 
-    M: float = PAPER_M
-    K: float = PAPER_K
-    N: int = PAPER_N  # sites of the fixed-end chain whose mode frequencies are listed
-    bloch_points: int = 801  # Bloch numbers q over [0, pi]
-    sensitivity_step: float = 0.05  # relative change of each assumed value
-    k_max_over_k_T: float = 2.0  # Fig. 2 wavenumber range, in units of the c_T crossing
-    wavenumber_points: int = 400  # Fig. 2 wavenumbers
+    M: float = param(PAPER_M, "mass ratio m1 / m2", gt=0)
+    K: float = param(PAPER_K, "coupling k1 / k2", gt=0)
+    N: int = param(PAPER_N, "sites of the fixed-end chain whose mode frequencies are listed", ge=1)
+    bloch_points: int = param(801, "Bloch numbers q over [0, pi]", ge=2)
+    sensitivity_step: float = param(0.05, "relative change of each assumed value, up and down", gt=0, lt=1)
+    k_max_over_k_T: float = param(2.0, "Fig. 2 wavenumber range, in units of the c_T crossing", gt=0)
+    wavenumber_points: int = param(400, "Fig. 2 wavenumbers", ge=2)
 
 
 QUICK: dict = {}  # the full scene already takes seconds

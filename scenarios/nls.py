@@ -15,7 +15,7 @@ import dataclasses
 import numpy as np
 
 from continuation import find_breather, nls_breather, nls_seed, require
-from warpchain import ChainParams, energy
+from warpchain import ChainParams, band_edges, energy
 from warpchain.store import open_store, provenance, read_group, write_table
 
 from ._common import (
@@ -31,13 +31,24 @@ from ._common import (
     read_summary,
     save_figure,
 )
+from ._params import param
+
+
+#: the paper chain's band gap: a breather's frequency lies in it, the NLS one below the optical band bottom w0
+GAP = band_edges(PAPER_M, PAPER_K)
 
 
 @dataclasses.dataclass(frozen=True)
 class Parameters:
     """The scene's parameters (``--set KEY=VALUE`` overrides any of them)."""
 
-    sweep: tuple = (1.016, 1.015, 1.0125, 1.01, 1.0075, 1.005)  # w_b towards the optical band edge w0 = 1.01653
+    sweep: tuple[float, ...] = param(
+        (1.016, 1.015, 1.0125, 1.01, 1.0075, 1.005),
+        "frequencies w_b of the NLS comparison, towards the optical band edge w0 = 1.01653: in the gap",
+        gt=GAP["acoustic_top"],
+        lt=GAP["optical_bottom"],
+        length=(1, None),
+    )
 
 
 QUICK = {"sweep": (1.014, 1.01)}

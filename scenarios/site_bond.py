@@ -37,6 +37,7 @@ import numpy as np
 from continuation import anticontinuum_seed, find_breather
 from continuation import bifurcation as bf
 from continuation.branch import CouplingAxis, NaturalParameter, PseudoArclength
+from continuation.driver import KREIN_MODES
 from continuation.floquet import KINDS, energy_centre
 from warpchain import ChainParams
 from warpchain.ensemble import usable_cores
@@ -44,8 +45,9 @@ from warpchain.reference import solve_ivp_reference
 from warpchain.store import StoreError, open_store, write_table
 
 from ._branch_store import load_branch
-from ._common import PAPER_K, PAPER_OMEGA, Context, pyplot, read_summary, save_figure
-from ._continuation_common import KIND_COLOURS, BranchParameters, branch_summary, run_branch
+from ._common import PAPER_K, PAPER_N, PAPER_OMEGA, Context, pyplot, read_summary, save_figure
+from ._continuation_common import BRANCH_RULES, KIND_COLOURS, BranchParameters, branch_summary, run_branch, step_rule
+from ._params import Rule, anticontinuum_rule, param
 
 FAMILIES = ("site", "bond-in-phase", "bond-out-of-phase", "asymmetric")
 BIFURCATION_KINDS = ("symmetry_breaking_pitchfork", "branch_point", "period_doubling", "krein_collision")
@@ -55,29 +57,93 @@ BIFURCATION_KINDS = ("symmetry_breaking_pitchfork", "branch_point", "period_doub
 class Parameters(BranchParameters):
     """The scene's parameters (``--set KEY=VALUE``); steps and resolution in log10 K."""
 
-    omega: float = PAPER_OMEGA
-    K_start: float = 0.01
-    K_end: float = PAPER_K
-    ds: float = 0.15
-    ds_max: float = 0.3
-    fine_from_K: float = 5.0  # between these K, steps of at most ds_fine:
-    fine_to_K: float = 30.0  # (the exchanges located by default lie below locate_K_max)
-    ds_fine: float = 0.05  # the site/bond exchanges of stability come every ~0.07-0.12 in log10 K
-    resolution: float = 0.3  # no bisection: branch points are located by Brent's method instead
-    bisect_krein: str = "none"  # the phonon foam is the continuation scenes' business
-    multiplier_floor: float = 0.1
-    out_of_phase_ds_max: float = 0.3  # arclength; that family only has to be followed to its fold
-    locate_atol: float = 1e-8  # in log10 K (2.3e-8 relative in K; the noise of mu limits it more, see K_error)
-    pn_from_K: float = 1.0  # the barrier is solved at the site family's points from here on (and at pn_K)
-    locate_K_max: float = 30.0  # branch points above this are reported with their bracket, not located
-    pn_K: tuple = (5.0, 20.0, PAPER_K)
-    switch_amplitude: float = 0.02  # along the unit null vector (positions)
-    sqrt_amplitudes: tuple = (0.005, 0.01, 0.02, 0.04)
-    asymmetric_ds: float = 0.02  # arclength steps of the asymmetric family
-    asymmetric_max_points: int = 60
-    finite_size_K: tuple = (10.0, PAPER_K)
-    dop853_rtol: float = 1e-11
-    workers: int = 0  # host threads for the branch-point and finite-size solves (0: one per 2 cores, at most 4)
+    N: int = param(PAPER_N, "sites of the chain; the figure draws sites c - 8 .. c + 9 around the centre c", ge=19)
+    omega: float = param(PAPER_OMEGA, "breather frequency w_b", gt=0)
+    K_start: float = param(0.01, "coupling of the anti-continuum seeds, where the families start", gt=0)
+    K_end: float = param(PAPER_K, "coupling where the families end", gt=0)
+    ds: float = param(0.15, "first step, in log10 K", gt=0)
+    ds_max: float = param(0.3, "largest step, in log10 K", gt=0)
+    fine_from_K: float = param(5.0, "from this K to fine_to_K, steps of at most ds_fine", gt=0)
+    fine_to_K: float = param(30.0, "end of the fine steps; the exchanges located by default lie below it", gt=0)
+    ds_fine: float = param(
+        0.05, "largest step in the fine window, in log10 K: the site/bond exchanges come every ~0.07-0.12", gt=0
+    )
+    resolution: float = param(
+        0.3, "smallest bracket of a stability change, in log10 K: no bisection, Brent's method locates instead", gt=0
+    )
+    bisect_krein: str = param(
+        "none",
+        "passes of opposite Krein signature bisected: the phonon foam is the continuation scenes'",
+        choices=KREIN_MODES,
+    )
+    multiplier_floor: float = param(0.1, "floor of the spectral step bound, continuation.driver", gt=0)
+    out_of_phase_ds_max: float = param(
+        0.3, "largest arclength step of the bond-out-of-phase family, followed only to its fold", gt=0
+    )
+    locate_atol: float = param(
+        1e-8,
+        "tolerance of a located branch point, in log10 K: 2.3e-8 relative in K; the noise of mu limits it more",
+        gt=0,
+    )
+    pn_from_K: float = param(1.0, "the barrier is solved at the site family's points from this K on, and at pn_K", gt=0)
+    locate_K_max: float = param(30.0, "branch points above this K are reported with their bracket, not located", gt=0)
+    pn_K: tuple[float, ...] = param(
+        (5.0, 20.0, PAPER_K), "couplings where the Peierls-Nabarro barrier is reported", gt=0
+    )
+    switch_amplitude: float = param(
+        0.02,
+        "step onto the asymmetric family along the unit null vector of positions; contact is lost at 1",
+        gt=0,
+        lt=1,
+    )
+    sqrt_amplitudes: tuple[float, ...] = param(
+        (0.005, 0.01, 0.02, 0.04),
+        "amplitudes along the null vector that measure the square-root law by a fit: two or more, distinct",
+        gt=0,
+        lt=1,
+        length=(2, None),
+    )
+    asymmetric_ds: float = param(
+        0.02, "arclength steps of the asymmetric family: at most 4 x this, at least its ds_min 1e-6", ge=1e-6
+    )
+    asymmetric_max_points: int = param(60, "points of the asymmetric family at most", ge=1)
+    finite_size_K: tuple[float, ...] = param(
+        (10.0, PAPER_K), "couplings of the finite-size check: the site orbit re-solved on 2N - 1 sites", gt=0
+    )
+    dop853_rtol: float = param(1e-11, "relative tolerance of the DOP853 check of the asymmetric family", gt=0, lt=1)
+    workers: int = param(
+        0, "host threads for the branch-point and finite-size solves; 0: one per 2 cores, at most 4", ge=0
+    )
+
+    RULES = (
+        Rule(
+            ("K_start", "K_end"),
+            "K_start < K_end: the families go up from the anti-continuum seeds",
+            lambda P: P.K_start < P.K_end,
+        ),
+        Rule(("fine_from_K", "fine_to_K"), "fine_from_K < fine_to_K", lambda P: P.fine_from_K < P.fine_to_K),
+        *(
+            Rule(
+                (name, "K_start", "K_end"),
+                f"every {name} in (K_start, K_end], where the families land on it",
+                lambda P, name=name: all(P.K_start < k <= P.K_end for k in getattr(P, name)),
+            )
+            for name in ("pn_K", "finite_size_K")
+        ),
+        Rule(
+            ("sqrt_amplitudes",),
+            "distinct sqrt_amplitudes: a line is fitted through them",
+            lambda P: len(set(P.sqrt_amplitudes)) == len(P.sqrt_amplitudes),
+        ),
+        anticontinuum_rule("omega"),
+        *BRANCH_RULES,
+        Rule(
+            ("ds", "ds_min", "out_of_phase_ds_max"),
+            "ds_min <= ds <= out_of_phase_ds_max, that family's largest step",
+            lambda P: P.ds_min <= P.ds <= P.out_of_phase_ds_max,
+        ),
+        step_rule("omega", "K_end"),
+    )
 
     def settings(self):
         return super().settings().replace(multiplier_floor=self.multiplier_floor)

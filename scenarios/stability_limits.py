@@ -33,12 +33,14 @@ from ._common import (
     PAPER_K,
     PAPER_M,
     PAPER_N,
+    PAPER_OMEGA,
     Context,
     paper_breather,
     pyplot,
     read_summary,
     save_figure,
 )
+from ._params import Rule, number, param
 
 #: steps per period of the observed-order fits, per method (not a ``Parameters`` field: one tuple per method)
 ORDER_STEPS_PER_PERIOD = {
@@ -55,14 +57,23 @@ ORDER_STEPS_PER_PERIOD = {
 class Parameters:
     """The scene's parameters (``--set KEY=VALUE`` overrides any of them)."""
 
-    limit_steps: int = 3000  # steps a run must survive at a measured stability limit
-    bisections: int = 12  # bisection steps of each measured limit
-    smooth_periods: int = 5  # observed orders and float32: the exact breather over this many periods
-    rough_periods: int = 2  # observed orders with contact loss: the large eigenmode over these
-    rough_scale: float = 2.5  # that eigenmode's amplitude, in units of the exact breather's v_101
-    newton_step: float = 0.002  # fixed-frequency Newton: decrement of w_b
-    newton_floor: float = 0.95  # lowest w_b tried
-    float32_newton_iterations: int = 6
+    limit_steps: int = param(3000, "steps a run must survive at a measured stability limit", ge=1)
+    bisections: int = param(12, "bisection steps of each measured limit", ge=1)
+    smooth_periods: int = param(5, "periods of the exact breather for the observed orders and float32", ge=1)
+    rough_periods: int = param(2, "periods of the large eigenmode for the observed orders with contact loss", ge=1)
+    rough_scale: float = param(2.5, "that eigenmode's amplitude, in units of the exact breather's v_101", gt=0)
+    newton_step: float = param(0.002, "fixed-frequency Newton: decrement of w_b from the breather's 1.01", gt=0)
+    newton_floor: float = param(0.95, "fixed-frequency Newton: the lowest w_b tried", gt=0)
+    float32_newton_iterations: int = param(6, "Newton iterations in float32", ge=1)
+
+    RULES = (
+        Rule(
+            ("newton_floor", "newton_step"),
+            f"newton_floor <= {number(PAPER_OMEGA)} - newton_step: Newton goes down from the breather's w_b and "
+            "tries one frequency at least",
+            lambda P: P.newton_floor <= PAPER_OMEGA - P.newton_step,
+        ),
+    )
 
 
 QUICK = {"bisections": 6, "newton_floor": 0.99, "float32_newton_iterations": 3}

@@ -53,31 +53,64 @@ from warpchain.store import device_description, open_store, provenance, read_gro
 
 from ._baselines import cupy_variant, cupy_verlet_runner, jax_verlet_runner
 from ._common import PAPER_K, PAPER_M, PAPER_N, Context, paper_breather, pyplot, read_summary, save_figure
+from ._params import Rule, number, param, stability_dt
 
 #: an H100/H200-class SM: registers, resident threads, resident blocks (for the theoretical occupancy)
 CUDA_SM_REGISTERS, CUDA_SM_THREADS, CUDA_SM_BLOCKS = 65536, 2048, 32
+
+
+def _shortest_limit() -> float:
+    """The smallest linear stability limit on dt over the registry's methods, on the paper chain: every
+    method is timed at ``dt``."""
+    return min(stability_dt(name, PAPER_M, PAPER_K) for name in METHODS)
 
 
 @dataclasses.dataclass(frozen=True)
 class Parameters:
     """The scene's parameters (``--set KEY=VALUE`` overrides any of them)."""
 
-    batches_cpu: tuple = (1, 16, 64, 256, 805, 4096)  # lattices per batch, on a CPU
-    batches_gpu: tuple = (1, 16, 64, 256, 805, 4096, 32768)  # and on a GPU
-    all_methods_at: tuple = (805, 32768)  # batches where every method is timed (those present)
-    thread_layout_max_batch_gpu: int = 4096  # the thread-per-lattice layout is slow on a GPU; enough to show it
-    numpy_max_batch: int = 805
-    dt: float = 0.1
-    seconds: float = 0.4  # target duration of one timed run
-    max_steps: int = 2_000_000
-    repeats: int = 3  # best of, for the ensemble timings
-    monodromy: bool = True  # time the monodromy and a Newton iteration (needs the paper breather)
-    monodromy_repeats: int = 3  # best of, for those
-    simulate_batches_cpu: tuple = (64, 805)  # simulate() end to end, on a CPU
-    simulate_batches_gpu: tuple = (805, 8192, 32768)  # and on a GPU
-    simulate_steps: int = 2000
-    record_every: int = 20
-    simulate_repeats: int = 3  # best of (after one untimed call)
+    batches_cpu: tuple[int, ...] = param(
+        (1, 16, 64, 256, 805, 4096), "lattices per batch, on a CPU", ge=1, length=(1, None)
+    )
+    batches_gpu: tuple[int, ...] = param(
+        (1, 16, 64, 256, 805, 4096, 32768), "lattices per batch, on a GPU", ge=1, length=(1, None)
+    )
+    all_methods_at: tuple[int, ...] = param(
+        (805, 32768), "batches where every method is timed, those present; the last batch always", ge=1
+    )
+    thread_layout_max_batch_gpu: int = param(
+        4096, "largest batch timed in the thread-per-lattice layout on a GPU, slow there", ge=0
+    )
+    numpy_max_batch: int = param(805, "largest batch the numpy reference is timed at", ge=0)
+    dt: float = param(0.1, "time step of every timed run", gt=0)
+    seconds: float = param(0.4, "target duration of one timed run", gt=0)
+    max_steps: int = param(2_000_000, "most steps of one timed run", ge=1)
+    repeats: int = param(3, "best of, for the ensemble timings", ge=1)
+    monodromy: bool = param(True, "time the monodromy and a Newton iteration; needs the paper breather")
+    monodromy_repeats: int = param(3, "best of, for those", ge=1)
+    simulate_batches_cpu: tuple[int, ...] = param((64, 805), "batches of simulate() end to end, on a CPU", ge=1)
+    simulate_batches_gpu: tuple[int, ...] = param(
+        (805, 8192, 32768), "batches of simulate() end to end, on a GPU", ge=1
+    )
+    simulate_steps: int = param(2000, "steps of each simulate() run", ge=1)
+    record_every: int = param(20, "steps between recorded frames of simulate()", ge=1)
+    simulate_repeats: int = param(3, "best of, after one untimed call", ge=1)
+
+    RULES = (
+        Rule(
+            ("dt",),
+            lambda P: (
+                f"dt < {number(_shortest_limit())}, the smallest linear stability limit of the methods on the "
+                "paper chain: every method is timed"
+            ),
+            lambda P: P.dt < _shortest_limit(),
+        ),
+        Rule(
+            ("record_every", "simulate_steps"),
+            "record_every <= simulate_steps: a frame is recorded within the run",
+            lambda P: P.record_every <= P.simulate_steps,
+        ),
+    )
 
 
 QUICK = {

@@ -22,21 +22,52 @@ from continuation import eigenmode_seed
 from warpchain import METHODS, ChainParams, reference, simulate, stability_limit
 from warpchain.store import open_store, provenance, read_group, write_table
 
-from ._common import PAPER_K, PAPER_M, PAPER_N, Context, paper_breather, pyplot, read_summary, save_figure
+from ._common import PAPER_K, PAPER_M, PAPER_N, PAPER_OMEGA, Context, paper_breather, pyplot, read_summary, save_figure
+from ._params import Rule, min_steps_per_period, param
+
+
+def _numpy_steps() -> int:
+    """The fewest steps per breather period below every method's linear stability limit: the numpy
+    reference runs every method at each of ``numpy_steps_per_period`` (the Warp runs skip unstable steps)."""
+    return max(min_steps_per_period(name, PAPER_M, PAPER_K, PAPER_OMEGA) for name in METHODS)
 
 
 @dataclasses.dataclass(frozen=True)
 class Parameters:
     """The scene's parameters (``--set KEY=VALUE`` overrides any of them)."""
 
-    smooth_periods: int = 20  # the exact breather, over this many periods
-    contact_loss_periods: int = 5
-    contact_loss_scale: float = 2.5  # eigenmode amplitude, in units of the exact breather's v_101
-    steps_per_period: tuple = (24, 32, 48, 64, 96, 128, 192, 256, 384, 512, 768, 1024)  # Warp methods
-    numpy_steps_per_period: tuple = (64, 256)  # numpy reference
-    dop853_rtol: tuple = (1e-5, 1e-7, 1e-9, 1e-11)
-    targets: tuple = (1e-4, 1e-6, 1e-8, 1e-9, 1e-10)  # errors at which the cheapest implementation is reported
-    repeats: int = 2  # best of, for the timings
+    smooth_periods: int = param(20, "periods of the exact breather, the smooth case", ge=1)
+    contact_loss_periods: int = param(5, "periods of the contact-loss case", ge=1)
+    contact_loss_scale: float = param(
+        2.5, "that case's eigenmode amplitude, in units of the exact breather's v_101", gt=0
+    )
+    steps_per_period: tuple[int, ...] = param(
+        (24, 32, 48, 64, 96, 128, 192, 256, 384, 512, 768, 1024),
+        "steps per period of the Warp methods; steps above a method's stability limit are skipped",
+        ge=1,
+        length=(1, None),
+    )
+    numpy_steps_per_period: tuple[int, ...] = param(
+        (64, 256), "steps per period of the numpy reference, every method at each", ge=1
+    )
+    dop853_rtol: tuple[float, ...] = param(
+        (1e-5, 1e-7, 1e-9, 1e-11), "relative tolerances of scipy's DOP853", gt=0, lt=1
+    )
+    targets: tuple[float, ...] = param(
+        (1e-4, 1e-6, 1e-8, 1e-9, 1e-10), "relative errors at which the cheapest implementation is reported", gt=0
+    )
+    repeats: int = param(2, "best of, for the timings", ge=1)
+
+    RULES = (
+        Rule(
+            ("numpy_steps_per_period",),
+            lambda P: (
+                f"every numpy_steps_per_period >= {_numpy_steps()}: the numpy reference runs every method "
+                "there, and needs the step below each one's linear stability limit"
+            ),
+            lambda P: all(n >= _numpy_steps() for n in P.numpy_steps_per_period),
+        ),
+    )
 
 
 QUICK = {"steps_per_period": (24, 64, 192, 512), "numpy_steps_per_period": (), "dop853_rtol": (1e-5, 1e-9)}
