@@ -334,8 +334,22 @@ def _kind(a, b, parity: int | None) -> str:
     return "symmetry_breaking_pitchfork" if symmetric and parity == -1 else "branch_point"
 
 
+#: a sign change of the test function across a step whose ends differ in magnitude by more than this
+#: factor is a change of identity (the mode with the largest central weight is another one at one end),
+#: not a crossing: on site-bond's bond-centred families above K ~ 30 the pinning pair sits at |mu - 1| ~ 1e-8,
+#: the phase pair's rounding, next to modes at 2e-2 (ratios 3e6). The real crossings of those families had
+#: ratios of at most 24 (2026-11-25 CPU run), and a crossing within 1e-4 of a step's length from its end
+#: is the only real one this misreads.
+JUMP_RATIO = 1e4
+
+
 def unlocated(family: str, a, b, vertex: float | None, parity: int | None = None) -> dict:
-    """The summary record of a step flagged by ``suspect_steps`` that is not located: its bracket."""
+    """The summary record of a step flagged by ``suspect_steps`` that is not located: its bracket, and
+    ``test_function_jump`` when the test function's magnitudes at the ends differ by more than
+    ``JUMP_RATIO`` (a change of identity at rounding level: whether the step is flagged at all then depends
+    on the sign of a value at rounding level, so such a record is a remark, not a branch point)."""
+    fa, fb = abs(pinning_value(a, parity)), abs(pinning_value(b, parity))
+    jump = bool(vertex is None and min(fa, fb) * JUMP_RATIO < max(fa, fb))
     return {
         "K": math.sqrt(a.K * b.K),
         "kind": _kind(a, b, parity),
@@ -343,6 +357,7 @@ def unlocated(family: str, a, b, vertex: float | None, parity: int | None = None
         "bracket": sorted([a.K, b.K]),
         "located": False,
         "window_inside_step": vertex is not None,
+        "test_function_jump": jump,
     }
 
 

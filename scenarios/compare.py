@@ -29,7 +29,7 @@ to the root (``fit.M`` is a fit value, ``relative_max_difference.kahan8/32`` a m
   observed orders): relative FIT_REL = 1e-6, no floor: fits stop at their solvers' tolerances, and 1e-6
   is far below any use of them. ``KEY_REL``: the square-root-law exponent at 1e-2 and its curvature at 1e-3,
   fitted to K - K* of 1e-8..5e-7 known to ~1e-10, i.e. to 1 % (22g: 0.4813 vs 0.4808).
-* absolute (``KEY_ABS``): a multiplier's modulus to 1e-7 (near a Krein collision |l| - 1 moves like the square
+* absolute (``KEY_ABS``): a multiplier's modulus to 1e-6 (near a Krein collision |l| - 1 moves like the square
   root of the monodromy's rounding), K - K* to 1e-9.
 * predicted (``PREDICTED_KEYS``: the bubble predictions of ``continuation.bubbles``, extrapolated, not
   solved, and counted against a width threshold): counts within 1 % (at least 1), values within 5 %. The
@@ -51,7 +51,10 @@ Specific rules:
 * Branch points (``bifurcation_points``): the numbers located and not located agree; records pair by
   family, kind, located or not, and K: located ``|K_a - K_b| <= K_error_a + K_error_b + K_SLACK |K|``
   (K_SLACK = 1e-12) or their final brackets overlap (each holds the zero); not located (K is the bracket's
-  geometric mean) by their brackets. Pairs compare the
+  geometric mean) by their brackets. A not-located record marked ``test_function_jump`` (a sign change of a
+  test function at rounding level next to another mode: ``continuation.bifurcation.JUMP_RATIO``) is a remark
+  whose presence depends on rounding (22: present on the CPU, absent in a GPU paper run): left out of
+  the counts and the pairing. Pairs compare the
   rest with REL widened by ``(K_error_a + K_error_b) / K`` (energy, participation are stated at a K known to
   that much), the critical mode's central weight as a magnitude (ill-defined on the bond-centred families:
   0.89 vs 0.98 in 22g), the errors not at all. Unpaired records are reported one by one.
@@ -100,17 +103,24 @@ SCENE_IGNORED = {
 }
 #: relative tolerances of single keys: ill-conditioned fits (the square-root law's exponent and curvature,
 #: fitted to K - K* of 1e-8..5e-7 known to ~1e-10)
-KEY_REL = {"sqrt_law_exponent": 1e-2, "sqrt_law_curvature": 1e-3}
+#: and a mode's central weight (an eigenvector's: conditioned by the gap to the nearest multiplier, not by the
+#: multiplier's own accuracy; H100 x2 against CPU, 2026-11-25: 2.9e-8 apart at site-bond's N = 401 table)
+KEY_REL = {"sqrt_law_exponent": 1e-2, "sqrt_law_curvature": 1e-3, "central_weight": 1e-6}
 #: absolute tolerances of single keys: a multiplier's modulus (near a Krein collision a pair splits like the
 #: square root of a perturbation: monodromies that differ by rounding, ~1e-14, give |l| - 1 apart by ~1e-7;
 #: H100 against CPU: 6.15e-7 vs 6.30e-7 at a bubble's edge) and K - K* (K* located to ~1e-9)
-KEY_ABS = {"max_floquet_modulus": 1e-7, "max_modulus": 1e-7, "K_offset": 1e-9}
+#: 2026-11-25 H100 x2 against CPU: 1.00000065 vs 1.0 (the pair not yet split) at a point both call stable;
+#: 1e-6 stays below the verdict's tolerance (|l| - 1 of 5.5e-6 for a real pair), and the verdicts are compared
+KEY_ABS = {"max_floquet_modulus": 1e-6, "max_modulus": 1e-6, "K_offset": 1e-9}
 #: the bubble predictions (``continuation.bubbles``: extrapolated from the multipliers at a step's two ends, not
 #: solved): a predicted width is compared with the chase width, so one borderline bubble moves between the
 #: counts (H100 against CPU: 596 vs 597 predicted, 115 vs 116 foam steps) and shifts a stretch's predicted
 #: fraction by a few per cent. Counts agree within PREDICTED_COUNT (at least one), values within PREDICTED_REL.
+#: Krein crossings recorded along a branch count the same way: a pair at the edge of a collision is counted
+#: or not by rounding (H100 x2 against CPU, 2026-11-25: 117 vs 116)
 PREDICTED_KEYS = frozenset(
-    "bubbles_predicted bubbles_below_width foam_steps predicted unstable_fraction widest max_predicted_modulus".split()
+    "bubbles_predicted bubbles_below_width foam_steps predicted unstable_fraction widest max_predicted_modulus"
+    " krein_crossings_recorded".split()
 )
 PREDICTED_COUNT, PREDICTED_REL = 0.01, 0.05
 FIT_RE = re.compile(
@@ -305,6 +315,7 @@ class _Comparer:
     def branch_points(self, a: list, b: list, path: tuple) -> None:
         """Branch points matched by family, kind, located or not, and K (located: within the stated errors;
         not located: brackets that agree); the rest of a matched pair by the rules above."""
+        a, b = ([r for r in x if not (isinstance(r, dict) and r.get("test_function_jump"))] for x in (a, b))
         counts = [[sum(map(_located, x)), sum(not _located(r) for r in x)] for x in (a, b)]
         if counts[0] != counts[1]:
             self.differ(path + ("(located, not located)",), counts[0], counts[1], "same counts")

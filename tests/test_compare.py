@@ -128,6 +128,32 @@ def test_branch_point_within_and_beyond_its_errors(folders, capsys, shift, expec
     assert ("site symmetry_breaking_pitchfork located" in out) == (expected == 1)
 
 
+@pytest.mark.parametrize("jump, expected", [(True, 0), (False, 1)])
+def test_a_test_function_jump_is_a_remark(folders, capsys, jump, expected):
+    """A not-located record whose test function jumped (rounding-level sign next to another mode) may be
+    present in one run only: left out; any other one-sided record is a difference."""
+    record = {"K": 46.19, "kind": "symmetry_breaking_pitchfork", "family": "bond-in-phase", "located": False}
+    record.update(bracket=[41.14, 51.86], window_inside_step=False, test_function_jump=jump)
+    edit(folders[0], "continuation-k", lambda s: s["bifurcation_points"].append(record))
+    code, out = compare(*folders, capsys=capsys)
+    assert code == expected
+    assert ("(located, not located): [1, 2] vs [1, 1]" in out) == (expected == 1)
+
+
+@pytest.mark.parametrize("modulus, count, expected", [(1.0000006, 117, 0), (1.000002, 116, 1), (1.0, 118, 1)])
+def test_moduli_and_krein_counts_near_a_collision(folders, capsys, modulus, count, expected):
+    """A pair at the edge of a Krein collision: |l| apart by < 1e-6 and one Krein crossing more or less are
+    rounding; more is a difference."""
+
+    def change(s, modulus=1.0, count=116):
+        s["krein_crossings_recorded"] = count
+        s["points"][3]["max_floquet_modulus"] = modulus
+
+    edit(folders[0], "continuation-k", change)
+    edit(folders[1], "continuation-k", lambda s: change(s, modulus, count))
+    assert compare(*folders, capsys=capsys)[0] == expected
+
+
 def test_located_and_not_located_counts(folders, capsys):
     edit(folders[1], "continuation-k", lambda s: s["bifurcation_points"][1].update(located=True, K_error=1e-8))
     code, out = compare(*folders, capsys=capsys)
