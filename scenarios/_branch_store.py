@@ -5,7 +5,8 @@ Layout (group ``branch`` of ``data.zarr``): one chunk per point along ``point``;
 (point, component, site), the reduced multipliers mu (point, pair) with their Krein signature,
 parity, participation and central weight, the Newton residuals (point, newton_iteration), and the
 instabilities (point, instability; kind, mu, participation, central weight, localized, parity; at
-most ``MAX_INSTABILITIES`` per point, largest first). Scenes with several branches (``site-bond``)
+most ``MAX_INSTABILITIES`` per point, largest first; ``instability_count`` holds all of the point's, so a
+reader sees where the list is cut). Scenes with several branches (``site-bond``)
 keep one such group per family in one store. Float arrays have a NaN
 fill value and integer arrays a -128 fill value, so a missing chunk can never read as a valid point.
 The group's attributes hold ``n_points`` (updated after every whole point), ``complete``,
@@ -79,6 +80,7 @@ def _array_spec(N: int, max_newton: int) -> dict:
             "instability_central_weight": _float((MAX_INSTABILITIES,)),
             "instability_localized": _int((MAX_INSTABILITIES,)),
             "instability_parity": _int((MAX_INSTABILITIES,)),
+            "instability_count": ((), "i4", -1),  # all of the point's: above MAX_INSTABILITIES, the rows are cut
         }
     )
     return spec
@@ -128,7 +130,7 @@ class BranchStore:
         for name in ("mu_real", "mu_imag", "signature", "parity", "participation", "central_weight"):
             dims[name] = ("point", "pair")
         for name in spec:
-            if name.startswith("instability_"):
+            if name.startswith("instability_") and name != "instability_count":
                 dims[name] = ("point", "instability")
         existing = set(g.array_keys()) if resume else set()
         if resume and existing and CHECKSUM not in existing:
@@ -269,6 +271,7 @@ class BranchStore:
             "instability_central_weight": table(lambda i: i.central_weight, np.nan),
             "instability_localized": table(lambda i: int(i.localized), INT_FILL),
             "instability_parity": table(lambda i: i.parity, INT_FILL),
+            "instability_count": len(point.instabilities),
         }
         crc = []
         for name, arr in self.arrays.items():
@@ -383,6 +386,9 @@ def load_branch(path, group: str = "branch") -> tuple[ChainParams, list, dict]:
             _fail(path, group, "state", i, "non-finite entries (a missing or damaged chunk)")
         if a["stable"][i] not in (0, 1):
             _fail(path, group, "stable", i, f"flag {a['stable'][i]} is not 0 or 1 (a missing or damaged chunk)")
+        stored, count = int((a["instability_kind"][i] != INT_FILL).sum()), int(a["instability_count"][i])
+        if count < stored or (stored < MAX_INSTABILITIES and count != stored):
+            _fail(path, group, "instability_count", i, f"{count} with {stored} instabilities stored")
         if a["iterations"][i] < 0:
             _fail(path, group, "iterations", i, "negative (a missing or damaged chunk)")
         # a point with multipliers (finite max_modulus) has all of them; one without (a branch run

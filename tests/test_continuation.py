@@ -68,6 +68,10 @@ def test_stored_branch_round_trips_and_resumes(k_branch):
     for a, b in zip(points, branch.points):
         assert a.K == b.K and np.array_equal(a.state, b.state) and np.allclose(a.mu, b.mu)
         assert a.stable == b.stable and [i.kind for i in a.instabilities] == [i.kind for i in b.instabilities]
+    import zarr
+
+    counts = zarr.open_group(str(path), mode="r", use_consolidated=False)["branch"]["instability_count"][...]
+    assert counts.tolist() == [len(p.instabilities) for p in branch.points]  # all, not only the stored 16
     upto = [p for p in points if p.K <= 5.0]
     resumed = continue_in_coupling(
         params.replace(K=upto[-1].K), 1.01, upto[-1].state, 20.0, settings=K_SETTINGS, resume=upto
@@ -102,6 +106,7 @@ def test_a_missing_chunk_is_an_error_not_zeros(k_branch, tmp_path):
         ("alter s 4", r"'s', point 4\): .*altered or misplaced"),
         ("swap energy 0 5", r"'energy', point 0\): .*altered or misplaced"),
         ("swap all 1 2", r"point 1\): .*altered or misplaced"),
+        ("edit instability_count 0", r"'instability_count', point 0\): .*altered or misplaced"),
         ("lower n_points 2", r"'checksum'\): \d+ rows but the group says \d+ points"),
     ],
 )
@@ -121,6 +126,8 @@ def test_every_array_is_checked_against_its_point(k_branch, tmp_path, damage, ma
         shutil.rmtree(chunk) if chunk.is_dir() else chunk.unlink()
     elif what == "alter s":
         zarr.open_array(str(g / "s"), mode="r+")[int(args[0])] = 123.0
+    elif what == "edit instability_count":
+        zarr.open_array(str(g / "instability_count"), mode="r+")[int(args[0])] = 99
     elif what.startswith("swap"):
         names = [n.name for n in g.iterdir() if n.is_dir()] if what == "swap all" else [what.split()[1]]
         i, j = args
