@@ -70,6 +70,14 @@ class _JacobianMemory:
         return None if entry is None or entry[0] is not point else entry[1]
 
 
+def _revisit(params: ChainParams, omega: float, point: BranchPoint, flow: Flow) -> Solution:
+    """A stored point's Solution: its half-period map evaluated at its state exactly as both correctors
+    evaluate their last iterate (``PeriodMap(...).evaluate``, which is where their linearization comes from)."""
+    pmap = PeriodMap(params, omega, flow)
+    lin = pmap.evaluate(pmap.from_state(point.state)).linearization
+    return Solution(params, omega, point.state, point.iterations, point.residual_history, lin, point.s)
+
+
 class NaturalParameter(_JacobianMemory):
     """Continuation in K at fixed omega from ``params.K`` to ``K_end`` (natural parameter).
 
@@ -115,8 +123,13 @@ class NaturalParameter(_JacobianMemory):
             return Failure(res.message)
         return Solution(pr, self.omega, res.state, res.iterations, res.residual_history, res.linearization(), s)
 
-    def prepare(self, settings: ContinuationSettings, resume=None) -> None:
+    def prepare(self, settings: ContinuationSettings, resume=None, walk=None) -> None:
         self._settings = settings
+
+    def revisit(self, point: BranchPoint) -> Solution:
+        """The Solution at a stored point as its corrector ended on it: the same linearization, so its
+        analysis gives the same multipliers, spectra and chord Jacobian (a resumed walk needs them)."""
+        return _revisit(self.params.replace(K=point.K), self.omega, point, self.flow)
 
     def start(self):
         settings = self._settings
@@ -402,8 +415,10 @@ class PseudoArclength(_JacobianMemory):
     def _y(self, point) -> np.ndarray:
         return _pack(point.state, self.axis.coordinate(point))
 
-    def prepare(self, settings: ContinuationSettings, resume=None) -> None:
+    def prepare(self, settings: ContinuationSettings, resume=None, walk=None) -> None:
         self._settings = settings
+        if walk and len(walk) >= 2:  # where ``finished`` stood after the last completed step
+            self._previous = walk[-2]
         if self.symmetric is None:  # the eigenmode start is symmetric; a resumed branch says itself
             first = resume[-1].state if resume else (self.start_points[-1][0] if self.start_points else None)
             self.symmetric = first is None or is_mirror_symmetric(first, 1e-9)
@@ -414,6 +429,10 @@ class PseudoArclength(_JacobianMemory):
             NewtonSettings(tol=settings.newton_tol, max_iterations=settings.max_newton),
             symmetric=self.symmetric,
         )
+
+    def revisit(self, point: BranchPoint) -> Solution:
+        """As ``NaturalParameter.revisit``."""
+        return _revisit(self.params.replace(K=point.K), point.omega, point, self.flow)
 
     def start(self):
         settings = self._settings

@@ -376,13 +376,42 @@ def spectral_step_factor(prev: BranchPoint, point: BranchPoint, fraction: float,
 # ----------------------------------------------------------------------------- the driver
 
 
+@dataclasses.dataclass(frozen=True)
+class WalkState:
+    """Where a walk stood after a completed step: with the points, enough to continue it exactly.
+
+    Attributes:
+        points: points accepted so far (a store may hold more: the unfinished step's, redone on resume).
+        walk: indices of the points the driver stepped to (their secant sets the predictor; the points
+            that bisection and bubble solves put between them are not on it).
+        h: the next step's length.
+        events: every event noted so far.
+        stats: the counters so far.
+    """
+
+    points: int
+    walk: tuple
+    h: float
+    events: tuple
+    stats: dict
+
+    def as_dict(self) -> dict:
+        return {"points": self.points, "walk": list(self.walk), "h": self.h, "stats": dict(self.stats)}
+
+    @classmethod
+    def from_dict(cls, d: dict, events) -> "WalkState":
+        return cls(int(d["points"]), tuple(int(i) for i in d["walk"]), float(d["h"]), tuple(events), dict(d["stats"]))
+
+
 def continuation(
     problem,
     settings: ContinuationSettings = ContinuationSettings(),
     *,
     resume: list | None = None,
+    resume_state: WalkState | None = None,
     on_point: Callable[[BranchPoint], None] | None = None,
     on_event: Callable[[dict], None] | None = None,
+    on_step: Callable[[WalkState], None] | None = None,
     log: Callable[[str], None] | None = None,
     progress: bool = False,
 ) -> Branch:
@@ -391,9 +420,16 @@ def continuation(
     Args:
         problem: predictor/corrector and the branch's end (``continuation.branch``).
         settings: ContinuationSettings.
-        resume: points of a stored branch to continue from (the last two set the predictor).
+        resume: points of a stored branch to continue from. With ``resume_state`` (what ``on_step``
+            last reported for them) the walk continues exactly as it would have without the stop: the
+            same points, events and counters (unless ``max_seconds`` stopped it); points after
+            ``resume_state.points`` (a step cut off) are computed again. Without it, the last two
+            points set the predictor and the step starts at ``settings.ds``.
+        resume_state: the stored ``WalkState`` of ``resume``.
         on_point: called with every accepted point, in order (e.g. a store's ``append``).
         on_event: called with every event as it is found.
+        on_step: called with the ``WalkState`` after the start and after every completed step (after
+            that step's points went to ``on_point``), e.g. a store's record of how to resume.
         log: one line per point and per event.
         progress: a tqdm bar over the problem's progress measure.
 
@@ -404,10 +440,10 @@ def continuation(
     if threads == "auto":
         threads = threads_for(getattr(getattr(problem, "flow", None), "device", "cpu"))
     with blas_threads(threads):
-        return _walk(problem, settings, resume, on_point, on_event, log, progress)
+        return _walk(problem, settings, resume, resume_state, on_point, on_event, on_step, log, progress)
 
 
-def _walk(problem, settings, resume, on_point, on_event, log, progress) -> Branch:
+def _walk(problem, settings, resume, resume_state, on_point, on_event, on_step, log, progress) -> Branch:
     """``continuation``'s body (under its BLAS thread limit)."""
     start = time.perf_counter()
     stats = {"solves": 0, "failed_solves": 0, "bisection_solves": 0, "rejected_backwards": 0}
@@ -453,17 +489,36 @@ def _walk(problem, settings, resume, on_point, on_event, log, progress) -> Branc
     # the walk: the points the driver stepped to (not the ones bisection and bubble solves put between
     # them), whose secant sets the next predictor, so that refinement never steers the branch
     walk: list = []
-    problem.prepare(settings, resume)
+    if resume and resume_state is not None:
+        if len(resume) < resume_state.points or not resume_state.walk or resume_state.walk[-1] >= resume_state.points:
+            raise ValueError(
+                f"resume_state (points {resume_state.points}, walk ending at {resume_state.walk[-1:]}) does not fit "
+                f"{len(resume)} points"
+            )
+        resume = list(resume[: resume_state.points])
+        events.extend(resume_state.events)
+    problem.prepare(settings, resume, [resume[i] for i in resume_state.walk] if resume_state and resume else None)
     if settings.bisect_krein == "auto":
         settings = settings.replace(bisect_krein="all" if problem.params.N <= AUTO_ALL_SITES else "predict")
     bubble_width = settings.bubble_width or settings.resolution / BUBBLE_FRACTION
     stats.update(bubbles_predicted=0, bubbles_below_width=0, bubble_solves=0, bubbles_confirmed=0, foam_steps=0)
+    if resume and resume_state is not None:
+        stats.update(resume_state.stats)  # the counters go on from where the stored walk left them
     predictions: dict = {}  # (id(a), id(b)) -> predicted bubbles, for the step's chase and its record
     if resume:
         if len(resume) < 2 and problem.parameter == "omega":
             raise ValueError("resuming a frequency branch needs at least two stored points (they set the tangent)")
         points.extend(resume)
-        walk.extend(resume)
+        walk.extend(resume if resume_state is None else [resume[i] for i in resume_state.walk])
+        if resume_state is not None:  # the last point's spectra and chord Jacobian, as its first analysis left them
+            last = points[-1]
+            again = problem.revisit(last)
+            fresh = analyse(again, settings.floquet, spectra)
+            if settings.floquet:
+                spectra[id(last)] = (last, spectra.pop(id(fresh))[1])
+                if settings.chord and hasattr(problem, "remember"):
+                    n2 = 2 * again.params.N
+                    problem.remember(last, again.linearization.unit_columns("positions")[n2:, :])
     else:
         for sol in problem.start():
             if isinstance(sol, Failure):
@@ -596,7 +651,15 @@ def _walk(problem, settings, resume, on_point, on_event, log, progress) -> Branc
             dynamic_ncols=True,
             bar_format="{desc}: {percentage:3.0f}%|{bar}| [{elapsed}] {postfix}",
         )
-    h = settings.ds
+    h = settings.ds if resume_state is None else resume_state.h
+    walk_index = [i for i, p in enumerate(points) if any(p is w for w in walk)]
+
+    def stepped():
+        if on_step is not None:
+            on_step(WalkState(len(points), tuple(walk_index), h, tuple(events), dict(stats)))
+
+    if resume_state is None:
+        stepped()
     reason, message = StopReason.END_REACHED, ""
     try:
         while True:
@@ -642,11 +705,15 @@ def _walk(problem, settings, resume, on_point, on_event, log, progress) -> Branc
                     message = f"{why} near {par} = {getattr(last, par):.8g}"
                     break
                 continue
+            whole = True  # every point of the step accepted (a stated point count may cut it)
             for p in refine(last, new, h_try):
                 if settings.max_points is not None and len(points) >= settings.max_points:
+                    whole = False
                     break  # a stated point count is exact, even inside a bisected step
                 note(ev.harmonic_event(points[-1], p, par))
                 accept(p, on_walk=p is new)
+                if p is new:
+                    walk_index.append(len(points) - 1)
             kept = spectra.get(id(points[-1]))
             spectra.clear()
             predictions.clear()
@@ -660,6 +727,8 @@ def _walk(problem, settings, resume, on_point, on_event, log, progress) -> Branc
                     h_try * spectral_step_factor(last, new, settings.multiplier_fraction, settings.multiplier_floor),
                 )
             h = float(min(max(h_next, settings.ds_min), settings.ds_max))
+            if whole:  # a cut step is not a state to resume from: a resume redoes it whole
+                stepped()
     except KeyboardInterrupt:
         if bar is not None:
             bar.close()

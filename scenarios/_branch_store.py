@@ -32,18 +32,15 @@ from pathlib import Path
 
 import numpy as np
 
-from continuation.driver import Branch, BranchPoint
+from continuation.driver import Branch, BranchPoint, WalkState
 from continuation.floquet import KINDS, Instability, multipliers_from_mu, outer_modulus
 from continuation.shooting import frequency_report
 from warpchain import ChainParams
 from warpchain import store
-from warpchain.store import consolidate, jsonable, open_store, provenance
+from warpchain.store import consolidate, jsonable, open_store, provenance, unconsolidate
 
 MAX_INSTABILITIES = 16
 CHECKSUM = "checksum"
-#: consolidated metadata (a convenience for xarray; load_branch never uses it) is refreshed every this
-#: many points and at the end: rewriting it after every point cost 13 ms of a 49 ms append
-CONSOLIDATE_EVERY = 25
 INT_FILL = -128
 
 
@@ -95,6 +92,8 @@ class BranchStore:
         attrs: the group's attributes (what was continued, how).
         max_newton: Newton iterations stored per point.
         resume: open an existing group and append to it (its points are checked first).
+        keep: with ``resume``, the stored points to keep (those of the last completed step: the walk
+            state's ``points``); later ones are written again by the resumed walk.
         device: for provenance.
         new_store: start a new store (False: add the group to an existing one, as scenes with
             several branches do).
@@ -109,6 +108,7 @@ class BranchStore:
         *,
         max_newton: int = 40,
         resume: bool = False,
+        keep: int | None = None,
         device=None,
         new_store: bool = True,
     ):
@@ -178,8 +178,12 @@ class BranchStore:
                 }
             )
         else:
-            g.attrs.update({"complete": False, "stop_reason": None})
-        consolidate(self.path)
+            n = self.n_points if keep is None else min(int(keep), self.n_points)
+            g.attrs.update({"complete": False, "stop_reason": None, "n_points": n})
+        # consolidated metadata (what xarray reads first) is written by finish and interrupted; while the
+        # arrays grow there is none, so a killed run never leaves a stale one (rewriting it after every point
+        # cost 13 ms of a 49 ms append)
+        unconsolidate(self.path)
 
     @property
     def n_points(self) -> int:
@@ -198,12 +202,12 @@ class BranchStore:
 
     def _drain(self) -> None:
         while True:
-            point = self._queue.get()
-            if point is None:
+            item = self._queue.get()
+            if item is None:
                 return
             if self._error is None:
                 try:
-                    self._write(point)
+                    self._write_state(item) if isinstance(item, WalkState) else self._write(item)
                 except BaseException as exc:  # raised to the caller by append/flush
                     self._error = exc
 
@@ -227,6 +231,21 @@ class BranchStore:
             self._queue.put(point)
         else:
             self._write(point)
+
+    def step(self, state: WalkState) -> None:
+        """Record the walk's state after a completed step (queued behind its points with ``background``):
+        the events so far and ``walk_state``, from which ``--resume`` continues exactly."""
+        self._raise_error()
+        if self._thread is not None:
+            self._queue.put(state)
+        else:
+            self._write_state(state)
+
+    def _write_state(self, state: WalkState) -> None:
+        if state.points != self.n_points:
+            where = f"{self.path}/{self.group_name}"
+            raise StoreError(f"{where}: walk state after {state.points} points, {self.n_points} stored")
+        self.group.attrs.update({"walk_state": jsonable(state.as_dict()), "events": jsonable(list(state.events))})
 
     def _write(self, point: BranchPoint) -> None:
         n = self.n_points
@@ -282,8 +301,6 @@ class BranchStore:
         self.checksum.resize((n + 1, self.checksum.shape[1]))
         self.checksum[n] = crc  # after the rows: a point whose rows were not all written does not match
         self.group.attrs.update({"n_points": n + 1})
-        if (n + 1) % CONSOLIDATE_EVERY == 0:  # the consolidated view (what xarray reads) lags by < 25 points
-            consolidate(self.path)
 
     def finish(self, branch: Branch) -> None:
         self.flush()

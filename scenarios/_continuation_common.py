@@ -7,7 +7,7 @@ import dataclasses
 
 import numpy as np
 
-from continuation.driver import AUTO_ALL_SITES, KREIN_MODES, Branch, ContinuationSettings, continuation
+from continuation.driver import AUTO_ALL_SITES, KREIN_MODES, Branch, ContinuationSettings, WalkState, continuation
 from continuation.floquet import KINDS
 from warpchain import Flow
 
@@ -101,13 +101,26 @@ def run_branch(
     """Run (or with ``ctx.resume`` continue) the branch, streaming points into OUT/data.zarr (group
     ``group``; ``new_store=False`` adds it to the scene's existing store)."""
     path = ctx.out / "data.zarr"
-    resume, stored_events = None, []
+    resume, state = None, None
     if ctx.resume:
         stored_params, resume, stored_attrs = load_branch(path, group)
         _check_resume(path, group, stored_params, stored_attrs, params, attrs)
-        stored_events = list(stored_attrs.get("events") or [])
-        if len(resume) < 2:
-            raise ResumeRefused(f"{path} holds {len(resume)} point(s); resuming needs two: run without --resume")
+        if not isinstance(stored_attrs.get("walk_state"), dict):
+            raise ResumeRefused(
+                f"{path} (group '{group}') holds no record of a completed step (the run stopped during its start): "
+                "run without --resume"
+            )
+        try:
+            state = WalkState.from_dict(stored_attrs["walk_state"], stored_attrs.get("events") or [])
+        except (KeyError, TypeError, ValueError) as exc:
+            why = f"{path} (group '{group}'): damaged walk_state ({exc!r}): run without --resume"
+            raise ResumeRefused(why) from None
+        if not 0 < state.points <= len(resume) or not state.walk or state.walk[-1] >= state.points:
+            raise ResumeRefused(
+                f"{path} (group '{group}'): walk_state after {state.points} points (walk ending at point "
+                f"{state.walk[-1:]}) does not fit the {len(resume)} stored points: run without --resume"
+            )
+        resume = resume[: state.points]
         ctx.log(
             "resuming from %d stored points (%s at %s)",
             len(resume),
@@ -121,6 +134,7 @@ def run_branch(
         attrs,
         max_newton=3 * settings.max_newton,
         resume=bool(resume),
+        keep=state.points if state else None,
         device=ctx.device,
         new_store=new_store,
     ).background()  # points are written while the next one is computed
@@ -129,10 +143,15 @@ def run_branch(
     try:
         with logging_redirect_tqdm():  # log lines above the progress bar, not glued onto it
             branch = continuation(
-                problem, settings, resume=resume, on_point=store.append, log=ctx.log, progress=progress
+                problem,
+                settings,
+                resume=resume,
+                resume_state=state,
+                on_point=store.append,
+                on_step=store.step,
+                log=ctx.log,
+                progress=progress,
             )
-        if stored_events:  # the stored walk's events (stability changes, Krein passes, foam) stay the branch's
-            branch = dataclasses.replace(branch, events=tuple(stored_events) + tuple(branch.events))
         store.finish(branch)  # inside: an interrupt while the writer catches up still marks the store interrupted
     except KeyboardInterrupt:
         store.interrupted("interrupted (Ctrl-C or SIGTERM); the stored points are complete: resume with --resume")

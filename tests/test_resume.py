@@ -75,3 +75,79 @@ def test_sigterm_marks_the_store_interrupted_like_ctrl_c(tmp_path):
     assert attrs["stop_reason"] == "interrupted" or attrs["complete"] is True, dict(attrs)
     assert attrs["stop_reason"] is not None and attrs["n_points"] >= 3
     assert not (tmp_path / "continuation-omega" / ".lock").exists()
+
+
+def _wait_for_points(store, n, proc, timeout=120):
+    import time
+
+    import zarr
+
+    deadline = time.time() + timeout
+    while time.time() < deadline and proc.poll() is None:
+        try:
+            if zarr.open_group(str(store), mode="r", use_consolidated=False)["branch"].attrs.get("n_points", 0) >= n:
+                return
+        except Exception:  # not made yet
+            pass
+        time.sleep(0.05)
+
+
+def _arrays_and_attrs(store):
+    import zarr
+
+    g = zarr.open_group(str(store), mode="r", use_consolidated=False)["branch"]
+    return {name: g[name][...] for name in g.array_keys()}, dict(g.attrs)
+
+
+import pytest  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory):
+    out = tmp_path_factory.mktemp("whole")
+    assert main(["run", "continuation-omega", "--quick", "--device", "cpu", "--out", str(out)]) == 0
+    return out
+
+
+@pytest.mark.parametrize("how, after", [("SIGKILL", 4), ("SIGINT", 30), ("max_points", 20)])
+def test_a_resume_equals_the_uninterrupted_branch(uninterrupted, tmp_path, how, after):
+    """Killed (SIGKILL: the writer's queue is lost, the lock left behind), interrupted (SIGINT) or cut by a
+    point count, then resumed: every array, the events and the counters equal the uninterrupted run's."""
+    import signal
+    import subprocess
+    import sys
+
+    import numpy as np
+
+    cmd = [sys.executable, "-m", "scenarios", "run", "continuation-omega", "--quick", "--device", "cpu"]
+    cmd += ["--out", str(tmp_path)]
+    store = tmp_path / "continuation-omega" / "data.zarr"
+    if how == "max_points":
+        assert subprocess.run(cmd + ["--set", f"max_points={after}"], capture_output=True).returncode == 0
+    else:
+        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        _wait_for_points(store, after, proc)
+        proc.send_signal(getattr(signal, how))
+        _, err = proc.communicate(timeout=120)
+        assert proc.returncode in (-9, 130), err[-2000:]
+    cut = _arrays_and_attrs(store)[1]
+    expected = {"max_points": ("max_points", True), "SIGINT": ("interrupted", False), "SIGKILL": (None, False)}[how]
+    assert (cut["stop_reason"], cut["complete"]) == expected
+    assert cut["n_points"] >= after - 1
+    # no consolidated metadata while the branch grew (a kill leaves none, never a stale one); marked runs have it
+    meta = json.loads((store / "zarr.json").read_text())
+    assert ("consolidated_metadata" in meta) == (how != "SIGKILL")
+    assert main(["run", "continuation-omega", "--quick", "--device", "cpu", "--resume", "--out", str(tmp_path)]) == 0
+    whole, whole_attrs = _arrays_and_attrs(uninterrupted / "continuation-omega" / "data.zarr")
+    resumed, resumed_attrs = _arrays_and_attrs(store)
+    assert sorted(whole) == sorted(resumed)
+    for name in whole:
+        assert np.array_equal(whole[name], resumed[name], equal_nan=True), name
+    import xarray as xr
+
+    assert xr.open_zarr(store, group="branch").sizes["point"] == whole_attrs["n_points"]  # consolidated again
+    for key in ("events", "stop_reason", "walk_state", "n_points", "complete"):
+        assert whole_attrs[key] == resumed_attrs[key], key
+    assert {k: v for k, v in whole_attrs["stats"].items() if "seconds" not in k} == {
+        k: v for k, v in resumed_attrs["stats"].items() if "seconds" not in k
+    }

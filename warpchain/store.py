@@ -132,6 +132,23 @@ def consolidate(store) -> None:
         zarr.consolidate_metadata(str(store) if isinstance(store, (str, os.PathLike)) else store)
 
 
+def unconsolidate(path) -> None:
+    """Remove the consolidated metadata of the store at ``path`` (while arrays grow: a run killed before it
+    writes them again leaves none, so that readers see the arrays as they are, never a stale snapshot;
+    xarray then reads without it and says so in a RuntimeWarning)."""
+    import json
+
+    meta_path = Path(path) / "zarr.json"
+    try:
+        meta = json.loads(meta_path.read_text())
+    except (OSError, ValueError):
+        return
+    if meta.pop("consolidated_metadata", None) is not None:
+        tmp = meta_path.with_name(f".zarr.json.{os.getpid()}.tmp")
+        tmp.write_text(json.dumps(meta, indent=2))
+        os.replace(tmp, meta_path)  # atomic: a reader sees the old or the new file, never half of one
+
+
 def open_store(path, *, params: dict | None = None, provenance_info: dict | None = None, mode: str = "w") -> zarr.Group:
     """Create (``mode="w"``) or open (``"a"``, ``"r"``) a zarr v3 store; sets root attributes."""
     # never from consolidated metadata: arrays opened from that snapshot do not persist a resize
