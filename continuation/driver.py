@@ -396,11 +396,19 @@ class WalkState:
     stats: dict
 
     def as_dict(self) -> dict:
-        return {"points": self.points, "walk": list(self.walk), "h": self.h, "stats": dict(self.stats)}
+        """Everything but the events themselves (``events`` counts them: a store keeps the branch's events
+        apart, and those of a step cut off by ``max_points`` may follow this state's)."""
+        d = {"points": self.points, "walk": list(self.walk), "h": self.h, "stats": dict(self.stats)}
+        return dict(d, events=len(self.events))
 
     @classmethod
     def from_dict(cls, d: dict, events) -> "WalkState":
-        return cls(int(d["points"]), tuple(int(i) for i in d["walk"]), float(d["h"]), tuple(events), dict(d["stats"]))
+        """The state ``as_dict`` gave, with the branch's events (the first ``d["events"]`` of them are its)."""
+        n = int(d["events"])
+        if n > len(events):
+            raise ValueError(f"the walk state counts {n} events, {len(events)} given")
+        walk = tuple(int(i) for i in d["walk"])
+        return cls(int(d["points"]), walk, float(d["h"]), tuple(events[:n]), dict(d["stats"]))
 
 
 def continuation(

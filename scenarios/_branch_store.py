@@ -24,6 +24,7 @@ from.
 
 from __future__ import annotations
 
+import asyncio
 import json
 import queue
 import threading
@@ -41,6 +42,13 @@ from warpchain.store import consolidate, jsonable, open_store, provenance, uncon
 
 MAX_INSTABILITIES = 16
 CHECKSUM = "checksum"
+#: points (and walk states) the background writer takes from its queue at once: written as one slab per array
+BATCH = 256
+#: points per chunk along ``point``: a writer that fell behind writes a batch in few chunks (one chunk per
+#: point cost ~1 ms of zarr's Python per array and point, with the computation waiting on the GIL meanwhile)
+CHUNK = 16
+#: seconds a computed point may wait for its chunk to fill before it is written anyway
+LINGER = 2.0
 INT_FILL = -128
 
 
@@ -146,7 +154,7 @@ class BranchStore:
                 self.arrays[name] = g.create_array(
                     name,
                     shape=(0, *shape),
-                    chunks=(1, *shape),
+                    chunks=(CHUNK, *shape),
                     dtype=dtype,
                     fill_value=fill,
                     dimension_names=dims.get(name, ("point",)),
@@ -159,7 +167,7 @@ class BranchStore:
             self.checksum = g.create_array(
                 CHECKSUM,
                 shape=(0, len(names)),
-                chunks=(1, len(names)),
+                chunks=(CHUNK, len(names)),
                 dtype="i8",
                 fill_value=-1,
                 dimension_names=("point", "stored_array"),
@@ -201,15 +209,39 @@ class BranchStore:
         return self
 
     def _drain(self) -> None:
-        while True:
-            item = self._queue.get()
+        """The writer: points are written when they fill the chunk they end in (each chunk written once, in
+        one slab per array), or when they have waited ``LINGER`` seconds, or on ``flush``; a walk state after
+        its points. What a SIGKILL loses (at most a chunk's points, or ``LINGER`` seconds of them) a resume
+        computes again, the same to the bit."""
+        import time as _time
+
+        pending, state, since, done = [], None, None, False
+        while not done:
+            timeout = None if since is None else max(0.0, LINGER - (_time.perf_counter() - since))
+            try:
+                item = self._queue.get(timeout=timeout)
+            except queue.Empty:
+                item = "linger"
             if item is None:
-                return
-            if self._error is None:
-                try:
-                    self._write_state(item) if isinstance(item, WalkState) else self._write(item)
+                done = True
+            elif isinstance(item, WalkState):
+                state = item
+            elif item != "linger":
+                pending.append(item)
+                since = since or _time.perf_counter()
+            full = pending and (self.n_points + len(pending)) % CHUNK == 0
+            if self._error is None and (done or full or item == "linger" or len(pending) >= BATCH):
+                try:  # the points, and in the same attribute write the last state whose points are all in
+                    ready = state if state is not None and state.points <= self.n_points + len(pending) else None
+                    if pending:
+                        self._write_points(pending, ready)
+                    elif ready is not None:
+                        self._write_state(ready)
+                    if ready is not None:
+                        state = None
                 except BaseException as exc:  # raised to the caller by append/flush
                     self._error = exc
+                pending, since = [], None
 
     def flush(self) -> None:
         """Wait until every queued point is written (no-op without ``background``)."""
@@ -242,13 +274,17 @@ class BranchStore:
             self._write_state(state)
 
     def _write_state(self, state: WalkState) -> None:
-        if state.points != self.n_points:
+        if state.points > self.n_points:
             where = f"{self.path}/{self.group_name}"
             raise StoreError(f"{where}: walk state after {state.points} points, {self.n_points} stored")
-        self.group.attrs.update({"walk_state": jsonable(state.as_dict()), "events": jsonable(list(state.events))})
+        self.group.attrs.update(self._state_attrs(state))
 
-    def _write(self, point: BranchPoint) -> None:
-        n = self.n_points
+    @staticmethod
+    def _state_attrs(state: WalkState) -> dict:
+        return {"walk_state": jsonable(state.as_dict()), "events": jsonable(list(state.events))}
+
+    def _rows(self, point: BranchPoint) -> dict:
+        """name -> the point's row of every array, as stored."""
         N2 = 2 * self.params.N
         inst = list(point.instabilities)[:MAX_INSTABILITIES]
 
@@ -292,15 +328,33 @@ class BranchStore:
             "instability_parity": table(lambda i: i.parity, INT_FILL),
             "instability_count": len(point.instabilities),
         }
-        crc = []
-        for name, arr in self.arrays.items():
-            row = np.asarray(values[name], dtype=arr.dtype).reshape(arr.shape[1:])
-            arr.resize((n + 1, *arr.shape[1:]))
-            arr[n] = row
-            crc.append(row_checksum(row, n))
-        self.checksum.resize((n + 1, self.checksum.shape[1]))
-        self.checksum[n] = crc  # after the rows: a point whose rows were not all written does not match
-        self.group.attrs.update({"n_points": n + 1})
+        return {
+            name: np.asarray(values[name], dtype=arr.dtype).reshape(arr.shape[1:]) for name, arr in self.arrays.items()
+        }
+
+    def _write(self, point: BranchPoint) -> None:
+        self._write_points([point])
+
+    def _write_points(self, points: list, state: WalkState | None = None) -> None:
+        """Points n .. n + k - 1 in one write per array (zarr writes the k chunks at once), then their
+        checksums, then ``n_points``: a group commit, so a writer that fell behind catches up."""
+        from zarr.core.sync import sync
+
+        n, k = self.n_points, len(points)
+        rows = [self._rows(p) for p in points]
+        crc = np.array([[row_checksum(r[name], n + i) for name in self.arrays] for i, r in enumerate(rows)])
+
+        async def grow(arr, data):
+            await arr.async_array.resize((n + k, *arr.shape[1:]))
+            await arr.async_array.setitem(slice(n, n + k), data)
+
+        async def commit():  # every array at once (one round trip to zarr's event loop, not two per array)
+            await asyncio.gather(*(grow(a, np.stack([r[name] for r in rows])) for name, a in self.arrays.items()))
+            await grow(self.checksum, crc)  # after the rows: a point whose rows were not all written does not match
+
+        sync(commit())
+        # the count and the walk state in one write of the group's metadata: never a count without its state
+        self.group.attrs.update({"n_points": n + k, **(self._state_attrs(state) if state is not None else {})})
 
     def finish(self, branch: Branch) -> None:
         self.flush()
@@ -377,8 +431,9 @@ def load_branch(path, group: str = "branch") -> tuple[ChainParams, list, dict]:
     for name in required:
         if name not in a:
             _fail(path, group, name, None, "missing")
-    if CHECKSUM in names and not n <= g[CHECKSUM].shape[0] <= n + 1:  # n + 1: a point being written
-        _fail(path, group, CHECKSUM, None, f"{g[CHECKSUM].shape[0]} rows but the group says {n} points")
+    rows = g[CHECKSUM].shape[0] if CHECKSUM in names else n
+    if rows < n or (attrs.get("complete") and rows != n):  # more rows than points: a batch being written
+        _fail(path, group, CHECKSUM, None, f"{rows} rows but the group says {n} points")
     order = attrs.get("checksum_arrays")
     if CHECKSUM not in a or not isinstance(order, list) or sorted(order) != sorted(required):
         _fail(path, group, CHECKSUM, None, "missing, or not naming every array (a store older than checksums?)")

@@ -3,6 +3,8 @@ resume with settings other than the stored branch's is refused with one line tha
 
 import json
 
+import numpy as np
+
 from scenarios.__main__ import main
 
 
@@ -142,6 +144,11 @@ def test_a_resume_equals_the_uninterrupted_branch(uninterrupted, tmp_path, how, 
     resumed, resumed_attrs = _arrays_and_attrs(store)
     assert sorted(whole) == sorted(resumed)
     for name in whole:
+        if name in ("central_weight", "participation", "instability_central_weight", "instability_participation"):
+            # eigenvector weights: components of ~1e-11 move in their last bits between any two runs (LAPACK's
+            # code path follows the arrays' alignment); seen once in ~20 runs at 2e-8 relative on a 3.5e-11 weight
+            np.testing.assert_allclose(whole[name], resumed[name], rtol=1e-6, atol=1e-14, err_msg=name)
+            continue
         assert np.array_equal(whole[name], resumed[name], equal_nan=True), name
     import xarray as xr
 
@@ -150,4 +157,44 @@ def test_a_resume_equals_the_uninterrupted_branch(uninterrupted, tmp_path, how, 
         assert whole_attrs[key] == resumed_attrs[key], key
     assert {k: v for k, v in whole_attrs["stats"].items() if "seconds" not in k} == {
         k: v for k, v in resumed_attrs["stats"].items() if "seconds" not in k
+    }
+
+
+def test_a_point_count_that_cuts_a_step_resumes_into_the_same_branch(tmp_path):
+    """max_points = 40 stops inside a bisected step (the last completed step ends at point 19 here): the
+    resumed walk redoes that step, and its 80 points, events and counters equal one walk of 80."""
+    import continuation as ct
+    import warpchain as wc
+    from continuation.branch import NaturalParameter
+    from continuation.driver import ContinuationSettings, WalkState, continuation
+    from scenarios._branch_store import BranchStore, load_branch
+
+    p = wc.ChainParams(30.0, 0.01, 101)
+
+    def problem():
+        return NaturalParameter(p, 1.01, ct.anticontinuum_seed(p, 1.01), K_end=20.0, flow=wc.Flow("kahan8", 32))
+
+    settings = ContinuationSettings(ds=0.15, ds_max=0.3, resolution=1e-3, max_points=40)
+    store = BranchStore(tmp_path / "cut.zarr", "branch", p, {})
+    store.finish(continuation(problem(), settings, on_point=store.append, on_step=store.step))
+    _, points, attrs = load_branch(tmp_path / "cut.zarr", "branch")
+    state = WalkState.from_dict(attrs["walk_state"], attrs["events"])
+    assert state.points < 40 and len(state.events) < len(attrs["events"])  # the cut step's events follow
+    store = BranchStore(tmp_path / "cut.zarr", "branch", p, {}, resume=True, keep=state.points)
+    more = continuation(
+        problem(),
+        settings.replace(max_points=80),
+        resume=points,
+        resume_state=state,
+        on_point=store.append,
+        on_step=store.step,
+    )
+    store.finish(more)
+    one = continuation(problem(), settings.replace(max_points=80))
+    assert len(more.points) == len(one.points) == 80
+    for a, b in zip(more.points, one.points):
+        assert a.K == b.K and np.array_equal(a.state, b.state) and np.array_equal(a.mu, b.mu)
+    assert more.events == one.events
+    assert {k: v for k, v in more.stats.items() if "seconds" not in k} == {
+        k: v for k, v in one.stats.items() if "seconds" not in k
     }
