@@ -69,6 +69,19 @@ class _JacobianMemory:
         entry = self.__dict__.get("_jacobians", {}).get(id(point))
         return None if entry is None or entry[0] is not point else entry[1]
 
+    def age(self, point) -> int | None:
+        """How many Jacobians were remembered after ``point``'s (None: it is no longer held)."""
+        keys = list(self.__dict__.get("_jacobians", {}))
+        return len(keys) - 1 - keys.index(id(point)) if self.hint(point) is not None else None
+
+    def restore(self, point, J, age: int) -> None:
+        """Hold ``J`` for ``point`` as it was held ``age`` Jacobians ago (placeholders stand for the later ones,
+        so that it is dropped when it was in the walk that stored the state)."""
+        self.remember(point, J)
+        for _ in range(age):
+            placeholder = object()
+            self.remember(placeholder, None)
+
 
 def _revisit(params: ChainParams, omega: float, point: BranchPoint, flow: Flow) -> Solution:
     """A stored point's Solution: its half-period map evaluated at its state exactly as both correctors

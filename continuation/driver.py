@@ -387,6 +387,8 @@ class WalkState:
         h: the next step's length.
         events: every event noted so far.
         stats: the counters so far.
+        chord: how many Jacobians the corrector remembered after the last point's (it keeps the last few
+            analysed, for its chord steps), None when it no longer held it: a resume restores the same.
     """
 
     points: int
@@ -394,11 +396,18 @@ class WalkState:
     h: float
     events: tuple
     stats: dict
+    chord: int | None = 0
 
     def as_dict(self) -> dict:
         """Everything but the events themselves (``events`` counts them: a store keeps the branch's events
         apart, and those of a step cut off by ``max_points`` may follow this state's)."""
-        d = {"points": self.points, "walk": list(self.walk), "h": self.h, "stats": dict(self.stats)}
+        d = {
+            "points": self.points,
+            "walk": list(self.walk),
+            "h": self.h,
+            "stats": dict(self.stats),
+            "chord": self.chord,
+        }
         return dict(d, events=len(self.events))
 
     @classmethod
@@ -408,7 +417,7 @@ class WalkState:
         if n > len(events):
             raise ValueError(f"the walk state counts {n} events, {len(events)} given")
         walk = tuple(int(i) for i in d["walk"])
-        return cls(int(d["points"]), walk, float(d["h"]), tuple(events[:n]), dict(d["stats"]))
+        return cls(int(d["points"]), walk, float(d["h"]), tuple(events[:n]), dict(d["stats"]), d["chord"])
 
 
 def continuation(
@@ -524,9 +533,10 @@ def _walk(problem, settings, resume, resume_state, on_point, on_event, on_step, 
             fresh = analyse(again, settings.floquet, spectra)
             if settings.floquet:
                 spectra[id(last)] = (last, spectra.pop(id(fresh))[1])
-                if settings.chord and hasattr(problem, "remember"):
+                if settings.chord and hasattr(problem, "restore") and resume_state.chord is not None:
                     n2 = 2 * again.params.N
-                    problem.remember(last, again.linearization.unit_columns("positions")[n2:, :])
+                    J = again.linearization.unit_columns("positions")[n2:, :]
+                    problem.restore(last, J, resume_state.chord)
     else:
         for sol in problem.start():
             if isinstance(sol, Failure):
@@ -664,7 +674,8 @@ def _walk(problem, settings, resume, resume_state, on_point, on_event, on_step, 
 
     def stepped():
         if on_step is not None:
-            on_step(WalkState(len(points), tuple(walk_index), h, tuple(events), dict(stats)))
+            chord = problem.age(points[-1]) if hasattr(problem, "age") else None
+            on_step(WalkState(len(points), tuple(walk_index), h, tuple(events), dict(stats), chord))
 
     if resume_state is None:
         stepped()

@@ -66,6 +66,7 @@ import zarr
 from warpchain.store import consolidate, jsonable
 
 COMPLETED = "completed"
+CHECKSUM = "checksum"  # (task dims..., variable): CRC-32 of each variable's region, written before the flag
 DASK_HINT = 'pip install -e ".[dask]"'
 
 
@@ -132,7 +133,7 @@ class SweepSpec:
             problems.append("no variables")
         for name, var in self.variables.items():
             dims = tuple(var.dims)
-            if name == COMPLETED or name in coords:
+            if name in (COMPLETED, CHECKSUM) or name in coords:
                 problems.append(f"variable name {name!r} is reserved (the completed flags or a coordinate)")
             if dims[: len(self.task_dims)] != self.task_dims:
                 problems.append(f"variable {name!r}: dims {dims} must start with the task dims {self.task_dims}")
@@ -250,6 +251,8 @@ def open_sweep(store_path, spec: SweepSpec) -> zarr.Group:
     if spec.group in set(root.group_keys()):
         group = root[spec.group]
         _check_group(group, spec, where)
+        if CHECKSUM not in set(group.array_keys()):  # a store from before checksums: its tasks are verified as none
+            _create_checksum(group, spec)
         for name, var in spec.variables.items():  # descriptive attributes may be refreshed
             if var.attrs:
                 group[name].attrs.update(jsonable(var.attrs))
@@ -284,6 +287,7 @@ def open_sweep(store_path, spec: SweepSpec) -> zarr.Group:
         )
         if var.attrs:
             arr.attrs.update(jsonable(var.attrs))
+    _create_checksum(group, spec)
     group.create_array(
         COMPLETED,
         shape=spec.task_shape,
@@ -297,6 +301,48 @@ def open_sweep(store_path, spec: SweepSpec) -> zarr.Group:
     # the signature last: a group interrupted while being created is not taken for a sweep
     group.attrs.update({**jsonable(spec.attrs), "task_dims": list(spec.task_dims), "sweep": jsonable(spec.signature())})
     return group
+
+
+def _crc(values: np.ndarray, index: tuple) -> int:
+    """CRC-32 of a task's region of one variable as stored, started from the task's flat position (a region
+    moved to another task no longer matches)."""
+    import zlib
+
+    seed = zlib.crc32(repr(tuple(int(i) for i in index)).encode())
+    return zlib.crc32(np.ascontiguousarray(values).tobytes(), seed)
+
+
+def _create_checksum(group: zarr.Group, spec: SweepSpec) -> None:
+    names = sorted(spec.variables)
+    group.create_array(
+        CHECKSUM,
+        shape=(*spec.task_shape, len(names)),
+        chunks=(*(1,) * len(spec.task_dims), len(names)),
+        dtype="int64",
+        fill_value=-1,
+        dimension_names=(*spec.task_dims, "sweep_variable"),
+        overwrite=True,
+    ).attrs.update({"variables": names, "description": "CRC-32 of each variable's region of the task"})
+
+
+def damaged_tasks(store_path, spec: SweepSpec, done: np.ndarray) -> list[tuple[tuple, str]]:
+    """Tasks flagged completed whose data do not match their checksums (a lost, altered or misplaced
+    chunk, or no checksum): [(index, what is wrong)]. Reads every completed task's regions."""
+    group = _open_root(store_path, "r")[spec.group]
+    names = sorted(spec.variables)
+    out = []
+    for index in zip(*np.nonzero(done)):
+        index = tuple(int(i) for i in index)
+        try:
+            stored = [int(c) for c in group[CHECKSUM][index]]
+            for name, crc in zip(names, stored):
+                if crc == -1:
+                    raise ValueError("no checksum stored")
+                if _crc(np.asarray(group[name][index]), index) != crc:
+                    raise ValueError(f"variable {name!r} does not match its checksum (a lost or altered chunk)")
+        except Exception as exc:  # noqa: BLE001 - an unreadable chunk is damage too
+            out.append((index, str(exc) if isinstance(exc, ValueError) else f"unreadable ({type(exc).__name__})"))
+    return out
 
 
 def completed(store_path, spec: SweepSpec) -> np.ndarray:
@@ -354,6 +400,7 @@ def _write_result(group: zarr.Group, layout: dict, index: tuple[int, ...], resul
             raise TypeError(f"variable {name!r}: cannot store {value.dtype} as {np.dtype(dtype)}") from exc
     for name, value in arrays.items():  # all checked before any is written
         group[name][index] = value
+    group[CHECKSUM][index] = [_crc(arrays[name], index) for name in sorted(arrays)]
     group[COMPLETED][index] = 1
 
 
@@ -566,6 +613,10 @@ def run_sweep(
 
     group = open_sweep(store_path, spec)
     done = completed(store_path, spec)
+    if done.any():  # trust no flag without its data: a damaged task runs again
+        for index, why in damaged_tasks(store_path, spec, done):
+            done[index] = False
+            say(f"sweep {spec.group}: task ({_index_text(spec, index)}) is flagged completed but {why}: it runs again")
     todo = [tuple(int(i) for i in index) for index in np.ndindex(*spec.task_shape) if not done[index]]
     n_tasks, skipped = int(done.size), int(done.sum())
     layout = _layout(spec)

@@ -8,7 +8,7 @@ import continuation as ct
 from continuation.branch import continue_in_coupling, continue_in_frequency, start_from_eigenmode
 from continuation.driver import ContinuationSettings
 from continuation.events import StopReason
-from scenarios._branch_store import BranchStore, StoreError, load_branch
+from scenarios._branch_store import CHUNK, BranchStore, StoreError, load_branch
 from warpchain import ChainParams, Flow, ReferenceFlow, lowest_optical_mode
 
 K_SETTINGS = ContinuationSettings(ds=0.5, ds_min=1e-3, ds_max=0.8, resolution=1e-2)
@@ -100,12 +100,12 @@ def test_a_missing_chunk_is_an_error_not_zeros(k_branch, tmp_path):
     "damage, match",
     [
         ("lose instability_kind unstable", r"'instability_kind', point \d+\): .*lost chunk"),
-        ("lose signature 1", r"'signature', point 1\): .*lost chunk"),
+        ("lose signature 1", r"'signature', point 16\): .*lost chunk"),
         ("lose stable 0", r"'stable', point 0\): .*lost chunk"),
-        ("lose checksum 3", r"'checksum', point 3\): reads as its fill value"),
+        ("lose checksum 2", r"'checksum', point 32\): reads as its fill value"),
         ("alter s 4", r"'s', point 4\): .*altered or misplaced"),
-        ("swap energy 0 5", r"'energy', point 0\): .*altered or misplaced"),
-        ("swap all 1 2", r"point 1\): .*altered or misplaced"),
+        ("swap energy 0 1", r"'energy', point 0\): .*altered or misplaced"),
+        ("swap all 1 2", r"point 16\): .*altered or misplaced"),
         ("edit instability_count 0", r"'instability_count', point 0\): .*altered or misplaced"),
         ("lower n_points 2", r"'checksum'\): \d+ rows but the group says \d+ points"),
     ],
@@ -120,9 +120,9 @@ def test_every_array_is_checked_against_its_point(k_branch, tmp_path, damage, ma
     what, *args = damage.rsplit(" ", 2) if damage.startswith("swap") else damage.rsplit(" ", 1)
     g = bad / "branch"
     if args == ["unstable"]:
-        args = [str(next(i for i, p in enumerate(branch.points) if p.instabilities))]
+        args = [str(next(i for i, p in enumerate(branch.points) if p.instabilities) // CHUNK)]
     if what.startswith("lose"):
-        chunk = g / what.split()[1] / "c" / args[0]  # point i's chunk (a folder for arrays of more dims)
+        chunk = g / what.split()[1] / "c" / args[0]  # chunk k: points 16 k .. (a folder for arrays of more dims)
         shutil.rmtree(chunk) if chunk.is_dir() else chunk.unlink()
     elif what == "alter s":
         zarr.open_array(str(g / "s"), mode="r+")[int(args[0])] = 123.0

@@ -6,7 +6,16 @@ import zarr
 
 from conftest import localized_state
 from warpchain import ChainParams, simulate
-from warpchain.store import FieldWriter, open_store, provenance, read_attrs, read_group, write_fields
+from warpchain.store import (
+    FieldWriter,
+    StoreError,
+    open_store,
+    provenance,
+    read_attrs,
+    read_group,
+    write_fields,
+    write_table,
+)
 
 
 def test_round_trip_and_xarray(tmp_path):
@@ -95,8 +104,42 @@ def test_a_missing_field_chunk_or_a_half_written_group_is_refused(tmp_path):
     chunk = path / "case" / "u" / "c" / "1" / "0"
     assert chunk.exists()
     chunk.unlink()  # frames 2 and 3 lost: they read as NaN (the fill value), never as zeros
-    with pytest.raises(StoreError, match=r"array 'u': frame 2"):
+    with pytest.raises(StoreError, match=r"array 'u': frames 2 to 3 do not match their checksum"):
         read_group(path, "case")
     (path / "case" / "zarr.json").write_text("{broken")
     with pytest.raises(StoreError, match="f.zarr"):
         read_group(path, "case")
+
+
+@pytest.mark.parametrize("damage", ["lose method", "alter energy", "swap u", "lower n_written", "drop crc"])
+def test_tables_and_fields_are_checked_array_by_array(tmp_path, damage):
+    """The audit's cases: a lost chunk of an integer table column (read as 0 without a check), an altered
+    value, two valid field chunks swapped, an edited frame count, an array stripped of its checksum."""
+    path = tmp_path / "s.zarr"
+    _field_store(path).close()
+    root = open_store(path, mode="a")
+    write_table(root, "points", {"method": np.array([4, 4, 4, 5, 5], dtype=np.int8), "energy": np.arange(5.0)})
+    for group in ("points", "case"):
+        read_group(path, group)  # intact
+    if damage == "lose method":
+        (path / "points" / "method" / "c" / "0").unlink()
+        group, match = "points", "array 'method': does not match its checksum"
+    elif damage == "alter energy":
+        zarr.open_array(str(path / "points" / "energy"), mode="r+")[2] = 7.0
+        group, match = "points", "array 'energy': does not match its checksum"
+    elif damage == "swap u":
+        u = zarr.open_array(str(path / "case" / "u"), mode="r+")
+        u[0:2], u[2:4] = u[2:4] + 1.0, u[0:2]  # two chunks exchanged (and made to differ)
+        group, match = "case", "array 'u': frames 0 to 1 do not match"
+    elif damage == "lower n_written":
+        meta = json.loads((path / "case" / "zarr.json").read_text())
+        meta["attributes"]["n_written"] -= 1
+        (path / "case" / "zarr.json").write_text(json.dumps(meta))
+        group, match = "case", "but n_written says"
+    else:
+        meta = json.loads((path / "points" / "method" / "zarr.json").read_text())
+        del meta["attributes"]["crc32"]
+        (path / "points" / "method" / "zarr.json").write_text(json.dumps(meta))
+        group, match = "points", "array 'method': no checksum in a group that keeps them"
+    with pytest.raises(StoreError, match=match):
+        read_group(path, group)

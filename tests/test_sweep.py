@@ -76,7 +76,7 @@ def test_in_process_sweep(tmp_path):
     assert g["x"].attrs["long_name"] == "demo field"
 
     ds = xr.open_zarr(path, group=GROUP)
-    assert dict(ds.sizes) == {"a": 3, "b": 2, "r": 4, "f": 5}
+    assert dict(ds.sizes) == {"a": 3, "b": 2, "r": 4, "f": 5, "sweep_variable": 4}
     assert ds["x"].dims == ("a", "b", "r", "f") and ds["y"].dims == ("a", "b") and ds["n"].dims == ("a", "b", "r")
     for dim, values in spec.coords.items():
         np.testing.assert_array_equal(ds[dim].values, values)
@@ -275,3 +275,31 @@ def test_tasks_in_flight_give_the_same_store(tmp_path, clean_store):
     assert_same_store(clean_store, path)
     with pytest.raises(ValueError, match="tasks_per_worker must be >= 1"):
         run_sweep(path, spec, _demo_task, progress=False, tasks_per_worker=0)
+
+
+@pytest.mark.parametrize("damage", ["lose n (1, 0)", "lose checksum (0, 1)", "alter y (2, 1)", "swap x (0, 0) (1, 1)"])
+def test_a_damaged_completed_task_runs_again(tmp_path, clean_store, damage):
+    """A task flagged completed whose data were lost (an int32 chunk reads as its fill value, not zeros),
+    altered or swapped with another task's is found by its checksums on resume and run again."""
+    import shutil
+
+    path = tmp_path / "data.zarr"
+    shutil.copytree(clean_store, path)
+    g = path / GROUP
+    what, name, *where = damage.replace("(", "").replace(")", "").replace(",", "").split()
+    cells = [where[i : i + 2] for i in range(0, len(where), 2)]
+    if what == "lose":
+        shutil.rmtree(g / name / "c" / cells[0][0] / cells[0][1])
+    elif what == "alter":
+        zarr.open_array(str(g / name), mode="r+")[int(cells[0][0]), int(cells[0][1])] = 1.5
+    else:
+        a, b = (g / name / "c" / i / j for i, j in cells)
+        a.rename(g / "tmp")
+        b.rename(a)
+        (g / "tmp").rename(b)
+    lines = []
+    report = run_sweep(path, _demo_spec(), _demo_task, progress=False, log=lines.append)
+    expected = sorted(tuple(int(v) for v in cell) for cell in cells)
+    assert sorted(report.task_indices) == expected
+    assert sum("flagged completed but" in line for line in lines) == len(cells)
+    assert_same_store(clean_store, path)

@@ -123,6 +123,13 @@ def jsonable(value):
     return value
 
 
+def crc32(values: np.ndarray) -> int:
+    """CRC-32 of an array's bytes (C order, as stored): written beside the data, checked by ``read_group``."""
+    import zlib
+
+    return zlib.crc32(np.ascontiguousarray(values).tobytes())
+
+
 def consolidate(store) -> None:
     """Write consolidated metadata (path or zarr store) so xarray opens the store without probing
     (zarr warns that consolidation is not yet part of the v3 spec; the store stays valid without it).
@@ -231,7 +238,20 @@ class FieldWriter:
                 overwrite=True,
             )
             arr[...] = values
-        self.group.attrs.update(jsonable({**(attrs or {}), "complete": False, "n_written": 0, "t_written": None}))
+            arr.attrs["crc32"] = crc32(np.asarray(values, dtype=arr.dtype))
+        self._chunk_crc: dict[str, list[int]] = {name: [] for name in [*self.arrays, "t"]}
+        self.group.attrs.update(
+            jsonable(
+                {
+                    **(attrs or {}),
+                    "complete": False,
+                    "n_written": 0,
+                    "t_written": None,
+                    "chunk_crc32": {},
+                    "crc_frames": self.chunk_t,
+                }
+            )
+        )
         self.n_written = 0
         self._pending_t: list[np.ndarray] = []
         self._pending: dict[str, list[np.ndarray]] = {name: [] for name in self.arrays}
@@ -270,13 +290,21 @@ class FieldWriter:
             values = np.concatenate(self._pending[name])
             arr.resize((stop, *arr.shape[1:]))
             arr[start:stop] = values[:take]
+            self._chunk_crc[name] += self._blocks(values[:take])
             self._pending[name] = [values[take:]] if take < n else []
         self.t.resize((stop,))
         self.t[start:stop] = t_all[:take]
+        self._chunk_crc["t"] += self._blocks(t_all[:take])
         self._pending_t = [t_all[take:]] if take < n else []
         self.n_written = stop
-        self.group.attrs.update({"n_written": int(stop), "t_written": float(t_all[take - 1])})
+        self.group.attrs.update(
+            {"n_written": int(stop), "t_written": float(t_all[take - 1]), "chunk_crc32": self._chunk_crc}
+        )
         consolidate(self.path)
+
+    def _blocks(self, values) -> list[int]:
+        """CRC-32 of every ``chunk_t`` frames (the flushes start at multiples of ``chunk_t``)."""
+        return [crc32(values[k : k + self.chunk_t]) for k in range(0, len(values), self.chunk_t)]
 
     def close(self, **attrs) -> None:
         """Write what is left (the last, possibly partial, chunk) and mark the group complete."""
@@ -335,8 +363,8 @@ def write_table(
             fill_value=np.nan if values.dtype.kind in "fc" else 0,
         )
         arr[...] = values
-    if attrs:
-        g.attrs.update(jsonable(attrs))
+        arr.attrs["crc32"] = crc32(values)
+    g.attrs.update(jsonable({**(attrs or {}), "checksums": True}))
     consolidate(root.store)
     return g
 
@@ -366,6 +394,7 @@ def read_group(path, group: str, *, require_complete: bool = True) -> tuple[dict
         raise StoreError(f"{where}: not found ({exc}); run the scene that writes it first") from None
     except Exception as exc:  # zarr raises many kinds on damaged metadata or chunks
         raise StoreError(f"{where}: unreadable ({type(exc).__name__}: {exc}); rerun the scene that wrote it") from None
+    _check_sums(where, g, attrs, arrays)
     if "n_written" in attrs:  # a field group
         if require_complete and not attrs.get("complete", False):
             raise StoreError(
@@ -382,6 +411,39 @@ def read_group(path, group: str, *, require_complete: bool = True) -> tuple[dict
                         "not finite (a lost or damaged chunk); rerun the scene that wrote it"
                     )
     return arrays, attrs
+
+
+def _check_sums(where: str, g, attrs: dict, arrays: dict) -> None:
+    """Every array against its checksum: ``crc32`` (tables, coordinates: the whole array) or the group's
+    ``chunk_crc32`` (fields and ``t``: one per chunk of frames, and as many frames as ``n_written``). A
+    group that declares checksums (``checksums`` or ``chunk_crc32``) and has an array without one is damaged."""
+    chunks = attrs.get("chunk_crc32")
+    declared = bool(attrs.get("checksums")) or isinstance(chunks, dict)
+    hint = "rerun the scene that wrote it"
+    for name, values in arrays.items():
+        crc = g[name].attrs.get("crc32")
+        if crc is not None:
+            if crc32(values) != crc:
+                raise StoreError(
+                    f"{where}, array '{name}': does not match its checksum (a lost or altered chunk); {hint}"
+                )
+            continue
+        if isinstance(chunks, dict) and name in chunks:
+            n, step = int(attrs.get("n_written", -1)), int(attrs.get("crc_frames", 1))
+            if values.shape[0] != n or len(chunks[name]) != -(-n // step):
+                raise StoreError(
+                    f"{where}, array '{name}': {values.shape[0]} frames in {len(chunks[name])} checksummed chunks, "
+                    f"but n_written says {n} (the group's count was altered, or the run did not finish); {hint}"
+                )
+            for k, want in enumerate(chunks[name]):
+                if crc32(values[k * step : (k + 1) * step]) != want:
+                    raise StoreError(
+                        f"{where}, array '{name}': frames {k * step} to {min((k + 1) * step, n) - 1} do not match "
+                        f"their checksum (a lost, altered or misplaced chunk); {hint}"
+                    )
+            continue
+        if declared:
+            raise StoreError(f"{where}, array '{name}': no checksum in a group that keeps them; {hint}")
 
 
 def read_attrs(path) -> dict:
