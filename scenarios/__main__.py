@@ -108,7 +108,8 @@ def main(argv=None) -> int:
         device = resolve_device(args.device)  # once, here: a missing GPU is one error, not one per scene
         return run_in_order(names, args.out, device, args.quick, command_line)
     except (ValueError, OSError) as exc:  # bad input, damaged store, unusable --out: one line, exit 2
-        print(f"error: {exc}", file=sys.stderr)
+        notes = "".join(f" ({note})" for note in getattr(exc, "__notes__", ()))
+        print(f"error: {exc}{notes}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as exc:
         how = "terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted"
@@ -152,7 +153,8 @@ def run_in_order(names, out, device, quick: bool, command_line: str) -> int:
             failures.append((name, exc))
     log.info("paper: %d scenes in %.1f s, %d failed", len(names), time.perf_counter() - start, len(failures))
     for name, exc in failures:
-        print(f"error: scene {name} failed: {type(exc).__name__}: {exc}", file=sys.stderr)
+        notes = "".join(f" ({note})" for note in getattr(exc, "__notes__", ()))
+        print(f"error: scene {name} failed: {type(exc).__name__}: {exc}{notes}", file=sys.stderr)
     return 1 if failures else 0
 
 

@@ -258,7 +258,11 @@ def _run_in(module, ctx: Context) -> dict:
             (out / name).write_bytes(content)
         raise
     except Exception as exc:
-        (out / "failed.json").write_text(json.dumps({"scene": ctx.name, "error": f"{type(exc).__name__}: {exc}"}))
+        hint = failure_hint(exc)
+        if hint:
+            exc.add_note(hint)  # printed under the traceback
+        error = f"{type(exc).__name__}: {exc}" + (f" ({hint})" if hint else "")
+        (out / "failed.json").write_text(json.dumps({"scene": ctx.name, "error": error}))
         raise
     summary.setdefault("wall_seconds", time.perf_counter() - start)
     if params is not None:
@@ -269,6 +273,28 @@ def _run_in(module, ctx: Context) -> dict:
     module.plot(out)
     ctx.log("done in %.1f s", time.perf_counter() - start)
     return summary
+
+
+def failure_hint(exc: BaseException) -> str:
+    """Advice for a failure whose cause lies outside the scene: Warp's kernel cache damaged (a compiled
+    module that does not load, or a ``.meta`` file that is not JSON, met while Warp loads a module)."""
+    import traceback
+
+    frames = traceback.extract_tb(exc.__traceback__)
+    in_warp_load = any("warp" in f.filename and "context" in f.filename for f in frames[-6:])
+    text = str(exc)
+    if ("Failed to load" in text and "module" in text) or (in_warp_load and isinstance(exc, json.JSONDecodeError)):
+        try:
+            import warp
+
+            cache = warp.config.kernel_cache_dir
+        except Exception:  # noqa: BLE001
+            cache = "~/.cache/warp"
+        return (
+            f"Warp's kernel cache at {cache} looks damaged: delete it (python -c \"import warp; "
+            'warp.clear_kernel_cache()") and run again; the kernels are compiled anew'
+        )
+    return ""
 
 
 # ----------------------------------------------------------------------------- the paper breather

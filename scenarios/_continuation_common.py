@@ -105,28 +105,18 @@ def run_branch(
     if ctx.resume:
         stored_params, resume, stored_attrs = load_branch(path, group)
         _check_resume(path, group, stored_params, stored_attrs, params, attrs)
-        if not isinstance(stored_attrs.get("walk_state"), dict):
-            raise ResumeRefused(
-                f"{path} (group '{group}') holds no record of a completed step (the run stopped during its start): "
-                "run without --resume"
+        if not resume and not isinstance(stored_attrs.get("walk_state"), dict):  # killed before its first write
+            ctx.log("resume: %s holds no points yet (the run was stopped before its first write): starting anew", path)
+            resume = None
+        else:
+            state = _walk_state(path, group, stored_attrs, resume)
+            resume = resume[: state.points]
+            ctx.log(
+                "resuming from %d stored points (%s at %s)",
+                len(resume),
+                stored_attrs.get("stop_reason"),
+                problem.describe(resume[-1]),
             )
-        try:
-            state = WalkState.from_dict(stored_attrs["walk_state"], stored_attrs.get("events") or [])
-        except (KeyError, TypeError, ValueError) as exc:
-            why = f"{path} (group '{group}'): damaged walk_state ({exc!r}): run without --resume"
-            raise ResumeRefused(why) from None
-        if not 0 < state.points <= len(resume) or not state.walk or state.walk[-1] >= state.points:
-            raise ResumeRefused(
-                f"{path} (group '{group}'): walk_state after {state.points} points (walk ending at point "
-                f"{state.walk[-1:]}) does not fit the {len(resume)} stored points: run without --resume"
-            )
-        resume = resume[: state.points]
-        ctx.log(
-            "resuming from %d stored points (%s at %s)",
-            len(resume),
-            stored_attrs.get("stop_reason"),
-            problem.describe(resume[-1]),
-        )
     store = BranchStore(
         path,
         group,
@@ -168,6 +158,24 @@ def run_branch(
         branch.stats["seconds_per_point"],
     )
     return branch
+
+
+def _walk_state(path, group: str, stored_attrs: dict, points: list) -> WalkState:
+    """The stored walk state, checked against the stored points (ResumeRefused when it is missing or damaged)."""
+    if not isinstance(stored_attrs.get("walk_state"), dict):
+        raise ResumeRefused(
+            f"{path} (group '{group}') holds points but no record of a completed step: run without --resume"
+        )
+    try:
+        state = WalkState.from_dict(stored_attrs["walk_state"], stored_attrs.get("events") or [])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ResumeRefused(f"{path} (group '{group}'): damaged walk_state ({exc!r}): run without --resume") from None
+    if not 0 < state.points <= len(points) or not state.walk or state.walk[-1] >= state.points:
+        raise ResumeRefused(
+            f"{path} (group '{group}'): walk_state after {state.points} points (walk ending at point "
+            f"{state.walk[-1:]}) does not fit the {len(points)} stored points: run without --resume"
+        )
+    return state
 
 
 class ResumeRefused(StoreError, Refused):

@@ -111,7 +111,7 @@ def uninterrupted(tmp_path_factory):
     return out
 
 
-@pytest.mark.parametrize("how, after", [("SIGKILL", 1), ("SIGINT", 16), ("max_points", 20)])
+@pytest.mark.parametrize("how, after", [("SIGKILL", 6), ("SIGINT", 9), ("max_points", 20)])
 def test_a_resume_equals_the_uninterrupted_branch(uninterrupted, tmp_path, how, after):
     """Killed (SIGKILL: the writer's queue is lost, the lock left behind), interrupted (SIGINT) or cut by a
     point count, then resumed: every array, the events and the counters equal the uninterrupted run's."""
@@ -128,14 +128,19 @@ def test_a_resume_equals_the_uninterrupted_branch(uninterrupted, tmp_path, how, 
         assert subprocess.run(cmd + ["--set", f"max_points={after}"], capture_output=True).returncode == 0
     else:
         proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-        _wait_for_points(store, after, proc)
-        proc.send_signal(getattr(signal, how))
+        seen, lines = 0, []
+        while seen < after:  # the walk logs a line per point it steps from ("w = ...: E = ...")
+            line = proc.stderr.readline()
+            assert line, "".join(lines[-20:])
+            lines.append(line)
+            seen += "[continuation-omega] w = " in line
+        proc.send_signal(getattr(signal, how))  # while the walk goes on: its points not yet written included
         _, err = proc.communicate(timeout=120)
         assert proc.returncode in (-9, 130), err[-2000:]
     cut = _arrays_and_attrs(store)[1]
     expected = {"max_points": ("max_points", True), "SIGINT": ("interrupted", False), "SIGKILL": (None, False)}[how]
     assert (cut["stop_reason"], cut["complete"]) == expected
-    assert cut["n_points"] >= after - 1
+    assert cut["n_points"] >= (after if how == "SIGINT" else 0)  # SIGINT flushes; SIGKILL may lose the queue
     # no consolidated metadata while the branch grew (a kill leaves none, never a stale one); marked runs have it
     meta = json.loads((store / "zarr.json").read_text())
     assert ("consolidated_metadata" in meta) == (how != "SIGKILL")

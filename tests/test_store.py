@@ -111,7 +111,9 @@ def test_a_missing_field_chunk_or_a_half_written_group_is_refused(tmp_path):
         read_group(path, "case")
 
 
-@pytest.mark.parametrize("damage", ["lose method", "alter energy", "swap u", "lower n_written", "drop crc"])
+@pytest.mark.parametrize(
+    "damage", ["lose method", "alter energy", "swap u", "lower n_written", "drop crc", "lose u metadata", "lose column"]
+)
 def test_tables_and_fields_are_checked_array_by_array(tmp_path, damage):
     """The audit's cases: a lost chunk of an integer table column (read as 0 without a check), an altered
     value, two valid field chunks swapped, an edited frame count, an array stripped of its checksum."""
@@ -136,6 +138,12 @@ def test_tables_and_fields_are_checked_array_by_array(tmp_path, damage):
         meta["attributes"]["n_written"] -= 1
         (path / "case" / "zarr.json").write_text(json.dumps(meta))
         group, match = "case", "but n_written says"
+    elif damage == "lose u metadata":
+        (path / "case" / "u" / "zarr.json").unlink()
+        group, match = "case", "array 'u': missing"
+    elif damage == "lose column":
+        (path / "points" / "energy" / "zarr.json").unlink()
+        group, match = "points", "array 'energy': missing"
     else:
         meta = json.loads((path / "points" / "method" / "zarr.json").read_text())
         del meta["attributes"]["crc32"]
@@ -143,3 +151,11 @@ def test_tables_and_fields_are_checked_array_by_array(tmp_path, damage):
         group, match = "points", "array 'method': no checksum in a group that keeps them"
     with pytest.raises(StoreError, match=match):
         read_group(path, group)
+
+
+def test_a_damaged_kernel_cache_gets_a_hint():
+    from scenarios._common import failure_hint
+
+    hint = failure_hint(Exception("Failed to load CPU module 'warpchain.kernels' (device='cpu', module_hash=c36b)"))
+    assert "kernel cache" in hint and "warp.clear_kernel_cache()" in hint
+    assert failure_hint(ValueError("N must be >= 3")) == ""

@@ -364,7 +364,7 @@ def write_table(
         )
         arr[...] = values
         arr.attrs["crc32"] = crc32(values)
-    g.attrs.update(jsonable({**(attrs or {}), "checksums": True}))
+    g.attrs.update(jsonable({**(attrs or {}), "checksums": True, "columns": list(columns)}))
     consolidate(root.store)
     return g
 
@@ -420,6 +420,10 @@ def _check_sums(where: str, g, attrs: dict, arrays: dict) -> None:
     chunks = attrs.get("chunk_crc32")
     declared = bool(attrs.get("checksums")) or isinstance(chunks, dict)
     hint = "rerun the scene that wrote it"
+    listed = list(chunks or {}) + list(attrs.get("columns") or [])
+    for name in listed:  # an array whose metadata is lost is not listed by zarr: never silently left out
+        if name not in arrays:
+            raise StoreError(f"{where}, array '{name}': missing (its metadata is lost); {hint}")
     for name, values in arrays.items():
         crc = g[name].attrs.get("crc32")
         if crc is not None:
