@@ -127,7 +127,14 @@ def test_a_resume_equals_the_uninterrupted_branch(uninterrupted, tmp_path, how, 
     if how == "max_points":
         assert subprocess.run(cmd + ["--set", f"max_points={after}"], capture_output=True).returncode == 0
     else:
-        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        # a shell's background job ignores SIGINT, and a Python started so keeps ignoring it: restore it
+        proc = subprocess.Popen(
+            cmd,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+            text=True,
+            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+        )
         seen, lines = 0, []
         while seen < after:  # the walk logs a line per point it steps from ("w = ...: E = ...")
             line = proc.stderr.readline()
