@@ -159,3 +159,11 @@ def test_a_damaged_kernel_cache_gets_a_hint():
     hint = failure_hint(Exception("Failed to load CPU module 'warpchain.kernels' (device='cpu', module_hash=c36b)"))
     assert "kernel cache" in hint and "warp.clear_kernel_cache()" in hint
     assert failure_hint(ValueError("N must be >= 3")) == ""
+
+
+def test_a_group_of_zero_frames_reads_as_empty(tmp_path):
+    path = tmp_path / "z.zarr"
+    root = open_store(path, params={"N": 3})
+    FieldWriter(root, path, "case", {"u": (3,)}, ("t", "site"), chunk_t=2).close()
+    arrays, attrs = read_group(path, "case")
+    assert arrays["u"].shape == (0, 3) and arrays["t"].shape == (0,) and attrs["n_written"] == 0

@@ -247,7 +247,7 @@ class FieldWriter:
                     "complete": False,
                     "n_written": 0,
                     "t_written": None,
-                    "chunk_crc32": {},
+                    "chunk_crc32": self._chunk_crc,
                     "crc_frames": self.chunk_t,
                 }
             )
@@ -403,7 +403,7 @@ def read_group(path, group: str, *, require_complete: bool = True) -> tuple[dict
             )
         n = int(attrs["n_written"])
         for name, values in arrays.items():
-            if values.dtype.kind == "f" and values.ndim and values.shape[0] == n and name != "site":
+            if values.dtype.kind == "f" and values.ndim and values.shape[0] == n > 0 and name != "site":
                 bad = ~np.isfinite(values.reshape(n, -1)).all(axis=1)
                 if bad.any():
                     raise StoreError(
