@@ -378,7 +378,7 @@ class BranchStore:
 def row_checksum(row: np.ndarray, point: int) -> int:
     """CRC-32 of point ``point``'s row of an array, as stored (dtype and shape of the array's chunk),
     started from the point's index: a whole point moved to another index no longer matches either."""
-    return zlib.crc32(np.ascontiguousarray(row).tobytes(), int(point))
+    return zlib.crc32(np.ascontiguousarray(row).reshape(-1).view(np.uint8), int(point))
 
 
 def _fail(path, group, name, i, what):

@@ -309,7 +309,7 @@ def _crc(values: np.ndarray, index: tuple) -> int:
     import zlib
 
     seed = zlib.crc32(repr(tuple(int(i) for i in index)).encode())
-    return zlib.crc32(np.ascontiguousarray(values).tobytes(), seed)
+    return zlib.crc32(np.ascontiguousarray(values).reshape(-1).view(np.uint8), seed)
 
 
 def _create_checksum(group: zarr.Group, spec: SweepSpec) -> None:

@@ -127,7 +127,7 @@ def crc32(values: np.ndarray) -> int:
     """CRC-32 of an array's bytes (C order, as stored): written beside the data, checked by ``read_group``."""
     import zlib
 
-    return zlib.crc32(np.ascontiguousarray(values).tobytes())
+    return zlib.crc32(np.ascontiguousarray(values).reshape(-1).view(np.uint8))
 
 
 def consolidate(store) -> None:
