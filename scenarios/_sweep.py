@@ -816,6 +816,16 @@ def _demo_warm_up(device: str, *, folder: str) -> None:
         fh.write(f"{device} {_ALLOCATOR.get('mmap_threshold', 0) / 2**20:.1f} MiB")
 
 
+def _demo_task_dying(index: dict, device: str, *, marker: str, at=(1, 0), **kwargs) -> dict:
+    """``_demo_task``, except that at index ``at`` the first call kills its process (as SIGKILL would: no
+    cleanup, no exception) after leaving ``marker``; the next call there runs normally."""
+    key = tuple(int(i) for i in index.values())
+    if key == tuple(at) and not os.path.exists(marker):
+        open(marker, "w").close()
+        os._exit(9)
+    return _demo_task(index, device, **kwargs)
+
+
 def _demo_spec(
     group: str = "observables", n_a: int = 3, n_b: int = 2, n_r: int = 4, n_f: int = 5, **attrs
 ) -> SweepSpec:

@@ -11,6 +11,7 @@ import pytest
 import zarr
 
 from scenarios._sweep import (
+    _demo_task_dying,
     _demo_warm_up,
     COMPLETED,
     SweepMismatchError,
@@ -302,4 +303,34 @@ def test_a_damaged_completed_task_runs_again(tmp_path, clean_store, damage):
     expected = sorted(tuple(int(v) for v in cell) for cell in cells)
     assert sorted(report.task_indices) == expected
     assert sum("flagged completed but" in line for line in lines) == len(cells)
+    assert_same_store(clean_store, path)
+
+
+def test_a_killed_worker_or_client_loses_nothing(tmp_path, clean_store):
+    """A worker process that dies in the middle of a task (no cleanup): Dask runs the task again elsewhere and
+    the store equals the in-process one. A client killed by SIGKILL mid-sweep: the rerun runs only what is
+    missing and the store equals the uninterrupted one."""
+    import subprocess
+    import sys
+
+    pytest.importorskip("distributed")
+    path = tmp_path / "worker.zarr"
+    task = functools.partial(_demo_task_dying, marker=str(tmp_path / "died"))
+    report = run_sweep(path, _demo_spec(), task, workers=2, progress=False)
+    assert (tmp_path / "died").exists() and report.ran == 6
+    assert_same_store(clean_store, path)
+
+    path = tmp_path / "client.zarr"
+    script = (
+        "import functools, sys\n"
+        "from scenarios._sweep import _demo_spec, _demo_task_dying, run_sweep\n"
+        f"task = functools.partial(_demo_task_dying, marker={str(tmp_path / 'client-died')!r}, at=(2, 0))\n"
+        f"run_sweep({str(path)!r}, _demo_spec(), task, progress=False, tasks_per_worker=1)\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 9, proc.stderr[-2000:]  # the client died at task (2, 0), as SIGKILL would leave it
+    done = completed(path, _demo_spec())
+    assert done.sum() == 4 and not done[2].any()
+    report = run_sweep(path, _demo_spec(), _demo_task, progress=False)
+    assert (report.skipped, report.ran) == (4, 2)
     assert_same_store(clean_store, path)
