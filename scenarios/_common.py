@@ -259,7 +259,7 @@ def _run_in(module, ctx: Context) -> dict:
         raise
     except Exception as exc:
         hint = failure_hint(exc)
-        if hint:
+        if hint and hasattr(exc, "add_note"):  # Python >= 3.11
             exc.add_note(hint)  # printed under the traceback
         error = f"{type(exc).__name__}: {exc}" + (f" ({hint})" if hint else "")
         (out / "failed.json").write_text(json.dumps({"scene": ctx.name, "error": error}))
