@@ -258,20 +258,19 @@ class BranchStore:
     def append(self, point: BranchPoint) -> None:
         """Write one point (queued when ``background`` is on); ``n_points`` is raised only after every
         array holds it."""
-        self._raise_error()
-        if self._thread is not None:
-            self._queue.put(point)
-        else:
-            self._write(point)
+        self._submit(point, self._write)
 
     def step(self, state: WalkState) -> None:
         """Record the walk's state after a completed step (queued behind its points with ``background``):
         the events so far and ``walk_state``, from which ``--resume`` continues exactly."""
+        self._submit(state, self._write_state)
+
+    def _submit(self, item, write) -> None:
         self._raise_error()
         if self._thread is not None:
-            self._queue.put(state)
+            self._queue.put(item)
         else:
-            self._write_state(state)
+            write(item)
 
     def _write_state(self, state: WalkState) -> None:
         if state.points > self.n_points:
