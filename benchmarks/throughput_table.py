@@ -1,4 +1,4 @@
-"""The README's GPU throughput tables, generated from a throughput summary (no figure typed by hand).
+"""The GPU throughput tables of docs/performance.md, generated from a throughput summary (no figure typed by hand).
 
 Command: ``python benchmarks/throughput_table.py benchmarks/h200-2026-11-22b/throughput-summary.json``
 """
