@@ -100,12 +100,12 @@ def test_a_missing_chunk_is_an_error_not_zeros(k_branch, tmp_path):
     "damage, match",
     [
         ("lose instability_kind unstable", r"'instability_kind', point \d+\): .*lost chunk"),
-        ("lose signature 1", r"'signature', point 16\): .*lost chunk"),
+        ("lose signature 1", rf"'signature', point {CHUNK}\): .*lost chunk"),
         ("lose stable 0", r"'stable', point 0\): .*lost chunk"),
-        ("lose checksum 2", r"'checksum', point 32\): reads as its fill value"),
+        ("lose checksum 2", rf"'checksum', point {2 * CHUNK}\): reads as its fill value"),
         ("alter s 4", r"'s', point 4\): .*altered or misplaced"),
         ("swap energy 0 1", r"'energy', point 0\): .*altered or misplaced"),
-        ("swap all 1 2", r"point 16\): .*altered or misplaced"),
+        ("swap all 1 2", rf"point {CHUNK}\): .*altered or misplaced"),
         ("edit instability_count 0", r"'instability_count', point 0\): .*altered or misplaced"),
         ("lower n_points 2", r"'checksum'\): \d+ rows but the group says \d+ points"),
     ],
@@ -122,7 +122,7 @@ def test_every_array_is_checked_against_its_point(k_branch, tmp_path, damage, ma
     if args == ["unstable"]:
         args = [str(next(i for i, p in enumerate(branch.points) if p.instabilities) // CHUNK)]
     if what.startswith("lose"):
-        chunk = g / what.split()[1] / "c" / args[0]  # chunk k: points 16 k .. (a folder for arrays of more dims)
+        chunk = g / what.split()[1] / "c" / args[0]  # chunk k: points CHUNK k .. (a folder for arrays of more dims)
         shutil.rmtree(chunk) if chunk.is_dir() else chunk.unlink()
     elif what == "alter s":
         zarr.open_array(str(g / "s"), mode="r+")[int(args[0])] = 123.0
