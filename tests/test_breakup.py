@@ -75,6 +75,7 @@ def test_reproducible_from_the_recorded_seeds(quick):
     assert np.array_equal(again["energy"], stored["energy"][2, 0])
 
 
+@pytest.mark.slow
 def test_dask_two_workers_give_the_in_process_store(tmp_path):
     pytest.importorskip("distributed")
     run_scene("breakup-statistics", tmp_path / "local", "cpu", quick=True, overrides=TINY)

@@ -75,6 +75,7 @@ def test_paper_jobs_are_checked_and_a_failing_scene_is_reported(tmp_path):
     assert (tmp_path / "dispersion" / "summary.json").exists()
 
 
+@pytest.mark.slow
 def test_breather_scenes_quick(paper_quick):
     tmp_path = paper_quick
     s = json.loads((tmp_path / "breather" / "summary.json").read_text())
@@ -108,6 +109,7 @@ def test_breather_scenes_quick(paper_quick):
         assert (tmp_path / name / f"{name}.png").exists()
 
 
+@pytest.mark.slow
 def test_continuation_scenes_quick(paper_quick):
     k = json.loads((paper_quick / "continuation-k" / "summary.json").read_text())
     assert {
@@ -139,6 +141,7 @@ def test_continuation_scenes_quick(paper_quick):
     assert all({"K", "kind", "family", "located"} <= set(e) for e in k["bifurcation_points"])
 
 
+@pytest.mark.slow
 def test_site_bond_scene_quick(paper_quick):
     import xarray as xr
     import zarr
@@ -167,6 +170,7 @@ def test_site_bond_scene_quick(paper_quick):
         assert (out / f"{figure}.png").stat().st_size > 10_000
 
 
+@pytest.mark.slow
 def test_set_overrides_and_resume(tmp_path):
     out = _run(
         "run",
@@ -208,6 +212,7 @@ def test_set_overrides_and_resume(tmp_path):
     assert bad.returncode == 2 and "cannot be resumed" in bad.stderr
 
 
+@pytest.mark.slow
 def test_direct_simulation_quick(paper_quick):
     xr = pytest.importorskip("xarray")
     s = json.loads((paper_quick / "direct-simulation" / "summary.json").read_text())
@@ -221,6 +226,7 @@ def test_direct_simulation_quick(paper_quick):
     assert ds.sizes["t"] == s["periods"] * s["frames_per_period"] + 1
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["work-precision", "stability-limits", "throughput"])
 def test_speed_accuracy_scenes_quick(tmp_path, name):
     out = _run("run", name, "--quick", "--out", str(tmp_path), "--device", "cpu")

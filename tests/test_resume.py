@@ -4,6 +4,7 @@ resume with settings other than the stored branch's is refused with one line tha
 import json
 
 import numpy as np
+import pytest
 
 from scenarios.__main__ import main
 
@@ -101,9 +102,6 @@ def _arrays_and_attrs(store):
     return {name: g[name][...] for name in g.array_keys()}, dict(g.attrs)
 
 
-import pytest  # noqa: E402
-
-
 @pytest.fixture(scope="module")
 def uninterrupted(tmp_path_factory):
     out = tmp_path_factory.mktemp("whole")
@@ -111,6 +109,7 @@ def uninterrupted(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("how, after", [("SIGKILL", 6), ("SIGINT", 9), ("max_points", 20)])
 def test_a_resume_equals_the_uninterrupted_branch(uninterrupted, tmp_path, how, after):
     """Killed (SIGKILL: the writer's queue is lost, the lock left behind), interrupted (SIGINT) or cut by a
@@ -167,6 +166,7 @@ def test_a_resume_equals_the_uninterrupted_branch(uninterrupted, tmp_path, how, 
     }
 
 
+@pytest.mark.slow
 def test_a_point_count_that_cuts_a_step_resumes_into_the_same_branch(tmp_path):
     """max_points = 40 stops inside a bisected step (the last completed step ends at point 19 here): the
     resumed walk redoes that step, and its 80 points, events and counters equal one walk of 80."""
@@ -207,6 +207,7 @@ def test_a_point_count_that_cuts_a_step_resumes_into_the_same_branch(tmp_path):
     }
 
 
+@pytest.mark.slow
 def test_resuming_from_any_completed_step_gives_the_same_branch():
     """Every on_step state of the quick frequency branch (steps with many bisection points among them, after
     which the corrector no longer holds the walk point's Jacobian: WalkState.chord) resumes into the same
