@@ -410,6 +410,14 @@ class WalkState:
         }
         return dict(d, events=len(self.events))
 
+    def check(self, n_points: int) -> None:
+        """ValueError unless this state fits a branch of ``n_points`` stored points."""
+        if not 0 < self.points <= n_points or not self.walk or self.walk[-1] >= self.points:
+            raise ValueError(
+                f"walk state after {self.points} points (walk ending at point {list(self.walk[-1:])}) does not fit "
+                f"the {n_points} stored points"
+            )
+
     @classmethod
     def from_dict(cls, d: dict, events) -> "WalkState":
         """The state ``as_dict`` gave, with the branch's events (the first ``d["events"]`` of them are its)."""
@@ -464,6 +472,7 @@ def _walk(problem, settings, resume, resume_state, on_point, on_event, on_step, 
     """``continuation``'s body (under its BLAS thread limit)."""
     start = time.perf_counter()
     stats = {"solves": 0, "failed_solves": 0, "bisection_solves": 0, "rejected_backwards": 0}
+    stats.update(bubbles_predicted=0, bubbles_below_width=0, bubble_solves=0, bubbles_confirmed=0, foam_steps=0)
     events: list = []
     par = problem.parameter
 
@@ -480,6 +489,7 @@ def _walk(problem, settings, resume, resume_state, on_point, on_event, on_step, 
         points.append(point)
         if on_walk:
             walk.append(point)
+            walk_index.append(len(points) - 1)
         if on_point:
             on_point(point)
 
@@ -487,11 +497,14 @@ def _walk(problem, settings, resume, resume_state, on_point, on_event, on_step, 
     # refinement needs them all); cleared down to the last point after each step
     spectra: dict = {}
 
+    def chord_jacobian(solution):
+        """The residual Jacobian the next corrector's chord steps start from (Floquet formed it anyway)."""
+        return solution.linearization.unit_columns("positions")[2 * solution.params.N :, :]
+
     def analysed(solution):
         point = analyse(solution, settings.floquet, spectra)
-        if settings.floquet and settings.chord and hasattr(problem, "remember"):  # next corrector's chord Jacobian
-            n2 = 2 * solution.params.N
-            problem.remember(point, solution.linearization.unit_columns("positions")[n2:, :])
+        if settings.floquet and settings.chord and hasattr(problem, "remember"):
+            problem.remember(point, chord_jacobian(solution))
         return point
 
     def solve(fn, *args):
@@ -506,37 +519,33 @@ def _walk(problem, settings, resume, resume_state, on_point, on_event, on_step, 
     # the walk: the points the driver stepped to (not the ones bisection and bubble solves put between
     # them), whose secant sets the next predictor, so that refinement never steers the branch
     walk: list = []
+    walk_index: list = []  # where the walk's points are in ``points`` (what on_step reports)
+    restored = None  # the walk's points of a resumed branch with its state
     if resume and resume_state is not None:
-        if len(resume) < resume_state.points or not resume_state.walk or resume_state.walk[-1] >= resume_state.points:
-            raise ValueError(
-                f"resume_state (points {resume_state.points}, walk ending at {resume_state.walk[-1:]}) does not fit "
-                f"{len(resume)} points"
-            )
+        resume_state.check(len(resume))
         resume = list(resume[: resume_state.points])
+        restored = [resume[i] for i in resume_state.walk]
         events.extend(resume_state.events)
-    problem.prepare(settings, resume, [resume[i] for i in resume_state.walk] if resume_state and resume else None)
+        stats.update(resume_state.stats)  # the counters go on from where the stored walk left them
+    problem.prepare(settings, resume, restored)
     if settings.bisect_krein == "auto":
         settings = settings.replace(bisect_krein="all" if problem.params.N <= AUTO_ALL_SITES else "predict")
     bubble_width = settings.bubble_width or settings.resolution / BUBBLE_FRACTION
-    stats.update(bubbles_predicted=0, bubbles_below_width=0, bubble_solves=0, bubbles_confirmed=0, foam_steps=0)
-    if resume and resume_state is not None:
-        stats.update(resume_state.stats)  # the counters go on from where the stored walk left them
     predictions: dict = {}  # (id(a), id(b)) -> predicted bubbles, for the step's chase and its record
     if resume:
         if len(resume) < 2 and problem.parameter == "omega":
             raise ValueError("resuming a frequency branch needs at least two stored points (they set the tangent)")
         points.extend(resume)
-        walk.extend(resume if resume_state is None else [resume[i] for i in resume_state.walk])
-        if resume_state is not None:  # the last point's spectra and chord Jacobian, as its first analysis left them
+        walk.extend(resume if restored is None else restored)
+        walk_index.extend(range(len(resume)) if restored is None else resume_state.walk)
+        if restored is not None:  # the last point's spectra and chord Jacobian, as its first analysis left them
             last = points[-1]
             again = problem.revisit(last)
             fresh = analyse(again, settings.floquet, spectra)
             if settings.floquet:
                 spectra[id(last)] = (last, spectra.pop(id(fresh))[1])
                 if settings.chord and hasattr(problem, "restore") and resume_state.chord is not None:
-                    n2 = 2 * again.params.N
-                    J = again.linearization.unit_columns("positions")[n2:, :]
-                    problem.restore(last, J, resume_state.chord)
+                    problem.restore(last, chord_jacobian(again), resume_state.chord)
     else:
         for sol in problem.start():
             if isinstance(sol, Failure):
@@ -670,7 +679,6 @@ def _walk(problem, settings, resume, resume_state, on_point, on_event, on_step, 
             bar_format="{desc}: {percentage:3.0f}%|{bar}| [{elapsed}] {postfix}",
         )
     h = settings.ds if resume_state is None else resume_state.h
-    walk_index = [i for i, p in enumerate(points) if any(p is w for w in walk)]
 
     def stepped():
         if on_step is not None:
@@ -731,8 +739,6 @@ def _walk(problem, settings, resume, resume_state, on_point, on_event, on_step, 
                     break  # a stated point count is exact, even inside a bisected step
                 note(ev.harmonic_event(points[-1], p, par))
                 accept(p, on_walk=p is new)
-                if p is new:
-                    walk_index.append(len(points) - 1)
             kept = spectra.get(id(points[-1]))
             spectra.clear()
             predictions.clear()

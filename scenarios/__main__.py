@@ -14,6 +14,11 @@ from ._common import PAPER_SCENES, SCENES, load_scene, run_scene
 from ._parallel import parse_jobs, run_parallel
 
 
+def _with_notes(exc: BaseException) -> str:
+    """The error's text and its notes (a failure's hint, ``scenarios._common.failure_hint``) on one line."""
+    return str(exc) + "".join(f" ({note})" for note in getattr(exc, "__notes__", ()))
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m scenarios", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -108,8 +113,7 @@ def main(argv=None) -> int:
         device = resolve_device(args.device)  # once, here: a missing GPU is one error, not one per scene
         return run_in_order(names, args.out, device, args.quick, command_line)
     except (ValueError, OSError) as exc:  # bad input, damaged store, unusable --out: one line, exit 2
-        notes = "".join(f" ({note})" for note in getattr(exc, "__notes__", ()))
-        print(f"error: {exc}{notes}", file=sys.stderr)
+        print(f"error: {_with_notes(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as exc:
         how = "terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted"
@@ -153,8 +157,7 @@ def run_in_order(names, out, device, quick: bool, command_line: str) -> int:
             failures.append((name, exc))
     log.info("paper: %d scenes in %.1f s, %d failed", len(names), time.perf_counter() - start, len(failures))
     for name, exc in failures:
-        notes = "".join(f" ({note})" for note in getattr(exc, "__notes__", ()))
-        print(f"error: scene {name} failed: {type(exc).__name__}: {exc}{notes}", file=sys.stderr)
+        print(f"error: scene {name} failed: {type(exc).__name__}: {_with_notes(exc)}", file=sys.stderr)
     return 1 if failures else 0
 
 

@@ -28,7 +28,6 @@ import asyncio
 import json
 import queue
 import threading
-import zlib
 from pathlib import Path
 
 import numpy as np
@@ -50,6 +49,7 @@ BATCH = 256
 CHUNK = 64
 #: seconds a computed point may wait for its chunk to fill before it is written anyway
 LINGER = 2.0
+_LINGER = object()  # what the writer's queue gives when LINGER seconds passed without an item
 INT_FILL = -128
 
 
@@ -222,16 +222,16 @@ class BranchStore:
             try:
                 item = self._queue.get(timeout=timeout)
             except queue.Empty:
-                item = "linger"
+                item = _LINGER
             if item is None:
                 done = True
             elif isinstance(item, WalkState):
                 state = item
-            elif item != "linger":
+            elif item is not _LINGER:
                 pending.append(item)
                 since = since or _time.perf_counter()
             full = pending and (self.n_points + len(pending)) % CHUNK == 0
-            if self._error is None and (done or full or item == "linger" or len(pending) >= BATCH):
+            if self._error is None and (done or full or item is _LINGER or len(pending) >= BATCH):
                 try:  # the points, and in the same attribute write the last state whose points are all in
                     ready = state if state is not None and state.points <= self.n_points + len(pending) else None
                     if pending:
@@ -378,7 +378,7 @@ class BranchStore:
 def row_checksum(row: np.ndarray, point: int) -> int:
     """CRC-32 of point ``point``'s row of an array, as stored (dtype and shape of the array's chunk),
     started from the point's index: a whole point moved to another index no longer matches either."""
-    return zlib.crc32(np.ascontiguousarray(row).reshape(-1).view(np.uint8), int(point))
+    return store.crc32(row, point)
 
 
 def _fail(path, group, name, i, what):

@@ -170,11 +170,10 @@ def _walk_state(path, group: str, stored_attrs: dict, points: list) -> WalkState
         state = WalkState.from_dict(stored_attrs["walk_state"], stored_attrs.get("events") or [])
     except (KeyError, TypeError, ValueError) as exc:
         raise ResumeRefused(f"{path} (group '{group}'): damaged walk_state ({exc!r}): run without --resume") from None
-    if not 0 < state.points <= len(points) or not state.walk or state.walk[-1] >= state.points:
-        raise ResumeRefused(
-            f"{path} (group '{group}'): walk_state after {state.points} points (walk ending at point "
-            f"{state.walk[-1:]}) does not fit the {len(points)} stored points: run without --resume"
-        )
+    try:
+        state.check(len(points))
+    except ValueError as exc:
+        raise ResumeRefused(f"{path} (group '{group}'): {exc}: run without --resume") from None
     return state
 
 

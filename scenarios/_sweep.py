@@ -63,7 +63,7 @@ import warnings
 import numpy as np
 import zarr
 
-from warpchain.store import consolidate, jsonable
+from warpchain.store import consolidate, crc32, jsonable
 
 COMPLETED = "completed"
 CHECKSUM = "checksum"  # (task dims..., variable): CRC-32 of each variable's region, written before the flag
@@ -304,12 +304,11 @@ def open_sweep(store_path, spec: SweepSpec) -> zarr.Group:
 
 
 def _crc(values: np.ndarray, index: tuple) -> int:
-    """CRC-32 of a task's region of one variable as stored, started from the task's flat position (a region
-    moved to another task no longer matches)."""
+    """CRC-32 of a task's region of one variable as stored, started from the task's index (a region moved
+    to another task no longer matches)."""
     import zlib
 
-    seed = zlib.crc32(repr(tuple(int(i) for i in index)).encode())
-    return zlib.crc32(np.ascontiguousarray(values).reshape(-1).view(np.uint8), seed)
+    return crc32(values, zlib.crc32(repr(tuple(int(i) for i in index)).encode()))
 
 
 def _create_checksum(group: zarr.Group, spec: SweepSpec) -> None:
@@ -439,15 +438,20 @@ def _worker_ordinals(workers: dict) -> dict[str, int]:
     return ordinals
 
 
+def _worker_device(worker, ordinals: dict, gpus: int) -> str:
+    """The device of a Dask worker: by its ordinal in the sweep's table, else its integer name, else 0."""
+    ordinal = ordinals.get(worker.address)
+    if ordinal is None:
+        ordinal = _int_name(worker.name) or 0
+    return _device(ordinal, gpus)
+
+
 def _run_on_worker(store_path: str, layout: dict, task, index: tuple[int, ...], gpus: int, ordinals: dict) -> dict:
     """Runs on a Dask worker: the task, then its region written from here. Returns only timing/status."""
     from distributed import get_worker
 
     worker = get_worker()
-    ordinal = ordinals.get(worker.address)
-    if ordinal is None:
-        ordinal = _int_name(worker.name) or 0
-    device = _device(ordinal, gpus)
+    device = _worker_device(worker, ordinals, gpus)
     try:
         group = _open_root(store_path, "r+")[layout["group"]]
         seconds = _call_task(task, group, layout, index, device)
@@ -543,15 +547,12 @@ def _worker_plugin(paths: list[str], ordinals: dict, gpus: int, warm_up):
             for entry in self.entries:
                 if entry and entry not in _sys.path and _os.path.isdir(entry):
                     _sys.path.append(entry)
-            from scenarios._sweep import _device, _int_name, host_allocator
+            from scenarios._sweep import _worker_device, host_allocator
 
             host_allocator()
             if self.warm_up is not None:
-                ordinal = self.ordinals.get(worker.address)
-                if ordinal is None:
-                    ordinal = _int_name(worker.name) or 0
                 with _contextlib.suppress(Exception):
-                    self.warm_up(_device(ordinal, self.gpus))
+                    self.warm_up(_worker_device(worker, self.ordinals, self.gpus))
 
     return SweepWorker(paths, ordinals, gpus, warm_up)
 

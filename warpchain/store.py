@@ -123,11 +123,13 @@ def jsonable(value):
     return value
 
 
-def crc32(values: np.ndarray) -> int:
-    """CRC-32 of an array's bytes (C order, as stored): written beside the data, checked by ``read_group``."""
+def crc32(values: np.ndarray, seed: int = 0) -> int:
+    """CRC-32 of an array's bytes (C order, as stored), started from ``seed``: written beside the data and
+    checked by the readers (``read_group``; the branch store and the sweep seed it with the row's or the
+    task's position, so that data moved to another place no longer match)."""
     import zlib
 
-    return zlib.crc32(np.ascontiguousarray(values).reshape(-1).view(np.uint8))
+    return zlib.crc32(np.ascontiguousarray(values).reshape(-1).view(np.uint8), int(seed))
 
 
 def consolidate(store) -> None:
