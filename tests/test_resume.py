@@ -52,26 +52,12 @@ def test_a_scene_folder_in_use_is_refused_and_a_stale_lock_taken_over(tmp_path, 
 
 def test_sigterm_marks_the_store_interrupted_like_ctrl_c(tmp_path):
     import signal
-    import subprocess
-    import sys
-    import time
 
     import zarr
 
-    cmd = [sys.executable, "-m", "scenarios", "run", "continuation-omega", "--quick", "--device", "cpu"]
-    proc = subprocess.Popen(cmd + ["--out", str(tmp_path)], stderr=subprocess.PIPE, text=True)
+    code, err = _signal_the_walk(["--out", str(tmp_path)], 5, signal.SIGTERM)
+    assert code == 143, err[-2000:]
     store = tmp_path / "continuation-omega" / "data.zarr"
-    deadline = time.time() + 120
-    while time.time() < deadline:  # until a few points are stored
-        try:
-            if zarr.open_group(str(store), mode="r")["branch"].attrs.get("n_points", 0) >= 3:
-                break
-        except Exception:  # not made yet
-            pass
-        time.sleep(0.2)
-    proc.send_signal(signal.SIGTERM)
-    _, err = proc.communicate(timeout=120)
-    assert proc.returncode == 143, err[-2000:]
     assert "terminated (SIGTERM): what was stored so far is complete" in err
     attrs = zarr.open_group(str(store), mode="r")["branch"].attrs
     # marked interrupted, or (the signal came after the branch was finished, while the scene drew) complete
@@ -80,19 +66,32 @@ def test_sigterm_marks_the_store_interrupted_like_ctrl_c(tmp_path):
     assert not (tmp_path / "continuation-omega" / ".lock").exists()
 
 
-def _wait_for_points(store, n, proc, timeout=120):
-    import time
+def _signal_the_walk(args: list, after: int, sig) -> tuple[int, str]:
+    """Runs ``python -m scenarios run continuation-omega --quick --device cpu ARGS``, sends ``sig`` once the
+    walk has logged ``after`` points (while it goes on: points not yet written included) and returns (exit
+    status, stderr). The child gets SIGINT's default back: a shell's background job (a CI runner's) ignores
+    SIGINT, and a Python started so keeps ignoring it."""
+    import signal
+    import subprocess
+    import sys
 
-    import zarr
-
-    deadline = time.time() + timeout
-    while time.time() < deadline and proc.poll() is None:
-        try:
-            if zarr.open_group(str(store), mode="r", use_consolidated=False)["branch"].attrs.get("n_points", 0) >= n:
-                return
-        except Exception:  # not made yet
-            pass
-        time.sleep(0.05)
+    cmd = [sys.executable, "-m", "scenarios", "run", "continuation-omega", "--quick", "--device", "cpu", *args]
+    proc = subprocess.Popen(
+        cmd,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+    seen, lines = 0, []
+    while seen < after:  # the walk logs a line per point it steps from ("w = ...: E = ...")
+        line = proc.stderr.readline()
+        assert line, "".join(lines[-20:])
+        lines.append(line)
+        seen += "[continuation-omega] w = " in line
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=120)
+    return proc.returncode, "".join(lines) + err
 
 
 def _arrays_and_attrs(store):
@@ -126,23 +125,8 @@ def test_a_resume_equals_the_uninterrupted_branch(uninterrupted, tmp_path, how, 
     if how == "max_points":
         assert subprocess.run(cmd + ["--set", f"max_points={after}"], capture_output=True).returncode == 0
     else:
-        # a shell's background job ignores SIGINT, and a Python started so keeps ignoring it: restore it
-        proc = subprocess.Popen(
-            cmd,
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.PIPE,
-            text=True,
-            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
-        )
-        seen, lines = 0, []
-        while seen < after:  # the walk logs a line per point it steps from ("w = ...: E = ...")
-            line = proc.stderr.readline()
-            assert line, "".join(lines[-20:])
-            lines.append(line)
-            seen += "[continuation-omega] w = " in line
-        proc.send_signal(getattr(signal, how))  # while the walk goes on: its points not yet written included
-        _, err = proc.communicate(timeout=120)
-        assert proc.returncode in (-9, 130), err[-2000:]
+        code, err = _signal_the_walk(["--out", str(tmp_path)], after, getattr(signal, how))
+        assert code in (-9, 130), err[-2000:]
     cut = _arrays_and_attrs(store)[1]
     expected = {"max_points": ("max_points", True), "SIGINT": ("interrupted", False), "SIGKILL": (None, False)}[how]
     assert (cut["stop_reason"], cut["complete"]) == expected
