@@ -21,7 +21,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from warpchain import METHODS, ChainParams, propagate_tangent, reference, simulate  # noqa: E402
-from warpchain import ensemble  # noqa: E402
+from warpchain.engine import tuning  # noqa: E402
 from warpchain.integrators import SplittingMethod  # noqa: E402
 
 
@@ -54,11 +54,8 @@ def main(argv=None):
             out["ensemble"][f"{method}/{layout}"] = err
             print(f"ensemble {method:9s} {layout:6s} rel diff {err:.2e}", flush=True)
         if isinstance(METHODS[method], SplittingMethod):  # also a warp per lattice (7 sites per thread)
-            ensemble._SITES_FORCED = 7
-            try:
+            with tuning.override(sites_per_thread=7):
                 run = simulate(p, x0, 1000 * dt, dt, method=method, device=args.device, M=M, K=K, layout="block")
-            finally:
-                ensemble._SITES_FORCED = None
             err = float(np.max(np.abs(run.x - ref)) / np.max(np.abs(ref)))
             out["ensemble"][f"{method}/block-7-sites"] = err
             print(f"ensemble {method:9s} 7 sites/thread rel diff {err:.2e}", flush=True)
@@ -78,13 +75,10 @@ def main(argv=None):
             out["tangent"][f"{method}/{layout}"] = err
             print(f"tangent  {method:9s} {layout:6s} rel diff {err:.2e}", flush=True)
         if isinstance(METHODS[method], SplittingMethod):  # the monodromy's kernel: two columns per block
-            ensemble._TANGENT_COLUMNS = 2
-            try:
+            with tuning.override(tangent_columns=2):
                 tan = propagate_tangent(
                     q, xt, dx0[:-1], 40, 0.05, method=method, column_base=base[:-1], device=args.device, layout="block"
                 )
-            finally:
-                ensemble._TANGENT_COLUMNS = None
             err = float(np.max(np.abs(tan.columns - ref[:-1])) / np.max(np.abs(ref)))
             out["tangent"][f"{method}/block-2-columns"] = err
             print(f"tangent  {method:9s} 2 columns/block, odd count, rel diff {err:.2e}", flush=True)
@@ -132,13 +126,12 @@ def flow_replay(q, xt, device):
     for method, layout in (("kahan8", "block"), ("verlet", "block"), ("rk4", "block"), ("kahan8", "thread")):
         results = {}
         for after in (1, None):
-            ensemble._GRAPH_AFTER = after
-            flow = Flow(method, 16, device=device, layout=layout)
-            results[after] = []
-            for x, dt in cases:
-                lin = flow.linearize(q, x, 8, dt)
-                results[after].append((lin.x_end, lin.unit_columns("positions"), lin.unit_columns("all")))
-        ensemble._GRAPH_AFTER = 1
+            with tuning.override(graph_after=after):
+                flow = Flow(method, 16, device=device, layout=layout)
+                results[after] = []
+                for x, dt in cases:
+                    lin = flow.linearize(q, x, 8, dt)
+                    results[after].append((lin.x_end, lin.unit_columns("positions"), lin.unit_columns("all")))
         same = all(np.array_equal(a, b) for r, e in zip(results[1], results[None]) for a, b in zip(r, e))
         ref = ReferenceFlow(method, 16)
         err = 0.0

@@ -115,7 +115,7 @@ def main():
                 dim=(batch, BLOCK),
                 block_dim=BLOCK,
                 device="cuda",
-                inputs=[x, mass, cpl, dr, ki, 0, f64(step), n, 0, rec, rec, 0, hist, lossy, damp],
+                inputs=[x, mass, cpl, dr, ki, 0, n, 0, rec, rec, 0, hist, lossy, damp],
             )
 
         def run_verlet(n):

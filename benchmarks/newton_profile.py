@@ -1,7 +1,7 @@
 """Where one Newton iteration of the paper breather (w_b = 1.01, K = 160, kahan8, reversible formulation,
 402 unknowns) spends its time: base run (``PeriodMap.evaluate``: the Flow's linearize), the 402 tangent
 columns, the Jacobian's rows and the LU solve, best of ``--repeats``, with the launches issued one by one and
-then replayed as CUDA graphs (``ensemble._Replay``, the default); then a cProfile of 10 iterations by own time.
+then replayed as CUDA graphs (``engine.runner._Replay``, the default); then a cProfile of 10 iterations by own time.
 
 Command (GPU): ``python benchmarks/newton_profile.py [--device cuda] [--top 25] [--blas 8,4,2]``
 """
@@ -19,7 +19,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from continuation.hostblas import blas_threads  # noqa: E402
 from continuation.newton import solve_linear  # noqa: E402
-from warpchain import ensemble  # noqa: E402
+from warpchain.engine import tuning  # noqa: E402
 from continuation.shooting import PeriodMap  # noqa: E402
 from scenarios._common import paper_breather  # noqa: E402
 
@@ -50,14 +50,14 @@ def main():
     breather = paper_breather(args.device)
     columns = {}
     for after in (None, 1):  # launches issued one by one, then replayed as CUDA graphs (the default)
-        ensemble._GRAPH_AFTER = after
-        pmap = PeriodMap(breather.params, breather.omega, breather.flow.replace())  # a new Flow: new buffers
-        unknowns = pmap.from_state(breather.state)
-        marks = {}
-        for _ in range(3):
-            iteration(pmap, unknowns, {})
-        for _ in range(args.repeats):
-            columns[after] = iteration(pmap, unknowns, marks)
+        with tuning.override(graph_after=after):
+            pmap = PeriodMap(breather.params, breather.omega, breather.flow.replace())  # a new Flow: new buffers
+            unknowns = pmap.from_state(breather.state)
+            marks = {}
+            for _ in range(3):
+                iteration(pmap, unknowns, {})
+            for _ in range(args.repeats):
+                columns[after] = iteration(pmap, unknowns, marks)
         label = "launches one by one" if after is None else "replayed as graphs"
         print(f"Newton iteration, {args.device}, {label}, best / median of {args.repeats} (ms):")
         for name, values in marks.items():

@@ -10,12 +10,9 @@ hand variant too.
 
 Command (GPU; the hand kernels need CuPy): ``python benchmarks/sites_per_thread.py [--quick]``
 
-``--variants`` instead times Warp's site-group kernel with and without ``scalar_ends`` (one float64 per
-thread in the shared tile when a thread owns one site) and without ``carry`` (the accelerations carried
-across steps) against the hand kernel, interleaved over ``--rounds`` rounds (best of all), at the sites per
-thread each runs at that batch; ``--sites`` adds forced sites per thread for both. (At commit 162cc50 it
-also timed a ``force_first`` option of both, the contact force computed before the exchange's barrier:
-slower in both, ``benchmarks/h200-2026-11-22k/sites-variants-first.txt``, and removed.)
+(Until commit 956cfc8 a ``--variants`` mode also timed the site-group kernel without one float64 per thread in
+the tile and without accelerations carried across steps, and register caps of the one-site kernel: all slower,
+``benchmarks/h200-2026-11-22k``; those options were removed from the kernels.)
 """
 
 import argparse
@@ -28,7 +25,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from scenarios._baselines import cupy_verlet_runner  # noqa: E402
-from warpchain import ChainParams, ensemble, lowest_optical_mode, reference  # noqa: E402
+from warpchain import ChainParams, lowest_optical_mode, reference  # noqa: E402
+from warpchain.engine import tuning  # noqa: E402
 from warpchain.ensemble import simulate, time_steps  # noqa: E402
 
 #: "1g": one site per thread through ``site_group_kernels`` (fixed walls compiled in, no carried acceleration)
@@ -54,30 +52,26 @@ def main():
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--device", default="cuda")
     ap.add_argument("--json", default=None, help="write the rows here")
-    ap.add_argument("--variants", action="store_true", help="compare the kernels' options (see the docstring)")
-    ap.add_argument("--rounds", type=int, default=3)
-    ap.add_argument("--batches", type=int, nargs="+", default=[1, 64, 805, 4096, 32768], help="with --variants")
-    ap.add_argument("--sites", type=int, nargs="*", default=[], help="with --variants: also these sites per thread")
     args = ap.parse_args()
-    if args.variants:
-        return variants(args)
     p, dt, one, check, ref = setup()
     batches = (1, 805, 32768) if args.quick else (1, 64, 805, 1600, 2400, 4096, 32768)
     rows = []
 
-    def use(label, min_blocks=0):
-        """Force the Warp variant ``label``: 1, 2, 4, 7 sites per thread, or "1g" (one site per thread through
-        the site-group kernels), with ``min_blocks`` blocks per SM as their launch bound; its error against
-        the reference after 400 steps."""
-        ensemble._SITES_FORCED = 1 if label == "1g" else label
-        ensemble._GROUP_ONE_SITE = label == "1g"
-        ensemble._GROUP_MIN_BLOCKS = {1: min_blocks} if min_blocks else {}
-        run = simulate(p, check, 400 * dt, dt, device=args.device, layout="block", max_energy_error=None)
+    def use(label):
+        """The Warp variant ``label``: 1, 2, 4, 7 sites per thread, or "1g" (one site per thread through the
+        site-group kernels), as engine settings."""
+        return tuning.active().replace(sites_per_thread=1 if label == "1g" else label, group_one_site=label == "1g")
+
+    def error(label):
+        """The variant's error against the reference after 400 steps."""
+        with tuning.override(use(label)):
+            run = simulate(p, check, 400 * dt, dt, device=args.device, layout="block", max_energy_error=None)
         return float(np.max(np.abs(run.x - ref)))
 
     def measure(name, batch, steps, method="verlet", err=None):
         x0 = np.repeat(one[None], batch, 0)
-        best = time_steps(p, x0, steps, dt, method=method, device=args.device, layout="block")
+        with tuning.override(use(name)):
+            best = time_steps(p, x0, steps, dt, method=method, device=args.device, layout="block")
         rate = batch * p.N * steps / best
         impl = "warp" if method == "verlet" else f"warp-{method}"
         rows.append({"impl": impl, "sites": name, "batch": batch, "rate": rate, "ns_per_step": 1e9 * best / steps})
@@ -87,20 +81,13 @@ def main():
         print(line + (f"; max |x - reference| after 400 steps {err:.2g}" if err is not None else ""), flush=True)
 
     for label in WARP_SITES:
-        err = use(label)
+        err = error(label)
         for batch in batches:
             measure(label, batch, 20000 if batch <= 64 else 2000 if batch < 32768 else 4000, err=err)
-    for min_blocks in (6, 7, 8):  # one site per thread, registers capped so that 805 lattices need fewer waves
-        err = use("1g", min_blocks)
-        for batch in (1, 805, 1600):
-            measure(f"1g-minb{min_blocks}", batch, 20000 if batch <= 64 else 2000, err=err)
     for method in ("yoshida4", "kahan8"):  # many-stage methods: one site per thread against a warp per lattice
         for label in (1, "1g", 7):
-            use(label)
             for batch in (805, 4096, 32768):
                 measure(label, batch, 400 if batch < 32768 else 200, method=method)
-    ensemble._SITES_FORCED = ensemble._GROUP_ONE_SITE = None
-    ensemble._GROUP_MIN_BLOCKS = {}
     for sites in HAND_SITES:
         run = cupy_verlet_runner(p.M, p.K, sites=sites)
         if run is None:
@@ -135,84 +122,6 @@ def main():
         if best["hand"] and best["warp"]:
             line += f"; warp / hand {best['warp']['rate'] / best['hand']['rate']:.2f}"
         print(line)
-    if args.json:
-        Path(args.json).write_text(json.dumps(rows, indent=1))
-
-
-#: Warp site-group options compared by ``--variants`` (the first is the default)
-WARP_OPTIONS = {"default": {}, "no scalar_ends": {"scalar_ends": False}, "no carry": {"carry": False}}
-
-
-def variants(args):
-    """Each option set of the Warp site-group kernel and of the hand kernel, per batch, interleaved."""
-    p, dt, one, check, ref = setup()
-    batches = args.batches
-    steps = {1: 200000, 64: 50000, 805: 4000, 4096: 2000, 32768: 1000}
-    best: dict = {}
-    for name, options in WARP_OPTIONS.items():
-        ensemble._GROUP_OPTIONS = options
-        for sites in (1, 7):
-            ensemble._SITES_FORCED, ensemble._GROUP_ONE_SITE = sites, True
-            run = simulate(p, check, 400 * dt, dt, device=args.device, layout="block", max_energy_error=None)
-            print(
-                f"warp {name}, {sites} sites/thread: max |x - reference| after 400 steps "
-                f"{float(np.max(np.abs(run.x - ref))):.2g}",
-                flush=True,
-            )
-    hand = cupy_verlet_runner(p.M, p.K)
-    if hand is None:
-        print("CuPy not importable: no hand-written kernel")
-    forced_hands = {sites: cupy_verlet_runner(p.M, p.K, sites=sites) for sites in args.sites}
-    for sites in sorted({1, 7, *args.sites}) if hand is not None else ():
-        r = forced_hands.get(sites) or cupy_verlet_runner(p.M, p.K, sites=sites)
-        print(
-            f"hand, {sites} sites/thread: max |x - reference| after 400 steps "
-            f"{float(np.max(np.abs(r(check, 400, dt)[0] - ref))):.2g}",
-            flush=True,
-        )
-    for rnd in range(args.rounds):
-        for batch in batches:
-            x0 = np.repeat(one[None], batch, 0)
-            n = steps.get(batch, 1000) if args.device != "cpu" else 20
-            for name, options in WARP_OPTIONS.items():
-                ensemble._GROUP_OPTIONS = options
-                ensemble._SITES_FORCED, ensemble._GROUP_ONE_SITE = None, None
-                seconds = time_steps(p, x0, n, dt, device=args.device, layout="block", repeats=3)
-                key = ("warp", name, batch)
-                best[key] = min(best.get(key, np.inf), seconds / n)
-            ensemble._GROUP_OPTIONS = {}
-            for forced in args.sites:
-                ensemble._SITES_FORCED, ensemble._GROUP_ONE_SITE = forced, True
-                seconds = time_steps(p, x0, n, dt, device=args.device, layout="block", repeats=3)
-                key = ("warp", f"{forced} sites/thread", batch)
-                best[key] = min(best.get(key, np.inf), seconds / n)
-            ensemble._SITES_FORCED, ensemble._GROUP_ONE_SITE = None, None
-            if hand is not None:
-                seconds = hand(x0, n, dt, repeats=3)[1]
-                best["hand", "default", batch] = min(best.get(("hand", "default", batch), np.inf), seconds / n)
-                for forced in args.sites:
-                    seconds = forced_hands[forced](x0, n, dt, repeats=3)[1]
-                    key = ("hand", f"{forced} sites/thread", batch)
-                    best[key] = min(best.get(key, np.inf), seconds / n)
-        print(f"round {rnd + 1} done", flush=True)
-    ensemble._GROUP_OPTIONS = {}
-    ensemble._SITES_FORCED = ensemble._GROUP_ONE_SITE = None
-    rows = []
-    for batch in batches:
-        sites = ensemble.sites_per_thread(batch, p.N, 1, args.device)
-        for (impl, name, b), per_step in best.items():
-            if b == batch:
-                rate = batch * p.N / per_step
-                rows.append(
-                    {"impl": impl, "variant": name, "batch": batch, "rate": rate, "ns_per_step": 1e9 * per_step}
-                )
-                print(
-                    f"{impl:4s} {name:20s} batch {batch:6d} (warp {sites} sites/thread): {rate:.4g} site-steps/s "
-                    f"({1e9 * per_step:.1f} ns/step)"
-                )
-        warp = best[("warp", "default", batch)]
-        if ("hand", "default", batch) in best:
-            print(f"  warp default / hand at {batch}: {best['hand', 'default', batch] / warp:.3f}")
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
 

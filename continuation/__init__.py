@@ -4,7 +4,7 @@ Knows nothing of Warp: the integrator is seen only through a ``warpchain.Flow`` 
 ``linearize``), so every routine here also runs on the numpy reference (``warpchain.ReferenceFlow``).
 """
 
-from . import branch, driver, events
+from . import branch, branch_store, driver, events
 from .floquet import (
     FloquetResult,
     Instability,
@@ -54,6 +54,7 @@ __all__ = [
     "anticontinuum_orbit",
     "anticontinuum_seed",
     "branch",
+    "branch_store",
     "driver",
     "eigenmode_seed",
     "events",

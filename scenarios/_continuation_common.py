@@ -11,7 +11,7 @@ from continuation.driver import AUTO_ALL_SITES, KREIN_MODES, Branch, Continuatio
 from continuation.floquet import KINDS
 from warpchain import Flow
 
-from ._branch_store import BranchStore, StoreError, load_branch
+from continuation.branch_store import BranchStore, StoreError, load_branch
 from ._common import BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD, PAPER_M, PAPER_N, Refused
 from ._params import Rule, min_steps_per_period, number, param, splitting_methods, stability_dt
 

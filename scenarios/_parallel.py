@@ -27,7 +27,7 @@ import threading
 import time
 from pathlib import Path
 
-from warpchain.ensemble import count_from_text, usable_cores
+from warpchain.engine.devices import count_from_text, usable_cores
 
 log = logging.getLogger("scenarios")
 

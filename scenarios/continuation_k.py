@@ -26,7 +26,7 @@ from continuation import bifurcation as bf
 from continuation.branch import NaturalParameter
 from warpchain import ChainParams, energy
 
-from ._branch_store import load_branch
+from continuation.branch_store import load_branch
 from ._common import (
     PAPER_K,
     PAPER_N,

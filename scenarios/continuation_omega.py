@@ -26,7 +26,7 @@ from continuation import find_breather, require
 from continuation.branch import PseudoArclength
 from warpchain import ChainParams, band_edges
 
-from ._branch_store import load_branch
+from continuation.branch_store import load_branch
 from ._common import (
     PAPER_K,
     PAPER_OMEGA,

@@ -40,11 +40,11 @@ from continuation.branch import CouplingAxis, NaturalParameter, PseudoArclength
 from continuation.driver import KREIN_MODES
 from continuation.floquet import KINDS, energy_centre
 from warpchain import ChainParams
-from warpchain.ensemble import usable_cores
+from warpchain.engine.devices import usable_cores
 from warpchain.reference import solve_ivp_reference
 from warpchain.store import StoreError, open_store, write_table
 
-from ._branch_store import load_branch
+from continuation.branch_store import load_branch
 from ._common import PAPER_K, PAPER_N, PAPER_OMEGA, Context, pyplot, read_summary, save_figure
 from ._continuation_common import BRANCH_RULES, KIND_COLOURS, BranchParameters, branch_summary, run_branch, step_rule
 from ._params import Rule, anticontinuum_rule, param

@@ -14,8 +14,8 @@ Three parts:
   transfers, linear solve).
 * **kernels** (GPU): registers per thread, local memory and theoretical occupancy of each kernel.
 * **simulate**: ``simulate()`` end to end as users call it (validation, upload, chunks, the guard,
-  the final state back on the host), with default arguments, continued from a page-locked x0 (a lent result),
-  continued on the device (``DeviceState`` x0, ``keep_on_device``), and recording a frame every
+  the final state back on the host), with default arguments, continued on the device (``DeviceState`` x0,
+  ``keep_on_device``), and recording a frame every
   ``record_every`` steps, beside the kernel's own rate on the same batch (``time_steps``), all Verlet
   over ``simulate_steps`` steps; recording also as GB/s of frames reaching host memory. Measured first,
   before the baselines load JAX and CuPy into the process (which slow ``simulate()`` on small batches).
@@ -41,13 +41,15 @@ from warpchain import (
     ChainParams,
     DeviceState,
     frame_buffers,
-    page_locked,
     lowest_optical_mode,
     propagate_tangent,
     reference,
     simulate,
 )
-from warpchain.ensemble import cpu_threads, sites_per_thread, time_steps
+from warpchain.engine.devices import cpu_threads
+from warpchain.engine.plans import sites_per_thread
+from warpchain.engine.tuning import active
+from warpchain.ensemble import time_steps
 from warpchain.integrators import SplittingMethod
 from warpchain.store import device_description, open_store, provenance, read_group, write_table
 
@@ -278,9 +280,6 @@ def _simulate_end_to_end(ctx, P: Parameters, params, one, gpu):
         shape = (1 + steps // every, batch, params.N)
         variants = (
             ("default", lambda: {}),
-            # a run continued from an earlier result: its x is page-locked memory lent by simulate, which the
-            # device reads straight from (page_locked makes the same from x0 here)
-            ("continued", lambda: {"x0": page_locked(x0, device=ctx.device)}),
             # a run continued on the device: x0 an earlier result's DeviceState (keep_on_device), no transfer
             ("on_device", lambda: {"x0": DeviceState.of(x0, device=ctx.device), "keep_on_device": True}),
             ("recording", lambda: {"save_every": every}),
@@ -314,8 +313,8 @@ def _simulate_end_to_end(ctx, P: Parameters, params, one, gpu):
             row[f"{name}_gb_per_second"] = row["frame_bytes"] / row[f"{name}_seconds"] / 1e9
         rows.append(row)
         ctx.log(
-            "simulate() batch %6d, %d steps: kernel %.3g site-steps/s; default %.3g (%.2fx kernel); continued "
-            "from a page-locked x0 %.3g (%.2fx); on the device %.3g (%.2fx); "
+            "simulate() batch %6d, %d steps: kernel %.3g site-steps/s; default %.3g (%.2fx kernel); "
+            "on the device %.3g (%.2fx); "
             "recording every %d steps %.3g (%.2fx kernel, %.3g GB/s of frames; into reused arrays %.3g GB/s, "
             "into reused page-locked arrays %.3g GB/s)",
             batch,
@@ -323,8 +322,6 @@ def _simulate_end_to_end(ctx, P: Parameters, params, one, gpu):
             row["kernel_rate"],
             row["default_rate"],
             row["default_over_kernel"],
-            row["continued_rate"],
-            row["continued_over_kernel"],
             row["on_device_rate"],
             row["on_device_over_kernel"],
             P.record_every,
@@ -418,22 +415,22 @@ def _kernel_properties(ctx, params):
     """Registers, local memory and theoretical occupancy of the kernels that ran (CUDA only)."""
     import warp as wp
 
-    from warpchain import block_kernels, ensemble, kernels
+    from warpchain import block_kernels, kernels
 
     block = block_kernels.block_size(params.N)
     rows = []
     built, blocks = {}, {}
     caps = {block_kernels.min_blocks_per_sm(method.stages) for method in METHODS.values()}
-    for min_blocks in sorted(caps | set(ensemble._TANGENT_PAIR_MIN_BLOCKS.values())):
+    for min_blocks in sorted(caps | set(active().tangent_pair_min_blocks)):
         for key, kernel in block_kernels.block_kernels(block, min_blocks).built().items():
             name = "/".join(str(part) for part in key) + f" (min blocks {min_blocks})"
             # threads, shared bytes: two halves of a float64 row, or of (float64 x columns) for the tangents
             columns = key[2] if key[0] == "splitting_tangent" else 1
             built[name], blocks[name] = kernel, (block, 2 * block * 8 * columns)
-    for (threads, sites, _, min_blocks, scalar_ends, _), group in block_kernels.SITE_GROUPS.items():
+    for (threads, sites, _, min_blocks), group in block_kernels.SITE_GROUPS.items():
         for key, kernel in group.built().items():
             name = "/".join(str(part) for part in key) + f" ({sites} sites/thread, min blocks {min_blocks})"
-            entry_bytes = 8 if scalar_ends else 16  # the key holds the option as compiled (one site per thread only)
+            entry_bytes = 8 if sites == 1 else 16  # one float64 per thread with one site, else a pair
             built[name], blocks[name] = kernel, (threads, 2 * (threads + 2) * entry_bytes)
     for name, kernel in sorted(built.items()):
         block, smem = blocks[name]
@@ -508,7 +505,7 @@ def run(ctx: Context) -> dict:
         attrs={"implementation_names": impls, "method_names": methods},
     )
     if end_to_end:
-        names = ("kernel", "default", "continued", "on_device", "recording", "recording_reused", "recording_pinned")
+        names = ("kernel", "default", "on_device", "recording", "recording_reused", "recording_pinned")
         write_table(
             root,
             "simulate",
@@ -592,7 +589,6 @@ def _plot_simulate(cx, out, summary) -> None:
     curves = (
         ("kernel_rate", "o-", "kernel alone (time_steps)"),
         ("default_rate", "s-", "simulate(), default"),
-        ("continued_rate", "D-", "simulate(), continued (x0 page-locked)"),
         ("on_device_rate", "P-", "simulate(), continued on the device"),
         ("recording_pinned_rate", "^--", f"save_every={every}, into frame_buffers"),
         ("recording_rate", "v:", f"save_every={every}, default arrays"),
@@ -602,7 +598,7 @@ def _plot_simulate(cx, out, summary) -> None:
             cx.loglog(d["batch"], d[key], style, ms=5, label=label)
     # the ratios as a small table in the empty band between the end-to-end and the recording curves (labels
     # beside the points collide where two variants run at nearly the same rate)
-    rows = [("default", "default_rate"), ("continued", "continued_rate"), ("on the device", "on_device_rate")]
+    rows = [("default", "default_rate"), ("on the device", "on_device_rate")]
     lines = ["simulate() / kernel " + "".join(f"{int(b):>8d}" for b in d["batch"])]
     for name, key in rows:
         if key in d:
@@ -621,6 +617,6 @@ def _plot_simulate(cx, out, summary) -> None:
     cx.set_xlabel("lattices in the batch")
     cx.set_ylabel("site-steps per second, end to end")
     title = f"simulate() as users call it ({attrs['steps']} Verlet steps) against its kernel;"
-    cx.set_title(title + "\ncontinued: x0 page-locked (a lent result); on the device: a DeviceState x0", fontsize=9)
+    cx.set_title(title + "\non the device: a DeviceState x0 (keep_on_device)", fontsize=9)
     cx.set_xlim(min(d["batch"]) / 1.6, max(d["batch"]) * 1.6)
     cx.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2)  # below: clear of the curves

@@ -8,7 +8,7 @@ import continuation as ct
 from continuation.branch import continue_in_coupling, continue_in_frequency, start_from_eigenmode
 from continuation.driver import ContinuationSettings
 from continuation.events import StopReason
-from scenarios._branch_store import CHUNK, BranchStore, StoreError, load_branch
+from continuation.branch_store import CHUNK, BranchStore, StoreError, load_branch
 from warpchain import ChainParams, Flow, ReferenceFlow, lowest_optical_mode
 
 K_SETTINGS = ContinuationSettings(ds=0.5, ds_min=1e-3, ds_max=0.8, resolution=1e-2)

@@ -158,7 +158,7 @@ def test_a_point_count_that_cuts_a_step_resumes_into_the_same_branch(tmp_path):
     import warpchain as wc
     from continuation.branch import NaturalParameter
     from continuation.driver import ContinuationSettings, WalkState, continuation
-    from scenarios._branch_store import BranchStore, load_branch
+    from continuation.branch_store import BranchStore, load_branch
 
     p = wc.ChainParams(30.0, 0.01, 101)
 

@@ -26,38 +26,38 @@ def _solves(flow: Flow, params: ChainParams, omegas) -> list:
 
 @pytest.mark.parametrize("layout", ["thread", "block"])
 def test_four_threads_give_the_bits_of_one(layout, monkeypatch):
-    from warpchain import ensemble
+    from warpchain.engine import tuning
 
-    monkeypatch.setattr(ensemble, "_GRAPH_ON_CPU", True)  # captures on every thread, as on a GPU
-    monkeypatch.setenv("WARPCHAIN_CPU_THREADS", "1")  # one slice per launch, as on a GPU (a CPU graph needs it)
-    params = ChainParams(30.0, 160.0, 21)
-    sequential = [_solves(Flow("kahan8", 16, device="cpu", layout=layout), params, OMEGAS) for _ in range(4)]
-    results, errors = [None] * 4, []
-    barrier = threading.Barrier(4)
+    with tuning.override(graphs_on_cpu=True):  # captures on every thread, as on a GPU
+        monkeypatch.setenv("WARPCHAIN_CPU_THREADS", "1")  # one slice per launch, as on a GPU (a CPU graph needs it)
+        params = ChainParams(30.0, 160.0, 21)
+        sequential = [_solves(Flow("kahan8", 16, device="cpu", layout=layout), params, OMEGAS) for _ in range(4)]
+        results, errors = [None] * 4, []
+        barrier = threading.Barrier(4)
 
-    def work(i):
-        try:
-            barrier.wait()  # start together, so that captures and launches interleave
-            results[i] = _solves(Flow("kahan8", 16, device="cpu", layout=layout), params, OMEGAS)
-        except BaseException as exc:  # surfaced below
-            errors.append(exc)
+        def work(i):
+            try:
+                barrier.wait()  # start together, so that captures and launches interleave
+                results[i] = _solves(Flow("kahan8", 16, device="cpu", layout=layout), params, OMEGAS)
+            except BaseException as exc:  # surfaced below
+                errors.append(exc)
 
-    threads = [threading.Thread(target=work, args=(i,)) for i in range(4)]
-    for t in threads:
-        t.start()
-    # a plain simulate() on the main thread meanwhile: its launches must not enter the workers' graphs
-    x0 = np.zeros((2, 4, params.N))
-    x0[:, 1, params.N // 2] = -0.3
-    run = simulate(params, x0, 40 * 0.05, 0.05, method="kahan8", device="cpu")
-    for t in threads:
-        t.join()
-    assert not errors, errors
-    alone = simulate(params, x0, 40 * 0.05, 0.05, method="kahan8", device="cpu")
-    assert np.array_equal(run.x, alone.x)
-    for got, want in zip(results, sequential):
-        for a, b in zip(got, want):
-            for x, y in zip(a, b):
-                assert np.array_equal(x, y)
+        threads = [threading.Thread(target=work, args=(i,)) for i in range(4)]
+        for t in threads:
+            t.start()
+        # a plain simulate() on the main thread meanwhile: its launches must not enter the workers' graphs
+        x0 = np.zeros((2, 4, params.N))
+        x0[:, 1, params.N // 2] = -0.3
+        run = simulate(params, x0, 40 * 0.05, 0.05, method="kahan8", device="cpu")
+        for t in threads:
+            t.join()
+        assert not errors, errors
+        alone = simulate(params, x0, 40 * 0.05, 0.05, method="kahan8", device="cpu")
+        assert np.array_equal(run.x, alone.x)
+        for got, want in zip(results, sequential):
+            for a, b in zip(got, want):
+                for x, y in zip(a, b):
+                    assert np.array_equal(x, y)
 
 
 def test_a_task_that_raises_is_retried_once_then_fails_the_scene():

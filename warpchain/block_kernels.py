@@ -226,26 +226,22 @@ class BlockKernels:
             self._built[key] = self._makers[key[0]](*key[1:])
         return self._built[key]
 
-    def splitting(
-        self, stages: int, record: bool = False, save: bool = False, damped: bool = False, per_step: bool = True
-    ):
+    def splitting(self, stages: int, record: bool = False, save: bool = False, damped: bool = False):
         """Splitting kernel for ``stages`` stages; ``record``/``save``/``damped`` compile in the stiffness
-        history, the field recording and the damped kicks (left out, they cost nothing); ``per_step``: the
-        history is stored once per step (held in registers over the step's stages) rather than at every
-        force evaluation (the ``block_kernels`` layout; the site-group kernels ignore it). Same bits."""
+        history, the field recording and the damped kicks (left out, they cost nothing)."""
         if not 1 <= stages <= MAX_STAGES:
             raise ValueError(f"the block kernels support 1 to {MAX_STAGES} stages, got {stages}")
-        return self._get("splitting", int(stages), bool(record), bool(save), bool(damped), bool(per_step))
+        return self._get("splitting", int(stages), bool(record), bool(save), bool(damped))
 
-    def splitting_tangent(self, stages: int, columns: int = 1, prefetch: bool = True):
+    def splitting_tangent(self, stages: int, columns: int = 1):
         """Tangent kernel for ``stages`` stages carrying ``columns`` tangent columns per block (1 or 2;
-        launch with ``dim=(ceil(ncols / columns), block)``); ``prefetch``: load each force evaluation's
-        history entry one evaluation ahead (the benchmarks compare both; same arithmetic)."""
+        launch with ``dim=(ceil(ncols / columns), block)``). With one column each force evaluation's history
+        entry is loaded one evaluation ahead; with two the extra registers cost more than that saves."""
         if not 1 <= stages <= MAX_STAGES:
             raise ValueError(f"the block kernels support 1 to {MAX_STAGES} stages, got {stages}")
         if columns not in (1, 2):
             raise ValueError(f"the tangent kernel carries 1 or 2 columns per block, got {columns}")
-        return self._get("splitting_tangent", int(stages), int(columns), bool(prefetch))
+        return self._get("splitting_tangent", int(stages), int(columns))
 
     @property
     def rk4(self):
@@ -275,22 +271,17 @@ def min_blocks_per_sm(stages: int) -> int:
 
 
 @functools.lru_cache(maxsize=None)
-def block_kernels(block: int, min_blocks_per_sm: int = 0, lattices: int = 1) -> BlockKernels:
+def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
     """The block kernels for ``block`` threads per lattice (a multiple of 32, at most 1024).
 
     Args:
         block: threads per lattice.
         min_blocks_per_sm: passed to ``__launch_bounds__`` (0: none), which caps registers so that
             this many blocks fit on one SM.
-        lattices: lattices per thread block (the splitting kernel only; 2 halves the blocks of a large
-            batch, as the best hand-written kernel does). Launch with ``dim=(ceil(batch / lattices),
-            lattices * block)``.
     """
     if block % WARP_LANES or not WARP_LANES <= block <= MAX_BLOCK:
         raise ValueError(f"block must be a multiple of {WARP_LANES} in [{WARP_LANES}, {MAX_BLOCK}], got {block}")
-    if lattices < 1 or lattices * block > MAX_BLOCK:
-        raise ValueError(f"lattices * block must be at most {MAX_BLOCK}, got {lattices} x {block}")
-    threads = lattices * block
+    threads = block
     halves = 2 * threads
 
     @wp.func
@@ -307,7 +298,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0, lattices: int = 1) -> 
     bounds = (threads, min_blocks_per_sm) if min_blocks_per_sm else threads
     options = {"enable_backward": False, "module": "unique", "grid_stride": False, "launch_bounds": bounds}
 
-    def make_splitting(stages: int, record: bool, save: bool, damped: bool = False, per_step: bool = True):
+    def make_splitting(stages: int, record: bool, save: bool, damped: bool = False):
         held_type = wp.types.vector(length=stages, dtype=wp.float64)
 
         @wp.kernel(**options)
@@ -318,7 +309,6 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0, lattices: int = 1) -> 
             drifts: coefficients,
             kicks: coefficients,
             boundary: int,
-            dt: wp.float64,
             nsteps: int,
             save_every: int,
             rec_u: wp.array3d(dtype=wp.float64),
@@ -328,23 +318,17 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0, lattices: int = 1) -> 
             lossy: wp.array(dtype=wp.int32),
             damp: wp.array3d(dtype=wp.float64),
         ):
-            """``nsteps`` steps of a kick-drift splitting method; lattice b, thread j = site (one or, with
-            ``lattices`` = 2, two lattices per block). hist slot 0 holds f'(z) at the start, slot
-            step*s + k + 1 after drift k of ``step``. Compiled ``damped``: lattices with ``lossy[b]``
-            set take the damped kicks of ``damp`` (batch, stages + 1, 12: E, F, and H for the energy dissipated)."""
+            """``nsteps`` steps of a kick-drift splitting method; lattice b, thread j = site. hist slot 0
+            holds f'(z) at the start, slot step*s + k + 1 after drift k of ``step``. Compiled ``damped``:
+            lattices with ``lossy[b]`` set take the damped kicks of ``damp`` (batch, stages + 1, 12: E, F,
+            and H for the energy dissipated).
+            The step's stiffnesses are held in registers and stored after its last stage: a barrier waits for
+            the stores issued before it, so a store at every force evaluation put that wait between every two."""
             b, j = wp.tid()
             n = x.shape[2]
             nbr = site_neighbours(j, n, boundary)
-            if wp.static(lattices > 1):  # thread t of block g: lattice g * lattices + t / block, site t % block
-                sub = j / wp.static(block)
-                j = j - sub * wp.static(block)
-                b = b * wp.static(lattices) + sub
-                nbr = site_neighbours(j, n, boundary) + wp.vec4i(sub * wp.static(block), sub * wp.static(block), 0, 0)
-                active = j < n and b < x.shape[0]
-                b_read = wp.min(b, x.shape[0] - 1)  # an unpaired last block reads a valid (unused) lattice
-            else:
-                active = j < n
-                b_read = b
+            active = j < n
+            b_read = b
             start = load_site(x, b, j, active)
             u = start[0]
             v = start[1]
@@ -362,7 +346,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0, lattices: int = 1) -> 
             if wp.static(record):
                 if active:
                     hist[0, b, j] = contact_stiffness(u - v)
-            held = held_type()  # compiled ``per_step``: the step's stiffnesses, stored after its last stage
+            held = held_type()  # the step's stiffnesses, stored after its last stage
             for step in range(nsteps):
                 h = kicks[0]  # the coefficients arrive multiplied by dt (on the host: the same product)
                 if wp.static(damped):
@@ -380,10 +364,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0, lattices: int = 1) -> 
                     nb = exchange(buf, u, parity, nbr, boundary)
                     a = site_acceleration(u, v, nb[0], nb[1], m, k)
                     if wp.static(record):
-                        if wp.static(per_step):
-                            held[s] = contact_stiffness(u - v)
-                        elif active:
-                            hist[step * wp.static(stages) + s + 1, b, j] = contact_stiffness(u - v)
+                        held[s] = contact_stiffness(u - v)
                     h = kicks[s + 1]
                     if wp.static(damped):
                         w = site_kick(pu, pv, a, h, loss, damp, b_read, s + 1)
@@ -392,9 +373,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0, lattices: int = 1) -> 
                     else:
                         pu = pu + h * a[0]
                         pv = pv + h * a[1]
-                if wp.static(record and per_step):
-                    # one batch of stores per step: a barrier waits for the stores issued before it, so a
-                    # store at every force evaluation put that wait between every two evaluations
+                if wp.static(record):
                     if active:
                         for s in range(wp.static(stages)):
                             hist[step * wp.static(stages) + s + 1, b, j] = held[s]
@@ -407,7 +386,8 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0, lattices: int = 1) -> 
 
         return splitting
 
-    def make_splitting_tangent(stages: int, columns: int = 1, prefetch: bool = True):
+    def make_splitting_tangent(stages: int, columns: int = 1):
+        prefetch = columns == 1
         cols = wp.types.vector(length=columns, dtype=wp.float64)
         bases = wp.types.vector(length=columns, dtype=wp.int32)
 
@@ -420,7 +400,6 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0, lattices: int = 1) -> 
             drifts: coefficients,
             kicks: coefficients,
             boundary: int,
-            dt: wp.float64,
             nsteps: int,
             hist: wp.array3d(dtype=wp.float64),
         ):
@@ -625,9 +604,6 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0, lattices: int = 1) -> 
             out[b, 1] = all_finite[0]
             out[b, 2] = c
 
-    if lattices > 1:  # only the splitting kernel comes in this layout
-        return BlockKernels({"splitting": make_splitting})
-
     return BlockKernels(
         {
             "guard": lambda: guard,
@@ -652,7 +628,7 @@ def group_threads(n_sites: int, sites: int) -> int:
 MAX_SITES_PER_THREAD = 8
 
 
-#: the site-group kernels built so far, by (threads, sites, boundary, min blocks per SM, scalar_ends, carry)
+#: the site-group kernels built so far, by (threads, sites, boundary, min blocks per SM)
 SITE_GROUPS: dict = {}
 
 
@@ -662,8 +638,6 @@ def site_group_kernels(
     sites: int,
     boundary: int,
     min_blocks_per_sm: int = 0,
-    scalar_ends: bool = True,
-    carry: bool = True,
 ) -> BlockKernels:
     """Block kernels in which each of ``threads`` threads owns ``sites`` consecutive sites of one lattice.
 
@@ -683,20 +657,18 @@ def site_group_kernels(
 
     The arithmetic is that of ``block_kernels`` and the numpy reference (same operations, same order), so
     the results are the same bit for bit on the CPU. The kick that ends one step and the kick that starts
-    the next use the same accelerations. With ``carry`` (the default) the accelerations are carried into the
-    next iteration, whose first kick comes at the top of the loop, as in the hand-written kernel. Without it
-    both kicks are applied inside the step, the second behind a ``step + 1 < nsteps`` test, so that no
-    acceleration lives across iterations (fewer live registers). The test in the loop costs more than the
-    registers save: one lattice 118.6 against 129.5 ns per Verlet step, 3.08e11 against 2.80e11 site-steps/s
-    at 805 lattices, 4.49e11 against 4.39e11 at 32768 (H200, ``benchmarks/h200-2026-11-22k``).
+    the next use the same accelerations, which are carried into the next iteration, whose first kick comes
+    at the top of the loop, as in the hand-written kernel. (Both kicks inside the step, the second behind a
+    ``step + 1 < nsteps`` test, hold fewer live registers but ran slower: one lattice 129.5 against 118.6 ns
+    per Verlet step, 2.80e11 against 3.08e11 site-steps/s at 805 lattices on the H200,
+    ``benchmarks/h200-2026-11-22k``.)
 
     ``min_blocks_per_sm`` goes to ``__launch_bounds__`` (0: none), capping registers so that this many
     blocks fit on one SM.
 
-    ``scalar_ends``: with one site per thread the first and last u of a run are the same value, so the
-    shared tile holds one float64 per thread (8-byte stores and loads) instead of a pair: one lattice
-    129.5 ns per Verlet step against 160 ns (H200, ``benchmarks/h200-2026-11-22k``). Both are options only
-    so that ``benchmarks/sites_per_thread.py --variants`` can time the kernel without them.
+    With one site per thread the first and last u of a run are the same value, so the shared tile holds one
+    float64 per thread (8-byte stores and loads) instead of a pair: one lattice 129.5 ns per Verlet step
+    against 160 ns (H200, ``benchmarks/h200-2026-11-22k``).
 
     Launch with ``dim=(lattices, threads), block_dim=threads``.
     """
@@ -713,7 +685,7 @@ def site_group_kernels(
     fixed = boundary == int(BOUNDARY_FIXED)
     free = boundary == int(BOUNDARY_FREE)
     periodic = boundary == int(BOUNDARY_PERIODIC)
-    scalar_ends = bool(scalar_ends) and sites == 1
+    scalar_ends = sites == 1
     entry = wp.float64 if scalar_ends else wp.vec2d
 
     if scalar_ends:
@@ -771,8 +743,7 @@ def site_group_kernels(
     bounds = (threads, min_blocks_per_sm) if min_blocks_per_sm else threads
     options = {"enable_backward": False, "module": "unique", "grid_stride": False, "launch_bounds": bounds}
 
-    def make_splitting(stages: int, record: bool, save: bool, damped: bool = False, per_step: bool = True):
-        # per_step: accepted for the common key, unused (few stages: the history is stored as it comes)
+    def make_splitting(stages: int, record: bool, save: bool, damped: bool = False):
         @wp.func
         def kick(
             pu: wp.float64,
@@ -799,7 +770,6 @@ def site_group_kernels(
             drifts: coefficients,
             kicks: coefficients,
             boundary_code: int,
-            dt: wp.float64,
             nsteps: int,
             save_every: int,
             rec_u: wp.array3d(dtype=wp.float64),
@@ -845,20 +815,12 @@ def site_group_kernels(
                 if wp.static(record):
                     if first + s < n:
                         hist[0, b, first + s] = contact_stiffness(u[s] - v[s])
-            # the first kick of the first step; every later step's first kick follows the previous
-            # step's last kick (same accelerations), inside the loop (compiled ``carry``: at the loop's top)
-            if wp.static(not carry):
-                if nsteps > 0:
-                    for s in range(wp.static(sites)):
-                        w = kick(pu[s], pv[s], au[s], av[s], kicks[0], loss, damp, b, 0)
-                        pu[s] = w[0]
-                        pv[s] = w[1]
+            # every step's first kick uses the accelerations of the previous step's last kick (carried over)
             for step in range(nsteps):
-                if wp.static(carry):
-                    for s in range(wp.static(sites)):
-                        w = kick(pu[s], pv[s], au[s], av[s], kicks[0], loss, damp, b, 0)
-                        pu[s] = w[0]
-                        pv[s] = w[1]
+                for s in range(wp.static(sites)):
+                    w = kick(pu[s], pv[s], au[s], av[s], kicks[0], loss, damp, b, 0)
+                    pu[s] = w[0]
+                    pv[s] = w[1]
                 for stage in range(wp.static(stages)):  # unrolled: coefficients become constants
                     h = drifts[stage]
                     for s in range(wp.static(sites)):
@@ -888,12 +850,6 @@ def site_group_kernels(
                             if first + s < n:
                                 rec_u[r, b, first + s] = u[s]
                                 rec_v[r, b, first + s] = v[s]
-                if wp.static(not carry):
-                    if step + 1 < nsteps:  # the next step's first kick
-                        for s in range(wp.static(sites)):
-                            w = kick(pu[s], pv[s], au[s], av[s], kicks[0], loss, damp, b, 0)
-                            pu[s] = w[0]
-                            pv[s] = w[1]
             for s in range(wp.static(sites)):
                 j = first + s
                 if j < n:
@@ -905,5 +861,5 @@ def site_group_kernels(
         return splitting
 
     group = BlockKernels({"splitting": make_splitting})
-    SITE_GROUPS[threads, sites, boundary, min_blocks_per_sm, scalar_ends, carry] = group
+    SITE_GROUPS[threads, sites, boundary, min_blocks_per_sm] = group
     return group

@@ -33,7 +33,7 @@ class DeviceState:
     __slots__ = ("array",)
 
     def __init__(self, array):
-        from .ensemble import _warp
+        from .engine.devices import _warp
 
         wp = _warp()
         if not isinstance(array, wp.array):
@@ -54,7 +54,7 @@ class DeviceState:
             x: host array of shape (batch, 4, N) or (4, N), finite float64 values (``simulate`` checks them on
                 the device when it starts from the state).
         """
-        from .ensemble import _warp, device_lock, resolve_device
+        from .engine.devices import _warp, device_lock, resolve_device
 
         arr = np.asarray(x, dtype=np.float64)
         if arr.ndim == 2:
@@ -68,7 +68,7 @@ class DeviceState:
     @classmethod
     def empty(cls, shape: tuple, device: str) -> "DeviceState":
         """An unfilled state of ``shape`` (batch, 4, N) on ``device`` (``simulate`` fills it)."""
-        from .ensemble import _warp, device_lock
+        from .engine.devices import _warp, device_lock
 
         wp = _warp()
         with device_lock(device):
@@ -91,7 +91,7 @@ class DeviceState:
 
     def numpy(self) -> np.ndarray:
         """A host copy, shape (batch, 4, N) (waits for the device's queued work on the state)."""
-        from .ensemble import device_lock
+        from .engine.devices import device_lock
 
         with device_lock(self.device):
             out = self.array.numpy()

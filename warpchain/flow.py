@@ -170,7 +170,8 @@ class Flow:
         """A runner with buffers for this (N, boundary, batch, nsteps), reused between calls; two per
         key, handed out in turn, each tagged with a generation so a stale history is detected. The
         parameters are loaded, the state is not (``_base_run`` uploads it)."""
-        from .ensemble import _Runner, resolve_device
+        from .engine.devices import resolve_device
+        from .engine.runner import _Runner
         from .model import per_lattice_parameters
 
         device = resolve_device(self.device)
@@ -202,7 +203,7 @@ class Flow:
     def _lock(self):
         """The device's lock (``ensemble.device_lock``): each operation holds it from its first launch to its
         last wait, so Flows on several threads never enter each other's graph captures."""
-        from .ensemble import device_lock, resolve_device
+        from .engine.devices import device_lock, resolve_device
 
         return device_lock(resolve_device(self.device))
 
@@ -219,7 +220,7 @@ class Flow:
         x0 = as_batch(x0, params.N, "x0")
         if x0.shape[0] != 1:
             raise ValueError(f"linearize takes one lattice, got a batch of {x0.shape[0]}")
-        from .ensemble import _copy
+        from .engine.hostmem import _copy
 
         lock = self._lock()
         with lock:
@@ -286,7 +287,7 @@ class Flow:
 def _column_buffers(runner, count: int):
     """The runner's device buffers for ``count`` tangent columns (directions, base indices), kept between
     calls (Newton asks for the same columns at every iterate), one pair per count."""
-    from .ensemble import held
+    from .engine.devices import held
 
     wp, shape = runner.wp, (count, 4, runner.N)
     return held(
@@ -301,7 +302,7 @@ def _column_buffers(runner, count: int):
 
 def _unit_directions(runner):
     """A device array (4N, 4, N) of the unit directions, kept with the runner."""
-    from .ensemble import held
+    from .engine.devices import held
 
     def make():
         n = 4 * runner.N

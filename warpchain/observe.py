@@ -38,14 +38,8 @@ import time
 
 import numpy as np
 
-from .ensemble import (
-    on_one_thread,
-    IntegrationError,
-    _check_step,
-    _signed_energy_change,
-    resolve_device,
-    resolve_layout,
-)
+from .engine.devices import on_one_thread, resolve_device, resolve_layout
+from .ensemble import IntegrationError, _check_step, _signed_energy_change
 from .integrators import SplittingMethod, get_method, steps_for
 from .losses import KICK_ENTRIES, Damping, as_damping, kick_matrices, lossless
 from .model import (
@@ -750,7 +744,7 @@ def observe(
     import warp as wp
 
     from . import block_kernels, kernels
-    from .ensemble import _warp
+    from .engine.devices import _warp
 
     _warp()
     start = time.perf_counter()
@@ -818,7 +812,7 @@ def observe(
         acc = wp.zeros((batch, 2, params.N), dtype=f64, device=device)
         drifts = wp.array(np.array(meth.drifts), dtype=f64, device=device)
         kicks = wp.array(np.array(meth.kicks), dtype=f64, device=device)
-        from .ensemble import _in_parallel, _slices
+        from .engine.devices import _in_parallel, _slices
 
         def launch(first, steps):
             def task(lo, hi):

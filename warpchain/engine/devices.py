@@ -1,0 +1,232 @@
+"""Warp devices: import and initialise Warp once, name and lock devices, count usable cores, and spread
+CPU launches over threads (one slice of lattices per core)."""
+
+from __future__ import annotations
+
+import functools
+import os
+import threading
+from typing import Callable
+
+import numpy as np
+
+from ..device_state import DeviceState
+
+_WARP_LOCK = threading.Lock()
+
+
+def _warp():
+    import warp as wp
+
+    with _WARP_LOCK:
+        if not getattr(_warp, "_initialised", False):
+            if not wp.is_initialized() if hasattr(wp, "is_initialized") else True:
+                # keep Warp's start-up banner and per-module compile lines out of scene logs (set here,
+                # when warpchain first initialises Warp, not as a side effect of importing a module)
+                if hasattr(wp, "LOG_WARNING") and hasattr(wp.config, "log_level"):
+                    wp.config.log_level = wp.LOG_WARNING
+                wp.config.quiet = True
+            _quiet_init(wp)
+            _warp._initialised = True
+    return wp
+
+
+_NO_DRIVER = "Could not find or load the NVIDIA CUDA driver"
+
+
+def _quiet_init(wp) -> None:
+    """wp.init() with the native library's stderr captured: on a machine without a CUDA driver its
+    warning becomes one info line in the log (CPU runs are the expected case there); anything else
+    it printed is passed on unchanged."""
+    import logging
+    import sys
+    import tempfile
+
+    fd = 2  # the native library writes to file descriptor 2, whatever sys.stderr is (pytest, notebooks)
+    try:
+        os.fstat(fd)
+    except OSError:  # no stderr at all: nothing to filter
+        wp.init()
+        return
+    sys.stderr.flush()
+    saved = os.dup(fd)
+    with tempfile.TemporaryFile(mode="w+b") as tmp:
+        os.dup2(tmp.fileno(), fd)
+        try:
+            wp.init()
+        finally:
+            sys.stderr.flush()
+            os.dup2(saved, fd)
+            os.close(saved)
+        tmp.seek(0)
+        text = tmp.read().decode(errors="replace")
+    lines = [line for line in text.splitlines() if line.strip()]
+    if any(_NO_DRIVER in line for line in lines):
+        logging.getLogger("warpchain").info("Warp: no CUDA driver on this machine; running on the CPU")
+    rest = [line for line in lines if _NO_DRIVER not in line]
+    if rest:
+        print("\n".join(rest), file=sys.stderr)
+
+
+def available_devices() -> list[str]:
+    """Warp devices on this machine, e.g. ``["cpu", "cuda:0"]``."""
+    wp = _warp()
+    return [str(d) for d in wp.get_devices()]
+
+
+def resolve_device(device: str | None) -> str:
+    """``None`` -> ``"cuda"`` when Warp sees a GPU, else ``"cpu"``; otherwise validated."""
+    wp = _warp()
+    if device is None:
+        return "cuda:0" if wp.get_cuda_device_count() > 0 else "cpu"
+    if not isinstance(device, str):
+        raise ValueError(f"device must be a string such as 'cpu' or 'cuda', got {device!r}")
+    name = device.strip().lower()
+    if name == "cuda":
+        name = "cuda:0"
+    if name not in available_devices():
+        raise ValueError(f"unknown or unavailable device {device!r}; available: {available_devices()}")
+    return name
+
+
+_DEVICE_LOCKS: dict = {}
+
+
+def device_lock(device: str) -> threading.RLock:
+    """The lock that one thread holds while it issues work to ``device`` and waits for it.
+
+    Warp keeps one current stream per device and one capture state per process (a CUDA graph is captured
+    from the device's current stream; a CPU graph records every launch made anywhere while it is open), and
+    refuses to synchronise a device while a capture is active on it. So a launch, copy, allocation or
+    synchronisation from a second thread during one thread's capture breaks that capture, or enters it.
+    Streams of our own per thread cannot help here: the current stream is per device, not per thread, and
+    ``wp.synchronize_device`` waits on all of them. Every entry point that touches the device (``simulate``,
+    ``observe``, ``propagate_tangent``, ``time_steps``, ``Flow.run``, ``Flow.linearize`` and its columns,
+    ``DeviceState`` copies) holds this lock from its first launch to its last wait. Several threads can drive
+    Flows on one device (site-bond's workers do): their host work (LAPACK, Python) runs in parallel, their
+    device work in turn. Reentrant: a callback under
+    the lock (``on_chunk``) may call the engine again. Work must never wait, under the lock, for another thread
+    that needs it (the lock is held only inside the engine's own calls, so only a callback can do that)."""
+    name = str(device)
+    lock = _DEVICE_LOCKS.get(name)
+    if lock is None:
+        with _WARP_LOCK:
+            lock = _DEVICE_LOCKS.setdefault(name, threading.RLock())
+    return lock
+
+
+def on_one_thread(fn):
+    """``fn(params, x0, ..., device=...)`` under ``device_lock`` of its device (a ``DeviceState`` x0's own when
+    ``device`` is None)."""
+
+    @functools.wraps(fn)
+    def wrapper(params, x0, *args, device: str | None = None, **kwargs):
+        where = x0.device if isinstance(x0, DeviceState) and device is None else resolve_device(device)
+        with device_lock(where):
+            return fn(params, x0, *args, device=device, **kwargs)
+
+    return wrapper
+
+
+def usable_cores() -> int:
+    """Cores this process may run on (its CPU affinity; os.cpu_count() counts the host's, which in a
+    container can be twice as many: 16 against 8 on the H200 machine)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
+def count_from_text(text: str, requirement: str) -> int:
+    """A whole number >= 1 written as ``text`` (an option, an environment variable); otherwise a ValueError
+    that reads "<requirement>, got <text>"."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise ValueError(f"{requirement}, got {text!r}")
+    return value
+
+
+def cpu_threads() -> int:
+    """Threads used for CPU launches: WARPCHAIN_CPU_THREADS, else the usable cores."""
+    env = os.environ.get("WARPCHAIN_CPU_THREADS")
+    if env:
+        return count_from_text(env, "WARPCHAIN_CPU_THREADS must be a positive integer")
+    return usable_cores()
+
+
+def _even_slices(n: int, parts: int) -> list[tuple[int, int]]:
+    """``parts`` (at least one) contiguous near-equal ranges (lo, hi) covering 0..n, empty ones left out."""
+    bounds = np.linspace(0, n, max(int(parts), 1) + 1).astype(int)
+    return [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
+
+
+def _slices(n: int, device: str) -> list[tuple[int, int]]:
+    """Contiguous slices of n lattices: one per CPU thread (Warp runs a CPU launch on one core,
+    so concurrent launches on disjoint slices use the others), or one slice on a GPU."""
+    return _even_slices(n, min(cpu_threads(), n) if device == "cpu" else 1)
+
+
+def _part(arr, lo: int, hi: int):
+    """Lattices (or columns) lo..hi of a Warp array: the array itself when that is all of it (slicing a Warp
+    array costs ~10 us of host time, and a launch takes several; the kept launch commands see the same
+    pointers and shapes either way)."""
+    return arr if lo == 0 and hi == arr.shape[0] else arr[lo:hi]
+
+
+def _parts(lo: int, hi: int, *arrays) -> list:
+    """``_part`` of each array, in order."""
+    return [_part(a, lo, hi) for a in arrays]
+
+
+def _in_parallel(tasks) -> None:
+    """Run callables concurrently (one thread each); re-raise the first error."""
+    if len(tasks) == 1:
+        tasks[0]()
+        return
+    errors = []
+
+    def wrap(task):
+        try:
+            task()
+        except BaseException as exc:  # pragma: no cover - surfaced below
+            errors.append(exc)
+
+    threads = [threading.Thread(target=wrap, args=(t,)) for t in tasks]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    if errors:
+        raise errors[0]
+
+
+LAYOUTS = ("auto", "block", "thread")
+
+
+def resolve_layout(layout: str, device: str, n_sites: int) -> str:
+    """Kernel layout: ``"block"`` (a thread block per lattice, a thread per site: the GPU path) or
+    ``"thread"`` (a thread per lattice: the CPU path). ``"auto"`` picks block on a GPU when the
+    lattice fits one block, thread otherwise."""
+    from .. import block_kernels
+
+    if layout not in LAYOUTS:
+        raise ValueError(f"layout must be one of {LAYOUTS}, got {layout!r}")
+    if layout == "auto":
+        return "block" if device != "cpu" and block_kernels.supports(n_sites) else "thread"
+    if layout == "block" and not block_kernels.supports(n_sites):
+        raise ValueError(
+            f"layout 'block' needs N <= {block_kernels.MAX_BLOCK} (one site per thread), got N = {n_sites}"
+        )
+    return layout
+
+
+def held(owner, key, make: Callable[[], object]):
+    """``make()``, kept on ``owner`` under ``key``: made on first request and never replaced, so a graph
+    captured with it (``_Replay``) keeps a valid address (a runner's or a plan's buffers)."""
+    kept = owner.__dict__.setdefault("_held", {})
+    if key not in kept:
+        kept[key] = make()
+    return kept[key]

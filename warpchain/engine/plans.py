@@ -1,0 +1,208 @@
+"""Launch plans: what one (kernel layout, method type) launches, with its arguments, and the rules that
+pick a kernel variant (sites per thread, tangent columns per block) from the batch and the device."""
+
+from __future__ import annotations
+
+
+import numpy as np
+
+from ..integrators import Method, RungeKuttaMethod, SplittingMethod
+from .devices import _parts, held
+from .tuning import active
+
+
+def sites_per_thread(batch: int, n_sites: int, stages: int, device: str) -> int:
+    """Sites each thread of a block splitting launch owns: ceil(N / 32) (at most ``MAX_SITES_PER_THREAD``, so
+    that a lattice of up to 256 sites is one warp) on a GPU from ``Tuning.sites_min_batch`` lattices for methods
+    of at most ``Tuning.sites_max_stages`` stages, else 1."""
+    from ..block_kernels import MAX_SITES_PER_THREAD, WARP_LANES
+
+    if active().sites_per_thread is not None:
+        return active().sites_per_thread
+    if device == "cpu" or batch < active().sites_min_batch or stages > active().sites_max_stages:
+        return 1
+    return max(1, min(MAX_SITES_PER_THREAD, -(-int(n_sites) // WARP_LANES)))
+
+
+def site_group_launch(sites: int, stages: int, device: str) -> bool:
+    """Whether a block splitting launch with this many sites per thread runs ``site_group_kernels``: always
+    for several sites, and on a GPU for one site per thread and few stages too (its walls compiled in, one
+    float64 per thread in the tile: one lattice 118.6 ns per Verlet step, 3.08e11 site-steps/s at 805 lattices,
+    H200, ``benchmarks/h200-2026-11-22k``; in ``h200-2026-11-22e`` it was 170 ns against ``block_kernels``'
+    202 ns); the many-stage methods keep ``block_kernels``' register-capped kernel. ``Tuning.group_one_site``
+    (tests, benchmarks) forces it."""
+    if sites > 1:
+        return True
+    if active().group_one_site is not None:
+        return active().group_one_site
+    return device != "cpu" and stages <= active().sites_max_stages
+
+
+def tangent_columns_per_block(ncols: int, stages: int, device: str) -> int:
+    """Tangent columns each block of a block splitting tangent launch carries: 2 on a GPU from
+    ``Tuning.tangent_pair_min_columns`` columns (each thread then runs two independent chains: more work in flight
+    per barrier and per history load, and half the blocks), else 1."""
+    if active().tangent_columns is not None:
+        return active().tangent_columns
+    return 2 if device != "cpu" and ncols >= active().tangent_pair_min_columns else 1
+
+
+class _Plan:
+    """What one (kernel layout, method type) launches: the kernels and, built beside each launch, their
+    arguments. ``_PLANS`` maps (layout, method type) to the plan; the runner holds the buffers."""
+
+    def __init__(self, runner):
+        self.r = runner
+
+    def step(self, lo: int, hi: int, dt: float, nsteps: int, save_every: int, frames, record: bool) -> None:
+        raise NotImplementedError
+
+    def tangent(self, dx, column_base, lo: int, hi: int, dt: float, nsteps: int) -> None:
+        raise NotImplementedError
+
+    def kept(self, name: str, shape: tuple):
+        """A device array of ``shape`` kept under (``name``, ``shape``): launches allocate nothing, so that
+        they can be captured in a graph (``_Replay``) and replayed."""
+        wp, device = self.r.wp, self.r.device
+        return held(self, (name, tuple(shape)), lambda: wp.zeros(shape, dtype=wp.float64, device=device))
+
+
+class _BlockSplitting(_Plan):
+    """A thread block per lattice, a splitting method compiled for its stage count."""
+
+    def __init__(self, runner):
+        super().__init__(runner)
+        from .. import block_kernels
+
+        self.pack = block_kernels.pack_coefficients
+        self.scaled = {}
+
+    def coefficients(self, dt: float) -> list:
+        """Drift and kick coefficients times dt (the kernels multiply by them as they are)."""
+        if dt not in self.scaled:
+            m = self.r.method
+            self.scaled = {dt: [self.pack(m.drifts, dt), self.pack(m.kicks, dt)]}
+        return self.scaled[dt]
+
+    def step(self, lo, hi, dt, nsteps, save_every, frames, record):
+        r = self.r
+        inputs = [*_parts(lo, hi, r.x, r.inv_mass, r.coupling), *self.coefficients(dt), r.boundary]
+        inputs += [int(nsteps), int(save_every), *frames, int(record), r.hist, *r.losses(lo, hi)]
+        from .. import block_kernels
+
+        stages = r.method.stages
+        damped = r.damped
+        sites = sites_per_thread(hi - lo, r.N, stages, r.device)
+        if site_group_launch(sites, stages, r.device):
+            threads = block_kernels.group_threads(r.N, sites)
+            group = block_kernels.site_group_kernels(threads, sites, r.boundary)
+            kernel = group.splitting(stages, record=record, save=save_every > 0, damped=damped)
+            r.launch_kernel(kernel, (hi - lo, threads), inputs, threads)
+            return
+        kernels = r.bk
+        if record and hi - lo <= active().record_uncapped_max_batch:
+            kernels = block_kernels.block_kernels(r.block, 0)  # the step's history in registers: no cap
+        kernel = kernels.splitting(stages, record=record, save=save_every > 0, damped=damped)
+        r.launch_kernel(kernel, (hi - lo, r.block), inputs, r.block)
+
+    def tangent(self, dx, column_base, lo, hi, dt, nsteps):
+        r = self.r
+        from .. import block_kernels
+
+        inputs = [*_parts(lo, hi, dx, column_base), r.inv_mass, r.coupling, *self.coefficients(dt), r.boundary]
+        inputs += [int(nsteps), r.hist]
+        stages = r.method.stages
+        columns = tangent_columns_per_block(hi - lo, stages, r.device)
+        kernels = r.bk
+        if columns > 1:
+            cap = active().tangent_pair_min_blocks[stages > active().sites_max_stages]
+            kernels = block_kernels.block_kernels(r.block, cap)
+        kernel = kernels.splitting_tangent(stages, columns)
+        dim = (-(-(hi - lo) // columns), r.block)
+        r.wp.launch(kernel, dim=dim, block_dim=r.block, device=r.device, inputs=inputs)
+
+
+class _BlockRungeKutta(_Plan):
+    """A thread block per lattice, a four-stage Runge-Kutta method (its tableau as arguments)."""
+
+    def __init__(self, runner):
+        super().__init__(runner)
+        m, wp = runner.method, runner.wp
+        self.tableau = [wp.vec4d(*m.nodes, m.divisor), wp.vec4d(*m.weights)]
+
+    def step(self, lo, hi, dt, nsteps, save_every, frames, record):
+        r = self.r
+        inputs = [*_parts(lo, hi, r.x, r.inv_mass, r.coupling), *self.tableau, r.boundary, r.wp.float64(dt)]
+        inputs += [int(nsteps), int(save_every), *frames, int(record), r.hist]
+        r.launch_kernel(r.bk.rk4, (hi - lo, r.block), inputs, r.block)
+
+    def tangent(self, dx, column_base, lo, hi, dt, nsteps):
+        r = self.r
+        inputs = [*_parts(lo, hi, dx, column_base), r.inv_mass, r.coupling, *self.tableau, r.boundary]
+        inputs += [r.wp.float64(dt), int(nsteps), r.hist]
+        r.wp.launch(r.bk.rk4_tangent, dim=(hi - lo, r.block), block_dim=r.block, device=r.device, inputs=inputs)
+
+
+class _ThreadSplitting(_Plan):
+    """A thread per lattice (the CPU path), a splitting method; accelerations in a scratch array."""
+
+    def __init__(self, runner):
+        super().__init__(runner)
+        wp, m, f64 = runner.wp, runner.method, runner.wp.float64
+        self.acc = wp.zeros((runner.batch, 2, runner.N), dtype=f64, device=runner.device)
+        self.drifts = wp.array(np.array(m.drifts), dtype=f64, device=runner.device)
+        self.kicks = wp.array(np.array(m.kicks), dtype=f64, device=runner.device)
+
+    def step(self, lo, hi, dt, nsteps, save_every, frames, record):
+        r = self.r
+        inputs = [*_parts(lo, hi, r.x, self.acc, r.inv_mass, r.coupling), self.drifts, self.kicks]
+        inputs += [r.boundary, r.wp.float64(dt), int(nsteps), int(save_every), *frames, int(record), r.hist]
+        inputs += r.losses(lo, hi)
+        r.launch_kernel(r.k.splitting_kernel, hi - lo, inputs)
+
+    def tangent(self, dx, column_base, lo, hi, dt, nsteps):
+        r, wp = self.r, self.r.wp
+        dacc = self.kept("dacc", (dx.shape[0], 2, r.N))  # written before it is read
+        inputs = [*_parts(lo, hi, dx, dacc, column_base), r.inv_mass, r.coupling, self.drifts, self.kicks]
+        inputs += [r.boundary, wp.float64(dt), int(nsteps), r.hist]
+        wp.launch(r.k.splitting_tangent_kernel, dim=hi - lo, device=r.device, inputs=inputs)
+
+
+class _ThreadRungeKutta(_Plan):
+    """A thread per lattice (the CPU path), a four-stage Runge-Kutta method; stage states in scratch arrays."""
+
+    def __init__(self, runner):
+        super().__init__(runner)
+        wp, m = runner.wp, runner.method
+        shape = (runner.batch, 4, runner.N)
+        self.scratch = [wp.zeros(shape, dtype=wp.float64, device=runner.device) for _ in range(3)]
+        self.tableau = [wp.vec4d(*m.nodes, m.divisor), wp.vec4d(*m.weights)]
+
+    def step(self, lo, hi, dt, nsteps, save_every, frames, record):
+        r = self.r
+        inputs = _parts(lo, hi, r.x, *self.scratch, r.inv_mass, r.coupling)
+        inputs += [*self.tableau, r.boundary, r.wp.float64(dt), int(nsteps), int(save_every), *frames]
+        inputs += [int(record), r.hist]
+        r.launch_kernel(r.k.rk4_kernel, hi - lo, inputs)
+
+    def tangent(self, dx, column_base, lo, hi, dt, nsteps):
+        r, wp = self.r, self.r.wp
+        scratch = [self.kept(f"stage{i}", (dx.shape[0], 4, r.N)) for i in range(3)]
+        inputs = [*_parts(lo, hi, dx, *scratch, column_base), r.inv_mass, r.coupling, *self.tableau, r.boundary]
+        inputs += [wp.float64(dt), int(nsteps), r.hist]
+        wp.launch(r.k.rk4_tangent_kernel, dim=hi - lo, device=r.device, inputs=inputs)
+
+
+_PLANS = {
+    ("block", SplittingMethod): _BlockSplitting,
+    ("block", RungeKuttaMethod): _BlockRungeKutta,
+    ("thread", SplittingMethod): _ThreadSplitting,
+    ("thread", RungeKuttaMethod): _ThreadRungeKutta,
+}
+
+
+def _plan_for(layout: str, method: Method):
+    for (plan_layout, kind), plan in _PLANS.items():
+        if plan_layout == layout and isinstance(method, kind):
+            return plan
+    raise ValueError(f"no launch plan for layout {layout!r} and method type {type(method).__name__}")
