@@ -39,7 +39,16 @@ def main(argv=None) -> int:
     common.add_argument(
         "--resume", action="store_true", help="continue a stored branch (continuation-k, continuation-omega)"
     )
-    run = sub.add_parser("run", parents=[common], help="run one scene")
+    words = list(sys.argv[1:] if argv is None else argv)
+    asked = [w for w in words[1:] if w in SCENES] if words[:1] == ["run"] and {"-h", "--help"} & set(words) else []
+    run = sub.add_parser(
+        "run",
+        parents=[common],
+        help="run one scene",
+        # ``run NAME --help`` ends with that scene's --set keys, defaults and allowed values
+        epilog="\n".join(scene_listing(asked[0])) if asked else "'run NAME --help' lists that scene's --set keys",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     run.add_argument("name", help="scene name (see 'list')")
     # set by ``paper --jobs``: the command its children record in their provenance
     run.add_argument("--provenance-command", default=None, help=argparse.SUPPRESS)
@@ -155,7 +164,13 @@ def run_in_order(names, out, device, quick: bool, command_line: str) -> int:
         except Exception as exc:
             log.error("paper: %s FAILED: %s: %s\n%s", name, type(exc).__name__, exc, traceback.format_exc())
             failures.append((name, exc))
-    log.info("paper: %d scenes in %.1f s, %d failed", len(names), time.perf_counter() - start, len(failures))
+    log.info(
+        "paper: %d scenes in %.1f s, %d failed; results in %s",
+        len(names),
+        time.perf_counter() - start,
+        len(failures),
+        out,
+    )
     for name, exc in failures:
         print(f"error: scene {name} failed: {type(exc).__name__}: {_with_notes(exc)}", file=sys.stderr)
     return 1 if failures else 0

@@ -70,6 +70,14 @@ class Context:
         log.info(f"[{self.name}] " + message, *args)
 
 
+def progress_bars() -> bool:
+    """Whether the scenes draw progress bars: only when stderr is a terminal (a log file or a pipe gets the
+    log lines alone)."""
+    import sys
+
+    return sys.stderr.isatty()
+
+
 def load_scene(name: str):
     if name not in SCENES:
         raise SystemExit(f"unknown scene {name!r}; known scenes: {', '.join(SCENES)}")

@@ -12,7 +12,7 @@ from continuation.floquet import KINDS
 from warpchain import Flow
 
 from continuation.branch_store import BranchStore, StoreError, load_branch
-from ._common import BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD, PAPER_M, PAPER_N, Refused
+from ._common import BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD, PAPER_M, PAPER_N, Refused, progress_bars
 from ._params import Rule, min_steps_per_period, number, param, splitting_methods, stability_dt
 
 
@@ -96,7 +96,15 @@ KIND_LABELS = {
 
 
 def run_branch(
-    ctx, problem, settings, params, attrs, *, group: str = "branch", new_store: bool = True, progress: bool = True
+    ctx,
+    problem,
+    settings,
+    params,
+    attrs,
+    *,
+    group: str = "branch",
+    new_store: bool = True,
+    progress: bool | None = None,
 ) -> Branch:
     """Run (or with ``ctx.resume`` continue) the branch, streaming points into OUT/data.zarr (group
     ``group``; ``new_store=False`` adds it to the scene's existing store)."""
@@ -140,7 +148,7 @@ def run_branch(
                 on_point=store.append,
                 on_step=store.step,
                 log=ctx.log,
-                progress=progress,
+                progress=progress_bars() if progress is None else progress,
             )
         store.finish(branch)  # inside: an interrupt while the writer catches up still marks the store interrupted
     except KeyboardInterrupt:

@@ -167,7 +167,13 @@ def run_parallel(
                     failures.append((child.name, code, list(child.tail)))
     finally:
         _stop(running)
-    log.info("paper: %d scenes in %.1f s, %d failed", len(order), time.perf_counter() - start, len(failures))
+    log.info(
+        "paper: %d scenes in %.1f s, %d failed; results in %s",
+        len(order),
+        time.perf_counter() - start,
+        len(failures),
+        out,
+    )
     return failures
 
 

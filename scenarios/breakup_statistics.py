@@ -58,6 +58,7 @@ from warpchain.observe import OBSERVABLES, Observation, observe, peak_tracks
 from warpchain.store import FieldWriter, open_store, provenance
 
 from ._common import (
+    progress_bars,
     PAPER_K,
     PAPER_M,
     PAPER_N,
@@ -360,7 +361,7 @@ def run(ctx: Context) -> dict:
         workers=P.workers,
         scheduler=P.scheduler or None,
         gpus=gpus if ctx.device != "cpu" else 0,
-        progress=True,
+        progress=progress_bars(),
         log=ctx.log,
     )
     sweep_seconds = report.wall_seconds

@@ -28,6 +28,7 @@ from warpchain import ChainParams, simulate
 from warpchain.store import FieldWriter, open_store, provenance, read_group
 
 from ._common import (
+    progress_bars,
     BREATHER_STEPS_PER_PERIOD,
     PAPER_K,
     PAPER_M,
@@ -111,7 +112,7 @@ def run(ctx: Context) -> dict:
         method=b.method,
         device=ctx.device,
         save_every=save_every,
-        progress=True,
+        progress=progress_bars(),
         on_chunk=stream,
         chunks=max(10, periods // 4),
     )

@@ -226,7 +226,7 @@ def _family_branch(ctx: Context, P: Parameters, flow, family: str):
         problem = _FinerIn(problem, P.fine_from_K, P.fine_to_K, P.ds_fine)
         attrs["fine_steps"] = {"from_K": P.fine_from_K, "to_K": P.fine_to_K, "ds": P.ds_fine}
     new = family == "site"
-    return run_branch(ctx, problem, settings, params, attrs, group=_group(family), new_store=new, progress=True)
+    return run_branch(ctx, problem, settings, params, attrs, group=_group(family), new_store=new)
 
 
 def _solve_near(points, K: float, P: Parameters, flow, symmetric=None):
