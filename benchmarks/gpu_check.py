@@ -20,6 +20,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from warpchain import Placement  # noqa: E402
 from warpchain import METHODS, ChainParams, propagate_tangent, reference, simulate  # noqa: E402
 from warpchain.engine import tuning  # noqa: E402
 from warpchain.integrators import SplittingMethod  # noqa: E402
@@ -49,13 +50,25 @@ def main(argv=None):
     for method in sorted(METHODS):
         ref = reference.integrate(method, p, x0, dt, 1000, M=M, K=K)["x"]
         for layout in ("block", "thread"):
-            run = simulate(p, x0, 1000 * dt, dt, method=method, device=args.device, M=M, K=K, layout=layout)
+            run = simulate(
+                p, x0, 1000 * dt, dt, method=method, device=args.device, M=M, K=K, placement=Placement(layout=layout)
+            )
             err = float(np.max(np.abs(run.x - ref)) / np.max(np.abs(ref)))
             out["ensemble"][f"{method}/{layout}"] = err
             print(f"ensemble {method:9s} {layout:6s} rel diff {err:.2e}", flush=True)
         if isinstance(METHODS[method], SplittingMethod):  # also a warp per lattice (7 sites per thread)
             with tuning.override(sites_per_thread=7):
-                run = simulate(p, x0, 1000 * dt, dt, method=method, device=args.device, M=M, K=K, layout="block")
+                run = simulate(
+                    p,
+                    x0,
+                    1000 * dt,
+                    dt,
+                    method=method,
+                    device=args.device,
+                    M=M,
+                    K=K,
+                    placement=Placement(layout="block"),
+                )
             err = float(np.max(np.abs(run.x - ref)) / np.max(np.abs(ref)))
             out["ensemble"][f"{method}/block-7-sites"] = err
             print(f"ensemble {method:9s} 7 sites/thread rel diff {err:.2e}", flush=True)
@@ -101,12 +114,13 @@ def on_device(p, x0, M, K, dt, device):
     ref = reference.integrate("verlet", p, x0, dt, 1000, M=M, K=K)["x"]
     out = {}
     for layout in ("block", "thread"):
-        kw = dict(device=device, M=M, K=K, layout=layout)
+        kw = dict(device=device, M=M, K=K, placement=Placement(layout=layout))
+        on_device = dict(kw, placement=Placement(layout=layout, keep_on_device=True))
         ends = []
         for _ in range(2):  # plain results, then lent ones
             ends.append(simulate(p, simulate(p, x0, 500 * dt, dt, **kw).x, 500 * dt, dt, **kw).x)
-        kept = simulate(p, x0, 500 * dt, dt, keep_on_device=True, **kw).x
-        ends.append(simulate(p, kept, 500 * dt, dt, keep_on_device=True, **kw).x.numpy())
+        kept = simulate(p, x0, 500 * dt, dt, **on_device).x
+        ends.append(simulate(p, kept, 500 * dt, dt, **on_device).x.numpy())
         ends.append(simulate(p, DeviceState.of(x0, device=device), 1000 * dt, dt, **kw).x)
         same = all(np.array_equal(e, ends[0]) for e in ends[1:])
         err = float(np.max(np.abs(ends[0] - ref)) / np.max(np.abs(ref)))

@@ -25,6 +25,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from scenarios._baselines import cupy_verlet_runner  # noqa: E402
+from warpchain import Guard, Placement  # noqa: E402
 from warpchain import ChainParams, lowest_optical_mode, reference  # noqa: E402
 from warpchain.engine import tuning  # noqa: E402
 from warpchain.ensemble import simulate, time_steps  # noqa: E402
@@ -65,7 +66,15 @@ def main():
     def error(label):
         """The variant's error against the reference after 400 steps."""
         with tuning.override(use(label)):
-            run = simulate(p, check, 400 * dt, dt, device=args.device, layout="block", max_energy_error=None)
+            run = simulate(
+                p,
+                check,
+                400 * dt,
+                dt,
+                device=args.device,
+                placement=Placement(layout="block"),
+                guard=Guard(max_energy_error=None),
+            )
         return float(np.max(np.abs(run.x - ref)))
 
     def measure(name, batch, steps, method="verlet", err=None):

@@ -52,6 +52,7 @@ import time
 
 import numpy as np
 
+from warpchain import Record
 from warpchain import ChainParams, simulate
 from warpchain.losses import Damping, rhs_flat
 from warpchain.observe import OBSERVABLES, Observation, observe, peak_tracks
@@ -612,9 +613,10 @@ def _fields(ctx, P: Parameters, params, store) -> dict:
             T / P.steps_per_period,
             method=P.method,
             device=ctx.device,
-            save_every=save_every,
             damping=(gc, gs),
-            on_chunk=lambda t, u, v, writer=writer: writer.append(t, u=u[:, 0], v=v[:, 0]),
+            record=Record(
+                every=save_every, on_chunk=lambda t, u, v, writer=writer: writer.append(t, u=u[:, 0], v=v[:, 0])
+            ),
         )
         writer.close(method=run_.method, dt=run_.dt)
         root_attrs[name] = {

@@ -18,6 +18,7 @@ import time
 import numpy as np
 
 from continuation import find_breather, floquet, nls_seed, require
+from warpchain import Guard, Record
 from warpchain import ChainParams, propagate_tangent, simulate
 from warpchain.reference import solve_ivp_reference
 from warpchain.store import open_store, provenance, read_group, write_fields, write_table
@@ -73,7 +74,13 @@ def _jacobian_comparison(params, state, n_half, dt, device, label, fd_steps):
         t0 = time.perf_counter()
         batch = np.concatenate([state[None] + h * directions, state[None] - h * directions])
         run = simulate(
-            params, batch, n_half * dt, dt, method=BREATHER_METHOD, device=device, max_energy_error=None, chunks=1
+            params,
+            batch,
+            n_half * dt,
+            dt,
+            method=BREATHER_METHOD,
+            device=device,
+            guard=Guard(max_energy_error=None, chunks=1),
         )
         fd = ((run.x[: 2 * N] - run.x[2 * N :]) / (2 * h)).reshape(2 * N, -1)
         rows.append(
@@ -150,8 +157,8 @@ def run(ctx: Context) -> dict:
         b.dt,
         method=b.method,
         device=ctx.device,
-        save_every=n_period,
         progress=False,
+        record=Record(every=n_period),
     )
     amp = np.max(np.abs(b.state[:2]))
     deviation = (
@@ -188,8 +195,8 @@ def run(ctx: Context) -> dict:
             b.dt,
             method=b.method,
             device=ctx.device,
-            save_every=1,
-            max_energy_error=None,
+            record=Record(every=1),
+            guard=Guard(max_energy_error=None),
         ).min_contact[0]
     )
     ctx.log("contact-loss orbit: min(1 + u - v) = %.3f over the half period", loss_contact)

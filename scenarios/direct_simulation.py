@@ -24,6 +24,7 @@ import time
 import numpy as np
 
 from continuation import eigenmode_seed
+from warpchain import Guard, Record
 from warpchain import ChainParams, simulate
 from warpchain.store import FieldWriter, open_store, provenance, read_group
 
@@ -111,10 +112,9 @@ def run(ctx: Context) -> dict:
         b.dt,
         method=b.method,
         device=ctx.device,
-        save_every=save_every,
         progress=progress_bars(),
-        on_chunk=stream,
-        chunks=max(10, periods // 4),
+        record=Record(every=save_every, on_chunk=stream),
+        guard=Guard(chunks=max(10, periods // 4)),
     )
     for name in CASES:
         writers[name].close(method=run_.method, dt=run_.dt)
@@ -127,8 +127,8 @@ def run(ctx: Context) -> dict:
         b.dt / 2,
         method=b.method,
         device=ctx.device,
-        save_every=2 * save_every,
-        chunks=max(10, periods // 4),
+        record=Record(every=2 * save_every),
+        guard=Guard(chunks=max(10, periods // 4)),
     )
     cases = {}
     for k, name in enumerate(CASES):

@@ -25,6 +25,7 @@ import numpy as np
 
 from continuation import eigenmode_seed, find_breather
 from continuation.shooting import _solve
+from warpchain import Guard, Record
 from warpchain import METHODS, ChainParams, IntegrationError, band_edges, reference, simulate, stability_limit
 
 from ._common import (
@@ -90,9 +91,7 @@ def _survives(params, x0, dt, method, device, limit_steps):
                 dt,
                 method=method,
                 device=device,
-                allow_unstable_step=True,
-                max_energy_error=0.5,
-                chunks=10,
+                guard=Guard(allow_unstable_step=True, max_energy_error=0.5, chunks=10),
             )
             return True
         except IntegrationError:
@@ -119,7 +118,13 @@ def observed_order(params, x0, periods, period, method, device, ref):
             np.max(
                 np.abs(
                     simulate(
-                        params, x0, periods * period, dt, method=method, device=device, max_energy_error=None, chunks=1
+                        params,
+                        x0,
+                        periods * period,
+                        dt,
+                        method=method,
+                        device=device,
+                        guard=Guard(max_energy_error=None, chunks=1),
                     ).x[0]
                     - ref
                 )
@@ -169,8 +174,8 @@ def run(ctx: Context) -> dict:
             b.period / 256,
             method="yoshida6",
             device=ctx.device,
-            save_every=1,
-            max_energy_error=None,
+            record=Record(every=1),
+            guard=Guard(max_energy_error=None),
         ).min_contact[0]
     )
     methods = {}
@@ -238,7 +243,7 @@ def run(ctx: Context) -> dict:
         dt = b.period / (256 if name == "verlet" else 32)
         n = int(round(P.smooth_periods * b.period / dt))
         x32 = reference.integrate(name, params, b.state[None], dt, n, dtype=np.float32)["x"][0].astype(np.float64)
-        x64 = simulate(params, b.state, n * dt, dt, method=name, device=ctx.device, chunks=1).x[0]
+        x64 = simulate(params, b.state, n * dt, dt, method=name, device=ctx.device, guard=Guard(chunks=1)).x[0]
         scale = np.max(np.abs(ref_smooth))
         f32[name] = {
             "dt": dt,

@@ -19,6 +19,7 @@ import time
 import numpy as np
 
 from continuation import eigenmode_seed
+from warpchain import Guard
 from warpchain import METHODS, ChainParams, reference, simulate, stability_limit
 from warpchain.store import open_store, provenance, read_group, write_table
 
@@ -125,7 +126,13 @@ def run(ctx: Context) -> dict:
                     continue
                 run, sec = _timed(
                     lambda: simulate(
-                        params, x0, t_end, dt, method=name, device=ctx.device, chunks=1, max_energy_error=None
+                        params,
+                        x0,
+                        t_end,
+                        dt,
+                        method=name,
+                        device=ctx.device,
+                        guard=Guard(chunks=1, max_energy_error=None),
                     ),
                     P.repeats,
                 )
@@ -182,8 +189,7 @@ def run(ctx: Context) -> dict:
                 b.period / 128,
                 method=name,
                 device=ctx.device,
-                chunks=spec["periods"] * 4,
-                max_energy_error=None,
+                guard=Guard(chunks=spec["periods"] * 4, max_energy_error=None),
             )
             E0 = run.energy_trace[0, 0]
             energy_traces[(case, name)] = (run.energy_t, np.abs(run.energy_trace[:, 0] - E0) / abs(E0))

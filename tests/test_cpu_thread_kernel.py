@@ -8,6 +8,7 @@ import pytest
 import warp as wp
 
 from conftest import localized_state
+from warpchain import Placement, Record
 from warpchain import ChainParams, propagate_tangent, reference, simulate
 from warpchain import kernels as K
 from warpchain.reference import inverse_mass
@@ -20,7 +21,18 @@ def test_short_lattices_every_boundary_bit_for_bit(method, n_sites, boundary):
     p = ChainParams(3.0, 4.0, n_sites, boundary)
     x0 = localized_state(n_sites, amplitude=0.9, batch=3, centre=n_sites // 3, seed=n_sites)
     M, K_ = np.array([3.0, 1.5, 6.0]), np.array([4.0, 2.0, 7.0])
-    run = simulate(p, x0, 60 * 0.05, 0.05, method=method, device="cpu", M=M, K=K_, save_every=7, layout="thread")
+    run = simulate(
+        p,
+        x0,
+        60 * 0.05,
+        0.05,
+        method=method,
+        device="cpu",
+        M=M,
+        K=K_,
+        record=Record(every=7),
+        placement=Placement(layout="thread"),
+    )
     ref = reference.integrate(method, p, x0, 0.05, run.nsteps, M=M, K=K_, save_every=7)
     assert np.array_equal(run.x, ref["x"])
     assert np.array_equal(run.u, ref["u"]) and np.array_equal(run.v, ref["v"])

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from conftest import localized_state
+from warpchain import Guard, Placement, Record
 from warpchain import METHODS, ChainParams, IntegrationError, energy, propagate_tangent, reference, simulate
 from warpchain.engine import hostmem, plans, tuning
 from warpchain.engine.devices import _warp
@@ -25,7 +26,18 @@ def test_cpu_results_bit_for_bit_with_the_reference(method, layout):
     p = ChainParams(30.0, 160.0, 41)
     x0 = localized_state(p.N, amplitude=0.8, batch=3, seed=3)
     M, K = np.array([30.0, 10.0, 50.0]), np.array([160.0, 40.0, 100.0])
-    run = simulate(p, x0, 200 * 0.02, 0.02, method=method, device="cpu", M=M, K=K, save_every=50, layout=layout)
+    run = simulate(
+        p,
+        x0,
+        200 * 0.02,
+        0.02,
+        method=method,
+        device="cpu",
+        M=M,
+        K=K,
+        record=Record(every=50),
+        placement=Placement(layout=layout),
+    )
     ref = reference.integrate(method, p, x0, 0.02, 200, M=M, K=K, save_every=50)
     assert np.array_equal(run.x, ref["x"]) and np.array_equal(run.u, ref["u"]) and np.array_equal(run.v, ref["v"])
     # the guard's energies (reduced on the device) agree with model.energy to rounding
@@ -77,7 +89,7 @@ def test_chunk_count_comes_from_the_work():
     assert tuning.active().chunk_work > 4200 and small.energy_t.tolist() == [0.0, small.t_final]
     with tuning.override(chunk_work=2 * p.N * 100):  # a chunk: 100 steps of both lattices
         assert simulate(p, x0, 250 * 0.1, 0.1, device="cpu").energy_t.shape == (4,)  # 3 chunks
-        assert simulate(p, x0, 100 * 0.1, 0.1, device="cpu", chunks=5).energy_t.shape == (6,)  # as asked
+        assert simulate(p, x0, 100 * 0.1, 0.1, device="cpu", guard=Guard(chunks=5)).energy_t.shape == (6,)  # as asked
         assert simulate(p, x0, 5000 * 0.1, 0.1, device="cpu").energy_t.shape == (11,)  # at most 10
 
 
@@ -89,7 +101,9 @@ def test_on_chunk_gets_read_only_views_of_the_results(small_chain):
         assert not u.flags.writeable and not v.flags.writeable
         seen.append((t.copy(), u.copy(), v.copy()))
 
-    run = simulate(small_chain, x0, 3.0, 0.1, device="cpu", save_every=3, chunks=4, on_chunk=keep)
+    run = simulate(
+        small_chain, x0, 3.0, 0.1, device="cpu", record=Record(every=3, on_chunk=keep), guard=Guard(chunks=4)
+    )
     assert np.array_equal(np.concatenate([s[1] for s in seen]), run.u)
     assert np.array_equal(np.concatenate([s[2] for s in seen]), run.v)
     assert np.array_equal(np.concatenate([s[0] for s in seen]), run.t)
@@ -102,7 +116,7 @@ def test_blow_up_is_caught_at_the_chunk_where_it_happens():
     K = np.array([10.0, 160.0])
     with pytest.warns(RuntimeWarning):
         with pytest.raises(IntegrationError) as info:
-            simulate(p, x0, 400.0, 0.5, device="cpu", K=K, allow_unstable_step=True, chunks=10)
+            simulate(p, x0, 400.0, 0.5, device="cpu", K=K, guard=Guard(allow_unstable_step=True, chunks=10))
     assert info.value.failed == [1] and info.value.t < 400.0  # before the end: chunks are checked in turn
 
 
@@ -199,9 +213,8 @@ def test_kernels_take_coefficients_from_the_method_type(layout):
                 0.05,
                 method=method,
                 device="cpu",
-                layout=layout,
-                max_energy_error=None,
-                allow_unstable_step=True,
+                placement=Placement(layout=layout),
+                guard=Guard(max_energy_error=None, allow_unstable_step=True),
             )
         ref = reference.integrate(method, p, x0, 0.05, 50)
         assert np.array_equal(run.x, ref["x"]), method.name
@@ -268,13 +281,26 @@ def test_several_sites_per_thread_bit_for_bit(boundary, sites):
     M, K = np.array([3.0, 2.0, 5.0]), np.array([4.0, 1.0, 6.0])
     for method in ("verlet", "yoshida4"):
         with tuning.override(group):
-            run = simulate(p, x0, 80 * 0.05, 0.05, method=method, device="cpu", M=M, K=K, layout="block", save_every=20)
+            run = simulate(
+                p,
+                x0,
+                80 * 0.05,
+                0.05,
+                method=method,
+                device="cpu",
+                M=M,
+                K=K,
+                placement=Placement(layout="block"),
+                record=Record(every=20),
+            )
         ref = reference.integrate(method, p, x0, 0.05, 80, M=M, K=K, save_every=20)
         assert np.array_equal(run.x, ref["x"]) and np.array_equal(run.u, ref["u"]), method
         assert np.array_equal(run.v, ref["v"]), method
     damping = Damping(np.array([0.0, 0.05, 0.02]), 0.01)
     with tuning.override(group):
-        run = simulate(p, x0, 1.0, 0.05, method="kahan6", device="cpu", damping=damping, layout="block")
+        run = simulate(
+            p, x0, 1.0, 0.05, method="kahan6", device="cpu", damping=damping, placement=Placement(layout="block")
+        )
     ref = reference.integrate("kahan6", p, x0, run.dt, run.nsteps, damping=damping)["x"]
     assert np.array_equal(run.x, ref)
     histories = {}
@@ -308,17 +334,17 @@ def test_frames_out_receives_the_recording(small_chain):
     and the result's u and v are those arrays; misuse is refused at the boundary."""
     p = small_chain
     x0 = localized_state(p.N, amplitude=0.7, batch=3, seed=2)
-    plain = simulate(p, x0, 40 * 0.05, 0.05, device="cpu", save_every=10)
+    plain = simulate(p, x0, 40 * 0.05, 0.05, device="cpu", record=Record(every=10))
     u, v = np.full_like(plain.u, np.nan), np.full_like(plain.v, np.nan)
-    run = simulate(p, x0, 40 * 0.05, 0.05, device="cpu", save_every=10, frames_out=(u, v))
+    run = simulate(p, x0, 40 * 0.05, 0.05, device="cpu", record=Record(every=10, into=(u, v)))
     assert run.u is u and run.v is v
     assert np.array_equal(u, plain.u) and np.array_equal(v, plain.v) and np.array_equal(run.x, plain.x)
     with pytest.raises(ValueError, match="give save_every"):
         simulate(p, x0, 1.0, 0.05, device="cpu", frames_out=(u, v))
     with pytest.raises(ValueError, match=r"shape \(5, 3, "):
-        simulate(p, x0, 40 * 0.05, 0.05, device="cpu", save_every=10, frames_out=(u[:4], v))
+        simulate(p, x0, 40 * 0.05, 0.05, device="cpu", record=Record(every=10, into=(u[:4], v)))
     with pytest.raises(ValueError, match="share memory"):
-        simulate(p, x0, 40 * 0.05, 0.05, device="cpu", save_every=10, frames_out=(u, u))
+        simulate(p, x0, 40 * 0.05, 0.05, device="cpu", record=Record(every=10, into=(u, u)))
 
 
 @pytest.mark.parametrize("boundary", ["fixed", "free", "periodic"])
@@ -365,7 +391,15 @@ def test_kept_launch_commands_match_plain_launches(method):
     p = ChainParams(30.0, 160.0, 41)
     x0 = localized_state(p.N, amplitude=0.8, batch=5, seed=3)
     M, K = np.full(5, 30.0), np.array([160.0, 40.0, 100.0, 160.0, 80.0])
-    kwargs = dict(method=method, device="cpu", chunks=3, M=M, K=K, layout="block", save_every=5)
+    kwargs = dict(
+        method=method,
+        device="cpu",
+        M=M,
+        K=K,
+        guard=Guard(chunks=3),
+        placement=Placement(layout="block"),
+        record=Record(every=5),
+    )
     plain = [simulate(p, x0, 30 * dt, dt, **kwargs) for dt in (0.02, 0.03)]
     with tuning.override(commands_on_cpu=True):
         kept = [simulate(p, x0, 30 * dt, dt, **kwargs) for dt in (0.02, 0.03)]
@@ -400,26 +434,27 @@ def test_frames_out_must_not_share_memory_with_x0(small_chain):
     x0_view = store.reshape(-1)[: x0.size].reshape(x0.shape)
     x0_view[...] = x0
     with pytest.raises(ValueError, match="must not share memory with x0"):
-        simulate(p, x0_view, 20 * 0.05, 0.05, save_every=10, device="cpu", frames_out=(store[0], store[1]))
+        simulate(p, x0_view, 20 * 0.05, 0.05, device="cpu", record=Record(every=10, into=(store[0], store[1])))
 
 
 @pytest.mark.parametrize("layout", LAYOUTS)
 def test_a_run_continued_on_the_device_gives_the_same_bits(layout):
-    """``keep_on_device=True`` leaves the final state on the device (a ``DeviceState``); passed back as x0 it
+    """``Placement(keep_on_device=True)`` leaves the final state on the device (a ``DeviceState``); passed back as x0 it
     is copied device to device. Chained that way, runs give the bits of the same runs through host arrays,
     recorded frames and energies included; zero steps return x0; misuse is refused with the reason."""
     from warpchain import DeviceState
 
     p = ChainParams(30.0, 160.0, 41)
     x0 = localized_state(p.N, amplitude=0.8, batch=4, seed=7)
-    kwargs = dict(device="cpu", layout=layout, chunks=2)
+    kwargs = dict(device="cpu", placement=Placement(layout=layout), guard=Guard(chunks=2))
+    on_device = dict(kwargs, placement=Placement(layout=layout, keep_on_device=True))
     first = simulate(p, x0, 40 * 0.02, 0.02, **kwargs)
-    second = simulate(p, first.x, 40 * 0.02, 0.02, save_every=10, **kwargs)
-    kept = simulate(p, x0, 40 * 0.02, 0.02, keep_on_device=True, **kwargs)
+    second = simulate(p, first.x, 40 * 0.02, 0.02, **kwargs, record=Record(every=10))
+    kept = simulate(p, x0, 40 * 0.02, 0.02, **on_device)
     assert isinstance(kept.x, DeviceState) and kept.x.shape == x0.shape and kept.x.device == "cpu"
     assert kept.stats["kept_on_device"] and not kept.stats["x0_on_device"]
     assert np.array_equal(kept.x.numpy(), first.x) and np.array_equal(np.asarray(kept.x), first.x)
-    again = simulate(p, kept.x, 40 * 0.02, 0.02, save_every=10, keep_on_device=True, **kwargs)
+    again = simulate(p, kept.x, 40 * 0.02, 0.02, **on_device, record=Record(every=10))
     assert again.stats["x0_on_device"] and isinstance(again.x, DeviceState)
     assert np.array_equal(again.x.numpy(), second.x)
     assert np.array_equal(again.u, second.u) and np.array_equal(again.v, second.v)
@@ -428,7 +463,7 @@ def test_a_run_continued_on_the_device_gives_the_same_bits(layout):
     host = simulate(p, kept.x, 40 * 0.02, 0.02, **kwargs)  # from the device back to the host
     assert isinstance(host.x, np.ndarray) and np.array_equal(host.x, second.x)
     assert np.array_equal(kept.x.numpy(), first.x)  # x0 is never written
-    still = simulate(p, kept.x, 0.0, 0.02, keep_on_device=True, **kwargs)
+    still = simulate(p, kept.x, 0.0, 0.02, **on_device)
     assert np.array_equal(still.x.numpy(), first.x)
     with pytest.raises(ValueError, match="does not fit a chain of N = 40"):
         simulate(ChainParams(30.0, 160.0, 40), kept.x, 0.2, 0.02, device="cpu")

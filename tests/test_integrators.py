@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from conftest import localized_state
+from warpchain import Guard, Placement, Record
 from warpchain import (
     METHODS,
     ChainParams,
@@ -29,7 +30,18 @@ def test_warp_matches_numpy_reference_per_lattice_parameters(method, layout):
     M = np.array([30.0, 10.0, 50.0])
     K = np.array([160.0, 40.0, 100.0])
     dt = 0.02
-    warp = simulate(p, x0, 1000 * dt, dt, method=method, device="cpu", M=M, K=K, save_every=250, layout=layout)
+    warp = simulate(
+        p,
+        x0,
+        1000 * dt,
+        dt,
+        method=method,
+        device="cpu",
+        M=M,
+        K=K,
+        record=Record(every=250),
+        placement=Placement(layout=layout),
+    )
     assert warp.layout == layout
     ref = reference.integrate(method, p, x0, dt, 1000, M=M, K=K, save_every=250)
     scale = np.max(np.abs(ref["x"]))
@@ -47,7 +59,7 @@ def test_warp_matches_numpy_reference_boundaries(boundary, layout):
     p = ChainParams(3.0, 4.0, 17, boundary)
     x0 = localized_state(p.N, amplitude=0.5, batch=2, centre=2, seed=4)
     for method in METHODS:
-        warp = simulate(p, x0, 200 * 0.05, 0.05, method=method, device="cpu", layout=layout)
+        warp = simulate(p, x0, 200 * 0.05, 0.05, method=method, device="cpu", placement=Placement(layout=layout))
         ref = reference.integrate(method, p, x0, 0.05, 200)
         assert np.max(np.abs(warp.x - ref["x"])) <= 1e-12 * np.max(np.abs(ref["x"]))
 
@@ -84,7 +96,7 @@ def test_observed_order_of_convergence(method, smooth_reference):
 def test_symplectic_energy_bounded_not_drifting(method):
     p = ChainParams(30.0, 160.0, 41)
     x0 = localized_state(p.N, amplitude=0.5)
-    run = simulate(p, x0, 4000 * 0.1, 0.1, method=method, device="cpu", chunks=40)
+    run = simulate(p, x0, 4000 * 0.1, 0.1, method=method, device="cpu", guard=Guard(chunks=40))
     assert run.max_energy_error[0] < 1e-2  # checked at every chunk end along the run
     errs = []
     for n_steps in (500, 1000, 2000, 4000):
@@ -129,8 +141,8 @@ def test_bad_input_errors(small_chain):
         simulate(p, x0, 1.0, 0.1, method="euler", device="cpu")
     with pytest.raises(ValueError, match="device"):
         simulate(p, x0, 1.0, 0.1, device="tpu")
-    with pytest.raises(ValueError, match="save_every"):
-        simulate(p, x0, 1.0, 0.1, device="cpu", save_every=0)
+    with pytest.raises(ValueError, match="Record.every"):
+        simulate(p, x0, 1.0, 0.1, device="cpu", record=Record(every=0))
     with pytest.raises(ValueError, match="per-lattice M"):
         simulate(p, x0, 1.0, 0.1, device="cpu", M=[1.0, 2.0])
 
@@ -142,7 +154,7 @@ def test_step_above_stability_limit_refused_or_warned():
         simulate(p, x0, 10.0, 0.5, device="cpu")
     with pytest.warns(RuntimeWarning, match="stability limit"):
         with pytest.raises(IntegrationError):
-            simulate(p, x0, 200.0, 0.5, device="cpu", allow_unstable_step=True)
+            simulate(p, x0, 200.0, 0.5, device="cpu", guard=Guard(allow_unstable_step=True))
 
 
 def test_blow_up_raises_integration_error_naming_method_step_limit_and_lattices():
@@ -152,7 +164,7 @@ def test_blow_up_raises_integration_error_naming_method_step_limit_and_lattices(
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         with pytest.raises(IntegrationError) as info:
-            simulate(p, x0, 400.0, 0.5, device="cpu", K=Ks, allow_unstable_step=True)
+            simulate(p, x0, 400.0, 0.5, device="cpu", K=Ks, guard=Guard(allow_unstable_step=True))
     err = info.value
     assert err.method == "verlet" and err.dt == 0.5 and err.failed == [1]
     message = str(err)
@@ -163,7 +175,7 @@ def test_energy_error_bound_triggers():
     p = ChainParams(30.0, 160.0, 21)
     x0 = localized_state(p.N, amplitude=0.9)
     with pytest.raises(IntegrationError, match="energy error"):
-        simulate(p, x0, 20.0, 0.4, method="rk4", device="cpu", max_energy_error=1e-9)
+        simulate(p, x0, 20.0, 0.4, method="rk4", device="cpu", guard=Guard(max_energy_error=1e-9))
 
 
 def test_t_final_not_multiple_of_dt_shortens_step(small_chain):
@@ -183,9 +195,8 @@ def test_recording_and_callback(small_chain):
         3.0,
         0.1,
         device="cpu",
-        save_every=3,
-        chunks=4,
-        on_chunk=lambda t, u, v: seen.append((t.copy(), u.shape)),
+        record=Record(every=3, on_chunk=lambda t, u, v: seen.append((t.copy(), u.shape))),
+        guard=Guard(chunks=4),
     )
     assert r.u.shape == (11, 2, small_chain.N)
     assert np.allclose(r.t, np.arange(11) * 0.3)

@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from warpchain import Placement
 from warpchain import ChainParams, reference, simulate
 from warpchain.losses import Damping, damping_matrix, dissipation, kick_dissipation, kick_matrices, rhs_flat
 from warpchain.observe import Observation, observe, peak_mask, peak_tracks, reference_observe
@@ -106,10 +107,12 @@ def test_dissipated_energy_keeps_the_scheme_order_against_dop853(method):
 @pytest.mark.parametrize("method", ["verlet", "kahan6"])
 def test_damped_kernels_match_the_reference_bit_for_bit(layout, method):
     x0 = _spots(4)
-    run = simulate(PARAMS, x0, 3.0, 0.05, method=method, device="cpu", damping=DAMPING, layout=layout)
+    run = simulate(
+        PARAMS, x0, 3.0, 0.05, method=method, device="cpu", damping=DAMPING, placement=Placement(layout=layout)
+    )
     ref = reference.integrate(method, PARAMS, x0, run.dt, run.nsteps, damping=DAMPING)["x"]
     assert np.array_equal(run.x, ref)
-    lossless = simulate(PARAMS, x0, 3.0, 0.05, method=method, device="cpu", layout=layout)
+    lossless = simulate(PARAMS, x0, 3.0, 0.05, method=method, device="cpu", placement=Placement(layout=layout))
     assert np.array_equal(run.x[0], lossless.x[0])  # the lattice without losses: today's scheme, bit for bit
     assert np.all(run.energy_final[1:] < run.energy_initial[1:])
 
@@ -153,7 +156,7 @@ def test_zero_damping_observe_is_simulate_bit_for_bit(layout):
     run = observe(
         PARAMS, x0, 4.0, 0.05, observation=obs, method="yoshida4", device="cpu", damping=(0.0, 0.0), layout=layout
     )
-    plain = simulate(PARAMS, x0, run.t[-1], run.dt, method="yoshida4", device="cpu", layout=layout)
+    plain = simulate(PARAMS, x0, run.t[-1], run.dt, method="yoshida4", device="cpu", placement=Placement(layout=layout))
     assert plain.nsteps == run.nsteps and np.array_equal(run.x, plain.x)
 
 

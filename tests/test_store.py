@@ -5,6 +5,7 @@ import pytest
 import zarr
 
 from conftest import localized_state
+from warpchain import Guard, Record
 from warpchain import ChainParams, simulate
 from warpchain.store import (
     FieldWriter,
@@ -64,7 +65,7 @@ def test_streamed_run_half_way_is_readable_and_says_how_far(tmp_path):
             raise Stop  # the run dies after its third chunk
 
     with pytest.raises(Stop):
-        simulate(p, x0, 4.0, 0.1, device="cpu", save_every=2, chunks=4, on_chunk=on_chunk)
+        simulate(p, x0, 4.0, 0.1, device="cpu", record=Record(every=2, on_chunk=on_chunk), guard=Guard(chunks=4))
     frames_seen = sum(calls)
     arrays, attrs = read_group(path, "ensemble", require_complete=False)  # the default refuses a half-written group
     assert attrs["complete"] is False

@@ -20,18 +20,37 @@ def test_numpy_scalars_and_0d_arrays_are_numbers():
 
 
 @pytest.mark.parametrize(
-    "kwargs, match",
+    "options, match",
     [
-        (dict(max_energy_error=-1), "max_energy_error"),
-        (dict(chunks=-3), "chunks"),
-        (dict(chunks=2.5), "chunks"),
-        (dict(save_every=1000), "larger than the run"),
-        (dict(save_every=0), "save_every"),
+        (lambda: dict(guard=wc.Guard(max_energy_error=-1)), "Guard.max_energy_error"),
+        (lambda: dict(guard=wc.Guard(chunks=-3)), "Guard.chunks"),
+        (lambda: dict(guard=wc.Guard(chunks=2.5)), "Guard.chunks"),
+        (lambda: dict(record=wc.Record(every=1000)), "larger than the run"),
+        (lambda: dict(record=wc.Record(every=0)), "Record.every"),
+        (lambda: dict(placement=wc.Placement(layout="grid")), "Placement.layout"),
     ],
 )
-def test_simulate_options_are_range_checked(kwargs, match):
+def test_simulate_options_are_range_checked(options, match):
     with pytest.raises(ValueError, match=match):
-        wc.simulate(P, X, 1.0, 0.1, device="cpu", **kwargs)
+        wc.simulate(P, X, 1.0, 0.1, device="cpu", **options())
+
+
+def test_the_flat_keywords_of_earlier_releases_still_work_with_a_warning():
+    """``save_every=``, ``chunks=``, ``layout=`` ... fold into the options with one DeprecationWarning naming
+    them; a keyword beside its own option object, a frames array without save_every, an unknown keyword or
+    an option of the wrong type are refused."""
+    new = wc.simulate(P, X, 1.0, 0.1, device="cpu", record=wc.Record(every=2), guard=wc.Guard(chunks=2))
+    with pytest.warns(DeprecationWarning, match=r"record=Record\(every=...\); guard=Guard\(chunks=...\)"):
+        old = wc.simulate(P, X, 1.0, 0.1, device="cpu", save_every=2, chunks=2)
+    assert np.array_equal(old.u, new.u) and np.array_equal(old.energy_t, new.energy_t)
+    with pytest.raises(ValueError, match="given beside guard="):
+        wc.simulate(P, X, 1.0, 0.1, device="cpu", chunks=2, guard=wc.Guard(chunks=3))
+    with pytest.raises(ValueError, match="give save_every too"):
+        wc.simulate(P, X, 1.0, 0.1, device="cpu", on_chunk=print)
+    with pytest.raises(TypeError, match="unexpected keyword argument 'save_evry'"):
+        wc.simulate(P, X, 1.0, 0.1, device="cpu", save_evry=2)
+    with pytest.raises(TypeError, match="record must be a warpchain.Record"):
+        wc.simulate(P, X, 1.0, 0.1, device="cpu", record=2)
 
 
 @pytest.mark.parametrize(

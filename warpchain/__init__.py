@@ -1,7 +1,9 @@
 """warpchain: discrete breathers in a mass-in-mass chain with Hertzian local resonators.
 
-The model (``model``), float64 Warp ensemble integrators (``ensemble``, ``kernels``), a numpy
-reference of every scheme (``reference``), and zarr output (``store``).
+The model (``model``), float64 Warp integrators of ensembles of lattices (``simulate`` with its option objects
+``Record``, ``Guard``, ``Placement``; ``propagate_tangent``; the ``Flow`` that continuation uses), the numpy
+reference of every scheme (``reference``), losses (``losses``), observables reduced on the device
+(``observe``), and zarr output (``store``). The engine behind them lives in ``warpchain.engine``.
 """
 
 from .device_state import DeviceState
@@ -18,6 +20,7 @@ from .ensemble import (
     stability_limit,
 )
 from .observe import Observation, ObservedRun, observe
+from .options import Guard, Placement, Record
 from .flow import Flow, Linearization, ReferenceFlow, Trajectory
 from .integrators import METHODS, Method, RungeKuttaMethod, SplittingMethod, get_method
 from .losses import Damping
@@ -50,6 +53,9 @@ __all__ = [
     "RungeKuttaMethod",
     "SplittingMethod",
     "Flow",
+    "Guard",
+    "Placement",
+    "Record",
     "IntegrationError",
     "Linearization",
     "ReferenceFlow",

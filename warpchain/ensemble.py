@@ -14,15 +14,15 @@ import functools
 import math
 import time
 import warnings
-from typing import Callable
 
 import numpy as np
 
 from .integrators import Method, SplittingMethod, get_method, steps_for
 from .losses import Damping, as_damping, require_splitting
-from .model import ChainParams, as_batch, band_edges, per_lattice_parameters, real_number, whole_number
+from .model import ChainParams, as_batch, band_edges, per_lattice_parameters, real_number
 from .device_state import DeviceState
 from .engine.tuning import active
+from .options import Guard, Placement, Record, from_legacy
 
 from .engine.devices import (  # noqa: F401  (re-exported: the public face of the engine)
     available_devices,
@@ -185,55 +185,40 @@ def simulate(
     *,
     method: str = "verlet",
     device: str | None = None,
-    save_every: int | None = None,
-    progress: bool = False,
     M=None,
     K=None,
-    max_energy_error: float | None = 0.05,
-    allow_unstable_step: bool = False,
-    chunks: int | None = None,
-    layout: str = "auto",
-    on_chunk: Callable[[np.ndarray, np.ndarray, np.ndarray], None] | None = None,
     damping: Damping | tuple | None = None,
-    frames_out: tuple[np.ndarray, np.ndarray] | None = None,
-    keep_on_device: bool = False,
+    record: Record | None = None,
+    guard: Guard = Guard(),
+    placement: Placement = Placement(),
+    progress: bool = False,
+    **deprecated,
 ) -> SimulationResult:
     """Integrate a batch of lattices with a float64 Warp kernel.
 
     Args:
         params: the chain (N, boundary, and M, K unless given per lattice).
         x0: initial state, shape (4, N) (a batch of one) or (batch, 4, N), ordered (u, v, u', v'); or a
-            ``DeviceState`` (e.g. an earlier result's ``x`` with ``keep_on_device``), copied device to device.
+            ``DeviceState`` (e.g. an earlier result's ``x`` with ``Placement(keep_on_device=True)``), copied
+            device to device.
         t_final: final time (>= 0). When it is not a whole multiple of ``dt`` the step is
             shortened slightly so that it is; the result reports the step used.
         dt: time step (> 0), below the method's linear stability limit.
-        method: a name in ``METHODS`` (``verlet``, ``yoshida4``, ``yoshida6``, ``rk4``).
+        method: a name in ``METHODS`` (``verlet``, ``yoshida4``, ``yoshida6``, ``kahan8``, ``rk4``, ...).
         device: ``"cpu"``, ``"cuda"`` or ``"cuda:N"``; None picks CUDA when Warp sees a GPU (or, for a
             ``DeviceState`` x0, the device it lives on).
-        save_every: record u and v every this many steps (and at t = 0).
-        progress: show a tqdm progress bar.
         M, K: per-lattice parameters, shape (batch,), so that a sweep runs in one launch.
-        max_energy_error: relative energy error that counts as a blow-up (None: only non-finite).
-        allow_unstable_step: run (with a warning) even when dt is above the linear stability limit.
-        chunks: number of launches the run is split into, each followed by the energy guard (default: from
-            the work, at most 10, or 50 with progress).
-        layout: ``"block"`` (a thread block per lattice: the GPU path), ``"thread"`` (a thread per
-            lattice: the CPU path) or ``"auto"`` (block on a GPU, thread on the CPU).
-        on_chunk: called after every chunk with (t, u, v) of the frames recorded in that chunk,
-            shapes (n,), (n, batch, N), (n, batch, N) (the t = 0 frame comes with the first call).
-        frames_out: with ``save_every``, two host arrays (u, v) of shape (n_saved, batch, N), float64,
-            C-contiguous, that receive the recorded frames (and become the result's ``u`` and ``v``)
-            instead of new arrays. An ensemble study that records run after run can allocate them once:
-            writing into memory already touched is several times faster than into fresh pages, which is
-            what bounds recording (``benchmarks/h200-2026-11-22e``). Arrays from ``frame_buffers`` are
-            page-locked on a GPU: the frames are copied from the device straight into them, at 27-37 GB/s
-            on the H200 against 12-23 GB/s into plain reused arrays (``benchmarks/h200-2026-11-22h``).
         damping: losses (``losses.Damping`` or a (contact, substrate) pair of rates, scalars or per
             lattice), splitting methods only. Energy then decays; the guard flags a lattice whose
-            energy *grows* by more than ``max_energy_error`` (relative), which no lossy run can do.
-        keep_on_device: leave the final state on the device: the result's ``x`` is a ``DeviceState``, which
-            the next call takes as its ``x0`` with no transfer either way (``warpchain.device_state``). Only
-            the guard's scalars (and recorded frames) reach the host.
+            energy *grows* by more than ``guard.max_energy_error`` (relative), which no lossy run can do.
+        record: what to record (``Record``: every how many steps, into which arrays, with which callback);
+            None records nothing but the energy trace.
+        guard: the energy guard after every chunk (``Guard``: the bound, the step-size check, the chunks).
+        placement: kernel layout and whether the final state stays on the device (``Placement``).
+        progress: show a tqdm progress bar.
+        **deprecated: the flat keywords of earlier releases (``save_every``, ``frames_out``, ``on_chunk``,
+            ``max_energy_error``, ``allow_unstable_step``, ``chunks``, ``layout``, ``keep_on_device``), folded
+            into the options with a ``DeprecationWarning`` (``warpchain.options``).
 
     Returns:
         SimulationResult.
@@ -243,6 +228,16 @@ def simulate(
         StepSizeError: dt above the linear stability limit.
         IntegrationError: the state became non-finite or the energy error exceeded its bound.
     """
+    if deprecated:
+        record, guard, placement = from_legacy(deprecated, record, guard, placement)
+    for name, value, cls in (("record", record, Record), ("guard", guard, Guard), ("placement", placement, Placement)):
+        if value is not None and not isinstance(value, cls):
+            raise TypeError(f"simulate(): {name} must be a warpchain.{cls.__name__}, got {type(value).__name__}")
+    save_every = record.every if record is not None else None
+    frames_out = record.into if record is not None else None
+    on_chunk = record.on_chunk if record is not None else None
+    max_energy_error, chunks = guard.max_energy_error, guard.chunks
+    layout, keep_on_device = placement.layout, placement.keep_on_device
     start = time.perf_counter()
     meth = get_method(method)
     resident = isinstance(x0, DeviceState)  # x0 in device memory: no transfer at all
@@ -257,22 +252,16 @@ def simulate(
         damping.per_lattice(batch)  # validated here, at the boundary
         require_splitting(meth)
     t_final = real_number("t_final", t_final, nonnegative=True)
-    limit = _check_step(meth, params, dt, M if M is None else Mb, K if K is None else Kb, allow_unstable_step)
+    limit = _check_step(meth, params, dt, M if M is None else Mb, K if K is None else Kb, guard.allow_unstable_step)
     dt = real_number("dt", dt, positive=True)
-    if save_every is not None:
-        save_every = whole_number("save_every", save_every, minimum=1)
-    if max_energy_error is not None:
-        max_energy_error = real_number("max_energy_error", max_energy_error, positive=True)
-    if chunks is not None:
-        chunks = whole_number("chunks", chunks, minimum=1)
     device = resolve_device(device)
     nsteps, dt_used = steps_for(t_final, dt)
     if frames_out is not None:
         frames_out = _check_frames_out(frames_out, save_every, nsteps, batch, params.N, None if resident else x0)
     if save_every is not None and save_every > max(nsteps, 1):
         raise ValueError(
-            f"save_every = {save_every} is larger than the run ({nsteps} steps of {dt_used:.6g}): "
-            f"no frame after t = 0 would be saved; use save_every <= {max(nsteps, 1)}"
+            f"Record.every = {save_every} is larger than the run ({nsteps} steps of {dt_used:.6g}): "
+            f"no frame after t = 0 would be saved; use every <= {max(nsteps, 1)}"
         )
 
     # chunk length: a whole number of save intervals, at least active().chunk_work force evaluations of the whole

@@ -11,6 +11,7 @@ from typing import Callable
 import numpy as np
 
 from ..device_state import DeviceState
+from ..options import LAYOUTS
 
 _WARP_LOCK = threading.Lock()
 
@@ -201,9 +202,6 @@ def _in_parallel(tasks) -> None:
         t.join()
     if errors:
         raise errors[0]
-
-
-LAYOUTS = ("auto", "block", "thread")
 
 
 def resolve_layout(layout: str, device: str, n_sites: int) -> str:

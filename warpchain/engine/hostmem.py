@@ -226,19 +226,17 @@ class _FrameSink:
 def _check_frames_out(frames_out, save_every, nsteps: int, batch: int, n_sites: int, x0: np.ndarray | None):
     """``simulate``'s ``frames_out``, checked once at the boundary: (u, v) host arrays of the frames' shape
     (``x0``: the host x0 they must not overlap; None for a ``DeviceState``)."""
-    if save_every is None:
-        raise ValueError("frames_out receives recorded frames: give save_every too")
     if not isinstance(frames_out, (tuple, list)) or len(frames_out) != 2:
-        raise ValueError("frames_out must be a pair (u, v) of arrays")
+        raise ValueError("Record.into must be a pair (u, v) of arrays")
     shape = (1 + nsteps // save_every, batch, n_sites)
     for name, arr in zip("uv", frames_out):
         if not isinstance(arr, np.ndarray) or arr.dtype != np.float64 or arr.shape != shape:
             got = f"{type(arr).__name__} {getattr(arr, 'dtype', '')} {getattr(arr, 'shape', '')}"
-            raise ValueError(f"frames_out {name} must be a float64 numpy array of shape {shape}, got {got}")
+            raise ValueError(f"Record.into {name} must be a float64 numpy array of shape {shape}, got {got}")
         if not (arr.flags.c_contiguous and arr.flags.writeable):
-            raise ValueError(f"frames_out {name} must be C-contiguous and writeable")
+            raise ValueError(f"Record.into {name} must be C-contiguous and writeable")
     if np.shares_memory(frames_out[0], frames_out[1]):
-        raise ValueError("frames_out u and v must not share memory")
+        raise ValueError("Record.into u and v must not share memory")
     if x0 is not None and any(np.may_share_memory(arr, x0) for arr in frames_out):
-        raise ValueError("frames_out must not share memory with x0 (the device may still be reading x0)")
+        raise ValueError("Record.into must not share memory with x0 (the device may still be reading x0)")
     return tuple(frames_out)
