@@ -477,3 +477,73 @@ def test_a_run_continued_on_the_device_gives_the_same_bits(layout):
         DeviceState.of(np.zeros((3, 5)), device="cpu")
     with pytest.raises(TypeError, match="Warp array"):
         DeviceState(np.zeros((1, 4, 5)))
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_sliced_transfers_give_the_same_run(layout):
+    """The GPU path for large batches (state moved in lattice slices, the first and last chunks run
+    slice by slice), forced here on the CPU: the same results, errors and traces."""
+    p = ChainParams(30.0, 160.0, 41)
+    x0 = localized_state(p.N, amplitude=0.8, batch=6, seed=3)
+    M = np.array([30.0, 10.0, 50.0, 30.0, 20.0, 40.0])
+    kwargs = dict(method="yoshida4", device="cpu", M=M, placement=Placement(layout=layout))
+    plain = simulate(p, x0, 60 * 0.02, 0.02, record=Record(every=10), guard=Guard(chunks=3), **kwargs)
+    with tuning.override(slice_on_cpu=True, sliced_min_values=1, slices=4):
+        for chunks in (3, 1):
+            sliced = simulate(p, x0, 60 * 0.02, 0.02, record=Record(every=10), guard=Guard(chunks=chunks), **kwargs)
+            assert sliced.stats["slices"] == 4
+            assert np.array_equal(sliced.x, plain.x) and np.array_equal(sliced.u, plain.u)
+            assert np.array_equal(sliced.min_contact, plain.min_contact)
+            assert np.array_equal(sliced.energy_initial, plain.energy_initial)
+        assert np.array_equal(sliced.energy_trace[[0, -1]], plain.energy_trace[[0, -1]])
+        bad = x0.copy()
+        bad[4, 2, 7] = np.inf
+        with pytest.raises(ValueError, match=r"non-finite entries in lattice\(s\) \[4\]"):
+            simulate(p, bad, 60 * 0.02, 0.02, guard=Guard(chunks=3), **kwargs)
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_short_sliced_runs_default_to_two_chunks(layout):
+    """A short run on a large batch (the GPU's sliced path, forced on the CPU) defaults to two chunks, whose
+    kernels hide the slices' transfers, in one slice per ``Tuning.slice_lattices`` lattices: the same end
+    state as a run in more chunks over the whole batch; a blow-up is still reported at a chunk end with its
+    lattice; explicit chunks, progress bars and long runs keep their chunk counts."""
+    p = ChainParams(30.0, 160.0, 41)
+    x0 = localized_state(p.N, amplitude=0.8, batch=7, seed=3)
+    M = np.array([30.0, 10.0, 50.0, 30.0, 20.0, 40.0, 25.0])
+    kwargs = dict(method="yoshida4", device="cpu", M=M, placement=Placement(layout=layout))
+    plain = simulate(p, x0, 60 * 0.02, 0.02, guard=Guard(chunks=4), **kwargs)
+    # the work alone would ask for 10 chunks
+    with tuning.override(slice_on_cpu=True, sliced_min_values=1, slice_lattices=2, chunk_work=1):
+        run = simulate(p, x0, 60 * 0.02, 0.02, **kwargs)
+        assert (run.stats["chunks"], run.stats["slices"]) == (2, 3)
+        assert np.array_equal(run.x, plain.x) and np.array_equal(run.energy_t, [0.0, 0.6, 1.2])
+        assert np.array_equal(run.energy_trace[[0, -1]], plain.energy_trace[[0, -1]])
+        assert simulate(p, x0, 60 * 0.02, 0.02, guard=Guard(chunks=4), **kwargs).stats["chunks"] == 4
+        assert simulate(p, x0, 60 * 0.02, 0.02, progress=True, **kwargs).stats["chunks"] == 30  # 2 steps each
+        with tuning.override(short_run_evaluations=100):
+            assert simulate(p, x0, 60 * 0.02, 0.02, **kwargs).stats["chunks"] == 10
+        # a bound on the energy error that lattice 5 (last slice) crosses first
+        drift = x0[[2, 2, 2, 2, 2, 5, 2]] * np.array([0.5, 0.5, 1, 0.5, 0.5, 1, 0.5])[:, None, None]
+        drifting = dict(kwargs, M=np.array([50.0, 50.0, 50.0, 50.0, 50.0, 40.0, 50.0]))
+        with pytest.raises(IntegrationError) as error:
+            simulate(p, drift, 40 * 0.1, 0.1, guard=Guard(max_energy_error=1.5e-4), **drifting)
+        assert error.value.t == 2.0 and error.value.failed == [5]
+
+
+def test_a_short_run_on_a_large_batch_has_the_same_chunks_on_the_device():
+    """A short run on a large batch runs in two chunks whether its state moves in slices (from a plain x0) or
+    stays on the device: the same energy trace, the same bits (the sliced path emulated on the CPU)."""
+    from warpchain import DeviceState
+
+    p = ChainParams(30.0, 160.0, 41)
+    x0 = localized_state(p.N, amplitude=0.8, batch=4, seed=9)
+    # the work alone would ask for 10 chunks
+    with tuning.override(slice_on_cpu=True, sliced_min_values=1, slices=2, chunk_work=100):
+        plain = simulate(p, x0, 40 * 0.02, 0.02, device="cpu")
+        on_device = Placement(keep_on_device=True)
+        kept = simulate(p, DeviceState.of(x0, device="cpu"), 40 * 0.02, 0.02, device="cpu", placement=on_device)
+    assert plain.stats["slices"] == 2 and kept.stats["slices"] == 1
+    assert plain.stats["chunks"] == kept.stats["chunks"] == 2
+    assert np.array_equal(plain.energy_t, kept.energy_t) and np.array_equal(plain.energy_trace, kept.energy_trace)
+    assert np.array_equal(plain.x, kept.x.numpy())

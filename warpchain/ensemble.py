@@ -33,7 +33,15 @@ from .engine.devices import (  # noqa: F401  (re-exported: the public face of th
     resolve_layout,
     _warp,
 )
-from .engine.hostmem import _check_frames_out, _FrameSink, _frames_per_chunk, _prefault, frame_buffers  # noqa: F401
+from .engine.hostmem import (  # noqa: F401
+    _check_frames_out,
+    _FrameSink,
+    _frames_per_chunk,
+    _prefault,
+    _SlicedTransfers,
+    frame_buffers,
+    slice_bounds,
+)
 from .engine.plans import sites_per_thread  # noqa: F401
 from .engine.runner import _GuardReader, _pooled_runner, _release_runner, _Replay, _Runner  # noqa: F401
 
@@ -264,13 +272,22 @@ def simulate(
             f"no frame after t = 0 would be saved; use every <= {max(nsteps, 1)}"
         )
 
-    # chunk length: a whole number of save intervals, at least active().chunk_work force evaluations of the whole
+    # chunk length: a whole number of save intervals, at least Tuning.chunk_work force evaluations of the whole
     # batch (launch, guard and transfer costs stay small against the kernel), at most 10 chunks (50 with a
     # progress bar), and, when recording, at most the frames that fit the host staging buffers
     unit = save_every or 1
     units_total = max(1, math.ceil(nsteps / unit))
     work = batch * params.N * max(nsteps, 1) * meth.force_evaluations
-    n_chunks = chunks or max(1, min(50 if progress else 10, math.ceil(work / active().chunk_work)))
+    tuning = active()
+    n_chunks = chunks or max(1, min(50 if progress else 10, math.ceil(work / tuning.chunk_work)))
+    large = x0.size >= tuning.sliced_min_values and (device != "cpu" or tuning.slice_on_cpu)
+    # a large batch from and to the host: the state moved in slices, overlapped with the first and last chunk
+    sliced = large and not (resident or keep_on_device) and nsteps > 0
+    # a short run on a large batch: two chunks, whether its state moves or stays on the device (a run continued
+    # on the device has the chunks, hence the energy trace, of the same run from a plain x0)
+    short = large and chunks is None and not progress
+    if short and nsteps * meth.force_evaluations <= tuning.short_run_evaluations:
+        n_chunks = min(n_chunks, tuning.short_run_chunks)
     units_per_chunk = max(1, math.ceil(units_total / n_chunks))
     if save_every:
         units_per_chunk = min(units_per_chunk, _frames_per_chunk(batch, params.N))
@@ -288,6 +305,7 @@ def simulate(
     final = DeviceState.empty(x0.shape, device) if keep_on_device else None  # filled behind the last chunk
     target = None  # else the final state's host array, touched in the background once the device is busy
     guard = _GuardReader.of(runner, gpu)
+    transfers = _SlicedTransfers(runner, x0, slice_bounds(batch)) if sliced else None
     if not plan:
         runner.upload(x0)
         E0, finite0, contact = (a.copy() for a in guard.read(runner.guard(), 0))  # of x0, on the device
@@ -319,11 +337,22 @@ def simulate(
         """Queue chunk i on the device: kernel, guard, and the copies of its scalars and frames."""
         _, steps, n_rec = plan[i]
         rec = sink.rec if n_rec else None
-        if i == 0:
-            runner.guard(slot=2)
-        runner.launch(steps, dt_used, save_every or 0, rec)
-        if i == 0:
-            guard.enqueue_init(runner.guard_out[2])  # after the kernel's launch: it need not wait for this
+        if sliced and (i == 0 or i == len(plan) - 1):
+            for s, lattices in enumerate(transfers.slices):
+                if i == 0:
+                    transfers.upload(s)
+                    runner.guard(slot=2, lattices=lattices)  # the start: energy, finite, contact
+                runner.launch(steps, dt_used, save_every or 0, rec, lattices=lattices)
+                if i == len(plan) - 1:
+                    transfers.download(s)
+            if i == 0:
+                guard.enqueue_init(runner.guard_out[2])
+        else:
+            if i == 0:
+                runner.guard(slot=2)
+            runner.launch(steps, dt_used, save_every or 0, rec)
+            if i == 0:
+                guard.enqueue_init(runner.guard_out[2])  # after the kernel's launch: it need not wait for this
         guard.enqueue(runner.guard(rec, n_rec, i), i)
         if n_rec:
             sink.enqueue(n_rec, i, 1 + plan[i][0] // save_every)
@@ -363,12 +392,15 @@ def simulate(
 
     saved = 1
     stats = {"chunks": len(plan), "runner": t_runner, "waiting": 0.0, "frames": 0.0, "final": 0.0}
+    stats["slices"] = len(transfers.slices) if sliced else 1
     stats["x0_on_device"], stats["kept_on_device"] = resident, bool(keep_on_device)
     if runner.layout == "block" and isinstance(meth, SplittingMethod):
-        stats["sites_per_thread"] = sites_per_thread(batch, params.N, meth.stages, device)
+        lattices = transfers.slices[0][1] if sliced else batch
+        stats["sites_per_thread"] = sites_per_thread(lattices, params.N, meth.stages, device)
     try:
         if plan:
-            runner.upload(x0)
+            if not sliced:
+                runner.upload(x0)
             enqueue(0)
         stats["setup"] = time.perf_counter() - start
         if gpu and final is None and x0.size >= active().prefault_min_values:
@@ -376,6 +408,14 @@ def simulate(
         for i, (first, steps, n_rec) in enumerate(plan):
             if i + 1 < len(plan):
                 enqueue(i + 1)  # the device works on the next chunk while the host checks this one
+            if sliced and i == len(plan) - 1:
+                if target is not None:
+                    target.join()
+                out = target.result if target is not None else np.empty(x0.shape)
+                t0 = time.perf_counter()
+                for s_ in range(len(transfers.slices)):
+                    transfers.take(s_, out)  # while the device finishes the later slices
+                stats["final"] += time.perf_counter() - t0
             t0 = time.perf_counter()
             E, finite, low = guard.wait(i)
             stats["waiting"] += time.perf_counter() - t0
@@ -403,6 +443,8 @@ def simulate(
         guard.close()
         if sink is not None:
             sink.close()
+        if transfers is not None:
+            transfers.close()
         if target is not None:
             target.join()
     t0 = time.perf_counter()
@@ -411,6 +453,8 @@ def simulate(
             runner.enqueue_download(final)
             wp.synchronize_device(device)
         x = final  # the device wrote it (and the finally waited for that)
+    elif sliced:
+        x = out  # the slices were taken into it
     else:
         x = runner.download(target.result if target is not None else None)
     stats["final"] += time.perf_counter() - t0

@@ -10,7 +10,7 @@ import numpy as np
 
 from ..integrators import steps_for
 from ..model import ChainParams, real_number, whole_number
-from .devices import _even_slices, _warp, resolve_device, usable_cores
+from .devices import _even_slices, _warp, held, resolve_device, usable_cores
 from .tuning import active
 
 
@@ -108,6 +108,86 @@ def _copy_pool(workers: int):
             size = max(workers, min(active().max_copy_threads, usable_cores()))
             _COPY_POOL = ThreadPoolExecutor(max_workers=size, thread_name_prefix="warpchain-copy")
     return _COPY_POOL
+
+
+def slice_bounds(batch: int) -> list[tuple[int, int]]:
+    """Lattice slices (lo, hi) of a sliced ``simulate`` run: ``Tuning.slices`` (else one per
+    ``Tuning.slice_lattices`` lattices, 2 to ``Tuning.max_slices``) equal slices. Slices that grow from a small
+    first one, so that the first kernel starts sooner, were slower on the H200 (13.7 against 12.0 ms at 8192
+    lattices): the uploads' host copies, not the kernels, bound the first chunk there (``h200-2026-11-22n``)."""
+    t = active()
+    return _even_slices(
+        batch, t.slices if t.slices is not None else max(2, min(t.max_slices, batch // t.slice_lattices))
+    )
+
+
+class _SlicedTransfers:
+    """The state's trip to the device and back in lattice slices, overlapped with kernels: slice s is
+    copied (host -> pinned -> device, on an upload stream) while the kernels run on slice s - 1, and its
+    final state goes back (on a download stream) while they run on slice s + 1, so only one slice's
+    transfer each way is exposed (on a GPU; on the CPU the same steps run in order). ``simulate`` runs the
+    first and the last chunk slice by slice for it; a short run on a large batch has only those two."""
+
+    def __init__(self, runner, x0: np.ndarray, slices: list):
+        """``slices``: (lo, hi) lattice ranges covering the batch (``slice_bounds``)."""
+        wp = runner.wp
+        self.wp, self.r, self.x0 = wp, runner, x0
+        self.gpu = runner.device != "cpu"
+        self.slices = list(slices)
+        self.site_values = 4 * runner.N
+        self.up = _take_buffer(wp, runner.device, x0.size, self.gpu)
+        self.down = _take_buffer(wp, runner.device, x0.size, self.gpu)
+        self.closed = False
+        self.events = {}
+        if self.gpu:
+            # uploads and downloads on streams of their own: slice s + 1's upload never waits behind slice s's
+            # download, which waits for slice s's kernels
+            make = lambda: (wp.Stream(runner.device), wp.Stream(runner.device))  # noqa: E731
+            self.up_stream, self.down_stream = held(runner, "transfer streams", make)  # kept with the runner
+            self.main = wp.get_stream(runner.device)
+
+    def _range(self, s: int):
+        lo, hi = self.slices[s]
+        return lo * self.site_values, hi * self.site_values
+
+    def upload(self, s: int) -> None:
+        """Slice s to the device; the compute stream waits for it."""
+        a, b = self._range(s)
+        lo, hi = self.slices[s]
+        _copy(self.up.numpy()[a:b], np.ascontiguousarray(self.x0[lo:hi]))
+        if self.gpu:
+            self.wp.copy(self.r.x, self.up, dest_offset=a, src_offset=a, count=b - a, stream=self.up_stream)
+            self.main.wait_event(self.up_stream.record_event())
+        else:
+            self.wp.copy(self.r.x, self.up, dest_offset=a, src_offset=a, count=b - a)
+
+    def download(self, s: int) -> None:
+        """Slice s's state back to pinned memory once the kernels queued so far have run."""
+        a, b = self._range(s)
+        if self.gpu:
+            self.down_stream.wait_event(self.main.record_event())
+            self.wp.copy(self.down, self.r.x, dest_offset=a, src_offset=a, count=b - a, stream=self.down_stream)
+            self.events[s] = self.down_stream.record_event()
+        else:
+            self.wp.copy(self.down, self.r.x, dest_offset=a, src_offset=a, count=b - a)
+
+    def take(self, s: int, out: np.ndarray) -> None:
+        """Write slice s's final state into ``out`` (the whole batch's host array) once its copy has landed."""
+        a, b = self._range(s)
+        if self.gpu:
+            self.wp.synchronize_event(self.events[s])
+        _copy(out.reshape(-1)[a:b], self.down.numpy()[a:b])
+
+    def close(self) -> None:
+        if self.closed:
+            return
+        if self.gpu:
+            self.wp.synchronize_stream(self.up_stream)
+            self.wp.synchronize_stream(self.down_stream)
+        for buf in (self.up, self.down):
+            _give_buffer(self.r.device, self.gpu, buf)
+        self.up = self.down = None
+        self.closed = True
 
 
 def frame_buffers(

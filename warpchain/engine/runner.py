@@ -13,7 +13,7 @@ from ..losses import KICK_ENTRIES, Damping, kick_matrices, lossless
 from ..model import BOUNDARY_CODES, ChainParams
 from ..device_state import DeviceState
 from ..reference import inverse_mass
-from .devices import _in_parallel, _part, _slices, _warp, held, resolve_layout
+from .devices import _in_parallel, _part, _parts, _slices, _warp, held, resolve_layout
 from .hostmem import _STAGING_LOCK, _copy, _give_buffer, _take_buffer
 from .plans import _plan_for
 from .tuning import active
@@ -206,6 +206,7 @@ class _Runner:
         save_every: int = 0,
         rec=None,
         record_stiffness: bool = False,
+        lattices: tuple | None = None,
     ):
         """Advance every lattice by nsteps; with ``rec`` (device (u, v) frame buffers from ``frames``)
         also record u and v every ``save_every`` steps into them. Asynchronous on a GPU.
@@ -213,6 +214,8 @@ class _Runner:
         On the CPU the batch is split into one slice per thread (launched concurrently); a run that
         records the contact stiffness (tangent base) runs as one slice, since its history is shared."""
         slices = [(0, self.batch)] if record_stiffness or self.serial else _slices(self.batch, self.device)
+        if lattices is not None:  # only these lattices (lo, hi), in one launch (a slice of a sliced run)
+            slices = [lattices]
         save = int(save_every) if rec is not None else 0
 
         def task(lo, hi):
@@ -224,18 +227,20 @@ class _Runner:
 
         _in_parallel([lambda lo=lo, hi=hi: task(lo, hi) for lo, hi in slices])
 
-    def guard(self, rec=None, n_rec: int = 0, slot: int = 0):
+    def guard(self, rec=None, n_rec: int = 0, slot: int = 0, lattices: tuple | None = None):
         """Launch the guard on the device: per lattice (energy, 1 if finite else 0, running min contact
         over the chunk ends and the first ``n_rec`` frames of ``rec``). Returns the device array
         (batch, 3) of slot ``slot`` (0 and 1 alternate between chunks, 2 holds the start); only it, not
-        the state, needs to reach the host."""
-        ru, rv = rec if rec is not None and n_rec else (self.no_record,) * 2
+        the state, needs to reach the host. ``lattices``: (lo, hi) to guard only those."""
+        lo, hi = lattices if lattices is not None else (0, self.batch)
+        ru, rv = (rec[0][:, lo:hi], rec[1][:, lo:hi]) if rec is not None and n_rec else (self.no_record,) * 2
         out = self.guard_out[slot if slot == 2 else slot % 2]
-        inputs = [self.x, self.mass, self.coupling, self.boundary, ru, rv, int(n_rec), self.contact, out]
+        inputs = [*_parts(lo, hi, self.x, self.mass, self.coupling), self.boundary, ru, rv, int(n_rec)]
+        inputs += _parts(lo, hi, self.contact, out)
         if self.layout == "block":
-            self.launch_kernel(self.bk.guard, (self.batch, self.block), inputs, self.block)
+            self.launch_kernel(self.bk.guard, (hi - lo, self.block), inputs, self.block)
         else:
-            self.launch_kernel(self.k.guard_kernel, self.batch, inputs)
+            self.launch_kernel(self.k.guard_kernel, hi - lo, inputs)
         return out
 
     def launch_kernel(self, kernel, dim, inputs: list, block_dim: int | None = None) -> None:

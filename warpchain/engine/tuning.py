@@ -32,6 +32,23 @@ class Tuning:
     #: ``simulate`` touches the final state's host array on background threads while the device runs from
     #: this many values up (fresh memory fills at ~3 GB/s per thread: 0.9 ms for the 805-lattice state)
     prefault_min_values: int = 1 << 16
+    #: on a GPU, a state of at least this many values (5.2k lattices of 201 sites) moves to and from the device
+    #: in lattice slices overlapped with the first and the last chunk's kernels (``hostmem._SlicedTransfers``):
+    #: H100, 2000 Verlet steps at 32768 lattices from a plain x0, ``simulate()`` ran at 0.56x the kernel
+    #: without slices and at ~0.78x with them (``benchmarks/h100-2026-11-25/engine-split``)
+    sliced_min_values: int = 1 << 22
+    #: lattices per slice and the most slices (H200: 8 slices of 4096 lattices, 2 of 4096 and the whole batch
+    #: at 805 were each the best or within 2 % of it, ``h200-2026-11-22h``); ``slices`` forces a count
+    slice_lattices: int = 4096
+    max_slices: int = 8
+    slices: int | None = None
+    #: a run of at most this many force evaluations per site on such a batch runs in at most
+    #: ``short_run_chunks`` chunks (by default): the first and the last chunk, whose kernels hide the
+    #: slices' transfers, then hold the whole run; a run continued on the device gets the same chunks
+    short_run_evaluations: int = 1 << 15
+    short_run_chunks: int = 2
+    #: the sliced path on the CPU too (the tests), else GPU-only
+    slice_on_cpu: bool = False
     #: from this many lattices a GPU launch of a splitting method with at most ``sites_max_stages`` stages
     #: gives each thread a run of sites (one warp per lattice up to 256 sites). H200, N = 201
     #: (``benchmarks/sites_per_thread.py``, ``h200-2026-11-22e``): Verlet 3.28e11 site-steps/s at 2400
