@@ -18,8 +18,8 @@ import warp as wp
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from warpchain import ChainParams, lowest_optical_mode  # noqa: E402
-from warpchain import block_kernels as bk  # noqa: E402
-from warpchain.block_kernels import (  # noqa: E402
+from warpchain.engine import block_kernels as bk  # noqa: E402
+from warpchain.engine.block_kernels import (  # noqa: E402
     load_site,
     neighbour_or_wall,
     site_acceleration,  # noqa: E402

@@ -415,7 +415,8 @@ def _kernel_properties(ctx, params):
     """Registers, local memory and theoretical occupancy of the kernels that ran (CUDA only)."""
     import warp as wp
 
-    from warpchain import block_kernels, kernels
+    from warpchain.engine import block_kernels, site_group_kernels
+    from warpchain.engine import thread_kernels as kernels
 
     block = block_kernels.block_size(params.N)
     rows = []
@@ -427,7 +428,7 @@ def _kernel_properties(ctx, params):
             # threads, shared bytes: two halves of a float64 row, or of (float64 x columns) for the tangents
             columns = key[2] if key[0] == "splitting_tangent" else 1
             built[name], blocks[name] = kernel, (block, 2 * block * 8 * columns)
-    for (threads, sites, _, min_blocks), group in block_kernels.SITE_GROUPS.items():
+    for (threads, sites, _, min_blocks), group in site_group_kernels.SITE_GROUPS.items():
         for key, kernel in group.built().items():
             name = "/".join(str(part) for part in key) + f" ({sites} sites/thread, min blocks {min_blocks})"
             entry_bytes = 8 if sites == 1 else 16  # one float64 per thread with one site, else a pair

@@ -10,7 +10,7 @@ import warp as wp
 from conftest import localized_state
 from warpchain import Placement, Record
 from warpchain import ChainParams, propagate_tangent, reference, simulate
-from warpchain import kernels as K
+from warpchain.engine import thread_kernels as K
 from warpchain.reference import inverse_mass
 
 

@@ -314,7 +314,7 @@ def test_several_sites_per_thread_bit_for_bit(boundary, sites):
 
 
 def test_sites_per_thread_policy():
-    from warpchain import block_kernels
+    from warpchain.engine import site_group_kernels
     from warpchain.engine.plans import site_group_launch, sites_per_thread
 
     assert sites_per_thread(1, 201, 1, "cpu") == 1  # the CPU default path is the thread layout anyway
@@ -324,9 +324,9 @@ def test_sites_per_thread_policy():
     assert sites_per_thread(32768, 1001, 1, "cuda") == 8 and sites_per_thread(32768, 41, 1, "cuda") == 2
     assert site_group_launch(1, 1, "cuda") and not site_group_launch(1, 15, "cuda")
     assert not site_group_launch(1, 1, "cpu") and site_group_launch(7, 1, "cpu")
-    assert block_kernels.group_threads(201, 7) == 32 and block_kernels.group_threads(201, 2) == 128
+    assert site_group_kernels.group_threads(201, 7) == 32 and site_group_kernels.group_threads(201, 2) == 128
     with pytest.raises(ValueError, match="sites per thread"):
-        block_kernels.site_group_kernels(32, 9, 0)
+        site_group_kernels.site_group_kernels(32, 9, 0)
 
 
 def test_frames_out_receives_the_recording(small_chain):
@@ -378,7 +378,7 @@ def test_tangent_columns_per_block_policy():
     assert plans.tangent_columns_per_block(804, 15, "cuda:0") == 2
     assert plans.tangent_columns_per_block(tuning.active().tangent_pair_min_columns - 1, 1, "cuda:0") == 1
     with pytest.raises(ValueError, match="1 or 2 columns"):
-        from warpchain import block_kernels
+        from warpchain.engine import block_kernels
 
         block_kernels.block_kernels(64).splitting_tangent(1, columns=3)
 

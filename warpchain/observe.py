@@ -300,7 +300,16 @@ def peak_tracks(env_lag, env_end, dt_lag: float, observation: Observation, max_s
 def _thread_kernel():
     import warp as wp
 
-    from .kernels import NO_CONTACT, ONE, ZERO, any_kick, compute_accelerations, drift, kick_loss, site_energy
+    from .engine.thread_kernels import (
+        NO_CONTACT,
+        ONE,
+        ZERO,
+        any_kick,
+        compute_accelerations,
+        drift,
+        kick_loss,
+        site_energy,
+    )
 
     @wp.func
     def frame(
@@ -471,8 +480,8 @@ def _thread_kernel():
 def _block_kernel(block: int, stages: int):
     import warp as wp
 
-    from . import block_kernels as bk
-    from .kernels import NO_CONTACT, ONE, ZERO, kick_loss, site_energy
+    from .engine import block_kernels as bk
+    from .engine.thread_kernels import NO_CONTACT, ONE, ZERO, kick_loss, site_energy
 
     halves = 2 * block
 
@@ -743,7 +752,8 @@ def observe(
     """
     import warp as wp
 
-    from . import block_kernels, kernels
+    from .engine import block_kernels
+    from .engine import thread_kernels as kernels
     from .engine.devices import _warp
 
     _warp()

@@ -8,6 +8,7 @@ Modules:
 - ``hostmem``: pinned staging buffers, threaded host copies, recorded frames on their way to the host.
 - ``plans``: what one (layout, method type) launches, and the rules choosing a kernel variant.
 - ``runner``: device buffers of one batch, launches replayed as CUDA graphs or kept commands, the guard.
-- ``warpchain.kernels`` (thread per lattice: the CPU path) and ``warpchain.block_kernels`` (block per
-  lattice, site groups: the GPU path) hold the kernels; ``warpchain.reference`` is their numpy oracle.
+- ``thread_kernels`` (a thread per lattice: the CPU path), ``block_kernels`` (a thread block per lattice, a
+  thread per site) and ``site_group_kernels`` (a thread per run of sites: the GPU path for large batches)
+  hold the kernels; ``warpchain.reference`` is their numpy oracle.
 """

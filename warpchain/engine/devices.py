@@ -208,7 +208,7 @@ def resolve_layout(layout: str, device: str, n_sites: int) -> str:
     """Kernel layout: ``"block"`` (a thread block per lattice, a thread per site: the GPU path) or
     ``"thread"`` (a thread per lattice: the CPU path). ``"auto"`` picks block on a GPU when the
     lattice fits one block, thread otherwise."""
-    from .. import block_kernels
+    from . import block_kernels
 
     if layout not in LAYOUTS:
         raise ValueError(f"layout must be one of {LAYOUTS}, got {layout!r}")

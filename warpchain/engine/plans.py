@@ -15,7 +15,8 @@ def sites_per_thread(batch: int, n_sites: int, stages: int, device: str) -> int:
     """Sites each thread of a block splitting launch owns: ceil(N / 32) (at most ``MAX_SITES_PER_THREAD``, so
     that a lattice of up to 256 sites is one warp) on a GPU from ``Tuning.sites_min_batch`` lattices for methods
     of at most ``Tuning.sites_max_stages`` stages, else 1."""
-    from ..block_kernels import MAX_SITES_PER_THREAD, WARP_LANES
+    from .block_kernels import WARP_LANES
+    from .site_group_kernels import MAX_SITES_PER_THREAD
 
     if active().sites_per_thread is not None:
         return active().sites_per_thread
@@ -72,7 +73,7 @@ class _BlockSplitting(_Plan):
 
     def __init__(self, runner):
         super().__init__(runner)
-        from .. import block_kernels
+        from . import block_kernels
 
         self.pack = block_kernels.pack_coefficients
         self.scaled = {}
@@ -88,14 +89,14 @@ class _BlockSplitting(_Plan):
         r = self.r
         inputs = [*_parts(lo, hi, r.x, r.inv_mass, r.coupling), *self.coefficients(dt), r.boundary]
         inputs += [int(nsteps), int(save_every), *frames, int(record), r.hist, *r.losses(lo, hi)]
-        from .. import block_kernels
+        from . import block_kernels, site_group_kernels
 
         stages = r.method.stages
         damped = r.damped
         sites = sites_per_thread(hi - lo, r.N, stages, r.device)
         if site_group_launch(sites, stages, r.device):
-            threads = block_kernels.group_threads(r.N, sites)
-            group = block_kernels.site_group_kernels(threads, sites, r.boundary)
+            threads = site_group_kernels.group_threads(r.N, sites)
+            group = site_group_kernels.site_group_kernels(threads, sites, r.boundary)
             kernel = group.splitting(stages, record=record, save=save_every > 0, damped=damped)
             r.launch_kernel(kernel, (hi - lo, threads), inputs, threads)
             return
@@ -107,7 +108,7 @@ class _BlockSplitting(_Plan):
 
     def tangent(self, dx, column_base, lo, hi, dt, nsteps):
         r = self.r
-        from .. import block_kernels
+        from . import block_kernels
 
         inputs = [*_parts(lo, hi, dx, column_base), r.inv_mass, r.coupling, *self.coefficients(dt), r.boundary]
         inputs += [int(nsteps), r.hist]

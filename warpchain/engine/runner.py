@@ -66,7 +66,8 @@ class _Runner:
         upload: bool = True,
     ):
         wp = _warp()
-        from .. import block_kernels, kernels
+        from . import block_kernels
+        from . import thread_kernels as kernels
 
         self.wp, self.k, self.method, self.device = wp, kernels, method, device
         self.batch, _, self.N = x0.shape
