@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from conftest import localized_state
-from warpchain import Guard, Placement, Record
+from warpchain import BOUNDARIES, Guard, Placement, Record
 from warpchain import METHODS, ChainParams, IntegrationError, energy, propagate_tangent, reference, simulate
 from warpchain.engine import hostmem, plans, tuning
 from warpchain.engine.devices import _warp
@@ -60,7 +60,7 @@ def test_reference_multiplies_by_the_inverse_mass():
 
 
 @pytest.mark.parametrize("layout", LAYOUTS)
-@pytest.mark.parametrize("boundary", ["fixed", "free", "periodic"])
+@pytest.mark.parametrize("boundary", BOUNDARIES)
 def test_guard_kernel_energy_finite_and_contact(boundary, layout):
     p = ChainParams(3.0, 4.0, 17, boundary)
     x0 = localized_state(p.N, amplitude=1.5, batch=3, centre=2, seed=5)
@@ -267,7 +267,7 @@ def test_frames_go_straight_into_page_locked_results(small_chain):
     assert np.all(base[0].numpy()[:7] == 0) and np.all(views[0][:3] == 0)
 
 
-@pytest.mark.parametrize("boundary", ["fixed", "free", "periodic"])
+@pytest.mark.parametrize("boundary", BOUNDARIES)
 @pytest.mark.parametrize("sites", [1, 2, 7])
 def test_several_sites_per_thread_bit_for_bit(boundary, sites):
     """``block_kernels.site_group_kernels`` (each thread owns a run of sites; the GPU's large-batch path),
@@ -347,7 +347,7 @@ def test_frames_out_receives_the_recording(small_chain):
         simulate(p, x0, 40 * 0.05, 0.05, device="cpu", record=Record(every=10, into=(u, u)))
 
 
-@pytest.mark.parametrize("boundary", ["fixed", "free", "periodic"])
+@pytest.mark.parametrize("boundary", BOUNDARIES)
 def test_two_tangent_columns_per_block_bit_for_bit(boundary):
     """The GPU's tangent kernel with two columns per block (the monodromy's 804 columns), forced on the CPU,
     and one column per block with the history loaded one force evaluation ahead: an odd column count (the

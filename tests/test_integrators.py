@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from conftest import localized_state
-from warpchain import Guard, Placement, Record
+from warpchain import BOUNDARIES, Guard, Placement, Record
 from warpchain import (
     METHODS,
     ChainParams,
@@ -54,7 +54,7 @@ def test_warp_matches_numpy_reference_per_lattice_parameters(method, layout):
 
 
 @pytest.mark.parametrize("layout", LAYOUTS)
-@pytest.mark.parametrize("boundary", ["free", "periodic"])
+@pytest.mark.parametrize("boundary", BOUNDARIES)
 def test_warp_matches_numpy_reference_boundaries(boundary, layout):
     p = ChainParams(3.0, 4.0, 17, boundary)
     x0 = localized_state(p.N, amplitude=0.5, batch=2, centre=2, seed=4)

@@ -5,10 +5,37 @@ Modules:
 
 - ``tuning``: ``Tuning`` (frozen) and ``override`` for tests and benchmarks.
 - ``devices``: Warp's import and initialisation, device names and locks, CPU threads.
-- ``hostmem``: pinned staging buffers, threaded host copies, recorded frames on their way to the host.
+- ``hostmem``: pinned staging buffers, threaded host copies, the state moved in lattice slices
+  (``_SlicedTransfers``), recorded frames on their way to the host.
 - ``plans``: what one (layout, method type) launches, and the rules choosing a kernel variant.
 - ``runner``: device buffers of one batch, launches replayed as CUDA graphs or kept commands, the guard.
 - ``thread_kernels`` (a thread per lattice: the CPU path), ``block_kernels`` (a thread block per lattice, a
   thread per site) and ``site_group_kernels`` (a thread per run of sites: the GPU path for large batches)
   hold the kernels; ``warpchain.reference`` is their numpy oracle.
+
+How the state moves (measured on an H100, ``benchmarks/h100-2026-11-25/engine-split``): through pinned
+staging buffers (``hostmem``), in lattice slices overlapped with the first and last chunk for large batches,
+or not at all when the caller keeps it on the device (``DeviceState``, ``Placement(keep_on_device=True)``).
+
+Adding a splitting method (a new family of coefficients), in 2 files:
+
+1. ``warpchain/integrators.py``: a ``SplittingMethod`` with its drift and kick coefficients (data, at most
+   ``block_kernels.MAX_STAGES`` stages) and its order, in ``METHODS``. Every kernel (thread, block, site
+   group, tangent, observe) and the numpy reference take the coefficients as they are; stage counts compile
+   on first use.
+2. ``tests/test_integrators.py``: its order against DOP853 and its bits against the reference (the
+   parametrised tests over ``METHODS`` pick it up; add the expected order where they list orders).
+
+Adding a boundary that changes the wall values (like fixed or free ends), in 3 files:
+
+1. ``warpchain/model.py``: its name in ``BOUNDARIES``, its walls in ``laplacian`` and its wall bonds in
+   ``energy`` (the numpy reference and everything on the host use these).
+2. ``warpchain/engine/thread_kernels.py``: ``wall_values`` (the thread and block kernels' walls) and the wall
+   bonds of ``site_energy`` (the guard's and observe's energies).
+3. ``warpchain/engine/site_group_kernels.py``: the compiled end cases of ``ends`` and ``neighbour_values``.
+
+A boundary that wraps like the ring also needs the neighbour indices of ``block_kernels.site_neighbours``, and
+``observe.site_energies`` repeats the wall bonds on the host (until observe is folded into the engine).
+The tests over ``BOUNDARIES`` (``tests/test_gpu_engine.py``, ``tests/test_integrators.py``) check every
+layout against the reference bit for bit.
 """

@@ -26,7 +26,7 @@ import functools
 import warp as wp
 
 from .thread_kernels import (
-    BOUNDARY_FREE,
+    wall_values,
     BOUNDARY_PERIODIC,
     NO_CONTACT,
     ONE,
@@ -78,12 +78,11 @@ def right_index(j: int, n: int, boundary: int) -> int:
 
 @wp.func
 def neighbour_or_wall(value: wp.float64, u: wp.float64, has_neighbour: int, boundary: int) -> wp.float64:
-    """The neighbour's u, or at a chain end 0 (fixed wall) or u itself (free end)."""
+    """The neighbour's u, or at a chain end the wall value (``thread_kernels.wall_values``: 0 at a fixed
+    wall, u itself at a free end; a ring always has a neighbour)."""
     if has_neighbour != 0:
         return value
-    if boundary == BOUNDARY_FREE:
-        return u
-    return ZERO
+    return wall_values(u, u, boundary)[0]
 
 
 @wp.func

@@ -70,23 +70,29 @@ def contact_stiffness(z: wp.float64) -> wp.float64:
 
 
 @wp.func
+def wall_values(first: wp.float64, last: wp.float64, boundary: int) -> wp.vec2d:
+    """(the u left of site 0, the u right of site n - 1) given the u of site 0 (``first``) and of site n - 1
+    (``last``): 0 at a fixed wall, the site itself at a free end, the other end on a ring. The one place the
+    kernels define a boundary's values (the block kernels through ``block_kernels.neighbour_or_wall``; the
+    site-group kernels compile the same three cases in); the energy's wall bonds are in ``site_energy``."""
+    if boundary == BOUNDARY_FREE:
+        return wp.vec2d(first, last)
+    if boundary == BOUNDARY_PERIODIC:
+        return wp.vec2d(last, first)
+    return wp.vec2d(ZERO, ZERO)
+
+
+@wp.func
 def laplacian_at(x: wp.array3d(dtype=wp.float64), b: int, comp: int, j: int, n: int, boundary: int) -> wp.float64:
     """(u_j - u_{j-1}) + (u_j - u_{j+1}) of component ``comp`` of lattice b at site j."""
     u = x[b, comp, j]
-    left = ZERO
-    right = ZERO
+    wall = wall_values(x[b, comp, 0], x[b, comp, n - 1], boundary)
+    left = wall[0]
+    right = wall[1]
     if j > 0:
         left = x[b, comp, j - 1]
-    elif boundary == BOUNDARY_FREE:
-        left = u
-    elif boundary == BOUNDARY_PERIODIC:
-        left = x[b, comp, n - 1]
     if j < n - 1:
         right = x[b, comp, j + 1]
-    elif boundary == BOUNDARY_FREE:
-        right = u
-    elif boundary == BOUNDARY_PERIODIC:
-        right = x[b, comp, 0]
     return (u - left) + (u - right)
 
 
@@ -318,14 +324,9 @@ def fused_stage(
     them), so that the loop over the interior has no branch."""
     first = advance_site(u, v, pu, pv, au, av, 0, pre, h_pre, c)
     last = advance_site(u, v, pu, pv, au, av, n - 1, pre, h_pre, c)
-    left = ZERO  # fixed walls
-    right = ZERO
-    if boundary == BOUNDARY_FREE:
-        left = first[0]
-        right = last[0]
-    elif boundary == BOUNDARY_PERIODIC:
-        left = last[0]
-        right = first[0]
+    wall = wall_values(first[0], last[0], boundary)
+    left = wall[0]
+    right = wall[1]
     here = first
     j = wp.int32(0)
     while j < n - 2:
@@ -387,14 +388,9 @@ def fused_tangent_stage(
     """``fused_stage`` of a tangent column (n >= 2), with the base trajectory's f'(z) of this stage."""
     first = advance_site(du, dv, dpu, dpv, dau, dav, 0, pre, h_pre, c)
     last = advance_site(du, dv, dpu, dpv, dau, dav, n - 1, pre, h_pre, c)
-    left = ZERO
-    right = ZERO
-    if boundary == BOUNDARY_FREE:
-        left = first[0]
-        right = last[0]
-    elif boundary == BOUNDARY_PERIODIC:
-        left = last[0]
-        right = first[0]
+    wall = wall_values(first[0], last[0], boundary)
+    left = wall[0]
+    right = wall[1]
     here = first
     j = wp.int32(0)
     while j < n - 2:
@@ -753,14 +749,9 @@ def rk4_fused_stage(
     stage) and the next stage state y = x + ah k. Site j's u is carried to site j + 1 in a register and
     the wall values are read first, so that y may be s itself (``rk4_kernel`` keeps them apart, which lets
     the compiler vectorise the pass)."""
-    left = ZERO  # fixed walls
-    right = ZERO
-    if boundary == BOUNDARY_FREE:
-        left = s.u[0]
-        right = s.u[n - 1]
-    elif boundary == BOUNDARY_PERIODIC:
-        left = s.u[n - 1]
-        right = s.u[0]
+    wall = wall_values(s.u[0], s.u[n - 1], boundary)
+    left = wall[0]
+    right = wall[1]
     here = s.u[0]
     j = wp.int32(0)
     while j < n - 1:
