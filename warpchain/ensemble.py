@@ -10,18 +10,17 @@ progress bar advances.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 import time
-import warnings
 
 import numpy as np
 
-from .integrators import Method, SplittingMethod, get_method, steps_for
+from .integrators import SplittingMethod, get_method, steps_for
 from .losses import Damping, as_damping, require_splitting
-from .model import ChainParams, as_batch, band_edges, per_lattice_parameters, real_number
+from .model import ChainParams, as_batch, per_lattice_parameters, real_number
 from .device_state import DeviceState
 from .engine.tuning import active
+from .integrators import StepSizeError, check_step, stability_limit  # noqa: F401  (re-exported)
 from .options import Guard, Placement, Record, from_legacy
 
 from .engine.devices import (  # noqa: F401  (re-exported: the public face of the engine)
@@ -62,10 +61,6 @@ class IntegrationError(RuntimeError):
         self.stability_limit = stability_limit
         self.failed = failed
         self.t = t
-
-
-class StepSizeError(ValueError):
-    """A step above the method's linear stability limit was refused before the run started."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -114,28 +109,6 @@ class SimulationResult:
     stats: dict = dataclasses.field(default_factory=dict)
 
 
-def stability_limit(method: Method | str, params: ChainParams, M=None, K=None) -> float:
-    """Linear stability limit on dt of ``method`` for these parameters (smallest over a batch),
-    from the top of the optical band, w_max: dt < bound / w_max (bound = 2 for Verlet)."""
-    method = get_method(method)
-    if M is None and K is None:  # one chain for the whole batch (simulate's set-up: kept per chain)
-        return method.linear_stability_limit(_optical_top(params.M, params.K))
-    Ms = np.atleast_1d(params.M if M is None else M).astype(float)
-    Ks = np.atleast_1d(params.K if K is None else K).astype(float)
-    Ms, Ks = np.broadcast_arrays(Ms, Ks)
-    if Ms.min() == Ms.max() and Ks.min() == Ks.max():
-        pairs = [(Ms.flat[0], Ks.flat[0])]  # one chain for the whole batch
-    else:
-        pairs = np.unique(np.stack([Ms.ravel(), Ks.ravel()], axis=1), axis=0)
-    w_max = max(band_edges(float(m), float(k))["optical_top"] for m, k in pairs)
-    return method.linear_stability_limit(w_max)
-
-
-@functools.lru_cache(maxsize=256)
-def _optical_top(M: float, K: float) -> float:
-    return band_edges(M, K)["optical_top"]
-
-
 def _as_state(x0, N: int) -> np.ndarray:
     """``model.as_batch`` without its scan for non-finite values (``simulate`` runs that check on the
     device, in its guard: on a large batch the host scan alone cost twice the kernel)."""
@@ -158,21 +131,6 @@ def _state_device(x0: DeviceState, n_sites: int, device: str | None) -> str:
             "to move the state"
         )
     return own
-
-
-def _check_step(method: Method, params, dt, M, K, allow_unstable_step: bool) -> float:
-    dt = real_number("dt", dt, positive=True)
-    limit = stability_limit(method, params, M, K)
-    if dt >= limit:
-        message = (
-            f"dt = {dt:g} is above the linear stability limit {limit:.6g} of method '{method.name}' "
-            f"for these parameters (bound {method.stability_bound:.4f} / optical band top); "
-            f"use dt < {limit:.6g}"
-        )
-        if not allow_unstable_step:
-            raise StepSizeError(message + " or pass allow_unstable_step=True to run anyway")
-        warnings.warn(message, RuntimeWarning, stacklevel=3)
-    return limit
 
 
 def _relative_energy_error(E, E0, N):
@@ -260,7 +218,7 @@ def simulate(
         damping.per_lattice(batch)  # validated here, at the boundary
         require_splitting(meth)
     t_final = real_number("t_final", t_final, nonnegative=True)
-    limit = _check_step(meth, params, dt, M if M is None else Mb, K if K is None else Kb, guard.allow_unstable_step)
+    limit = check_step(meth, params, dt, M if M is None else Mb, K if K is None else Kb, guard.allow_unstable_step)
     dt = real_number("dt", dt, positive=True)
     device = resolve_device(device)
     nsteps, dt_used = steps_for(t_final, dt)
@@ -553,7 +511,7 @@ def propagate_tangent(
     dx0 = as_batch(dx0, params.N, "dx0")
     n_base, ncols = x0.shape[0], dx0.shape[0]
     Mb, Kb = per_lattice_parameters(params, n_base, M, K)
-    _check_step(meth, params, dt, Mb, Kb, allow_unstable_step)
+    check_step(meth, params, dt, Mb, Kb, allow_unstable_step)
     if not isinstance(nsteps, (int, np.integer)) or nsteps < 0:
         raise ValueError(f"nsteps must be a non-negative integer, got {nsteps!r}")
     base = np.zeros(ncols, dtype=np.int32) if column_base is None else np.asarray(column_base, dtype=np.int32)
@@ -637,7 +595,7 @@ def time_steps(
     meth = get_method(method)
     x0 = as_batch(x0, params.N, "x0")
     Mb, Kb = per_lattice_parameters(params, x0.shape[0], M, K)
-    _check_step(meth, params, dt, Mb, Kb, False)
+    check_step(meth, params, dt, Mb, Kb, False)
     if not isinstance(nsteps, (int, np.integer)) or nsteps < 1:
         raise ValueError(f"nsteps must be a positive integer, got {nsteps!r}")
     if not isinstance(repeats, (int, np.integer)) or repeats < 1:

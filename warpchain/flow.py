@@ -256,7 +256,8 @@ class Flow:
                 out = np.empty(dx.shape)
                 _copy(out, out_host.numpy().reshape(dx.shape))
             if not np.isfinite(out).all():
-                from .ensemble import IntegrationError, stability_limit
+                from .ensemble import IntegrationError
+                from .integrators import stability_limit
 
                 limit = stability_limit(self.method, params)
                 raise IntegrationError(

@@ -21,9 +21,12 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import warnings
 from typing import ClassVar
 
 import numpy as np
+
+from .model import ChainParams, band_edges, real_number
 
 
 @dataclasses.dataclass(frozen=True)
@@ -250,3 +253,47 @@ def steps_for(t_final: float, dt: float) -> tuple[int, float]:
         return 0, float(dt)
     nsteps = max(1, int(math.ceil(t_final / dt - 1e-9)))
     return nsteps, float(t_final) / nsteps
+
+
+# ----------------------------------------------------------------------------- stability limits
+
+
+class StepSizeError(ValueError):
+    """A step above the method's linear stability limit was refused before the run started."""
+
+
+def stability_limit(method: Method | str, params: ChainParams, M=None, K=None) -> float:
+    """Linear stability limit on dt of ``method`` for these parameters (smallest over a batch),
+    from the top of the optical band, w_max: dt < bound / w_max (bound = 2 for Verlet)."""
+    method = get_method(method)
+    if M is None and K is None:  # one chain for the whole batch (simulate's set-up: kept per chain)
+        return method.linear_stability_limit(_optical_top(params.M, params.K))
+    Ms = np.atleast_1d(params.M if M is None else M).astype(float)
+    Ks = np.atleast_1d(params.K if K is None else K).astype(float)
+    Ms, Ks = np.broadcast_arrays(Ms, Ks)
+    if Ms.min() == Ms.max() and Ks.min() == Ks.max():
+        pairs = [(Ms.flat[0], Ks.flat[0])]  # one chain for the whole batch
+    else:
+        pairs = np.unique(np.stack([Ms.ravel(), Ks.ravel()], axis=1), axis=0)
+    w_max = max(band_edges(float(m), float(k))["optical_top"] for m, k in pairs)
+    return method.linear_stability_limit(w_max)
+
+
+@functools.lru_cache(maxsize=256)
+def _optical_top(M: float, K: float) -> float:
+    return band_edges(M, K)["optical_top"]
+
+
+def check_step(method: Method, params, dt, M, K, allow_unstable_step: bool) -> float:
+    dt = real_number("dt", dt, positive=True)
+    limit = stability_limit(method, params, M, K)
+    if dt >= limit:
+        message = (
+            f"dt = {dt:g} is above the linear stability limit {limit:.6g} of method '{method.name}' "
+            f"for these parameters (bound {method.stability_bound:.4f} / optical band top); "
+            f"use dt < {limit:.6g}"
+        )
+        if not allow_unstable_step:
+            raise StepSizeError(message + " or pass guard=Guard(allow_unstable_step=True) to run anyway")
+        warnings.warn(message, RuntimeWarning, stacklevel=3)
+    return limit

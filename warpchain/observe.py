@@ -39,7 +39,8 @@ import time
 import numpy as np
 
 from .engine.devices import on_one_thread, resolve_device, resolve_layout
-from .ensemble import IntegrationError, _check_step, _signed_energy_change
+from .ensemble import IntegrationError, _signed_energy_change
+from .integrators import check_step
 from .integrators import SplittingMethod, get_method, steps_for
 from .losses import KICK_ENTRIES, Damping, as_damping, kick_matrices, lossless
 from .model import (
@@ -778,7 +779,7 @@ def observe(
     n_frames = max(1, math.ceil(nsteps / fe - 1e-9))  # whole frames, the step no longer than asked
     nsteps = n_frames * fe
     dt_used = t_final / nsteps
-    limit = _check_step(meth, params, dt_used, Mb, Kb, False)
+    limit = check_step(meth, params, dt_used, Mb, Kb, False)
     lag = min(observation.lag_frames, n_frames)
 
     f64 = wp.float64
