@@ -107,6 +107,19 @@ def save_figure(fig, out: Path, stem: str) -> list[Path]:
     return paths
 
 
+def tight_layout_beside_legends(fig, *extra, **kwargs) -> None:
+    """``fig.tight_layout`` as if the legends (and the ``extra`` artists, say a colour bar's inset axes) were
+    absent: one placed outside its axes (right of the right-hand panels, say) then hangs in the margin, which
+    ``save_figure`` (bbox_inches="tight") takes in, instead of shrinking every panel to make room for it."""
+    legends = [ax.get_legend() for ax in fig.axes if ax.get_legend() is not None] + list(fig.legends)
+    aside = [artist for artist in [*legends, *extra] if artist.get_in_layout()]
+    for artist in aside:
+        artist.set_in_layout(False)
+    fig.tight_layout(**kwargs)
+    for artist in aside:
+        artist.set_in_layout(True)
+
+
 def period_envelope(field, frames_per_period: int):
     """max over each period of |field|: frames (n, N) with frame 0 at t = 0 -> (periods, N). Drawing the raw
     field would show the carrier (a stripe pair per period, blended by the renderer) and, sampled a few

@@ -240,19 +240,34 @@ def branch_summary(branch: Branch, parameter: str) -> dict:
     }
 
 
-def stability_strip(ax, points, parameter: str, log: bool = False, unresolved=()) -> None:
+def stability_strip(ax, points, parameter: str, log: bool = False, unresolved=(), legend: bool = True):
     """max |l| - 1 along the branch on a log axis, coloured by the leading instability's kind;
     ``unresolved``: the summary's ``unresolved_bubbles`` stretches, shaded (predicted bubbles too narrow
-    to chase, where the branch states a predicted unstable fraction instead of a verdict)."""
+    to chase, where the branch states a predicted unstable fraction instead of a verdict), the shade darker
+    the larger that fraction. Returns the fraction's colour mapping (for a colour bar; None without
+    stretches); ``legend=False`` leaves the key to the caller."""
+    from matplotlib import cm, colors
+    from matplotlib import pyplot as plt
+
     x = np.array([getattr(p, parameter) for p in points])
-    for n, st in enumerate(unresolved):
-        ax.axvspan(
-            min(st["start"], st["end"]),
-            max(st["start"], st["end"]),
-            color="tab:orange",
-            alpha=0.2,
+    shade = None
+    fractions = [st.get("unstable_fraction") for st in unresolved]
+    known = [f for f in fractions if f is not None and f > 0]
+    if unresolved:  # log scale from the smallest fraction's decade up to the largest fraction
+        top = max(known, default=1e-2)
+        low = 10.0 ** np.floor(np.log10(max(min(known, default=top / 100), 1e-8)))
+        pale_to_dark = colors.ListedColormap(plt.get_cmap("Greys")(np.linspace(0.06, 0.45, 256)))
+        shade = cm.ScalarMappable(colors.LogNorm(min(low, top / 10), top), pale_to_dark)
+    for st, f in zip(unresolved, fractions):
+        colour = shade.to_rgba(max(f, shade.norm.vmin)) if f is not None else "0.8"
+        ax.axvspan(min(st["start"], st["end"]), max(st["start"], st["end"]), color=colour, lw=0)
+    if shade is not None:  # the key's swatch: a mid shade
+        ax.fill_between(
+            [np.nan],
+            [np.nan],
+            color=shade.cmap(0.5),
             lw=0,
-            label="bubbles below the chase width (predicted, not solved)" if n == 0 else None,
+            label="bubbles below the chase width (predicted, not solved)",
         )
     dev = np.array([p.max_modulus - 1.0 for p in points])
     floor = 1e-9
@@ -269,4 +284,6 @@ def stability_strip(ax, points, parameter: str, log: bool = False, unresolved=()
     ax.set_ylim(floor / 3, max(1e-2, np.nanmax(dev) * 3) if np.isfinite(dev).any() else 1e-2)
     ax.set_ylabel(r"max $|\lambda|$ - 1")
     ax.set_xlabel({"K": "K", "omega": r"$\omega_b$"}[parameter])
-    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.005, 1.0), borderaxespad=0.0)  # outside: no data hidden
+    if legend:  # outside: no data hidden
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.005, 1.0), borderaxespad=0.0)
+    return shade

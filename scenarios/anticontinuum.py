@@ -120,14 +120,35 @@ def plot(out) -> None:
     axes[1].set_ylabel("$z = u - v$ at the seed site")
     axes[1].set_title("the site's orbit over one period")
     axes[1].legend(fontsize=8)
-    axes[2].semilogx(curve["z_max"], curve["omega"], label="oscillator (computed)")
-    axes[2].semilogx(curve["z_max"], curve["lindstedt"], "--", label=r"Lindstedt $\omega_0(1 - a^2/24)$")
-    axes[2].axhline(
-        cattrs["omega0"], color="k", ls=":", lw=0.8, label=rf"$\omega_0 = \sqrt{{(M+1)/M}}$ = {cattrs['omega0']:.4f}"
-    )
-    axes[2].axhline(s["omega"], color="tab:red", lw=0.8, label=r"$\omega_b$")
+    w0 = cattrs["omega0"]
+    for a in (axes[2], axes[2].inset_axes([0.14, 0.08, 0.46, 0.5])):
+        a.semilogx(curve["z_max"], curve["omega"], label="oscillator (computed)")
+        a.semilogx(curve["z_max"], curve["lindstedt"], "--", label=r"Lindstedt $\omega_0(1 - a^2/24)$")
+        a.axhline(w0, color="k", ls=":", lw=0.8, label=rf"$\omega_0 = \sqrt{{(M+1)/M}}$ = {w0:.4f}")
+        a.axhline(s["omega"], color="tab:red", lw=0.8, label=rf"$\omega_b$ = {s['omega']}")
     axes[2].set_ylim(0.5, 1.1)
     axes[2].set_xlabel(r"upper turning point $z_{\max}$")
     axes[2].set_ylabel(r"frequency $\omega$")
-    axes[2].legend(fontsize=8)
+    axes[2].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.02, 1.0))
+    # zoom on the two lines 0.0065 apart (2 px on the full axis), placed in the empty lower left: the oscillator
+    # leaves w_0 and crosses w_b at the seed's amplitude
+    zoom = axes[2].child_axes[0]
+    zoom.set_xlim(curve["z_max"].min(), 0.8)
+    gap = w0 - s["omega"]
+    zoom.set_ylim(s["omega"] - 0.6 * gap, w0 + 0.4 * gap)
+    zoom.tick_params(labelsize=6)
+    zoom.set_title("zoom", fontsize=7, pad=2)
+    for y, name, colour in ((w0, r"$\omega_0$", "k"), (s["omega"], r"$\omega_b$", "tab:red")):
+        zoom.annotate(
+            name,
+            (0.02, y),
+            xycoords=("axes fraction", "data"),
+            xytext=(0, 2),
+            textcoords="offset points",
+            fontsize=8,
+            color=colour,
+            va="bottom",
+        )
+    (x0, x1), (y0, y1) = zoom.get_xlim(), zoom.get_ylim()
+    axes[2].indicate_inset((x0, y0, x1 - x0, y1 - y0), edgecolor="0.5")  # the zoomed box, no connectors over data
     save_figure(fig, out, "anticontinuum")

@@ -311,17 +311,21 @@ def plot(out) -> None:
     jac, jattrs = read_group(out / "data.zarr", "jacobian_comparison")
     s = read_summary(out)
     plt = pyplot()
-    fig, axes = plt.subplots(2, 2, figsize=(11, 8))
+    # top: the two profiles; bottom: the multipliers on the unit circle, how far each is off it (a panel of its
+    # own, not an inset over the circle) and the direct simulation
+    fig = plt.figure(figsize=(12, 8))
+    gs = fig.add_gridspec(2, 6)
+    axes = [fig.add_subplot(gs[0, :3]), fig.add_subplot(gs[0, 3:])]
     c = len(br["site"]) // 2
     sl = slice(c - 25, c + 26)
-    axes[0, 0].plot(br["site"][sl], br["u"][sl], "o-", ms=3)
-    axes[0, 0].set_title(f"$u_j$ at t = 0 ($\\omega_b$ = {s['omega']}, K = {s['K']:g}, M = {s['M']:g})")
-    axes[0, 1].plot(br["site"][sl], br["v"][sl], "o-", ms=3, color="tab:orange")
-    axes[0, 1].set_title(f"$v_j$ at t = 0 (E = {s['energy']:.6f})")
-    for ax in axes[0]:
+    axes[0].plot(br["site"][sl], br["u"][sl], "o-", ms=3)
+    axes[0].set_title(f"$u_j$ at t = 0 ($\\omega_b$ = {s['omega']}, K = {s['K']:g}, M = {s['M']:g})")
+    axes[1].plot(br["site"][sl], br["v"][sl], "o-", ms=3, color="tab:orange")
+    axes[1].set_title(f"$v_j$ at t = 0 (E = {s['energy']:.6f})")
+    for ax in axes:
         ax.set_xlabel("site j")
     lam = mult["real"] + 1j * mult["imag"]
-    ax = axes[1, 0]
+    ax = fig.add_subplot(gs[1, :2])
     th = np.linspace(0, 2 * np.pi, 400)
     ax.plot(np.cos(th), np.sin(th), "k-", lw=0.6)
     ax.plot(lam.real, lam.imag, ".", ms=4, label="multipliers")
@@ -334,36 +338,33 @@ def plot(out) -> None:
     )
     ax.set_xlabel(r"Re $\lambda$")
     ax.set_ylabel(r"Im $\lambda$")
-    ax.legend(fontsize=8, loc="lower left")
+    ax.legend(fontsize=8, loc="center", frameon=False)  # the inside of the unit circle holds no multiplier
     # how far each multiplier is off the circle, in units of 1e-4, against its angle
-    inset = ax.inset_axes([0.56, 0.56, 0.42, 0.42])
-    inset.plot(1e4 * (np.abs(lam) - 1), np.angle(lam), ".", ms=3)
-    inset.axvline(0, color="k", lw=0.5)
-    inset.set_xlim(-4, 4)
-    inset.set_xlabel(r"($|\lambda|$ - 1) $\times 10^4$", fontsize=7, labelpad=1)
-    inset.set_ylabel(r"arg $\lambda$", fontsize=7, labelpad=1)
-    inset.tick_params(labelsize=6)
-    ax = axes[1, 1]
+    ax = fig.add_subplot(gs[1, 2:4])
+    ax.plot(1e4 * (np.abs(lam) - 1), np.angle(lam), ".", ms=4)
+    ax.plot(1e4 * (np.abs(lam[mult["trivial"]]) - 1), np.angle(lam[mult["trivial"]]), "x", color="k")
+    ax.axvline(0, color="k", lw=0.5)
+    ax.set_xlim(-4, 4)
+    ax.set_xlabel(r"($|\lambda|$ - 1) $\times 10^4$")
+    ax.set_ylabel(r"arg $\lambda$")
+    ax.set_title(r"distance from the unit circle", fontsize=9)
+    ax = fig.add_subplot(gs[1, 4:])
     ax.semilogy(per["period"], np.maximum(per["relative_deviation"], 1e-17), "-")
     ax.set_xlabel("periods")
     ax.set_ylabel(r"max $|x(nT) - x(0)|$ / max $|x(0)|$")
-    ax.set_title("direct simulation with the same integrator")
+    ax.set_title("direct simulation with the same integrator", fontsize=9)
     fig.tight_layout()
     save_figure(fig, out, "breather")
 
     fig, ax = plt.subplots(figsize=(6, 4))
     for k, (case, marker) in enumerate(zip(jattrs["case_names"], "os")):
         m = (jac["case"] == k) & jac["finite_difference"]
-        ax.loglog(jac["h"][m], jac["relative_difference"][m], marker + "-", label=f"{case}: FD vs tangent")
         t = (jac["case"] == k) & ~jac["finite_difference"]
-        ax.annotate(
-            f"{case}: tangent {jac['seconds'][t][0]:.2f} s, FD {np.mean(jac['seconds'][m]):.2f} s per h",
-            xy=(0.02, 0.95 - 0.07 * k),
-            xycoords="axes fraction",
-            fontsize=7,
-        )
+        timing = f"tangent {jac['seconds'][t][0]:.2f} s, FD {np.mean(jac['seconds'][m]):.2f} s per h"
+        ax.loglog(jac["h"][m], jac["relative_difference"][m], marker + "-", label=f"{case}: FD vs tangent ({timing})")
     ax.set_xlabel("finite-difference step h")
     ax.set_ylabel("max |J_FD - J_tangent| / max |J|")
     ax.set_title("half-period Jacobian: finite differences vs tangent", fontsize=10)
-    ax.legend(fontsize=8, loc="lower right")
+    # below the axes: every point, the smooth orbit's best step included, stays in view
+    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.16), frameon=False)
     save_figure(fig, out, "jacobian_comparison")

@@ -28,6 +28,7 @@ from warpchain import ChainParams, energy
 
 from continuation.branch_store import load_branch
 from ._common import (
+    tight_layout_beside_legends,
     PAPER_K,
     PAPER_N,
     PAPER_OMEGA,
@@ -147,7 +148,7 @@ def plot(out) -> None:
     E = np.array([p.energy for p in points])
     stable = np.array([p.stable for p in points])
     plt = pyplot()
-    fig = plt.figure(figsize=(11, 8.5))
+    fig = plt.figure(figsize=(9.5, 8.5))
     gs = fig.add_gridspec(3, 2, height_ratios=[2.2, 0.9, 1.8])
     ax = fig.add_subplot(gs[0, :])
     ax.semilogx(K, E, "-", color="0.6", lw=1)
@@ -171,10 +172,18 @@ def plot(out) -> None:
     ax.set_ylabel("energy H")
     stop = s["stop_reason"].replace("_", " ")
     ax.set_title(f"continuation in K: M = {s['M']:g}, $\\omega_b$ = {s['omega']}, N = {s['N']} (stopped: {stop})")
-    ax.legend(fontsize=8, loc="upper left")
-    stability_strip(
-        fig.add_subplot(gs[1, :], sharex=ax), points, "K", log=True, unresolved=s.get("unresolved_bubbles", ())
-    )
+    ax.margins(y=0.1)  # room for the profile labels at the ends of the branch
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.005, 1.0), borderaxespad=0.0)  # outside, as the strip's
+    strip = fig.add_subplot(gs[1, :], sharex=ax)
+    shade = stability_strip(strip, points, "K", log=True, unresolved=s.get("unresolved_bubbles", ()))
+    aside = []
+    if shade is not None:  # the shading's key, under the strip's legend in the right margin
+        cax = strip.inset_axes([1.02, 0.1, 0.25, 0.09])
+        bar = fig.colorbar(shade, cax=cax, orientation="horizontal")
+        bar.set_label("predicted unstable fraction of a shaded stretch", fontsize=7, labelpad=1)
+        bar.ax.tick_params(labelsize=6)
+        bar.ax.xaxis.set_label_position("top")
+        aside.append(cax)
     for col, comp in enumerate(("u", "v")):
         a = fig.add_subplot(gs[2, col])
         for lab, k in zip(("I", "II", "III"), profile_K):
@@ -186,6 +195,6 @@ def plot(out) -> None:
                 a.plot(sites + 1, prof[sites], "o-", ms=3, label=f"{lab}: K = {k:g}")
         a.set_xlabel("site j")
         a.set_ylabel(f"${comp}_j$ (t = 0)")
-        a.legend(fontsize=8)
-    fig.tight_layout()
+    a.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)  # one key for both panels
+    tight_layout_beside_legends(fig, *aside)
     save_figure(fig, out, "continuation_k")

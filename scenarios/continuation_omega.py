@@ -185,8 +185,16 @@ def plot(out) -> None:
             label=f"{len(narrow)} instability bubbles < 2e-4 wide",
         )
     ax.set_ylim(floor / 1.6, E.max() * 2.0)
-    for n, i in zip(names, labels):
-        ax.annotate(f"({n})", (w[i], E[i]), textcoords="offset points", xytext=(4, 6))
+    for n, i in zip(names, labels):  # E falls with w_b: below left of a point is clear of the curve and the star
+        left = w[i] - w.min() > 0.02 * np.ptp(w)  # but the branch's left end is labelled above right
+        ax.annotate(
+            f"({n})",
+            (w[i], E[i]),
+            textcoords="offset points",
+            xytext=(-4, -6) if left else (4, 6),
+            ha="right" if left else "left",
+            va="top" if left else "bottom",
+        )
     if s.get("energy_at_omega_1_01"):
         ax.plot([1.01], [s["energy_at_omega_1_01"]], "*", ms=12, color="k", label=r"$\omega_b$ = 1.01")
     ax.set_xlabel(r"$\omega_b$")
@@ -207,14 +215,56 @@ def plot(out) -> None:
     fig.tight_layout()
     save_figure(fig, out, "continuation_omega_energy")
 
-    fig = plt.figure(figsize=(12, 7))
-    ax = fig.add_subplot(2, 1, 1)
-    ax.axvspan(s["band_acoustic_top"], s["band_optical_bottom"], **gap)
-    stability_strip(ax, points, "omega", unresolved=s.get("unresolved_bubbles", ()))
-    ax.set_title(r"largest nontrivial Floquet multiplier along the branch (kind of the leading instability)")
+    _plot_floquet(out, plt, points, s, w, labels, names, gap)
+
+
+def _plot_floquet(out, plt, points, s, w, labels, names, gap) -> None:
+    """largest multiplier along the whole branch, then the gap's stable end (where the bubbles lie) on an axis
+    of its own, with the predicted bubbles shaded by their unstable fraction; below, the multipliers at (b)-(e)"""
+    fig = plt.figure(figsize=(12, 7.5), layout="constrained")
+    grid = fig.add_gridspec(2, 4, height_ratios=[1.05, 1])
+    top = grid[0, :].subgridspec(1, 2, width_ratios=[1, 2.2])
+    whole, zoom = fig.add_subplot(top[0]), fig.add_subplot(top[1])
+    unresolved = s.get("unresolved_bubbles", ())
+    # the zoom: from just below the lowest stable point or predicted bubble to the optical band edge
+    lowest = [float(w[i]) for i, p in enumerate(points) if p.stable]
+    lowest += [min(st["start"], st["end"]) for st in unresolved]
+    lo = min(lowest) if lowest else s["band_acoustic_top"]
+    hi = max(float(w.max()), s["band_optical_bottom"])
+    margin = 0.04 * (hi - lo)
+    lo, hi = max(lo - margin, s["band_acoustic_top"]), hi + margin
+    shade = None
+    for ax in (whole, zoom):
+        ax.axvspan(s["band_acoustic_top"], s["band_optical_bottom"], **gap)
+        shade = stability_strip(ax, points, "omega", unresolved=unresolved, legend=False)
+    zoom.axvline(s["band_optical_bottom"], color="tab:blue", lw=0.8, ls="--", label="optical band edge")
+    zoom.set_xlim(lo, hi)
+    zoom.set_ylabel("")
+    zoom.ticklabel_format(axis="x", useOffset=False)
+    whole.axvspan(lo, hi, facecolor="none", edgecolor="0.3", ls="--", lw=0.8)
+    whole.set_title("(a) the whole branch (dashed: the zoom on the right)", fontsize=9)
+    zoom.set_title(
+        f"(a) zoom on the gap's stable end: $\\omega_b$ = {lo:.4f} .. {hi:.4f}, where the stability changes", fontsize=9
+    )
+    ticks = {}  # where the panels below sit on the branch (a short branch may put two at one point)
+    for n, i in zip(names, labels):
+        ticks.setdefault(float(w[i]), []).append(n)
+    for ax in (whole, zoom):
+        top_axis = ax.secondary_xaxis("top")
+        top_axis.set_xticks(list(ticks), labels=[f"({','.join(n)})" for n in ticks.values()], fontsize=7)
+        top_axis.tick_params(length=3, pad=1)
+    if shade is not None:
+        bar = fig.colorbar(shade, ax=zoom, pad=0.01, aspect=12)
+        bar.set_label("predicted unstable fraction\nof a shaded stretch", fontsize=7)
+        bar.ax.tick_params(labelsize=6)
+    handles, keys = zoom.get_legend_handles_labels()
+    fig.suptitle(
+        r"largest nontrivial Floquet multiplier along the branch (kind of the leading instability)", fontsize=11
+    )
+    fig.legend(handles, keys, loc="outside lower center", ncol=len(keys), fontsize=8, frameon=False)
     th = np.linspace(0, 2 * np.pi, 2000)
     for k, (n, i) in enumerate(zip(names, labels)):
-        a = fig.add_subplot(2, 4, 5 + k)
+        a = fig.add_subplot(grid[1, k])
         lam = points[i].multipliers
         a.plot(np.cos(th), np.sin(th), "-", color="0.5", lw=0.6)
         a.plot(lam.real, lam.imag, ".", ms=3, color="tab:blue")
@@ -228,12 +278,12 @@ def plot(out) -> None:
             half = max(4 * (abs(l0) - 1), 2e-4)
             a.set_xlim(l0.real - half, l0.real + half)
             a.set_ylim(abs(l0.imag) - half, abs(l0.imag) + half)
-            a.set_title(f"({n}) zoom: |$\\lambda$| = {abs(l0):.6f}", fontsize=8)
+            a.set_title(f"({n}) $\\omega_b$ = {w[i]:.5f}\nzoom on the lead: |$\\lambda$| = {abs(l0):.6f}", fontsize=8)
         else:
             a.set_aspect("equal")
-            a.set_title(f"({n}) all on the unit circle", fontsize=8)
+            a.set_title(f"({n}) $\\omega_b$ = {w[i]:.5f}\nall on the unit circle", fontsize=8)
         a.set_xlabel(r"Re $\lambda$", fontsize=7)
         a.set_ylabel(r"Im $\lambda$", fontsize=7)
         a.tick_params(labelsize=6)
-    fig.tight_layout()
+        a.locator_params(axis="x", nbins=4)  # long tick labels of a narrow zoom stay apart
     save_figure(fig, out, "continuation_omega_floquet")

@@ -233,7 +233,7 @@ def plot(out) -> None:
         summary["lowest_optical_mode"], color="tab:green", lw=0.9, label=f"N = {summary['N']} lowest optical mode"
     )
     zoom.set_title(f"gap: {edges['acoustic_top']:.6f} .. {edges['optical_bottom']:.6f}")
-    zoom.legend(fontsize=7, loc="lower right")
+    zoom.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0))  # outside: the curves stay in view
     save_figure(fig, out, "dispersion")
 
     _plot_fig2(out, summary)

@@ -45,7 +45,16 @@ from warpchain.reference import solve_ivp_reference
 from warpchain.store import StoreError, open_store, write_table
 
 from continuation.branch_store import load_branch
-from ._common import PAPER_K, PAPER_N, PAPER_OMEGA, Context, pyplot, read_summary, save_figure
+from ._common import (
+    PAPER_K,
+    PAPER_N,
+    PAPER_OMEGA,
+    Context,
+    pyplot,
+    read_summary,
+    save_figure,
+    tight_layout_beside_legends,
+)
 from ._continuation_common import BRANCH_RULES, KIND_COLOURS, BranchParameters, branch_summary, run_branch, step_rule
 from ._params import Rule, anticontinuum_rule, param
 
@@ -779,10 +788,19 @@ def plot(out) -> None:
         if row["barrier"] is not None:
             y = max(abs(row["barrier"]), 1e-16)
             ap.plot([row["K"]], [y], "k*", ms=9)
-            ap.annotate(f"{row['barrier']:.2e}", (row["K"], y), fontsize=7, xytext=(4, 4), textcoords="offset points")
+            last = row["K"] >= max(r["K"] for r in s["pn_barrier"])  # labelled to its left, inside the axes
+            ap.annotate(
+                f"{row['barrier']:.2e}",
+                (row["K"], y),
+                fontsize=7,
+                xytext=(-4 if last else 4, 8),
+                textcoords="offset points",
+                ha="right" if last else "left",
+            )
     for k, family in zip(bif["K"][:], bif_attrs["family"]):
         if family == "site":
             ap.axvline(k, color=colours["site"], ls=":", lw=0.8)
+    ap.set_ylim(top=30 * ap.get_ylim()[1])  # headroom for the stars' labels
     ap.set_xlabel("K (dotted: the site family's pitchforks)")
     ap.set_ylabel("|E(bond in phase) - E(site)|")
     ap.set_title("Peierls-Nabarro barrier (stars: the summary's K values)", fontsize=10)
@@ -829,7 +847,7 @@ def plot(out) -> None:
             "profiles z = u - v at the first exchange" if name == "state" else "null vectors (signed site amplitude)",
             fontsize=10,
         )
-        a.legend(fontsize=7)
+        a.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.2), frameon=False)  # below: off the profiles
     fig.tight_layout()
     save_figure(fig, out, "site_bond")
 
@@ -837,12 +855,16 @@ def plot(out) -> None:
     groups = sorted(k for k in root.group_keys() if k.startswith("finite_size_"))
     if groups:
         Ks_fs = sorted({float(root[g].attrs["K"]) for g in groups})
-        fig, axes = plt.subplots(len(Ks_fs), 2, figsize=(13, 3.6 * len(Ks_fs)), squeeze=False)
+        # each panel's key in a row of its own under it: the extended vectors fill the whole chain
+        lines = [max(root[g]["weight"].shape[0] for g in groups if float(root[g].attrs["K"]) == K) for K in Ks_fs]
+        key_heights = [0.15 + 0.14 * ((n + 1) // 2) for n in lines]  # two columns of 6 pt lines
+        fig = plt.figure(figsize=(13, 3.6 * len(Ks_fs) + sum(key_heights)))
+        grid = fig.add_gridspec(2 * len(Ks_fs), 2, height_ratios=[h for k in key_heights for h in (3.6, k)])
         for r, K in enumerate(Ks_fs):
             for cidx, g in enumerate(
                 sorted((g for g in groups if float(root[g].attrs["K"]) == K), key=lambda g: root[g].attrs["N"])
             ):
-                a = axes[r, cidx]
+                a = fig.add_subplot(grid[2 * r, cidx])
                 t = root[g]
                 n = int(t.attrs["N"])
                 weight = t["weight"][:]
@@ -850,7 +872,8 @@ def plot(out) -> None:
                 for k in range(weight.shape[0]):
                     kind = KINDS[int(t["kind"][k])]
                     localized = bool(t["localized"][k])
-                    lab = f"{kind}, |l| - 1 = {t['modulus'][k] - 1:.2e}, {t['participation'][k]:.0f} sites"
+                    name = kind.replace("complex_", "").replace("_", " ")
+                    lab = f"{name}, $|\\lambda|$ - 1 = {t['modulus'][k] - 1:.2e}, {t['participation'][k]:.0f} sites"
                     if localized:
                         style = dict(lw=2.0, color=KIND_COLOURS[kind], zorder=3)
                     else:
@@ -868,6 +891,8 @@ def plot(out) -> None:
                 )
                 a.set_xlabel("site - centre")
                 a.set_ylabel("site weight of the Floquet vector")
-                a.legend(fontsize=6, loc="upper right", ncol=2 if weight.shape[0] > 4 else 1)
-        fig.tight_layout()
+                key = fig.add_subplot(grid[2 * r + 1, cidx])
+                key.axis("off")
+                key.legend(*a.get_legend_handles_labels(), fontsize=6, loc="upper center", ncol=2, frameon=False)
+        tight_layout_beside_legends(fig)  # the keys keep to their rows; the panels keep their width
         save_figure(fig, out, "site_bond_floquet")
