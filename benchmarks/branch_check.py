@@ -19,18 +19,16 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-import continuation as ct  # noqa: E402
-from continuation.branch import continue_in_coupling, continue_in_frequency  # noqa: E402
-from warpchain import ChainParams, Flow  # noqa: E402
-from warpchain.store import jsonable  # noqa: E402
+import continuation as ct
+from continuation.branch import continue_in_coupling, continue_in_frequency
+from warpchain import ChainParams, Flow
+from warpchain.store import jsonable
 
 
 def in_foam(foam, value):

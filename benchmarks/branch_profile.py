@@ -15,15 +15,13 @@ import cProfile
 import io
 import json
 import pstats
-import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from continuation.branch import continue_in_frequency  # noqa: E402
-from scenarios.continuation_omega import Parameters  # noqa: E402
-from warpchain import ChainParams  # noqa: E402
+from continuation.branch import continue_in_frequency
+from scenarios.continuation_omega import Parameters
+from warpchain import ChainParams
 
 
 def main(argv=None):

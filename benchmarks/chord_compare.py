@@ -4,16 +4,13 @@ python benchmarks/chord_compare.py [--N 201] [--device cuda]
 """
 
 import argparse
-import sys
 import time
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-import continuation as ct  # noqa: E402
-from continuation.branch import continue_in_coupling  # noqa: E402
-from continuation.driver import ContinuationSettings  # noqa: E402
-from warpchain import ChainParams, Flow  # noqa: E402
+import continuation as ct
+from continuation.branch import continue_in_coupling
+from continuation.driver import ContinuationSettings
+from warpchain import ChainParams, Flow
 
 
 def main(argv=None):

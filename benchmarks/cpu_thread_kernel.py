@@ -16,16 +16,13 @@ same thread-layout kernels on a GPU (where they serve lattices too long for a th
 from __future__ import annotations
 
 import argparse
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from warpchain import ChainParams, lowest_optical_mode, reference  # noqa: E402
-from warpchain.ensemble import time_steps  # noqa: E402
+from warpchain import ChainParams, lowest_optical_mode, reference
+from warpchain.ensemble import time_steps
 
 M, K, N, DT = 30.0, 160.0, 201, 0.1
 

@@ -13,17 +13,15 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from warpchain import Placement  # noqa: E402
-from warpchain import METHODS, ChainParams, propagate_tangent, reference, simulate  # noqa: E402
-from warpchain.engine import tuning  # noqa: E402
-from warpchain.integrators import SplittingMethod  # noqa: E402
+from warpchain import Placement
+from warpchain import METHODS, ChainParams, propagate_tangent, reference, simulate
+from warpchain.engine import tuning
+from warpchain.integrators import SplittingMethod
 
 
 def localized(n, amplitude, batch, seed):

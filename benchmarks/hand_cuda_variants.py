@@ -7,15 +7,11 @@ host-timed rate beside it). Also checks each variant against the numpy reference
 Command (GPU, CuPy importable): ``python benchmarks/hand_cuda_variants.py``
 """
 
-import sys
-from pathlib import Path
-
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from scenarios._baselines import cupy_verlet_runner  # noqa: E402
-from warpchain import ChainParams, lowest_optical_mode, reference  # noqa: E402
+from scenarios._baselines import cupy_verlet_runner
+from warpchain import ChainParams, lowest_optical_mode, reference
 
 
 def main():

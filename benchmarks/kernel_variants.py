@@ -10,19 +10,17 @@ launch of Verlet and kahan8 as simulate() compiles them, and of the hand-reduced
 
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import warp as wp
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from warpchain import ChainParams, lowest_optical_mode  # noqa: E402
-from warpchain.engine import block_kernels as bk  # noqa: E402
-from warpchain.engine.block_kernels import (  # noqa: E402
+from warpchain import ChainParams, lowest_optical_mode
+from warpchain.engine import block_kernels as bk
+from warpchain.engine.block_kernels import (
     load_site,
     neighbour_or_wall,
-    site_acceleration,  # noqa: E402
+    site_acceleration,
     site_neighbours,
     store_site,
 )

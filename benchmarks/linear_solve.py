@@ -62,11 +62,8 @@ import scipy
 import scipy.linalg
 from scipy.linalg import lapack
 
-ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
+from continuation.newton import solve_linear
 
-from continuation.newton import solve_linear  # noqa: E402
 
 SIZES = (402, 804)
 WARMUP, REPEATS, IDLE_CALLS, IDLE_SECONDS, AFTER_NUMPY_CALLS = 3, 20, 3, 0.15, 5

@@ -9,19 +9,16 @@ Command (GPU): ``python benchmarks/newton_profile.py [--device cuda] [--top 25] 
 import argparse
 import cProfile
 import pstats
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from continuation.hostblas import blas_threads  # noqa: E402
-from continuation.newton import solve_linear  # noqa: E402
-from warpchain.engine import tuning  # noqa: E402
-from continuation.shooting import PeriodMap  # noqa: E402
-from scenarios._common import paper_breather  # noqa: E402
+from continuation.hostblas import blas_threads
+from continuation.newton import solve_linear
+from warpchain.engine import tuning
+from continuation.shooting import PeriodMap
+from scenarios._common import paper_breather
 
 
 def iteration(pmap, unknowns, marks):

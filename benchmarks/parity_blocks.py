@@ -11,18 +11,15 @@ and prints the times and the largest distance between the two spectra.
 
 from __future__ import annotations
 
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-import continuation as ct  # noqa: E402
-from continuation.floquet import half_period_map, parity_blocks, reduced_products  # noqa: E402
-from continuation.hostblas import blas_threads  # noqa: E402
-from warpchain import ChainParams  # noqa: E402
+import continuation as ct
+from continuation.floquet import half_period_map, parity_blocks, reduced_products
+from continuation.hostblas import blas_threads
+from warpchain import ChainParams
 
 
 def best(fn, repeat=7):

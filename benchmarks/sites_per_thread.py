@@ -17,18 +17,16 @@ the tile and without accelerations carried across steps, and register caps of th
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from scenarios._baselines import cupy_verlet_runner  # noqa: E402
-from warpchain import Guard, Placement  # noqa: E402
-from warpchain import ChainParams, lowest_optical_mode, reference  # noqa: E402
-from warpchain.engine import tuning  # noqa: E402
-from warpchain.ensemble import simulate, time_steps  # noqa: E402
+from scenarios._baselines import cupy_verlet_runner
+from warpchain import Guard, Placement
+from warpchain import ChainParams, lowest_optical_mode, reference
+from warpchain.engine import tuning
+from warpchain.ensemble import simulate, time_steps
 
 #: "1g": one site per thread through ``site_group_kernels`` (fixed walls compiled in, no carried acceleration)
 WARP_SITES = (1, "1g", 2, 4, 7)

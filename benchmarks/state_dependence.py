@@ -9,16 +9,13 @@ Command (GPU, CuPy): ``python benchmarks/state_dependence.py [--steps 2000000]``
 """
 
 import argparse
-import sys
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from scenarios._baselines import cupy_verlet_runner  # noqa: E402
-from warpchain import ChainParams, lowest_optical_mode  # noqa: E402
-from warpchain.ensemble import time_steps  # noqa: E402
+from scenarios._baselines import cupy_verlet_runner
+from warpchain import ChainParams, lowest_optical_mode
+from warpchain.ensemble import time_steps
 
 
 def main():

@@ -25,12 +25,11 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-import continuation as ct  # noqa: E402
-from continuation.hostblas import blas_threads  # noqa: E402
-from warpchain import ChainParams, simulate  # noqa: E402
-from warpchain.flow import Flow  # noqa: E402
+import continuation as ct
+from continuation.hostblas import blas_threads
+from warpchain import ChainParams, simulate
+from warpchain.flow import Flow
 
 
 def solves(device: str, params: ChainParams, omegas) -> list:
