@@ -229,6 +229,29 @@ class FrequencyAxis:
         x_end = point.linearization.x_end
         return -(math.pi / c**2) * accelerations(self.params, x_end[None])[0].ravel()
 
+    def description(self) -> str:
+        return f"frequency continuation, K = {self.params.K:g}"
+
+    def finished(self, problem, last) -> tuple:
+        """(True, why) at the frequency floor or up in the optical band (contact loss ends it in the driver)."""
+        edges = self.edges
+        if last.omega < problem.omega_min:
+            return True, f"w_b = {last.omega:.8g} < omega_min = {problem.omega_min:g}"
+        if last.omega > edges["optical_bottom"] + 0.5 * edges["gap_width"]:
+            return True, f"w_b = {last.omega:.8g} went up into the optical band"
+        return False, ""
+
+    def progress(self, problem, first, last) -> float:
+        """Contact loss is the expected end, so progress is the fall of min contact towards 0 (or of w_b
+        towards omega_min, whichever is further along)."""
+        c0 = first.min_contact
+        by_contact = (c0 - last.min_contact) / c0 if c0 > 0 else 0.0
+        by_omega = (first.omega - last.omega) / max(first.omega - problem.omega_min, 1e-12)
+        return max(by_contact, by_omega)
+
+    def describe(self, p) -> str:
+        return f"w = {p.omega:.8f}: E = {p.energy:.8f}, max|l| = {p.max_modulus:.8f}, min contact {p.min_contact:.4f}"
+
 
 class CouplingAxis:
     """The arclength parameter log10 K at fixed w_b (``omega``): dR/d(log10 K) by a central difference
@@ -259,6 +282,25 @@ class CouplingAxis:
             for d in (h, -h)
         ]
         return (ends[0][2:] - ends[1][2:]).ravel() / (2.0 * h)
+
+    def description(self) -> str:
+        return f"arclength in K, w_b = {self.omega:g}"
+
+    def finished(self, problem, last) -> tuple:
+        """(True, why) once K leaves the problem's ``K_range``."""
+        lo, hi = problem.K_range
+        if not lo <= last.K <= hi:
+            return True, f"K = {last.K:.8g} left [{lo:g}, {hi:g}]"
+        return False, ""
+
+    def progress(self, problem, first, last) -> float:
+        """The fraction of the K range in log10 K, from the first point to the nearer end."""
+        lo, hi = (math.log10(k) for k in problem.K_range)
+        k0, k1 = math.log10(first.K), math.log10(last.K)
+        return abs(k1 - k0) / max(max(hi - k0, k0 - lo), 1e-12)
+
+    def describe(self, p) -> str:
+        return f"K = {p.K:.8g}: E = {p.energy:.8f}, max|l| = {p.max_modulus:.8f}"
 
 
 def _pack(state, c) -> np.ndarray:
@@ -407,7 +449,7 @@ class PseudoArclength(_JacobianMemory):
         self.params, self.flow, self.start_points = params, flow, start_points
         self.axis = FrequencyAxis(params) if axis is None else axis
         self.parameter = self.axis.name
-        if self.parameter == "K" and start_points is None:
+        if start_points is None and not isinstance(self.axis, FrequencyAxis):
             raise ValueError("a branch in K needs two start points (e.g. from bifurcation.switch_branch)")
         self.symmetric = symmetric
         self.omega_min, self.eigenmode_amplitude = float(omega_min), eigenmode_amplitude
@@ -416,11 +458,7 @@ class PseudoArclength(_JacobianMemory):
         self.edges = band_edges(params.M, params.K)
         self.K_range = tuple(float(k) for k in K_range)
         self.until = until
-        self.description = (
-            f"frequency continuation, K = {params.K:g}"
-            if self.parameter == "omega"
-            else f"arclength in K, w_b = {self.axis.omega:g}"
-        )
+        self.description = self.axis.description()
 
     def _norm(self, d) -> float:
         return math.sqrt(float(np.sum(self.W * d * d)))
@@ -500,32 +538,13 @@ class PseudoArclength(_JacobianMemory):
             why = self.until(previous, last)
             if why:
                 return True, why
-        if self.parameter == "K":
-            if not self.K_range[0] <= last.K <= self.K_range[1]:
-                return True, f"K = {last.K:.8g} left [{self.K_range[0]:g}, {self.K_range[1]:g}]"
-            return False, ""
-        if last.omega < self.omega_min:
-            return True, f"w_b = {last.omega:.8g} < omega_min = {self.omega_min:g}"
-        if last.omega > self.edges["optical_bottom"] + 0.5 * self.edges["gap_width"]:
-            return True, f"w_b = {last.omega:.8g} went up into the optical band"
-        return False, ""
+        return self.axis.finished(self, last)
 
     def progress(self, first: BranchPoint, last: BranchPoint) -> float:
-        if self.parameter == "K":  # fraction of the K range in log10 K, from the first point to the nearer end
-            lo, hi = (math.log10(k) for k in self.K_range)
-            k0, k1 = math.log10(first.K), math.log10(last.K)
-            return abs(k1 - k0) / max(max(hi - k0, k0 - lo), 1e-12)
-        # contact loss is the expected end, so progress is the fall of min contact towards 0 (or of
-        # w_b towards omega_min, whichever is further along)
-        c0 = first.min_contact
-        by_contact = (c0 - last.min_contact) / c0 if c0 > 0 else 0.0
-        by_omega = (first.omega - last.omega) / max(first.omega - self.omega_min, 1e-12)
-        return max(by_contact, by_omega)
+        return self.axis.progress(self, first, last)
 
     def describe(self, p: BranchPoint) -> str:
-        if self.parameter == "K":
-            return f"K = {p.K:.8g}: E = {p.energy:.8f}, max|l| = {p.max_modulus:.8f}"
-        return f"w = {p.omega:.8f}: E = {p.energy:.8f}, max|l| = {p.max_modulus:.8f}, min contact {p.min_contact:.4f}"
+        return self.axis.describe(p)
 
 
 def start_from_eigenmode(

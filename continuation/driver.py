@@ -533,8 +533,8 @@ def _walk(problem, settings, resume, resume_state, on_point, on_event, on_step, 
     bubble_width = settings.bubble_width or settings.resolution / BUBBLE_FRACTION
     predictions: dict = {}  # (id(a), id(b)) -> predicted bubbles, for the step's chase and its record
     if resume:
-        if len(resume) < 2 and problem.parameter == "omega":
-            raise ValueError("resuming a frequency branch needs at least two stored points (they set the tangent)")
+        if len(resume) < 2 and hasattr(problem, "axis"):
+            raise ValueError("resuming an arclength branch needs at least two stored points (they set the tangent)")
         points.extend(resume)
         walk.extend(resume if restored is None else restored)
         walk_index.extend(range(len(resume)) if restored is None else resume_state.walk)
