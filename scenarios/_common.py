@@ -69,6 +69,24 @@ class Context:
     def log(self, message: str, *args) -> None:
         log.info(f"[{self.name}] " + message, *args)
 
+    def store(self, chain=None, *, name: str = "data.zarr"):
+        """The scene's zarr store OUT/NAME/``name``, created afresh, its root attributes holding the chain's
+        parameters (``chain``: a ``ChainParams``), the scene's typed parameters (``scene_parameters``: its
+        ``Parameters`` block as run, quick variant and ``--set`` overrides applied) and the provenance
+        (package versions, device, git commit, command line)."""
+        import dataclasses
+
+        from warpchain.store import jsonable, open_store, provenance
+
+        root = open_store(
+            self.out / name,
+            params=chain.as_dict() if chain is not None else None,
+            provenance_info=provenance(self.device),
+        )
+        if dataclasses.is_dataclass(self.params):
+            root.attrs["scene_parameters"] = jsonable(dataclasses.asdict(self.params))
+        return root
+
 
 def progress_bars() -> bool:
     """Whether the scenes draw progress bars: only when stderr is a terminal (a log file or a pipe gets the

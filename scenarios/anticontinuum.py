@@ -16,7 +16,7 @@ import numpy as np
 
 from continuation import anticontinuum_orbit, anticontinuum_seed, oscillator_frequency
 from warpchain import ChainParams
-from warpchain.store import open_store, provenance, read_group, write_table
+from warpchain.store import read_group, write_table
 
 from ._common import PAPER_M, PAPER_N, PAPER_OMEGA, Context, pyplot, read_summary, save_figure
 from ._params import Rule, anticontinuum_rule, param
@@ -69,7 +69,7 @@ def run(ctx: Context) -> dict:
     # Lindstedt: w = w0 (1 - a^2 / 24) for z = a cos(w t) + O(a^2); the largest relative deviation
     # among the small amplitudes checks the expansion (it should shrink like a^4)
     lindstedt = omega0 * (1 - amplitudes**2 / 24)
-    root = open_store(ctx.out / "data.zarr", params=params.as_dict(), provenance_info=provenance(ctx.device))
+    root = ctx.store(params)
     write_table(
         root,
         "orbit",

@@ -21,7 +21,7 @@ from continuation import find_breather, floquet, nls_seed, require
 from warpchain import Guard, Record
 from warpchain import ChainParams, propagate_tangent, simulate
 from warpchain.reference import solve_ivp_reference
-from warpchain.store import open_store, provenance, read_group, write_fields, write_table
+from warpchain.store import read_group, write_fields, write_table
 
 from ._common import (
     BREATHER_METHOD,
@@ -202,7 +202,7 @@ def run(ctx: Context) -> dict:
     ctx.log("contact-loss orbit: min(1 + u - v) = %.3f over the half period", loss_contact)
     rows += rows_loss
 
-    root = open_store(ctx.out / "data.zarr", params=params.as_dict(), provenance_info=provenance(ctx.device))
+    root = ctx.store(params)
     write_table(
         root,
         "breather",

@@ -26,7 +26,7 @@ import numpy as np
 from continuation import eigenmode_seed
 from warpchain import Guard, Record
 from warpchain import ChainParams, simulate
-from warpchain.store import FieldWriter, open_store, provenance, read_group
+from warpchain.store import FieldWriter, read_group
 
 from ._common import (
     progress_bars,
@@ -86,7 +86,7 @@ def run(ctx: Context) -> dict:
     periods = P.periods
     steps_per_period = 2 * b.nsteps
     save_every = steps_per_period // P.frames_per_period
-    root = open_store(ctx.out / "data.zarr", params=params.as_dict(), provenance_info=provenance(ctx.device))
+    root = ctx.store(params)
     writers = {
         name: FieldWriter(
             root,

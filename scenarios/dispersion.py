@@ -24,7 +24,7 @@ import numpy as np
 
 from warpchain import ChainParams, band_edges, dispersion, dispersion_long_wave, linear_modes, long_wave_speed
 from warpchain import physical
-from warpchain.store import open_store, provenance, write_table
+from warpchain.store import write_table
 
 from ._common import PAPER_K, PAPER_M, PAPER_N, Context, pyplot, read_summary, save_figure
 from ._params import param
@@ -169,7 +169,7 @@ def run(ctx: Context) -> dict:
 
     fit_summary, physical_curves, fit = _fit_section(ctx, P)
 
-    root = open_store(ctx.out / "data.zarr", params=params.as_dict(), provenance_info=provenance(ctx.device))
+    root = ctx.store(params)
     write_table(
         root,
         "physical_curves",

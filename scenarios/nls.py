@@ -16,7 +16,7 @@ import numpy as np
 
 from continuation import find_breather, nls_breather, nls_seed, require
 from warpchain import ChainParams, band_edges, energy
-from warpchain.store import open_store, provenance, read_group, write_table
+from warpchain.store import read_group, write_table
 
 from ._common import (
     BREATHER_METHOD,
@@ -104,7 +104,7 @@ def run(ctx: Context) -> dict:
     rels = np.array([s["relative_profile_difference"] for s in sweep])
     slope = float(np.polyfit(np.log(deltas), np.log(rels), 1)[0]) if len(sweep) > 1 else None
 
-    root = open_store(ctx.out / "data.zarr", params=params.as_dict(), provenance_info=provenance(ctx.device))
+    root = ctx.store(params)
     write_table(
         root,
         "profiles",

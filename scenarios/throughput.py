@@ -51,7 +51,7 @@ from warpchain.engine.plans import sites_per_thread
 from warpchain.engine.tuning import active
 from warpchain.ensemble import time_steps
 from warpchain.integrators import SplittingMethod
-from warpchain.store import device_description, open_store, provenance, read_group, write_table
+from warpchain.store import device_description, provenance, read_group, write_table
 
 from ._baselines import cupy_variant, cupy_verlet_runner, jax_verlet_runner
 from ._common import PAPER_K, PAPER_M, PAPER_N, Context, paper_breather, pyplot, read_summary, save_figure
@@ -489,7 +489,7 @@ def run(ctx: Context) -> dict:
     monodromy = _monodromy(ctx, P.monodromy_repeats) if P.monodromy else None
     props = _kernel_properties(ctx, params) if gpu else []
 
-    root = open_store(ctx.out / "data.zarr", params=params.as_dict(), provenance_info=provenance(ctx.device))
+    root = ctx.store(params)
     impls = sorted({r["implementation"] for r in results})
     methods = sorted({r["method"] for r in results})
     write_table(

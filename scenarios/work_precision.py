@@ -21,7 +21,7 @@ import numpy as np
 from continuation import eigenmode_seed
 from warpchain import Guard
 from warpchain import METHODS, ChainParams, reference, simulate, stability_limit
-from warpchain.store import open_store, provenance, read_group, write_table
+from warpchain.store import read_group, write_table
 
 from ._common import PAPER_K, PAPER_M, PAPER_N, PAPER_OMEGA, Context, paper_breather, pyplot, read_summary, save_figure
 from ._params import Rule, min_steps_per_period, param
@@ -246,7 +246,7 @@ def run(ctx: Context) -> dict:
                 speedups[case]["speedup_vs_dop853"],
             )
 
-    root = open_store(ctx.out / "data.zarr", params=params.as_dict(), provenance_info=provenance(ctx.device))
+    root = ctx.store(params)
     impls = sorted({p["implementation"] for p in points})
     methods = sorted({p["method"] for p in points})
     cases = list(case_specs)
