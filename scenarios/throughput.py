@@ -417,6 +417,7 @@ def _kernel_properties(ctx, params):
 
     from warpchain.engine import block_kernels, site_group_kernels
     from warpchain.engine import thread_kernels as kernels
+    from warpchain.engine import thread_rk4_kernels
 
     block = block_kernels.block_size(params.N)
     rows = []
@@ -449,9 +450,9 @@ def _kernel_properties(ctx, params):
                 "occupancy": _occupancy(props["register_count"], block, smem),
             }
         )
-    for name in ("splitting_kernel", "rk4_kernel"):
+    for name, module in (("splitting_kernel", kernels), ("rk4_kernel", thread_rk4_kernels)):
         try:
-            props = wp.get_cuda_kernel_properties(getattr(kernels, name), ctx.device)
+            props = wp.get_cuda_kernel_properties(getattr(module, name), ctx.device)
             rows.append(
                 {
                     "kernel": f"thread/{name}",

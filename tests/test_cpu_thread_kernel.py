@@ -11,6 +11,7 @@ from conftest import localized_state
 from warpchain import Placement, Record
 from warpchain import ChainParams, propagate_tangent, reference, simulate
 from warpchain.engine import thread_kernels as K
+from warpchain.engine import thread_rk4_kernels as R
 from warpchain.reference import inverse_mass
 
 
@@ -84,6 +85,6 @@ def test_strided_rows_take_the_generic_path(method):
         scratch = [wp.zeros((2, 4, p.N), dtype=f64, device="cpu") for _ in range(3)]
         tableau = [wp.vec4d(0.5, 0.5, 1.0, 6.0), wp.vec4d(1.0, 2.0, 2.0, 1.0)]
         inputs = [x, *scratch, *params, *tableau, K.BOUNDARY_PERIODIC, f64(0.05), 40, 0, none, none, 0, none]
-        wp.launch(K.rk4_kernel, dim=2, inputs=inputs, device="cpu")
+        wp.launch(R.rk4_kernel, dim=2, inputs=inputs, device="cpu")
     ref = reference.integrate(method, p, x0, 0.05, 40, M=M, K=K_)["x"]
     assert np.array_equal(owner.numpy()[..., ::2], ref)

@@ -9,9 +9,10 @@ Modules:
   (``_SlicedTransfers``), recorded frames on their way to the host.
 - ``plans``: what one (layout, method type) launches, and the rules choosing a kernel variant.
 - ``runner``: device buffers of one batch, launches replayed as CUDA graphs or kept commands, the guard.
-- ``thread_kernels`` (a thread per lattice: the CPU path), ``block_kernels`` (a thread block per lattice, a
-  thread per site) and ``site_group_kernels`` (a thread per run of sites: the GPU path for large batches)
-  hold the kernels; ``warpchain.reference`` is their numpy oracle.
+- ``thread_kernels`` and ``thread_rk4_kernels`` (a thread per lattice: the CPU path), ``block_kernels`` (a
+  thread block per lattice, a thread per site) and ``site_group_kernels`` (a thread per run of sites: the GPU
+  path for large batches) hold the kernels; ``observe_kernels`` the step loops with frame reductions of
+  ``warpchain.observe``; ``warpchain.reference`` is their numpy oracle.
 
 How the state moves (measured on an H100, ``benchmarks/h100-2026-11-25/engine-split``): through pinned
 staging buffers (``hostmem``), in lattice slices overlapped with the first and last chunk for large batches,

@@ -178,20 +178,23 @@ class _ThreadRungeKutta(_Plan):
         shape = (runner.batch, 4, runner.N)
         self.scratch = [wp.zeros(shape, dtype=wp.float64, device=runner.device) for _ in range(3)]
         self.tableau = [wp.vec4d(*m.nodes, m.divisor), wp.vec4d(*m.weights)]
+        from . import thread_rk4_kernels
+
+        self.kernels = thread_rk4_kernels
 
     def step(self, lo, hi, dt, nsteps, save_every, frames, record):
         r = self.r
         inputs = _parts(lo, hi, r.x, *self.scratch, r.inv_mass, r.coupling)
         inputs += [*self.tableau, r.boundary, r.wp.float64(dt), int(nsteps), int(save_every), *frames]
         inputs += [int(record), r.hist]
-        r.launch_kernel(r.k.rk4_kernel, hi - lo, inputs)
+        r.launch_kernel(self.kernels.rk4_kernel, hi - lo, inputs)
 
     def tangent(self, dx, column_base, lo, hi, dt, nsteps):
         r, wp = self.r, self.r.wp
         scratch = [self.kept(f"stage{i}", (dx.shape[0], 4, r.N)) for i in range(3)]
         inputs = [*_parts(lo, hi, dx, *scratch, column_base), r.inv_mass, r.coupling, *self.tableau, r.boundary]
         inputs += [wp.float64(dt), int(nsteps), r.hist]
-        wp.launch(r.k.rk4_tangent_kernel, dim=hi - lo, device=r.device, inputs=inputs)
+        wp.launch(self.kernels.rk4_tangent_kernel, dim=hi - lo, device=r.device, inputs=inputs)
 
 
 _PLANS = {

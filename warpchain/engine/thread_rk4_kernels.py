@@ -1,0 +1,299 @@
+"""The classical fourth-order Runge-Kutta method in the thread-per-lattice layout (the CPU path): base runs
+(``rk4_kernel``, a fused pass over contiguous rows per stage, the stage states in scratch arrays) and tangent
+columns (``rk4_tangent_kernel``), the arithmetic of ``warpchain.reference`` operation for operation."""
+
+from __future__ import annotations
+
+import warp as wp
+
+from .thread_kernels import (
+    acceleration_at,
+    contact_stiffness,
+    row,
+    save_positions,
+    site_acceleration,
+    tangent_acceleration_at,
+    unit_stride,
+    wall_values,
+)
+
+
+@wp.func
+def rk4_stage_derivative(
+    y: wp.array3d(dtype=wp.float64),
+    out: wp.array3d(dtype=wp.float64),
+    b: int,
+    n: int,
+    boundary: int,
+    inv_mass: wp.float64,
+    coupling: wp.float64,
+    record: int,
+    hist: wp.array3d(dtype=wp.float64),
+    slot: int,
+):
+    """out[b] = F(y[b]) = (y', a(y)); records f'(z) of the stage when asked."""
+    for j in range(n):
+        a = acceleration_at(y, b, j, n, boundary, inv_mass, coupling)
+        out[b, 0, j] = y[b, 2, j]
+        out[b, 1, j] = y[b, 3, j]
+        out[b, 2, j] = a[0]
+        out[b, 3, j] = a[1]
+        if record != 0:
+            hist[slot, b, j] = contact_stiffness(y[b, 0, j] - y[b, 1, j])
+
+
+@wp.func
+def rk4_tangent_stage_derivative(
+    dy: wp.array3d(dtype=wp.float64),
+    out: wp.array3d(dtype=wp.float64),
+    c: int,
+    base: int,
+    n: int,
+    boundary: int,
+    inv_mass: wp.float64,
+    coupling: wp.float64,
+    hist: wp.array3d(dtype=wp.float64),
+    slot: int,
+):
+    for j in range(n):
+        a = tangent_acceleration_at(dy, c, j, n, boundary, inv_mass, coupling, hist[slot, base, j])
+        out[c, 0, j] = dy[c, 2, j]
+        out[c, 1, j] = dy[c, 3, j]
+        out[c, 2, j] = a[0]
+        out[c, 3, j] = a[1]
+
+
+@wp.func
+def rk4_advance(
+    x: wp.array3d(dtype=wp.float64),
+    y: wp.array3d(dtype=wp.float64),
+    k: wp.array3d(dtype=wp.float64),
+    total: wp.array3d(dtype=wp.float64),
+    b: int,
+    n: int,
+    stage: int,
+    dt: wp.float64,
+    tableau: wp.vec4d,
+    weights: wp.vec4d,
+):
+    """After stage ``stage`` (0..3) has put its derivative in k: accumulate weights[stage] k into
+    total and, for stages 0..2, form the next stage state y = x + tableau[stage] dt k (the method's
+    own coefficients: ``RungeKuttaMethod.nodes``, ``weights``)."""
+    weight = weights[stage]
+    a = tableau[wp.min(stage, 2)]
+    for i in range(4):
+        for j in range(n):
+            if stage == 0:
+                total[b, i, j] = weight * k[b, i, j]
+            else:
+                total[b, i, j] = total[b, i, j] + weight * k[b, i, j]
+            if stage < 3:
+                y[b, i, j] = x[b, i, j] + (a * dt) * k[b, i, j]
+
+
+@wp.func
+def rk4_finish(
+    x: wp.array3d(dtype=wp.float64),
+    total: wp.array3d(dtype=wp.float64),
+    b: int,
+    n: int,
+    dt: wp.float64,
+    divisor: wp.float64,
+):
+    for i in range(4):
+        for j in range(n):
+            x[b, i, j] = x[b, i, j] + (dt / divisor) * total[b, i, j]
+
+
+@wp.struct
+class Rows:
+    """The rows (u, v, u', v') of one lattice of a state array as unit-stride views (``row``)."""
+
+    u: wp.array(dtype=wp.float64)
+    v: wp.array(dtype=wp.float64)
+    pu: wp.array(dtype=wp.float64)
+    pv: wp.array(dtype=wp.float64)
+
+
+@wp.func
+def rows_of(x: wp.array3d(dtype=wp.float64), b: int) -> Rows:
+    r = Rows()
+    r.u = row(x, b, 0)
+    r.v = row(x, b, 1)
+    r.pu = row(x, b, 2)
+    r.pv = row(x, b, 3)
+    return r
+
+
+@wp.func
+def rk4_site(
+    x: Rows,
+    s: Rows,
+    y: Rows,
+    t: Rows,
+    j: int,
+    left: wp.float64,
+    u: wp.float64,
+    right: wp.float64,
+    inv_mass: wp.float64,
+    coupling: wp.float64,
+    first: int,
+    weight: wp.float64,
+    ah: wp.float64,
+    record: int,
+    stiffness: wp.array(dtype=wp.float64),
+):
+    """Site j of a Runge-Kutta stage at the state s (u: s.u[j], read before y may overwrite it) between
+    neighbours at u = left and right: the derivative k = (u', v', a) (``rk4_stage_derivative``), its
+    weighted sum into t and the next stage state y = x + ah k (``rk4_advance``; ah = a dt)."""
+    v = s.v[j]
+    pu = s.pu[j]
+    pv = s.pv[j]
+    a = site_acceleration(u, v, left, right, inv_mass, coupling)
+    t.u[j] = wp.where(first != 0, weight * pu, t.u[j] + weight * pu)
+    t.v[j] = wp.where(first != 0, weight * pv, t.v[j] + weight * pv)
+    t.pu[j] = wp.where(first != 0, weight * a[0], t.pu[j] + weight * a[0])
+    t.pv[j] = wp.where(first != 0, weight * a[1], t.pv[j] + weight * a[1])
+    y.u[j] = x.u[j] + ah * pu
+    y.v[j] = x.v[j] + ah * pv
+    y.pu[j] = x.pu[j] + ah * a[0]
+    y.pv[j] = x.pv[j] + ah * a[1]
+    if record != 0:
+        stiffness[j] = contact_stiffness(u - v)
+
+
+@wp.func
+def rk4_fused_stage(
+    x: Rows,
+    s: Rows,
+    y: Rows,
+    t: Rows,
+    n: int,
+    boundary: int,
+    inv_mass: wp.float64,
+    coupling: wp.float64,
+    first: int,
+    weight: wp.float64,
+    ah: wp.float64,
+    record: int,
+    stiffness: wp.array(dtype=wp.float64),
+):
+    """One Runge-Kutta stage on one lattice's rows in a single pass over the sites: the derivative at the
+    stage state s (x itself for the first stage), its weighted sum into the total t (set by the ``first``
+    stage) and the next stage state y = x + ah k. Site j's u is carried to site j + 1 in a register and
+    the wall values are read first, so that y may be s itself (``rk4_kernel`` keeps them apart, which lets
+    the compiler vectorise the pass)."""
+    wall = wall_values(s.u[0], s.u[n - 1], boundary)
+    left = wall[0]
+    right = wall[1]
+    here = s.u[0]
+    j = wp.int32(0)
+    while j < n - 1:
+        nxt = s.u[j + 1]
+        rk4_site(x, s, y, t, j, left, here, nxt, inv_mass, coupling, first, weight, ah, record, stiffness)
+        left = here
+        here = nxt
+        j += 1
+    rk4_site(x, s, y, t, n - 1, left, here, right, inv_mass, coupling, first, weight, ah, record, stiffness)
+
+
+@wp.func
+def rk4_fused_finish(x: Rows, t: Rows, n: int, dt: wp.float64, divisor: wp.float64):
+    """``rk4_finish`` on rows."""
+    j = wp.int32(0)
+    while j < n:
+        x.u[j] = x.u[j] + (dt / divisor) * t.u[j]
+        x.v[j] = x.v[j] + (dt / divisor) * t.v[j]
+        x.pu[j] = x.pu[j] + (dt / divisor) * t.pu[j]
+        x.pv[j] = x.pv[j] + (dt / divisor) * t.pv[j]
+        j += 1
+
+
+@wp.kernel
+def rk4_kernel(
+    x: wp.array3d(dtype=wp.float64),
+    y: wp.array3d(dtype=wp.float64),
+    k: wp.array3d(dtype=wp.float64),
+    total: wp.array3d(dtype=wp.float64),
+    inv_mass: wp.array(dtype=wp.float64),
+    coupling: wp.array(dtype=wp.float64),
+    tableau: wp.vec4d,
+    weights: wp.vec4d,
+    boundary: int,
+    dt: wp.float64,
+    nsteps: int,
+    save_every: int,
+    rec_u: wp.array3d(dtype=wp.float64),
+    rec_v: wp.array3d(dtype=wp.float64),
+    record_stiffness: int,
+    hist: wp.array3d(dtype=wp.float64),
+):
+    """``nsteps`` Runge-Kutta steps (tableau: nodes and divisor, weights) for lattice b = tid;
+    hist slot 4 step + stage."""
+    b = wp.tid()
+    n = x.shape[2]
+    m = inv_mass[b]
+    cpl = coupling[b]
+    record = wp.where(record_stiffness != 0, 1, 0)
+    rows = unit_stride(x) * unit_stride(y) * unit_stride(k) * unit_stride(total)
+    rows = rows * wp.where(record != 0, unit_stride(hist), 1)
+    if rows != 0:
+        # the fast path: a stage in one pass over contiguous rows (``rk4_fused_stage``). The stage states
+        # alternate between the scratch arrays y and k (k itself is not stored), so that no stage writes
+        # the rows it reads (the last stage's next state, which nothing reads, goes to k)
+        xr = rows_of(x, b)
+        yr = rows_of(y, b)
+        kr = rows_of(k, b)
+        tr = rows_of(total, b)
+        for step in range(nsteps):
+            slot = 4 * step
+            s0 = row(hist, slot * record, b * record)
+            s1 = row(hist, (slot + 1) * record, b * record)
+            s2 = row(hist, (slot + 2) * record, b * record)
+            s3 = row(hist, (slot + 3) * record, b * record)
+            rk4_fused_stage(xr, xr, yr, tr, n, boundary, m, cpl, 1, weights[0], tableau[0] * dt, record, s0)
+            rk4_fused_stage(xr, yr, kr, tr, n, boundary, m, cpl, 0, weights[1], tableau[1] * dt, record, s1)
+            rk4_fused_stage(xr, kr, yr, tr, n, boundary, m, cpl, 0, weights[2], tableau[2] * dt, record, s2)
+            rk4_fused_stage(xr, yr, kr, tr, n, boundary, m, cpl, 0, weights[3], tableau[2] * dt, record, s3)
+            rk4_fused_finish(xr, tr, n, dt, tableau[3])
+            save_positions(x, rec_u, rec_v, b, n, step, save_every)
+    else:
+        for step in range(nsteps):
+            rk4_stage_derivative(x, k, b, n, boundary, m, cpl, record_stiffness, hist, 4 * step)
+            rk4_advance(x, y, k, total, b, n, 0, dt, tableau, weights)
+            for stage in range(1, 4):
+                rk4_stage_derivative(y, k, b, n, boundary, m, cpl, record_stiffness, hist, 4 * step + stage)
+                rk4_advance(x, y, k, total, b, n, stage, dt, tableau, weights)
+            rk4_finish(x, total, b, n, dt, tableau[3])
+            save_positions(x, rec_u, rec_v, b, n, step, save_every)
+
+
+@wp.kernel
+def rk4_tangent_kernel(
+    dx: wp.array3d(dtype=wp.float64),
+    dy: wp.array3d(dtype=wp.float64),
+    dk: wp.array3d(dtype=wp.float64),
+    dtotal: wp.array3d(dtype=wp.float64),
+    column_base: wp.array(dtype=wp.int32),
+    inv_mass: wp.array(dtype=wp.float64),
+    coupling: wp.array(dtype=wp.float64),
+    tableau: wp.vec4d,
+    weights: wp.vec4d,
+    boundary: int,
+    dt: wp.float64,
+    nsteps: int,
+    hist: wp.array3d(dtype=wp.float64),
+):
+    """Tangent column c = tid of the RK4 step along base trajectory column_base[c]."""
+    c = wp.tid()
+    base = column_base[c]
+    n = dx.shape[2]
+    m = inv_mass[base]
+    cpl = coupling[base]
+    for step in range(nsteps):
+        rk4_tangent_stage_derivative(dx, dk, c, base, n, boundary, m, cpl, hist, 4 * step)
+        rk4_advance(dx, dy, dk, dtotal, c, n, 0, dt, tableau, weights)
+        for stage in range(1, 4):
+            rk4_tangent_stage_derivative(dy, dk, c, base, n, boundary, m, cpl, hist, 4 * step + stage)
+            rk4_advance(dx, dy, dk, dtotal, c, n, stage, dt, tableau, weights)
+        rk4_finish(dx, dtotal, c, n, dt, tableau[3])
