@@ -71,7 +71,7 @@ from ._common import (
     save_figure,
 )
 from ._params import Rule, min_steps_per_period, number, param, splitting_methods, stability_dt
-from ._sweep import SweepSpec, Variable, run_sweep
+from warpchain.sweep import SweepSpec, Variable, run_sweep
 
 GROUP = "observables"
 #: named grids: (A values, W values, damping cases (gamma_c, gamma_s), realisations)

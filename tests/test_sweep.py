@@ -1,4 +1,4 @@
-"""The sweep runner (scenarios/_sweep.py): in-process and Dask paths write the same bytes, resume after
+"""The sweep runner (warpchain/sweep.py): in-process and Dask paths write the same bytes, resume after
 a failure or a half-written task, and refuse to mix grids."""
 
 import dataclasses
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import zarr
 
-from scenarios._sweep import (
+from warpchain.sweep import (
     _demo_task_dying,
     _demo_warm_up,
     COMPLETED,
@@ -236,9 +236,7 @@ def test_bad_task_result_and_spec(tmp_path):
 
 
 def test_dask_is_optional(tmp_path, monkeypatch):
-    code = (
-        "import sys, scenarios._sweep; sys.exit(any(m.split('.')[0] in ('dask', 'distributed') for m in sys.modules))"
-    )
+    code = "import sys, warpchain.sweep; sys.exit(any(m.split('.')[0] in ('dask', 'distributed') for m in sys.modules))"
     assert subprocess.run([sys.executable, "-c", code]).returncode == 0
     monkeypatch.setitem(sys.modules, "distributed", None)  # as if not installed
     with pytest.raises(ImportError, match=r'pip install -e "\.\[dask\]"'):
@@ -323,7 +321,7 @@ def test_a_killed_worker_or_client_loses_nothing(tmp_path, clean_store):
     path = tmp_path / "client.zarr"
     script = (
         "import functools, sys\n"
-        "from scenarios._sweep import _demo_spec, _demo_task_dying, run_sweep\n"
+        "from warpchain.sweep import _demo_spec, _demo_task_dying, run_sweep\n"
         f"task = functools.partial(_demo_task_dying, marker={str(tmp_path / 'client-died')!r}, at=(2, 0))\n"
         f"run_sweep({str(path)!r}, _demo_spec(), task, progress=False, tasks_per_worker=1)\n"
     )

@@ -10,7 +10,6 @@ import warp as wp
 
 @functools.lru_cache(maxsize=None)
 def thread_kernel():
-    import warp as wp
 
     from .thread_kernels import (
         NO_CONTACT,
@@ -190,7 +189,6 @@ def thread_kernel():
 
 @functools.lru_cache(maxsize=None)
 def block_kernel(block: int, stages: int):
-    import warp as wp
 
     from . import block_kernels as bk
     from .thread_kernels import NO_CONTACT, ONE, ZERO, kick_loss, site_energy

@@ -547,7 +547,7 @@ def _worker_plugin(paths: list[str], ordinals: dict, gpus: int, warm_up):
             for entry in self.entries:
                 if entry and entry not in _sys.path and _os.path.isdir(entry):
                     _sys.path.append(entry)
-            from scenarios._sweep import _worker_device, host_allocator
+            from warpchain.sweep import _worker_device, host_allocator
 
             host_allocator()
             if self.warm_up is not None:
