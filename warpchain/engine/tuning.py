@@ -35,7 +35,7 @@ class Tuning:
     #: on a GPU, a state of at least this many values (5.2k lattices of 201 sites) moves to and from the device
     #: in lattice slices overlapped with the first and the last chunk's kernels (``hostmem._SlicedTransfers``):
     #: H100, 2000 Verlet steps at 32768 lattices from a plain x0, ``simulate()`` ran at 0.56x the kernel
-    #: without slices and at ~0.78x with them (``benchmarks/h100-2026-11-25/engine-split``)
+    #: without slices (``benchmarks/h100-2026-11-25/engine-split``) and at 0.79x with them (``.../9fb3bfb``)
     sliced_min_values: int = 1 << 22
     #: lattices per slice and the most slices (H200: 8 slices of 4096 lattices, 2 of 4096 and the whole batch
     #: at 805 were each the best or within 2 % of it, ``h200-2026-11-22h``); ``slices`` forces a count
