@@ -465,154 +465,196 @@ def continuation(
     if threads == "auto":
         threads = threads_for(getattr(getattr(problem, "flow", None), "device", "cpu"))
     with blas_threads(threads):
-        return _walk(problem, settings, resume, resume_state, on_point, on_event, on_step, log, progress)
+        return _Walk(problem, settings, on_point, on_event, on_step, log).run(resume, resume_state, progress)
 
 
-def _walk(problem, settings, resume, resume_state, on_point, on_event, on_step, log, progress) -> Branch:
-    """``continuation``'s body (under its BLAS thread limit)."""
-    start = time.perf_counter()
-    stats = {"solves": 0, "failed_solves": 0, "bisection_solves": 0, "rejected_backwards": 0}
-    stats.update(bubbles_predicted=0, bubbles_below_width=0, bubble_solves=0, bubbles_confirmed=0, foam_steps=0)
-    events: list = []
-    par = problem.parameter
+class _Walk:
+    """``continuation``'s body (under its BLAS thread limit): one walk along a branch, its state named.
 
-    def note(event):
+    State: ``points`` (every accepted point, in order); ``walk`` (the points the driver stepped to, not the
+    ones bisection and bubble solves put between them: their secant sets the next predictor, so refinement
+    never steers the branch) and ``walk_index`` (where they are in ``points``, what ``on_step`` reports);
+    ``events``; ``stats`` (counters); ``spectra`` (id(point) -> (point, SpectralData) of the points analysed
+    since the last step finished: its refinement needs them all; cleared down to the last point after each
+    step); ``predictions`` ((id(a), id(b)) -> predicted bubbles, for a step's chase and its record); ``h``
+    (the next step).
+    """
+
+    def __init__(self, problem, settings, on_point, on_event, on_step, log):
+        self.problem, self.settings = problem, settings
+        self.on_point, self.on_event, self.on_step, self.log = on_point, on_event, on_step, log
+        self.start = time.perf_counter()
+        self.stats = {"solves": 0, "failed_solves": 0, "bisection_solves": 0, "rejected_backwards": 0}
+        self.stats.update(
+            bubbles_predicted=0, bubbles_below_width=0, bubble_solves=0, bubbles_confirmed=0, foam_steps=0
+        )
+        self.events: list = []
+        self.par = problem.parameter
+        self.points: list = []
+        self.walk: list = []
+        self.walk_index: list = []
+        self.spectra: dict = {}
+        self.predictions: dict = {}
+        self.h = settings.ds
+        self.bubble_width = None
+
+    # -- bookkeeping
+
+    def note(self, event):
         if event is None:
             return
-        events.append(event)
-        if on_event:
-            on_event(event)
-        if log and event.get("message"):
-            log(event["message"])
+        self.events.append(event)
+        if self.on_event:
+            self.on_event(event)
+        if self.log and event.get("message"):
+            self.log(event["message"])
 
-    def accept(point, on_walk=True):
-        points.append(point)
+    def accept(self, point, on_walk=True):
+        self.points.append(point)
         if on_walk:
-            walk.append(point)
-            walk_index.append(len(points) - 1)
-        if on_point:
-            on_point(point)
+            self.walk.append(point)
+            self.walk_index.append(len(self.points) - 1)
+        if self.on_point:
+            self.on_point(point)
 
-    # id(point) -> (point, SpectralData) of the points analysed since the last step was finished (its
-    # refinement needs them all); cleared down to the last point after each step
-    spectra: dict = {}
+    def stepped(self):
+        """Report the walk's state after the start or a whole step (``on_step``)."""
+        if self.on_step is not None:
+            problem, points = self.problem, self.points
+            chord = problem.age(points[-1]) if hasattr(problem, "age") else None
+            state = WalkState(len(points), tuple(self.walk_index), self.h, tuple(self.events), dict(self.stats), chord)
+            self.on_step(state)
 
+    def branch(self, reason, text) -> Branch:
+        return Branch(tuple(self.points), reason, text, tuple(self.events), self.par, self.stats)
+
+    # -- solves
+
+    @staticmethod
     def chord_jacobian(solution):
         """The residual Jacobian the next corrector's chord steps start from (Floquet formed it anyway)."""
         return solution.linearization.unit_columns("positions")[2 * solution.params.N :, :]
 
-    def analysed(solution):
-        point = analyse(solution, settings.floquet, spectra)
-        if settings.floquet and settings.chord and hasattr(problem, "remember"):
-            problem.remember(point, chord_jacobian(solution))
+    def analysed(self, solution):
+        point = analyse(solution, self.settings.floquet, self.spectra)
+        if self.settings.floquet and self.settings.chord and hasattr(self.problem, "remember"):
+            self.problem.remember(point, self.chord_jacobian(solution))
         return point
 
-    def solve(fn, *args):
-        stats["solves"] += 1
+    def solve(self, fn, *args):
+        self.stats["solves"] += 1
         out = fn(*args)
         if isinstance(out, Failure):
-            stats["failed_solves"] += 1
+            self.stats["failed_solves"] += 1
             return out
-        return analysed(out)
+        return self.analysed(out)
 
-    points: list = []
-    # the walk: the points the driver stepped to (not the ones bisection and bubble solves put between
-    # them), whose secant sets the next predictor, so that refinement never steers the branch
-    walk: list = []
-    walk_index: list = []  # where the walk's points are in ``points`` (what on_step reports)
-    restored = None  # the walk's points of a resumed branch with its state
-    if resume and resume_state is not None:
-        resume_state.check(len(resume))
-        resume = list(resume[: resume_state.points])
-        restored = [resume[i] for i in resume_state.walk]
-        events.extend(resume_state.events)
-        stats.update(resume_state.stats)  # the counters go on from where the stored walk left them
-    problem.prepare(settings, resume, restored)
-    if settings.bisect_krein == "auto":
-        settings = settings.replace(bisect_krein="all" if problem.params.N <= AUTO_ALL_SITES else "predict")
-    bubble_width = settings.bubble_width or settings.resolution / BUBBLE_FRACTION
-    predictions: dict = {}  # (id(a), id(b)) -> predicted bubbles, for the step's chase and its record
-    if resume:
-        if len(resume) < 2 and hasattr(problem, "axis"):
-            raise ValueError("resuming an arclength branch needs at least two stored points (they set the tangent)")
-        points.extend(resume)
-        walk.extend(resume if restored is None else restored)
-        walk_index.extend(range(len(resume)) if restored is None else resume_state.walk)
-        if restored is not None:  # the last point's spectra and chord Jacobian, as its first analysis left them
-            last = points[-1]
-            again = problem.revisit(last)
-            fresh = analyse(again, settings.floquet, spectra)
-            if settings.floquet:
-                spectra[id(last)] = (last, spectra.pop(id(fresh))[1])
-                if settings.chord and hasattr(problem, "restore") and resume_state.chord is not None:
-                    problem.restore(last, chord_jacobian(again), resume_state.chord)
-    else:
+    # -- the start
+
+    def begin(self, resume, resume_state) -> Branch | None:
+        """Restore a stored walk or solve the problem's start; a Branch when the start already failed."""
+        problem, settings, stats = self.problem, self.settings, self.stats
+        restored = None  # the walk's points of a resumed branch with its state
+        if resume_state is not None:
+            self.h = resume_state.h
+        if resume and resume_state is not None:
+            resume_state.check(len(resume))
+            resume = list(resume[: resume_state.points])
+            restored = [resume[i] for i in resume_state.walk]
+            self.events.extend(resume_state.events)
+            stats.update(resume_state.stats)  # the counters go on from where the stored walk left them
+        problem.prepare(settings, resume, restored)
+        if settings.bisect_krein == "auto":
+            self.settings = settings = settings.replace(
+                bisect_krein="all" if problem.params.N <= AUTO_ALL_SITES else "predict"
+            )
+        self.bubble_width = settings.bubble_width or settings.resolution / BUBBLE_FRACTION
+        if resume:
+            if len(resume) < 2 and hasattr(problem, "axis"):
+                raise ValueError("resuming an arclength branch needs at least two stored points (they set the tangent)")
+            self.points.extend(resume)
+            self.walk.extend(resume if restored is None else restored)
+            self.walk_index.extend(range(len(resume)) if restored is None else resume_state.walk)
+            if restored is not None:  # the last point's spectra and chord Jacobian, as its first analysis left them
+                last = self.points[-1]
+                again = problem.revisit(last)
+                fresh = analyse(again, settings.floquet, self.spectra)
+                if settings.floquet:
+                    self.spectra[id(last)] = (last, self.spectra.pop(id(fresh))[1])
+                    if settings.chord and hasattr(problem, "restore") and resume_state.chord is not None:
+                        problem.restore(last, self.chord_jacobian(again), resume_state.chord)
+            return None
         for sol in problem.start():
             if isinstance(sol, Failure):
+                self.stats["wall_seconds"] = time.perf_counter() - self.start
                 return Branch(
                     (),
                     StopReason.NEWTON_FAILED,
                     f"{StopReason.NEWTON_FAILED.explanation}: {sol.message}",
-                    tuple(events),
-                    par,
-                    dict(stats, wall_seconds=time.perf_counter() - start),
+                    tuple(self.events),
+                    self.par,
+                    dict(stats),
                 )
             stats["solves"] += 1
-            accept(analysed(sol))
+            self.accept(self.analysed(sol))
+        return None
 
-    def predicted_in(a, b):
+    # -- refinement of a step
+
+    def predicted_in(self, a, b):
         """The bubbles ``continuation.bubbles`` predicts in the step (a, b); None without spectra."""
         key = (id(a), id(b))
-        if key not in predictions:
-            sa, sb = spectra.get(id(a)), spectra.get(id(b))
+        if key not in self.predictions:
+            sa, sb = self.spectra.get(id(a)), self.spectra.get(id(b))
             if sa is None or sb is None or sa[0] is not a or sb[0] is not b:
                 return None
-            predictions[key] = bubbles.predict(a, b, sa[1], sb[1])
-        return predictions[key]
+            self.predictions[key] = bubbles.predict(a, b, sa[1], sb[1])
+        return self.predictions[key]
 
-    def leaf(a, b, h):
+    def leaf(self, a, b, h):
         """A final step (a, b) of length h: record the predicted bubbles in it too narrow to chase, and
         where the phonon-phonon parametric resonances that make them possible open or close."""
-        note(ev.parametric_event(a, b, par, problem.params.M))
+        self.note(ev.parametric_event(a, b, self.par, self.problem.params.M))
         # a step that is unstable at both ends through anything but weak extended vectors has a verdict
         # that narrow bubbles cannot change: no screening there (it was ~10 ms per step in the acoustic band)
-        if settings.bisect_krein == "predict" and (
+        if self.settings.bisect_krein == "predict" and (
             a.stable or b.stable or (ev.weak_extended(a) and ev.weak_extended(b))
         ):
-            narrow = [x for x in predicted_in(a, b) or () if 2.0 * x.half_width * h < bubble_width]
+            narrow = [x for x in self.predicted_in(a, b) or () if 2.0 * x.half_width * h < self.bubble_width]
             if narrow:
-                stats["foam_steps"] += 1
-                note(ev.foam_event(a, b, par, narrow, h))
+                self.stats["foam_steps"] += 1
+                self.note(ev.foam_event(a, b, self.par, narrow, h))
         return [b]
 
-    def chase_bubbles(a, b, h, depth, misses):
+    def chase_bubbles(self, a, b, h, depth, misses):
         """Solve inside a step with both ends stable where ``bubbles`` predicts an instability
         bubble at least ``bubble_width`` wide; None when nothing is predicted there."""
-        predicted = predicted_in(a, b)
+        problem, stats = self.problem, self.stats
+        predicted = self.predicted_in(a, b)
         if predicted is None:
             return None
         stats["bubbles_predicted"] += len(predicted)
-        plan = bubbles.chase_fractions(predicted, h, bubble_width)
-        stats["bubbles_below_width"] += len(predicted) - len(bubbles.wide(predicted, h, bubble_width))
+        plan = bubbles.chase_fractions(predicted, h, self.bubble_width)
+        stats["bubbles_below_width"] += len(predicted) - len(bubbles.wide(predicted, h, self.bubble_width))
         if not plan:
             return None
         inner = []  # (fraction, point)
         confirmed = 0
         for centre, (lo, hi) in plan:
             stats["bubble_solves"] += 1
-            m = solve(problem.between, a, b, centre)
+            m = self.solve(problem.between, a, b, centre)
             if isinstance(m, Failure) or not problem.is_between(a, m, b):
                 continue
             inner.append((centre, m))
             unstable = not m.stable
             confirmed += unstable
-            note(ev.bubble_event(a, b, centre, m, par, predicted=[x for x in predicted if lo <= x.t <= hi]))
+            self.note(ev.bubble_event(a, b, centre, m, self.par, predicted=[x for x in predicted if lo <= x.t <= hi]))
             if unstable:  # its edges: one solve just outside each predicted edge, then bisection
                 for t in (lo, hi):
                     if any(abs(t - f) < 1e-9 for f, _ in inner):  # a neighbour's edge at the same place
                         continue
                     stats["bubble_solves"] += 1
-                    e = solve(problem.between, a, b, t)
+                    e = self.solve(problem.between, a, b, t)
                     if not isinstance(e, Failure) and problem.is_between(a, e, b):
                         inner.append((t, e))
         stats["bubbles_confirmed"] += confirmed
@@ -622,11 +664,12 @@ def _walk(problem, settings, resume, resume_state, on_point, on_event, on_step, 
         chain = [(0.0, a)] + inner + [(1.0, b)]
         out = []
         for (t0, x), (t1, y) in zip(chain[:-1], chain[1:]):
-            out += refine(x, y, h * (t1 - t0), depth + 1, misses + (confirmed == 0))
+            out += self.refine(x, y, h * (t1 - t0), depth + 1, misses + (confirmed == 0))
         return out
 
-    def refine(a, b, h, depth=0, misses=0):
+    def refine(self, a, b, h, depth=0, misses=0):
         """Points strictly after a up to b, bisecting while a change sits in a bracket > resolution."""
+        settings, par, note = self.settings, self.par, self.note
         what = ev.changed(a, b) if settings.floquet else None
         if (
             settings.bisect_krein == "predict"
@@ -636,131 +679,140 @@ def _walk(problem, settings, resume, resume_state, on_point, on_event, on_step, 
             and misses < 2
             and depth <= 40
         ):
-            chased = chase_bubbles(a, b, h, depth, misses)
+            chased = self.chase_bubbles(a, b, h, depth, misses)
             if chased is not None:
                 return chased
         if what is None:
-            return leaf(a, b, h)
+            return self.leaf(a, b, h)
         if what == "count":  # recorded, not examined (events.changed, rules 2 and 5)
             note(ev.stability_change_event(a, b, par))
-            return leaf(a, b, h)
+            return self.leaf(a, b, h)
         if what == "krein" and not (
             settings.bisect_krein == "all"
             or (settings.bisect_krein in ("localized", "predict") and ev.localized_krein_crossings(a, b))
         ):
             note(ev.krein_event(a, b, par, bisected=False))
-            return leaf(a, b, h)
+            return self.leaf(a, b, h)
         if h <= settings.resolution or depth > 40:
             if what != "suspect":  # a suspect step resolved down to here without a change holds none
                 note(ev.krein_event(a, b, par) if what == "krein" else ev.stability_change_event(a, b, par))
-            return leaf(a, b, h)
+            return self.leaf(a, b, h)
         outcomes = []
         for t in SPLITS:  # the middle, else nearer either end (a long step's middle may not converge)
-            stats["bisection_solves"] += 1
-            m = solve(problem.between, a, b, t)
-            if not isinstance(m, Failure) and problem.is_between(a, m, b):
-                return refine(a, m, t * h, depth + 1, misses) + refine(m, b, (1.0 - t) * h, depth + 1, misses)
+            self.stats["bisection_solves"] += 1
+            m = self.solve(self.problem.between, a, b, t)
+            if not isinstance(m, Failure) and self.problem.is_between(a, m, b):
+                return self.refine(a, m, t * h, depth + 1, misses) + self.refine(m, b, (1.0 - t) * h, depth + 1, misses)
             outcomes.append(f"at {t:g}: " + ("did not converge" if isinstance(m, Failure) else "outside the bracket"))
         if what != "suspect":
             e = ev.krein_event(a, b, par) if what == "krein" else ev.stability_change_event(a, b, par)
             e["message"] += " (not bisected further: the points " + "; ".join(outcomes) + ")"
             note(e)
-        return leaf(a, b, h)
+        return self.leaf(a, b, h)
 
-    bar = None
-    if progress:
-        from tqdm.auto import tqdm
+    # -- the walk
 
-        bar = tqdm(
-            total=1.0,
-            desc=problem.description,
-            leave=False,
-            dynamic_ncols=True,
-            bar_format="{desc}: {percentage:3.0f}%|{bar}| [{elapsed}] {postfix}",
-        )
-    h = settings.ds if resume_state is None else resume_state.h
+    def stop(self, last):
+        """(reason, message) when the walk ends at ``last``, else None."""
+        problem, settings, par = self.problem, self.settings, self.par
+        points = self.points
+        if last.min_contact <= 0:
+            message = ""
+            if len(points) > 1:
+                e = ev.contact_event(points[-2], last, par)
+                self.note(e)
+                message = e["message"]
+            return StopReason.CONTACT_LOST, message
+        done, why = problem.finished(last)
+        if done:
+            return StopReason.END_REACHED, why
+        if settings.max_points is not None and len(points) >= settings.max_points:
+            return StopReason.MAX_POINTS, f"{len(points)} points, at {par} = {getattr(last, par):.8g}"
+        if settings.max_seconds is not None and time.perf_counter() - self.start > settings.max_seconds:
+            return StopReason.TIME_BUDGET, f"after {settings.max_seconds:g} s at {par} = {getattr(last, par):.8g}"
+        return None
 
-    def stepped():
-        if on_step is not None:
-            chord = problem.age(points[-1]) if hasattr(problem, "age") else None
-            on_step(WalkState(len(points), tuple(walk_index), h, tuple(events), dict(stats), chord))
-
-    if resume_state is None:
-        stepped()
-    reason, message = StopReason.END_REACHED, ""
-    try:
-        while True:
-            last = points[-1]
-            if log:
-                log(
-                    problem.describe(last) + f", {'stable' if last.stable else 'unstable'}, "
-                    f"newton {last.iterations}, step {h:.3g}"
-                )
-            if bar is not None:
-                bar.n = min(max(problem.progress(points[0], last), 0.0), 1.0)
-                bar.set_postfix_str(f"{par} = {getattr(last, par):.6g}, {len(points)} points", refresh=True)
-            if last.min_contact <= 0:
-                reason = StopReason.CONTACT_LOST
-                if len(points) > 1:
-                    e = ev.contact_event(points[-2], last, par)
-                    note(e)
-                    message = e["message"]
-                break
-            done, why = problem.finished(last)
-            if done:
-                reason, message = StopReason.END_REACHED, why
-                break
+    def step(self, last):
+        """One step from ``last``: the predictor-corrector, then its refinement, its points accepted. Returns
+        (reason, message) when a failed step ends the walk (the step underflowed), else None."""
+        problem, settings, par = self.problem, self.settings, self.par
+        points, stats = self.points, self.stats
+        h_try = problem.clip_step(last, self.h)
+        new = self.solve(problem.step, self.walk, h_try)
+        if isinstance(new, Failure) or not problem.is_forward(self.walk, new):
+            if not isinstance(new, Failure):
+                stats["rejected_backwards"] += 1
+            self.h *= 0.5
+            why = new.message if isinstance(new, Failure) else "the corrector turned back along the branch"
+            if self.log:
+                self.log(f"step failed ({why}); step halved to {self.h:.3g}")
+            if self.h < settings.ds_min:
+                return StopReason.STEP_UNDERFLOW, f"{why} near {par} = {getattr(last, par):.8g}"
+            return None
+        whole = True  # every point of the step accepted (a stated point count may cut it)
+        for p in self.refine(last, new, h_try):
             if settings.max_points is not None and len(points) >= settings.max_points:
-                reason = StopReason.MAX_POINTS
-                message = f"{len(points)} points, at {par} = {getattr(last, par):.8g}"
-                break
-            if settings.max_seconds is not None and time.perf_counter() - start > settings.max_seconds:
-                reason = StopReason.TIME_BUDGET
-                message = f"after {settings.max_seconds:g} s at {par} = {getattr(last, par):.8g}"
-                break
-            h_try = problem.clip_step(last, h)
-            new = solve(problem.step, walk, h_try)
-            if isinstance(new, Failure) or not problem.is_forward(walk, new):
-                if not isinstance(new, Failure):
-                    stats["rejected_backwards"] += 1
-                h *= 0.5
-                why = new.message if isinstance(new, Failure) else "the corrector turned back along the branch"
-                if log:
-                    log(f"step failed ({why}); step halved to {h:.3g}")
-                if h < settings.ds_min:
-                    reason = StopReason.STEP_UNDERFLOW
-                    message = f"{why} near {par} = {getattr(last, par):.8g}"
+                whole = False
+                break  # a stated point count is exact, even inside a bisected step
+            self.note(ev.harmonic_event(points[-1], p, par))
+            self.accept(p, on_walk=p is new)
+        kept = self.spectra.get(id(points[-1]))
+        self.spectra.clear()
+        self.predictions.clear()
+        if kept is not None:
+            self.spectra[id(points[-1])] = kept
+        # next step: grow after an easy solve, bounded by the multipliers' motion and ds_max
+        h_next = h_try * (settings.grow if new.iterations <= 3 else 1.0)
+        if settings.floquet:
+            h_next = min(
+                h_next,
+                h_try * spectral_step_factor(last, new, settings.multiplier_fraction, settings.multiplier_floor),
+            )
+        self.h = float(min(max(h_next, settings.ds_min), settings.ds_max))
+        if whole:  # a cut step is not a state to resume from: a resume redoes it whole
+            self.stepped()
+        return None
+
+    def run(self, resume, resume_state, progress: bool) -> Branch:
+        failed = self.begin(resume, resume_state)
+        if failed is not None:
+            return failed
+        problem, par = self.problem, self.par
+        bar = None
+        if progress:
+            from tqdm.auto import tqdm
+
+            bar = tqdm(
+                total=1.0,
+                desc=problem.description,
+                leave=False,
+                dynamic_ncols=True,
+                bar_format="{desc}: {percentage:3.0f}%|{bar}| [{elapsed}] {postfix}",
+            )
+        if resume_state is None:
+            self.stepped()
+        reason, message = StopReason.END_REACHED, ""
+        try:
+            while True:
+                last = self.points[-1]
+                if self.log:
+                    self.log(
+                        problem.describe(last) + f", {'stable' if last.stable else 'unstable'}, "
+                        f"newton {last.iterations}, step {self.h:.3g}"
+                    )
+                if bar is not None:
+                    bar.n = min(max(problem.progress(self.points[0], last), 0.0), 1.0)
+                    bar.set_postfix_str(f"{par} = {getattr(last, par):.6g}, {len(self.points)} points", refresh=True)
+                ended = self.stop(last) or self.step(last)
+                if ended is not None:
+                    reason, message = ended
                     break
-                continue
-            whole = True  # every point of the step accepted (a stated point count may cut it)
-            for p in refine(last, new, h_try):
-                if settings.max_points is not None and len(points) >= settings.max_points:
-                    whole = False
-                    break  # a stated point count is exact, even inside a bisected step
-                note(ev.harmonic_event(points[-1], p, par))
-                accept(p, on_walk=p is new)
-            kept = spectra.get(id(points[-1]))
-            spectra.clear()
-            predictions.clear()
-            if kept is not None:
-                spectra[id(points[-1])] = kept
-            # next step: grow after an easy solve, bounded by the multipliers' motion and ds_max
-            h_next = h_try * (settings.grow if new.iterations <= 3 else 1.0)
-            if settings.floquet:
-                h_next = min(
-                    h_next,
-                    h_try * spectral_step_factor(last, new, settings.multiplier_fraction, settings.multiplier_floor),
-                )
-            h = float(min(max(h_next, settings.ds_min), settings.ds_max))
-            if whole:  # a cut step is not a state to resume from: a resume redoes it whole
-                stepped()
-    except KeyboardInterrupt:
+        except KeyboardInterrupt:
+            if bar is not None:
+                bar.close()
+            raise
         if bar is not None:
             bar.close()
-        raise
-    if bar is not None:
-        bar.close()
-    wall = time.perf_counter() - start
-    stats.update(points=len(points), wall_seconds=wall, seconds_per_point=wall / max(len(points), 1))
-    text = reason.explanation + (f": {message}" if message else "")
-    return Branch(tuple(points), reason, text, tuple(events), par, stats)
+        wall = time.perf_counter() - self.start
+        self.stats.update(points=len(self.points), wall_seconds=wall, seconds_per_point=wall / max(len(self.points), 1))
+        return self.branch(reason, reason.explanation + (f": {message}" if message else ""))
