@@ -202,9 +202,13 @@ def newton(
                         log(f"chord {stats['chord_steps']}: residual {norm:.3e}")
                     continue
                 chord = None  # poor contraction: true Newton (with its whole budget) from here on
-            J = ev.jacobian()
-            stats["jacobians"] += 1
-            step, lstsq_used = solve_linear(J, ev.residual)
+            if hasattr(ev, "solve"):  # matrix-free: the evaluation solves with its own Jacobian-vector products
+                step, lstsq_used = ev.solve(ev.residual)
+                stats["linear_solves"] = stats.get("linear_solves", 0) + 1
+            else:
+                J = ev.jacobian()
+                stats["jacobians"] += 1
+                step, lstsq_used = solve_linear(J, ev.residual)
             used_lstsq += int(lstsq_used)
             lam, trial, trial_ev, trial_norm = 1.0, None, None, math.inf
             for _ in range(settings.max_halvings + 1):

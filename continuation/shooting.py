@@ -31,6 +31,7 @@ import scipy.linalg
 from warpchain import ChainParams, Flow, band_edges, energy
 from warpchain.model import accelerations, as_batch, real_number
 
+from .krylov import KrylovSettings, LinearLatticePreconditioner, gmres_step
 from .newton import NewtonOutcome, NewtonSettings, ShootingStatus, newton, solve_linear
 
 # the cheapest at the accuracy breathers need (work-precision scene, smooth case): kahan8 with 32
@@ -227,14 +228,24 @@ class PeriodMap:
         jacobian: str = "tangent",
         fd_step: float = 1e-7,
         x_ref=None,
+        solver: str = "dense",
+        krylov: KrylovSettings | None = None,
     ):
         self.params, self.omega, self.flow, self.formulation = params, float(omega), flow, formulation
         self.jacobian, self.fd_step = jacobian, fd_step
+        self.solver, self.krylov = solver, krylov or KrylovSettings()
+        self.krylov_iterations: list = []  # GMRES matrix-vector products per Newton step (solver "krylov")
         n_half, self.dt = flow.grid(omega)
         N = params.N
         if formulation == "reversible":
             self.nsteps = n_half
             self.n_unknowns = 2 * N
+            self.preconditioner = None
+            if solver == "krylov" and self.krylov.preconditioner == "linear" and params.boundary == "fixed":
+                half_period = self.nsteps * self.dt
+                self.preconditioner = LinearLatticePreconditioner(
+                    params.M, params.K, N, half_period, self.krylov.regularization
+                )
         else:
             self.nsteps = 2 * n_half
             self.n_unknowns = 4 * N
@@ -258,7 +269,7 @@ class PeriodMap:
     def evaluate(self, unknowns) -> "ShootingPoint":
         x0 = self.to_state(unknowns)
         lin = self.flow.linearize(self.params, x0, self.nsteps, self.dt)
-        return ShootingPoint(self, x0, lin)
+        return (KrylovShootingPoint if self.solver == "krylov" else ShootingPoint)(self, x0, lin)
 
 
 class ShootingPoint:
@@ -297,6 +308,22 @@ class ShootingPoint:
         return self._jacobian
 
 
+class KrylovShootingPoint(ShootingPoint):
+    """A Newton point of the matrix-free path: ``solve`` runs GMRES on Jacobian-vector products, each one
+    tangent column replayed on this point's base trajectory (``continuation.krylov``)."""
+
+    def jvp(self, v: np.ndarray) -> np.ndarray:
+        N = self.pmap.params.N
+        d = np.zeros((1, 4, N))
+        d[0, :2] = np.asarray(v).reshape(2, N)
+        return self.linearization.columns(d)[2 * N :, 0]
+
+    def solve(self, r: np.ndarray) -> tuple[np.ndarray, bool]:
+        step, info = gmres_step(self.jvp, r, self.pmap.krylov, self.pmap.preconditioner)
+        self.pmap.krylov_iterations.append(info["iterations"])
+        return step, False
+
+
 def chord_solver(J0: np.ndarray):
     """(evaluation, r) -> J0^-1 r with J0 factored once; None when J0 is singular."""
     try:
@@ -320,6 +347,13 @@ def is_mirror_symmetric(state, rtol: float) -> bool:
 #: (the frequency branch starts from the eigenmode at 0.03).
 REST_AMPLITUDE = 1e-6
 
+#: ``find_breather(solver="auto")`` solves matrix-free from this many sites on. On the 2-core CPU the
+#: matrix-free path was faster at every size measured (paper breather from the NLS seed: 6.7x at N = 201,
+#: 53x at 801, 168x at 1601; ``benchmarks/newton_krylov.py``, ``benchmarks/cpu-2core-2026-11-25c``); the
+#: threshold keeps the paper's chains (N <= 401) on the dense reference path, whose Jacobian continuation and
+#: Floquet reuse.
+KRYLOV_MIN_SITES = 1024
+
 
 def find_breather(
     params: ChainParams,
@@ -338,6 +372,8 @@ def find_breather(
     collapse_ratio: float = 1e-3,
     symmetric: bool | None = None,
     jacobian_hint: np.ndarray | None = None,
+    solver: str = "auto",
+    krylov: KrylovSettings | None = None,
     device: str | None = None,
     log=None,
 ) -> ShootingResult:
@@ -362,6 +398,11 @@ def find_breather(
         jacobian_hint: an approximate Jacobian of the residual (e.g. a neighbouring solution's, as
             continuation has it): Newton takes chord steps with it, factored once, while they
             converge fast, and forms true Jacobians only when they do not.
+        solver: the linear solves of Newton: ``"dense"`` (all 2N tangent columns, LU: the reference),
+            ``"krylov"`` (GMRES on Jacobian-vector products with the linear lattice's preconditioner,
+            ``continuation.krylov``; reversible formulation, tangent Jacobian) or ``"auto"`` (krylov from
+            ``KRYLOV_MIN_SITES`` sites on, dense below).
+        krylov: options of the matrix-free solves (``KrylovSettings``).
         log: optional callable receiving one line per iteration.
 
     Returns:
@@ -377,9 +418,17 @@ def find_breather(
     if seed.shape[0] != 1:
         raise ValueError(f"seed must be one state of shape (4, {params.N}), got a batch of {seed.shape[0]}")
     seed = seed[0]
+    if solver not in ("dense", "krylov", "auto"):
+        raise ValueError(f"solver must be 'dense', 'krylov' or 'auto', got {solver!r}")
+    if solver == "auto":
+        matrix_free = formulation == "reversible" and jacobian == "tangent" and jacobian_hint is None
+        solver = "krylov" if matrix_free and params.N >= KRYLOV_MIN_SITES else "dense"
+    if solver == "krylov" and (formulation != "reversible" or jacobian != "tangent"):
+        raise ValueError("solver='krylov' solves the reversible formulation with the tangent Jacobian")
     flow = make_flow(flow, method=method, steps_per_period=steps_per_period, dt=dt, omega=omega, device=device)
     settings = NewtonSettings(tol=real_number("tol", tol, positive=True), max_iterations=max_iterations)
-    pmap = PeriodMap(params, omega, flow, formulation, jacobian, real_number("fd_step", fd_step, positive=True), seed)
+    fd_step = real_number("fd_step", fd_step, positive=True)
+    pmap = PeriodMap(params, omega, flow, formulation, jacobian, fd_step, seed, solver=solver, krylov=krylov)
     seed_amplitude = float(np.max(np.abs(seed[0] - seed[1])))
     collapse_ratio = real_number("collapse_ratio", collapse_ratio, positive=True)
     if collapse_ratio >= 1.0:
@@ -425,6 +474,11 @@ def shooting_result(pmap: PeriodMap, outcome: NewtonOutcome, start: float) -> Sh
     ev = outcome.evaluation
     lin = ev.linearization if ev is not None and status is not ShootingStatus.INTEGRATION_ERROR else None
     stats = dict(outcome.stats, tangent_columns=outcome.stats["jacobians"] * pmap.n_unknowns)
+    if pmap.solver == "krylov":
+        stats.update(solver="krylov", krylov_iterations=list(pmap.krylov_iterations))
+        stats["tangent_columns"] = sum(pmap.krylov_iterations)
+    else:
+        stats["solver"] = "dense"
     return ShootingResult(
         state=state,
         omega=float(omega),
