@@ -28,6 +28,7 @@ SCENES = {
     "stability-limits": "scenarios.stability_limits",
     "throughput": "scenarios.throughput",
     "breakup-statistics": "scenarios.breakup_statistics",
+    "finite-size": "scenarios.finite_size",
 }
 #: scenes that reproduce the paper (``python -m scenarios paper``); the rest chart speed and accuracy
 PAPER_SCENES = [

@@ -244,3 +244,24 @@ def test_speed_accuracy_scenes_quick(tmp_path, name):
     else:
         assert s["device"].startswith("cpu") and s["results"]
         assert {"implementation", "method", "batch", "site_steps_per_second"} <= set(s["results"][0])
+
+
+@pytest.mark.slow
+def test_finite_size_quick(tmp_path):
+    """The finite-size scene: the site breather (exponentially localized) keeps its energy and its localized
+    real pair at every N, its tail at round-off; the paper breather's tail does not decay; the store reads."""
+    out = _run("run", "finite-size", "--quick", "--out", str(tmp_path), "--device", "cpu")
+    assert out.returncode == 0, out.stderr[-3000:]
+    s = json.loads((tmp_path / "finite-size" / "summary.json").read_text())
+    site, paper = s["families"]["site"], s["families"]["paper"]
+    assert s["site_tail_at_round_off"] and not s["paper_tail_at_round_off"]
+    assert max(r["energy"] for r in site) - min(r["energy"] for r in site) < 1e-12
+    own = [[i for i in r["instabilities"] if i["localized"]] for r in site if r["instabilities"] is not None]
+    assert own and all(len(x) == 1 and x[0]["kind"] == "real_pair" for x in own)
+    assert len({round(x[0]["modulus"], 9) for x in own}) == 1  # the same localized pair at every N
+    assert min(r["outer_amplitude"] for r in paper) > 1e-7
+    import xarray as xr
+
+    ds = xr.open_zarr(tmp_path / "finite-size" / "data.zarr", group="paper")
+    assert ds.sizes["size"] == len(s["sizes"]) and "energy" in ds
+    assert (tmp_path / "finite-size" / "finite_size.png").exists()

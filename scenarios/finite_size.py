@@ -1,0 +1,257 @@
+"""Finite size: do the paper breather and the K = 10 site breather exist in the infinite chain, and which of
+their instabilities are their own? (issue #36; beyond the paper)
+
+The paper breather (M = 30, K = 160, w_b = 1.01, from the NLS seed) and the site breather at K = 10 (the
+anti-continuum branch continued in K from 0.01 at the smallest N) are solved at N = 201, 401, ..., 12801 sites,
+each size seeded with the previous solution padded with zeros at both ends. Newton is matrix-free from
+``continuation.shooting.KRYLOV_MIN_SITES`` sites on (``find_breather(solver="auto")``; GMRES with the linear
+lattice's preconditioner), dense below. Per size: the energy, the tail amplitude (max |u - v| further than
+``tail_distance`` sites from the centre, and over the outer quarter of the chain on each side), and up to
+``floquet_sites`` sites every instability of the dense Floquet analysis with its kind, modulus, participation
+and parity. Matrix-free Floquet (Arnoldi) is not done yet: beyond ``floquet_sites`` the stability columns are
+empty.
+
+Command: ``python -m scenarios run finite-size`` (2-core CPU: about a minute, Floquet to N = 801;
+``--quick`` N = 101 .. 401, ~15 s). On a GPU ``--set floquet_sites=3201`` reaches the issue's sizes.
+Options: ``--set KEY=VALUE`` (fields of ``Parameters``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from continuation import anticontinuum_seed, find_breather, floquet, nls_seed, require
+from continuation.branch import NaturalParameter
+from continuation.driver import ContinuationSettings, continuation
+from warpchain import ChainParams, Flow
+from warpchain.store import read_group, write_table
+
+from ._common import (
+    BREATHER_METHOD,
+    BREATHER_STEPS_PER_PERIOD,
+    PAPER_K,
+    PAPER_M,
+    PAPER_OMEGA,
+    Context,
+    pyplot,
+    read_summary,
+    save_figure,
+)
+from ._params import Rule, param
+
+
+@dataclasses.dataclass(frozen=True)
+class Parameters:
+    """The scene's parameters (``--set KEY=VALUE`` overrides any of them)."""
+
+    sizes: tuple[int, ...] = param(
+        (201, 401, 801, 1601, 3201, 6401, 12801),
+        "chain lengths N, increasing, odd (a site at the centre)",
+        ge=31,
+        length=(2, None),
+    )
+    site_K: float = param(
+        10.0, "coupling of the site family's breather (reached by continuation from K = 0.01)", gt=0.01
+    )
+    floquet_sites: int = param(801, "dense Floquet analysis up to this many sites (its cost grows like N^3)", ge=0)
+    tail_distance: int = param(60, "the tail: sites further than this from the centre", ge=1)
+
+    RULES = (
+        Rule(
+            ("sizes",),
+            "sizes increasing and odd (a centre site, and a padding of the same width on both sides)",
+            lambda P: all(n % 2 == 1 for n in P.sizes) and list(P.sizes) == sorted(set(P.sizes)),
+        ),
+        Rule(
+            ("tail_distance", "sizes"),
+            "tail_distance < sizes[0] / 2: the tail lies inside the smallest chain",
+            lambda P: 2 * P.tail_distance < P.sizes[0],
+        ),
+    )
+
+
+QUICK = {"sizes": (101, 201, 401), "floquet_sites": 201, "tail_distance": 30}
+
+
+FAMILIES = ("paper", "site")
+
+
+def _pad(state: np.ndarray, N: int) -> np.ndarray:
+    """A (4, n) state centred in a chain of N sites (zeros around it)."""
+    pad = (N - state.shape[1]) // 2
+    return np.pad(state, ((0, 0), (pad, pad)))
+
+
+def _site_breather(P: Parameters, N: int, device: str, ctx) -> np.ndarray:
+    """The site family's breather at K = site_K on N sites, continued in K from the anti-continuum limit."""
+    p = ChainParams(PAPER_M, 0.01, N)
+    flow = Flow(BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD, device=device)
+    problem = NaturalParameter(p, PAPER_OMEGA, anticontinuum_seed(p, PAPER_OMEGA), K_end=P.site_K, flow=flow)
+    branch = continuation(problem, ContinuationSettings(ds=0.15, ds_max=0.3, floquet=False))
+    last = branch.points[-1]
+    if abs(last.K - P.site_K) > 1e-9 * P.site_K:
+        raise RuntimeError(f"the site family's continuation stopped at K = {last.K:.6g}: {branch.message}")
+    ctx.log("site family: continued to K = %g in %d points", P.site_K, len(branch.points))
+    return last.state
+
+
+def _tails(state: np.ndarray, distance: int) -> tuple[float, float]:
+    z = state[0] - state[1]
+    N = len(z)
+    offset = np.abs(np.arange(N) - N // 2)
+    return float(np.max(np.abs(z[offset > distance]))), float(np.max(np.abs(z[offset > N // 4])))
+
+
+def run(ctx: Context) -> dict:
+    P: Parameters = ctx.params
+    families = {}
+    profiles = {}
+    for family in FAMILIES:
+        K = PAPER_K if family == "paper" else P.site_K
+        rows = []
+        state = None
+        for N in P.sizes:
+            params = ChainParams(PAPER_M, K, N)
+            if state is None:
+                seed = nls_seed(params, PAPER_OMEGA) if family == "paper" else _site_breather(P, N, ctx.device, ctx)
+            else:
+                seed = _pad(state, N)
+            b = require(
+                find_breather(
+                    params,
+                    PAPER_OMEGA,
+                    seed,
+                    method=BREATHER_METHOD,
+                    steps_per_period=BREATHER_STEPS_PER_PERIOD,
+                    device=ctx.device,
+                )
+            )
+            state = b.state
+            tail, outer = _tails(state, P.tail_distance)
+            row = {
+                "N": N,
+                "energy": b.energy,
+                "residual": b.residual,
+                "newton_iterations": b.iterations,
+                "solver": b.stats["solver"],
+                "gmres_products": sum(b.stats.get("krylov_iterations", [])),
+                "newton_seconds": b.wall_seconds,
+                "tail_amplitude": tail,
+                "outer_amplitude": outer,
+                "min_contact": b.min_contact,
+                "max_modulus": None,
+                "stable": None,
+                "instabilities": None,
+            }
+            if N <= P.floquet_sites:
+                fl = floquet(b)
+                row.update(
+                    max_modulus=fl.max_modulus,
+                    stable=fl.stable,
+                    instabilities=[i.as_dict() for i in fl.instabilities],
+                    floquet_seconds=fl.wall_seconds,
+                )
+            rows.append(row)
+            ctx.log(
+                "%s N = %5d: E = %.10f (%s Newton, %d its, %.2f s), tail %.3e, outer quarter %.3e%s",
+                family,
+                N,
+                b.energy,
+                row["solver"],
+                b.iterations,
+                b.wall_seconds,
+                tail,
+                outer,
+                f", max |l| {row['max_modulus']:.7f}, {len(row['instabilities'])} instabilities"
+                if row["max_modulus"] is not None
+                else "",
+            )
+        families[family] = rows
+        profiles[family] = state
+
+    root = ctx.store(ChainParams(PAPER_M, PAPER_K, P.sizes[-1]))
+    for family, rows in families.items():
+        write_table(
+            root,
+            family,
+            {
+                "N": [r["N"] for r in rows],
+                "energy": [r["energy"] for r in rows],
+                "tail_amplitude": [r["tail_amplitude"] for r in rows],
+                "outer_amplitude": [r["outer_amplitude"] for r in rows],
+                "max_modulus": [np.nan if r["max_modulus"] is None else r["max_modulus"] for r in rows],
+                "newton_seconds": [r["newton_seconds"] for r in rows],
+            },
+            dim="size",
+            attrs={"K": PAPER_K if family == "paper" else P.site_K, "omega": PAPER_OMEGA},
+        )
+        z = profiles[family][0] - profiles[family][1]
+        write_table(
+            root,
+            f"{family}_profile",
+            {"site": np.arange(1, len(z) + 1), "z": z},
+            dim="site",
+            attrs={"N": len(z), "note": "u - v at t = 0 of the largest chain"},
+        )
+    summary = {"M": PAPER_M, "omega": PAPER_OMEGA, "sizes": list(P.sizes), "families": families}
+    for family, rows in families.items():
+        E = np.array([r["energy"] for r in rows])
+        tails = np.array([r["outer_amplitude"] for r in rows])
+        Ns = np.array([r["N"] for r in rows], float)
+        summary[f"{family}_energy_spread"] = float(E.max() - E.min())
+        # the tail's scaling with N (None when it is at round-off: an exponentially localized breather)
+        decays = bool(np.all(tails < 1e-12))
+        summary[f"{family}_outer_amplitude_slope"] = (
+            None if decays else float(np.polyfit(np.log(Ns), np.log(np.maximum(tails, 1e-300)), 1)[0])
+        )
+        summary[f"{family}_tail_at_round_off"] = decays
+    return summary
+
+
+def plot(out) -> None:
+    s = read_summary(out)
+    plt = pyplot()
+    fig, axes = plt.subplots(1, 4, figsize=(18, 4.2), layout="constrained")
+    colors = {"paper": "C0", "site": "C3"}
+    labels = {"paper": f"paper breather (K = {PAPER_K:g})", "site": "site breather (K = {:g})"}
+    for family in FAMILIES:
+        t, attrs = read_group(out / "data.zarr", family)
+        label = labels[family].format(attrs.get("K", 0.0))
+        N, E = t["N"], t["energy"]
+        axes[0].loglog(N[:-1], np.abs(E[:-1] - E[-1]), "o-", color=colors[family], label=label)
+        floor = 1e-17  # a tail at round-off (0) drawn at the axis' floor
+        axes[1].loglog(N, np.maximum(t["tail_amplitude"], floor), "o-", color=colors[family], label=f"{label}: tail")
+        axes[1].loglog(
+            N, np.maximum(t["outer_amplitude"], floor), "s--", color=colors[family], label=f"{label}: outer quarters"
+        )
+        for row in s["families"][family]:
+            for inst in row["instabilities"] or ():
+                marker = "o" if inst["localized"] else "x"
+                axes[2].loglog(
+                    row["N"], inst["modulus"] - 1.0, marker, color=colors[family], ms=6 if marker == "o" else 4
+                )
+        prof, _ = read_group(out / "data.zarr", f"{family}_profile")
+        z = prof["z"]
+        distance = np.abs(np.arange(len(z)) - len(z) // 2)
+        right = distance[len(z) // 2 :]
+        axes[3].loglog(
+            right + 1, np.maximum(np.abs(z[len(z) // 2 :]), 1e-300), color=colors[family], lw=0.7, label=label
+        )
+    sizes = s["sizes"]
+    axes[0].set(
+        xlabel="N", ylabel="|E(N) - E(N_max)|", title="energy against the largest chain\n(the site breather's: 0)"
+    )
+    axes[1].set(xlabel="N", ylabel="max |u - v|", title="the tail: does it decay with N?\n(round-off drawn at 1e-17)")
+    axes[2].set(xlabel="N", ylabel="|l| - 1", title="instabilities (dense Floquet)\no localized, x extended")
+    axes[3].set(xlabel="sites from the centre + 1", ylabel="|u - v| at t = 0", title=f"profiles at N = {sizes[-1]}")
+    axes[3].set_ylim(1e-12, 1.0)
+    for ax in axes[:3]:
+        ax.set_xticks(sizes, [str(n) for n in sizes], rotation=45, fontsize=7)
+        ax.minorticks_off()
+    axes[0].legend(fontsize=7, loc="upper left")
+    axes[1].legend(fontsize=7, loc="center right")
+    axes[3].legend(fontsize=7, loc="lower left")
+    fig.suptitle(f"finite size: M = {s['M']:g}, w_b = {s['omega']:g}", fontsize=11)
+    save_figure(fig, out, "finite_size")
