@@ -31,6 +31,7 @@ def main():
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--sizes", type=int, nargs="+", default=[201, 401, 801, 1601])
     ap.add_argument("--dense-max", type=int, default=1601, help="largest N solved densely too")
+    ap.add_argument("--plain-max", type=int, default=1601, help="largest N solved without the preconditioner too")
     ap.add_argument("--json", default=None)
     args = ap.parse_args()
     rows = []
@@ -41,7 +42,9 @@ def main():
         p = wc.ChainParams(30.0, 160.0, N)
         seed = ct.nls_seed(p, 1.01)
         k, tk = solve(p, seed, args.device, solver="krylov")
-        plain, tp = solve(p, seed, args.device, solver="krylov", krylov=KrylovSettings(preconditioner="none"))
+        plain, tp = None, None
+        if N <= args.plain_max:
+            plain, tp = solve(p, seed, args.device, solver="krylov", krylov=KrylovSettings(preconditioner="none"))
         row = {
             "N": N,
             "krylov_seconds": tk,
@@ -49,8 +52,8 @@ def main():
             "krylov_energy": k.energy,
             "newton_iterations": k.iterations,
             "gmres_products": k.stats["krylov_iterations"],
-            "unpreconditioned_status": plain.status.value,
-            "unpreconditioned_products": plain.stats["krylov_iterations"],
+            "unpreconditioned_status": plain.status.value if plain else None,
+            "unpreconditioned_products": plain.stats["krylov_iterations"] if plain else None,
             "unpreconditioned_seconds": tp,
         }
         if N <= args.dense_max:
@@ -66,7 +69,7 @@ def main():
         print(
             f"N {N:6d}: krylov {tk:8.3f} s ({k.status.value}, {k.iterations} Newton, "
             f"GMRES {k.stats['krylov_iterations']}; "
-            f"unpreconditioned {plain.stats['krylov_iterations']} {plain.status.value})"
+            + (f"unpreconditioned {plain.stats['krylov_iterations']} {plain.status.value})" if plain else "not run)")
             + (
                 f"; dense {row['dense_seconds']:8.3f} s: {row['speedup']:.1f}x; |dE| {row['energy_difference']:.2e}, "
                 f"max |dx| {row['state_difference']:.2e}"
