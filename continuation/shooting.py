@@ -235,6 +235,8 @@ class PeriodMap:
         self.jacobian, self.fd_step = jacobian, fd_step
         self.solver, self.krylov = solver, krylov or KrylovSettings()
         self.krylov_iterations: list = []  # GMRES matrix-vector products per Newton step (solver "krylov")
+        self.krylov_unconverged = 0  # GMRES solves that missed their tolerance (a dense step replaced them)
+        self.dense_fallback_columns = 0
         n_half, self.dt = flow.grid(omega)
         N = params.N
         if formulation == "reversible":
@@ -319,9 +321,15 @@ class KrylovShootingPoint(ShootingPoint):
         return self.linearization.columns(d)[2 * N :, 0]
 
     def solve(self, r: np.ndarray) -> tuple[np.ndarray, bool]:
+        """Newton's step: GMRES; when it does not reach its tolerance, the dense step instead (the 2N
+        tangent columns and LU, ``newton.solve_linear``), counted in ``pmap.krylov_unconverged``."""
         step, info = gmres_step(self.jvp, r, self.pmap.krylov, self.pmap.preconditioner)
         self.pmap.krylov_iterations.append(info["iterations"])
-        return step, False
+        if info["converged"]:
+            return step, False
+        self.pmap.krylov_unconverged += 1
+        self.pmap.dense_fallback_columns += self.pmap.n_unknowns
+        return solve_linear(self.jacobian(), r)
 
 
 def chord_solver(J0: np.ndarray):
@@ -354,6 +362,15 @@ REST_AMPLITUDE = 1e-6
 #: ``benchmarks/h200-2026-11-25/5a574a7``); the threshold keeps the paper's chains (N <= 401) on the dense
 #: reference path, whose Jacobian continuation and Floquet reuse.
 KRYLOV_MIN_SITES = 1024
+
+
+def auto_solver(params: ChainParams, formulation: str, jacobian: str, hinted: bool, krylov=None) -> str:
+    """``find_breather(solver="auto")``'s choice: ``"krylov"`` for the reversible formulation with the tangent
+    Jacobian and no chord hint, on ``KRYLOV_MIN_SITES`` sites or more, where the linear lattice's preconditioner
+    exists (fixed ends; plain GMRES does not converge on long chains); else ``"dense"``."""
+    matrix_free = formulation == "reversible" and jacobian == "tangent" and not hinted
+    preconditioned = params.boundary == "fixed" and (krylov or KrylovSettings()).preconditioner == "linear"
+    return "krylov" if matrix_free and preconditioned and params.N >= KRYLOV_MIN_SITES else "dense"
 
 
 def find_breather(
@@ -401,8 +418,10 @@ def find_breather(
             converge fast, and forms true Jacobians only when they do not.
         solver: the linear solves of Newton: ``"dense"`` (all 2N tangent columns, LU: the reference),
             ``"krylov"`` (GMRES on Jacobian-vector products with the linear lattice's preconditioner,
-            ``continuation.krylov``; reversible formulation, tangent Jacobian) or ``"auto"`` (krylov from
-            ``KRYLOV_MIN_SITES`` sites on, dense below).
+            ``continuation.krylov``; reversible formulation, tangent Jacobian; a GMRES solve that does not
+            converge is replaced by a dense step, counted in ``stats["krylov_unconverged"]``) or ``"auto"``
+            (krylov from ``KRYLOV_MIN_SITES`` sites on for fixed ends, where the preconditioner exists; dense
+            otherwise).
         krylov: options of the matrix-free solves (``KrylovSettings``).
         log: optional callable receiving one line per iteration.
 
@@ -422,8 +441,7 @@ def find_breather(
     if solver not in ("dense", "krylov", "auto"):
         raise ValueError(f"solver must be 'dense', 'krylov' or 'auto', got {solver!r}")
     if solver == "auto":
-        matrix_free = formulation == "reversible" and jacobian == "tangent" and jacobian_hint is None
-        solver = "krylov" if matrix_free and params.N >= KRYLOV_MIN_SITES else "dense"
+        solver = auto_solver(params, formulation, jacobian, jacobian_hint is not None, krylov)
     if solver == "krylov" and (formulation != "reversible" or jacobian != "tangent"):
         raise ValueError("solver='krylov' solves the reversible formulation with the tangent Jacobian")
     flow = make_flow(flow, method=method, steps_per_period=steps_per_period, dt=dt, omega=omega, device=device)
@@ -476,8 +494,10 @@ def shooting_result(pmap: PeriodMap, outcome: NewtonOutcome, start: float) -> Sh
     lin = ev.linearization if ev is not None and status is not ShootingStatus.INTEGRATION_ERROR else None
     stats = dict(outcome.stats, tangent_columns=outcome.stats["jacobians"] * pmap.n_unknowns)
     if pmap.solver == "krylov":
-        stats.update(solver="krylov", krylov_iterations=list(pmap.krylov_iterations))
-        stats["tangent_columns"] = sum(pmap.krylov_iterations)
+        stats.update(
+            solver="krylov", krylov_iterations=list(pmap.krylov_iterations), krylov_unconverged=pmap.krylov_unconverged
+        )
+        stats["tangent_columns"] = sum(pmap.krylov_iterations) + pmap.dense_fallback_columns
     else:
         stats["solver"] = "dense"
     return ShootingResult(

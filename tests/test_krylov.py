@@ -62,3 +62,25 @@ def test_solver_choice_is_checked(paper_chain):
     with pytest.raises(ValueError, match="eta_min"):
         KrylovSettings(eta_min=0.5, eta_max=0.1)
     assert ct.find_breather(p, 1.01, seed, device="cpu").stats["solver"] == "dense"  # auto: below the crossover
+
+
+def test_auto_goes_matrix_free_only_where_the_preconditioner_exists():
+    from continuation.shooting import KRYLOV_MIN_SITES, auto_solver
+
+    big = KRYLOV_MIN_SITES + 1
+    assert auto_solver(ChainParams(30.0, 160.0, big), "reversible", "tangent", False) == "krylov"
+    assert auto_solver(ChainParams(30.0, 160.0, big - 2), "reversible", "tangent", False) == "dense"
+    for boundary in ("free", "periodic"):  # no preconditioner: plain GMRES does not converge there
+        assert auto_solver(ChainParams(30.0, 160.0, big, boundary), "reversible", "tangent", False) == "dense"
+    assert auto_solver(ChainParams(30.0, 160.0, big), "general", "tangent", False) == "dense"
+    assert auto_solver(ChainParams(30.0, 160.0, big), "reversible", "tangent", True) == "dense"  # a chord hint
+    plain = KrylovSettings(preconditioner="none")
+    assert auto_solver(ChainParams(30.0, 160.0, big), "reversible", "tangent", False, plain) == "dense"
+
+
+def test_an_unconverged_gmres_solve_is_replaced_by_a_dense_step(paper_chain):
+    p = paper_chain
+    starved = KrylovSettings(preconditioner="none", max_iterations=20, restart=20)  # 20 products: not enough
+    b = ct.require(ct.find_breather(p, 1.01, ct.nls_seed(p, 1.01), solver="krylov", krylov=starved, device="cpu"))
+    assert b.stats["krylov_unconverged"] == b.iterations == 4
+    assert b.stats["tangent_columns"] == sum(b.stats["krylov_iterations"]) + 4 * 2 * p.N

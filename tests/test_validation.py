@@ -46,7 +46,7 @@ def test_the_flat_keywords_of_earlier_releases_still_work_with_a_warning():
     with pytest.raises(ValueError, match="given beside guard="):
         wc.simulate(P, X, 1.0, 0.1, device="cpu", chunks=2, guard=wc.Guard(chunks=3))
     with pytest.raises(ValueError, match="give save_every too"):
-        wc.simulate(P, X, 1.0, 0.1, device="cpu", on_chunk=print)
+        wc.simulate(P, X, 1.0, 0.1, device="cpu", frames_out=(np.zeros((11, 1, P.N)), np.zeros((11, 1, P.N))))
     with pytest.raises(TypeError, match="unexpected keyword argument 'save_evry'"):
         wc.simulate(P, X, 1.0, 0.1, device="cpu", save_evry=2)
     with pytest.raises(TypeError, match="record must be a warpchain.Record"):
@@ -103,3 +103,33 @@ def test_an_nls_seed_in_the_acoustic_band_warns():
         warnings.simplefilter("always")
         ct.nls_seed(q, 0.99)
     assert any("acoustic band" in str(w.message) for w in caught)
+
+
+def test_a_flat_keyword_beside_its_option_object_is_refused_and_none_means_the_default():
+    with pytest.raises(ValueError, match="every given beside record="):
+        wc.simulate(P, X, 1.0, 0.1, device="cpu", record=wc.Record(every=1), save_every=5)
+    with pytest.raises(ValueError, match="on_chunk given beside record="):
+        wc.simulate(P, X, 1.0, 0.1, device="cpu", record=wc.Record(every=5), on_chunk=print)
+    with pytest.warns(DeprecationWarning):  # as before: no save_every, nothing recorded, on_chunk never called
+        assert wc.simulate(P, X, 1.0, 0.1, device="cpu", on_chunk=print).u is None
+    run = wc.simulate(P, X, 1.0, 0.1, device="cpu", guard=None, placement=None)  # None: the defaults
+    assert run.nsteps == 10 and run.layout == "thread"
+
+
+def test_overlapping_tuning_overrides_leave_nothing_behind():
+    from warpchain.engine import tuning
+
+    base = tuning.active()
+    a = tuning.override(slices=3)
+    b = tuning.override(max_slices=5)
+    a.__enter__()
+    b.__enter__()
+    a.__exit__(None, None, None)  # out of order, as two threads could
+    assert tuning.active().max_slices == 5
+    b.__exit__(None, None, None)
+    assert tuning.active() == base
+    with pytest.raises(RuntimeError):
+        with tuning.override(chunk_work=7):
+            assert tuning.active().chunk_work == 7
+            raise RuntimeError
+    assert tuning.active() == base

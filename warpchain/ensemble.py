@@ -196,6 +196,8 @@ def simulate(
     """
     if deprecated:
         record, guard, placement = from_legacy(deprecated, record, guard, placement)
+    guard = Guard() if guard is None else guard
+    placement = Placement() if placement is None else placement
     for name, value, cls in (("record", record, Record), ("guard", guard, Guard), ("placement", placement, Placement)):
         if value is not None and not isinstance(value, cls):
             raise TypeError(f"simulate(): {name} must be a warpchain.{cls.__name__}, got {type(value).__name__}")

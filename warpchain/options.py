@@ -118,18 +118,19 @@ def from_legacy(legacy: dict, record: Record | None, guard: Guard, placement: Pl
         fields[cls][field] = value
     hints = []
     given = {Record: record, Guard: guard, Placement: placement}
+    defaults = {Record: None, Guard: Guard(), Placement: Placement()}  # simulate's own defaults
     for cls, values in fields.items():
         if not values:
             continue
-        if cls is Record and values.get("every") is None:
-            if any(v is not None for v in values.values()):
-                raise ValueError("frames_out and on_chunk receive recorded frames: give save_every too")
-            continue  # save_every=None: nothing is recorded, as before
         current = given[cls]
-        default = cls(every=1) if cls is Record else cls()
-        if current is not None and current != default:
+        if current is not None and current != defaults[cls]:
             raise ValueError(f"{', '.join(values)} given beside {cls.__name__.lower()}=: give one of them")
-        given[cls] = dataclasses.replace(default, **values)
+        if cls is Record and values.get("every") is None:
+            if values.get("into") is not None:
+                raise ValueError("frames_out receives recorded frames: give save_every too")
+            continue  # no save_every: nothing is recorded and an on_chunk is never called, as before
+        base = Record(every=values["every"]) if cls is Record else current
+        given[cls] = dataclasses.replace(base, **values)
         hints.append(f"{cls.__name__.lower()}={cls.__name__}({', '.join(f'{k}=...' for k in values)})")
     warnings.warn(
         f"{caller}(): {', '.join(sorted(legacy))} are deprecated; use {'; '.join(hints) or 'nothing (defaults)'}",

@@ -193,9 +193,9 @@ class _SlicedTransfers:
 def frame_buffers(
     params: ChainParams, batch: int, t_final: float, dt: float, save_every: int, *, device: str | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Host arrays (u, v) for ``simulate(..., frames_out=...)``, each (n_saved, batch, N) float64 with
-    n_saved = 1 + nsteps // save_every, as ``simulate`` records with the same ``t_final``, ``dt`` and
-    ``save_every``.
+    """Host arrays (u, v) for ``simulate(..., record=Record(every=save_every, into=...))``, each
+    (n_saved, batch, N) float64 with n_saved = 1 + nsteps // save_every, as ``simulate`` records with the same
+    ``t_final``, ``dt`` and ``save_every``.
 
     On a GPU they are page-locked (pinned): ``simulate`` then copies each chunk's frames from the device
     straight into them, at the bus's rate, instead of through staging buffers and host copies (which
@@ -220,7 +220,7 @@ def frame_buffers(
 
 def _pinned_view(arr: np.ndarray):
     """(pinned Warp array, offset in values) when ``arr`` views page-locked Warp host memory (as the arrays
-    of ``frame_buffers`` and the results ``simulate`` lends do), else None. Only a C-contiguous float64 view
+    of ``frame_buffers`` do), else None. Only a C-contiguous float64 view
     qualifies: the copies read and write it as one run of values from the offset."""
     if arr.dtype != np.float64 or not arr.flags.c_contiguous:
         return None

@@ -103,7 +103,9 @@ class Tuning:
 
 
 _LOCK = threading.Lock()
-_ACTIVE = Tuning()
+_DEFAULT = Tuning()
+_STACK: list = []  # the overrides in force, innermost last
+_ACTIVE = _DEFAULT
 
 
 def active() -> Tuning:
@@ -113,14 +115,26 @@ def active() -> Tuning:
 
 @contextlib.contextmanager
 def override(tuning: Tuning | None = None, **changes):
-    """Use ``tuning`` (default: the active settings) with ``changes`` inside the ``with`` block; the previous
-    settings come back on exit. Process-wide: meant for tests and benchmarks, not for concurrent callers."""
+    """Use ``tuning`` (default: the active settings) with ``changes`` inside the ``with`` block.
+
+    Process-wide (the engine's worker threads see it too): meant for tests and benchmarks. Overrides nest;
+    on exit an override leaves the stack, and the innermost one still in force (or the defaults) applies, so
+    overlapping overrides from several threads never leave a stale value behind once all have exited (while
+    they overlap, each sees the settings of the innermost). A replayed CUDA graph keeps the launches it
+    captured: an override changes what later captures and launches do, not earlier graphs (same bits
+    either way, only the speed differs)."""
     global _ACTIVE
     with _LOCK:
-        previous = _ACTIVE
-        _ACTIVE = (tuning or previous).replace(**changes)
+        mine = (tuning or _ACTIVE).replace(**changes)
+        _STACK.append(mine)
+        _ACTIVE = mine
     try:
-        yield _ACTIVE
+        yield mine
     finally:
         with _LOCK:
-            _ACTIVE = previous
+            # the last entry that is this very object (an equal Tuning of another override is not ours)
+            for i in range(len(_STACK) - 1, -1, -1):
+                if _STACK[i] is mine:
+                    del _STACK[i]
+                    break
+            _ACTIVE = _STACK[-1] if _STACK else _DEFAULT
