@@ -65,6 +65,12 @@ class KrylovSettings:
             raise ValueError(f"need 0 < eta_min <= eta_max < 1, got {self.eta_min}, {self.eta_max}")
 
 
+def preconditioned(boundary: str, settings: "KrylovSettings") -> bool:
+    """Whether the linear lattice's preconditioner exists for this boundary and these settings (fixed ends,
+    ``preconditioner="linear"``): the one rule ``find_breather``'s ``auto`` choice and the period map share."""
+    return boundary == "fixed" and settings.preconditioner == "linear"
+
+
 class LinearLatticePreconditioner:
     """P ~ J^-1 from the linear lattice's half-period map in the sine basis (module docstring), as a
     ``scipy.sparse.linalg.LinearOperator`` on vectors (u, v) of length 2N."""

@@ -31,7 +31,7 @@ import scipy.linalg
 from warpchain import ChainParams, Flow, band_edges, energy
 from warpchain.model import accelerations, as_batch, real_number
 
-from .krylov import KrylovSettings, LinearLatticePreconditioner, gmres_step
+from .krylov import KrylovSettings, LinearLatticePreconditioner, gmres_step, preconditioned
 from .newton import NewtonOutcome, NewtonSettings, ShootingStatus, newton, solve_linear
 
 # the cheapest at the accuracy breathers need (work-precision scene, smooth case): kahan8 with 32
@@ -236,14 +236,13 @@ class PeriodMap:
         self.solver, self.krylov = solver, krylov or KrylovSettings()
         self.krylov_iterations: list = []  # GMRES matrix-vector products per Newton step (solver "krylov")
         self.krylov_unconverged = 0  # GMRES solves that missed their tolerance (a dense step replaced them)
-        self.dense_fallback_columns = 0
         n_half, self.dt = flow.grid(omega)
         N = params.N
         if formulation == "reversible":
             self.nsteps = n_half
             self.n_unknowns = 2 * N
             self.preconditioner = None
-            if solver == "krylov" and self.krylov.preconditioner == "linear" and params.boundary == "fixed":
+            if solver == "krylov" and preconditioned(params.boundary, self.krylov):
                 half_period = self.nsteps * self.dt
                 self.preconditioner = LinearLatticePreconditioner(
                     params.M, params.K, N, half_period, self.krylov.regularization
@@ -328,7 +327,6 @@ class KrylovShootingPoint(ShootingPoint):
         if info["converged"]:
             return step, False
         self.pmap.krylov_unconverged += 1
-        self.pmap.dense_fallback_columns += self.pmap.n_unknowns
         return solve_linear(self.jacobian(), r)
 
 
@@ -369,8 +367,8 @@ def auto_solver(params: ChainParams, formulation: str, jacobian: str, hinted: bo
     Jacobian and no chord hint, on ``KRYLOV_MIN_SITES`` sites or more, where the linear lattice's preconditioner
     exists (fixed ends; plain GMRES does not converge on long chains); else ``"dense"``."""
     matrix_free = formulation == "reversible" and jacobian == "tangent" and not hinted
-    preconditioned = params.boundary == "fixed" and (krylov or KrylovSettings()).preconditioner == "linear"
-    return "krylov" if matrix_free and preconditioned and params.N >= KRYLOV_MIN_SITES else "dense"
+    exists = preconditioned(params.boundary, krylov or KrylovSettings())
+    return "krylov" if matrix_free and exists and params.N >= KRYLOV_MIN_SITES else "dense"
 
 
 def find_breather(
@@ -497,7 +495,7 @@ def shooting_result(pmap: PeriodMap, outcome: NewtonOutcome, start: float) -> Sh
         stats.update(
             solver="krylov", krylov_iterations=list(pmap.krylov_iterations), krylov_unconverged=pmap.krylov_unconverged
         )
-        stats["tangent_columns"] = sum(pmap.krylov_iterations) + pmap.dense_fallback_columns
+        stats["tangent_columns"] = sum(pmap.krylov_iterations) + pmap.krylov_unconverged * pmap.n_unknowns
     else:
         stats["solver"] = "dense"
     return ShootingResult(

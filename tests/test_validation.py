@@ -114,6 +114,9 @@ def test_a_flat_keyword_beside_its_option_object_is_refused_and_none_means_the_d
         assert wc.simulate(P, X, 1.0, 0.1, device="cpu", on_chunk=print).u is None
     run = wc.simulate(P, X, 1.0, 0.1, device="cpu", guard=None, placement=None)  # None: the defaults
     assert run.nsteps == 10 and run.layout == "thread"
+    with pytest.warns(DeprecationWarning):  # None beside a flat keyword of the same option: the default plus it
+        run = wc.simulate(P, X, 1.0, 0.1, device="cpu", guard=None, chunks=2, placement=None, layout="thread")
+    assert run.stats["chunks"] == 2 and run.layout == "thread"
 
 
 def test_overlapping_tuning_overrides_leave_nothing_behind():

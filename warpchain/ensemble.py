@@ -194,10 +194,10 @@ def simulate(
         StepSizeError: dt above the linear stability limit.
         IntegrationError: the state became non-finite or the energy error exceeded its bound.
     """
+    guard = Guard() if guard is None else guard  # None means the defaults, also beside a flat keyword
+    placement = Placement() if placement is None else placement
     if deprecated:
         record, guard, placement = from_legacy(deprecated, record, guard, placement)
-    guard = Guard() if guard is None else guard
-    placement = Placement() if placement is None else placement
     for name, value, cls in (("record", record, Record), ("guard", guard, Guard), ("placement", placement, Placement)):
         if value is not None and not isinstance(value, cls):
             raise TypeError(f"simulate(): {name} must be a warpchain.{cls.__name__}, got {type(value).__name__}")

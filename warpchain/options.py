@@ -118,12 +118,11 @@ def from_legacy(legacy: dict, record: Record | None, guard: Guard, placement: Pl
         fields[cls][field] = value
     hints = []
     given = {Record: record, Guard: guard, Placement: placement}
-    defaults = {Record: None, Guard: Guard(), Placement: Placement()}  # simulate's own defaults
     for cls, values in fields.items():
         if not values:
             continue
         current = given[cls]
-        if current is not None and current != defaults[cls]:
+        if current is not None and current != (None if cls is Record else cls()):  # not simulate's default
             raise ValueError(f"{', '.join(values)} given beside {cls.__name__.lower()}=: give one of them")
         if cls is Record and values.get("every") is None:
             if values.get("into") is not None:
