@@ -272,7 +272,14 @@ class Flow:
             return out
 
         def columns(directions):
-            return propagate(lambda dx: dx.assign(directions), len(directions))
+            """Through a host buffer of the directions' size kept with the runner (page-locked on a GPU), so that
+            the copy in is part of the replay: a Krylov solver's products, one column at a time, are one graph
+            launch each from the second on (on the sites layout a half period is ~240 launches)."""
+            count = len(directions)
+            staged = runner.host_buffer("directions", directions.size)
+            with lock:  # reentrant; the last replay that read the buffer has finished (``propagate`` synchronises)
+                staged.numpy()[:] = np.asarray(directions, dtype=np.float64).ravel()
+                return propagate(lambda dx: wp.copy(dx, staged, count=dx.size), count, key=("directions", count))
 
         def unit(first, count):
             with lock:  # made once on the device: an allocation, never inside another thread's capture

@@ -19,7 +19,7 @@ import numpy as np
 
 from .model import real_number, whole_number
 
-LAYOUTS = ("auto", "block", "thread")
+LAYOUTS = ("auto", "block", "sites", "thread")
 
 
 @dataclasses.dataclass(frozen=True)

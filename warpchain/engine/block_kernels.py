@@ -577,7 +577,8 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
         contact: wp.array(dtype=wp.float64),
         out: wp.array2d(dtype=wp.float64),
     ):
-        """``kernels.guard_kernel`` with a block per lattice (coalesced reads, block reductions)."""
+        """``kernels.guard_kernel`` with a block per lattice (coalesced reads, block reductions); a lattice
+        longer than the block (the ``"sites"`` layout) has each thread take sites j, j + block, ..."""
         b, j = wp.tid()
         n = x.shape[2]
         active = j < n
@@ -592,6 +593,16 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             low = (ONE + state[0]) - state[1]
             for r in range(n_rec):
                 low = wp.min(low, (ONE + rec_u[r, b, j]) - rec_v[r, b, j])
+        site = j + wp.static(threads)
+        while site < n:
+            state = load_site(x, b, site, True)
+            right = x[b, 0, (site + 1) % n]
+            e = e + site_energy(state[0], state[1], state[2], state[3], right, site, n, boundary, mass[b], coupling[b])
+            finite = wp.min(finite, finite_state(state[0], state[1], state[2], state[3]))
+            low = wp.min(low, (ONE + state[0]) - state[1])
+            for r in range(n_rec):
+                low = wp.min(low, (ONE + rec_u[r, b, site]) - rec_v[r, b, site])
+            site += wp.static(threads)
         total = wp.tile_sum(wp.tile(e))
         all_finite = wp.tile_min(wp.tile(finite))
         lowest = wp.tile_min(wp.tile(low))

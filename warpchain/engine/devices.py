@@ -204,20 +204,29 @@ def _in_parallel(tasks) -> None:
         raise errors[0]
 
 
-def resolve_layout(layout: str, device: str, n_sites: int) -> str:
-    """Kernel layout: ``"block"`` (a thread block per lattice, a thread per site: the GPU path) or
-    ``"thread"`` (a thread per lattice: the CPU path). ``"auto"`` picks block on a GPU when the
-    lattice fits one block, thread otherwise."""
+def resolve_layout(layout: str, device: str, n_sites: int, method=None) -> str:
+    """Kernel layout: ``"block"`` (a thread block per lattice: the GPU path), ``"sites"`` (a thread per site, a
+    launch per force evaluation: the GPU path for lattices longer than a block, splitting methods) or
+    ``"thread"`` (a thread per lattice: the CPU path). ``"auto"`` picks block on a GPU when the lattice fits
+    one block, else sites on a GPU for a splitting ``method``, else thread (a None method: no sites)."""
+    from ..integrators import SplittingMethod
     from . import block_kernels
 
     if layout not in LAYOUTS:
         raise ValueError(f"layout must be one of {LAYOUTS}, got {layout!r}")
+    splitting = isinstance(method, SplittingMethod)
     if layout == "auto":
-        return "block" if device != "cpu" and block_kernels.supports(n_sites) else "thread"
+        if device == "cpu":
+            return "thread"
+        if block_kernels.supports(n_sites):
+            return "block"
+        return "sites" if splitting else "thread"
     if layout == "block" and not block_kernels.supports(n_sites):
         raise ValueError(
             f"layout 'block' needs N <= {block_kernels.MAX_BLOCK} (one site per thread), got N = {n_sites}"
         )
+    if layout == "sites" and method is not None and not splitting:
+        raise ValueError(f"layout 'sites' runs the splitting methods; {method.name!r} is not one")
     return layout
 
 

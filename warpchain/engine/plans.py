@@ -197,11 +197,57 @@ class _ThreadRungeKutta(_Plan):
         wp.launch(self.kernels.rk4_tangent_kernel, dim=hi - lo, device=r.device, inputs=inputs)
 
 
+class _SitesSplitting(_Plan):
+    """A thread per site and one launch per force evaluation (``site_kernels``): lattices longer than a block,
+    a splitting method. The u of the next evaluation goes to a scratch row and back (ping-pong)."""
+
+    def __init__(self, runner):
+        super().__init__(runner)
+        from . import site_kernels
+
+        self.kernels = site_kernels
+        self.sequences = {}
+
+    def evaluations(self, dt: float, nsteps: int, save_every: int) -> list:
+        key = (dt, nsteps, save_every)
+        if key not in self.sequences:
+            m = self.r.method
+            self.sequences = {key: self.kernels.evaluations(m.drifts, m.kicks, dt, nsteps, save_every)}
+        return self.sequences[key]
+
+    def run(self, x, lo, hi, dt, nsteps, save_every, frames, tangent, column_base, record, parameters, losses):
+        r, sk = self.r, self.kernels
+        scratch = _parts(lo, hi, self.kept("u", (x.shape[0], 1, r.N)))[0]
+        x = _parts(lo, hi, x)[0]
+        src, src_row = x, 0
+        for e in self.evaluations(dt, nsteps, save_every):
+            dst, dst_row = (scratch, 0) if src is x else (x, 0)
+            drift = (sk.KEEP if src is x else sk.COPY) if e["last"] else sk.DRIFT
+            inputs = [x, src, src_row, dst, dst_row, column_base, *parameters, r.boundary, int(tangent), e["slot"]]
+            inputs += [r.hist, int(record), e["kick"], e["h_kick"], e["pre"], e["h_pre"], drift, e["c"]]
+            inputs += [e["save_row"], *frames, *losses]
+            r.launch_kernel(sk.evaluate, (hi - lo, r.N), inputs)
+            src, src_row = dst, dst_row
+
+    def step(self, lo, hi, dt, nsteps, save_every, frames, record):
+        r = self.r
+        parameters = _parts(lo, hi, r.inv_mass, r.coupling)
+        self.run(r.x, lo, hi, dt, nsteps, save_every, frames, 0, r.no_base, record, parameters, r.losses(lo, hi))
+
+    def tangent(self, dx, column_base, lo, hi, dt, nsteps):
+        r = self.r
+        none = [r.no_record, r.no_record]
+        base = _parts(lo, hi, column_base)[0]
+        losses = [r.lossy, r.no_damp]
+        self.run(dx, lo, hi, dt, nsteps, 0, none, 1, base, False, [r.inv_mass, r.coupling], losses)
+
+
 _PLANS = {
     ("block", SplittingMethod): _BlockSplitting,
     ("block", RungeKuttaMethod): _BlockRungeKutta,
     ("thread", SplittingMethod): _ThreadSplitting,
     ("thread", RungeKuttaMethod): _ThreadRungeKutta,
+    ("sites", SplittingMethod): _SitesSplitting,
 }
 
 

@@ -71,15 +71,16 @@ class _Runner:
 
         self.wp, self.k, self.method, self.device = wp, kernels, method, device
         self.batch, _, self.N = x0.shape
-        self.layout = resolve_layout(layout, device, self.N)
-        if self.layout == "block":
-            self.block = block_kernels.block_size(self.N)
+        self.layout = resolve_layout(layout, device, self.N, method)
+        if self.layout in ("block", "sites"):
+            # the sites layout's guard: the block guard of a full block, each thread summing several sites
+            self.block = block_kernels.block_size(min(self.N, block_kernels.MAX_BLOCK))
             self.bk = block_kernels.block_kernels(self.block, block_kernels.min_blocks_per_sm(method.stages))
             if device == "cpu":
                 # run the block's threads as cooperative fibers (Warp's experimental CPU blocks)
                 wp.config.enable_cpu_blocks = True
         # CPU fiber blocks crash when launched from several Python threads at once: one launch
-        self.serial = self.layout == "block" and device == "cpu"
+        self.serial = self.layout in ("block", "sites") and device == "cpu"
         self.boundary = BOUNDARY_CODES[params.boundary]
         f64 = wp.float64
         # pinned host staging of the state (made on first use), and the event after the last copy from each
@@ -93,6 +94,7 @@ class _Runner:
         self._parameters_held = (np.array(M, dtype=np.float64), np.array(K, dtype=np.float64))  # what M, K hold
         self.plan = _plan_for(self.layout, method)(self)
         self.no_record = wp.zeros((1, 1, 1), dtype=f64, device=device)
+        self.no_base = wp.zeros(1, dtype=wp.int32, device=device)
         if record_stiffness_steps:
             self.hist = wp.zeros(
                 (self.history_length(record_stiffness_steps), self.batch, self.N), dtype=f64, device=device
@@ -238,7 +240,7 @@ class _Runner:
         out = self.guard_out[slot if slot == 2 else slot % 2]
         inputs = [*_parts(lo, hi, self.x, self.mass, self.coupling), self.boundary, ru, rv, int(n_rec)]
         inputs += _parts(lo, hi, self.contact, out)
-        if self.layout == "block":
+        if self.layout in ("block", "sites"):
             self.launch_kernel(self.bk.guard, (hi - lo, self.block), inputs, self.block)
         else:
             self.launch_kernel(self.k.guard_kernel, hi - lo, inputs)
@@ -326,7 +328,7 @@ def _pooled_runner(
     is out of the pool, so concurrent calls never share one."""
     if device == "cpu":
         return _Runner(method, params, x0, M, K, device, layout=layout, upload=upload)
-    key = (method, params.N, params.boundary, x0.shape[0], device, resolve_layout(layout, device, params.N))
+    key = (method, params.N, params.boundary, x0.shape[0], device, resolve_layout(layout, device, params.N, method))
     with _STAGING_LOCK:
         free = _RUNNER_POOL.get(key)
         runner = free.pop() if free else None
