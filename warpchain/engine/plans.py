@@ -223,7 +223,8 @@ class _SitesSplitting(_Plan):
         for e in self.evaluations(dt, nsteps, save_every):
             dst, dst_row = (scratch, 0) if src is x else (x, 0)
             drift = (sk.KEEP if src is x else sk.COPY) if e["last"] else sk.DRIFT
-            inputs = [x, src, src_row, dst, dst_row, column_base, *parameters, r.boundary, int(tangent), e["slot"]]
+            slot = e["slot"] if record or tangent else 0  # unused otherwise: repeated launches share a kept command
+            inputs = [x, src, src_row, dst, dst_row, column_base, *parameters, r.boundary, int(tangent), slot]
             inputs += [r.hist, int(record), e["kick"], e["h_kick"], e["pre"], e["h_pre"], drift, e["c"]]
             inputs += [e["save_row"], *frames, *losses]
             r.launch_kernel(sk.evaluate, (hi - lo, r.N), inputs)
