@@ -57,6 +57,13 @@ class Parameters:
     )
     floquet_sites: int = param(801, "dense Floquet analysis up to this many sites (its cost grows like N^3)", ge=0)
     tail_distance: int = param(60, "the tail: sites further than this from the centre", ge=1)
+    foam_sizes: tuple[int, ...] = param(
+        (201, 401, 801), "chain lengths of the K-branch foam scan (dense Floquet at every point); () skips it", ge=31
+    )
+    foam_K: tuple[float, ...] = param(
+        (2.0, 4.0), "the stretch of the site family's K-branch scanned", gt=0.01, length=(2, 2)
+    )
+    foam_points: int = param(200, "couplings of the scan, log-spaced over foam_K (the same at every N)", ge=2)
 
     RULES = (
         Rule(
@@ -69,10 +76,18 @@ class Parameters:
             "tail_distance < sizes[0] / 2: the tail lies inside the smallest chain",
             lambda P: 2 * P.tail_distance < P.sizes[0],
         ),
+        Rule(("foam_K",), "foam_K[0] < foam_K[1]", lambda P: P.foam_K[0] < P.foam_K[1]),
+        Rule(("foam_sizes",), "foam_sizes odd", lambda P: all(n % 2 == 1 for n in P.foam_sizes)),
     )
 
 
-QUICK = {"sizes": (101, 201, 401), "floquet_sites": 201, "tail_distance": 30}
+QUICK = {
+    "sizes": (101, 201, 401),
+    "floquet_sites": 201,
+    "tail_distance": 30,
+    "foam_sizes": (101, 201),
+    "foam_points": 24,
+}
 
 
 FAMILIES = ("paper", "site")
@@ -84,17 +99,63 @@ def _pad(state: np.ndarray, N: int) -> np.ndarray:
     return np.pad(state, ((0, 0), (pad, pad)))
 
 
-def _site_breather(P: Parameters, N: int, device: str, ctx) -> np.ndarray:
-    """The site family's breather at K = site_K on N sites, continued in K from the anti-continuum limit."""
+def _site_breather(K: float, N: int, device: str, ctx) -> np.ndarray:
+    """The site family's breather at coupling K on N sites, continued in K from the anti-continuum limit."""
     p = ChainParams(PAPER_M, 0.01, N)
     flow = Flow(BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD, device=device)
-    problem = NaturalParameter(p, PAPER_OMEGA, anticontinuum_seed(p, PAPER_OMEGA), K_end=P.site_K, flow=flow)
+    problem = NaturalParameter(p, PAPER_OMEGA, anticontinuum_seed(p, PAPER_OMEGA), K_end=K, flow=flow)
     branch = continuation(problem, ContinuationSettings(ds=0.15, ds_max=0.3, floquet=False))
     last = branch.points[-1]
-    if abs(last.K - P.site_K) > 1e-9 * P.site_K:
+    if abs(last.K - K) > 1e-9 * K:
         raise RuntimeError(f"the site family's continuation stopped at K = {last.K:.6g}: {branch.message}")
-    ctx.log("site family: continued to K = %g in %d points", P.site_K, len(branch.points))
+    ctx.log("site family: continued to K = %g on N = %d in %d points", K, N, len(branch.points))
     return last.state
+
+
+def _foam(P: Parameters, N: int, ctx) -> dict:
+    """The site family's K-branch over ``foam_K`` on N sites, sampled at ``foam_points`` log-spaced couplings
+    (each solved from the previous one, then dense Floquet): whether each point is stable, its largest modulus
+    and how many of its instabilities are extended (finite-size) or localized. A fixed grid, the same at every
+    N, rather than the continuation driver's adaptive steps: the unstable fraction is then a sample mean that
+    no step control biases (a step can cross a bubble narrower than itself)."""
+    grid = np.geomspace(P.foam_K[0], P.foam_K[1], P.foam_points)
+    state = _site_breather(float(grid[0]), N, ctx.device, ctx)
+    stable, modulus, extended, localized = [], [], [], []
+    for K in grid:
+        b = require(
+            find_breather(
+                ChainParams(PAPER_M, float(K), N),
+                PAPER_OMEGA,
+                state,
+                method=BREATHER_METHOD,
+                steps_per_period=BREATHER_STEPS_PER_PERIOD,
+                device=ctx.device,
+            )
+        )
+        state = b.state
+        fl = floquet(b)
+        stable.append(bool(fl.stable))
+        modulus.append(float(fl.max_modulus))
+        extended.append(sum(not i.localized for i in fl.instabilities))
+        localized.append(sum(bool(i.localized) for i in fl.instabilities))
+    stable = np.array(stable)
+    unstable_moduli = np.array(modulus)[~stable] - 1.0
+    row = {
+        "N": N,
+        "unstable_fraction": float(np.mean(~stable)),
+        "stability_changes": int(np.count_nonzero(stable[1:] != stable[:-1])),
+        "largest_modulus_minus_one": float(max(modulus) - 1.0),
+        "median_unstable_modulus_minus_one": float(np.median(unstable_moduli)) if unstable_moduli.size else 0.0,
+        "points_with_localized_instabilities": int(np.count_nonzero(localized)),
+    }
+    ctx.log(
+        "foam N = %5d: K in [%g, %g], %d points: unstable fraction %.3f, %d stability changes, largest |l| - 1 %.3e",
+        N, P.foam_K[0], P.foam_K[1], len(grid), row["unstable_fraction"], row["stability_changes"],
+        row["largest_modulus_minus_one"],
+    )  # fmt: skip
+    columns = {"K": grid, "stable": stable.astype(np.int8), "max_modulus": np.array(modulus)}
+    columns |= {"extended_instabilities": np.array(extended), "localized_instabilities": np.array(localized)}
+    return row, columns
 
 
 def _tails(state: np.ndarray, distance: int) -> tuple[float, float]:
@@ -115,7 +176,9 @@ def run(ctx: Context) -> dict:
         for N in P.sizes:
             params = ChainParams(PAPER_M, K, N)
             if state is None:
-                seed = nls_seed(params, PAPER_OMEGA) if family == "paper" else _site_breather(P, N, ctx.device, ctx)
+                seed = (
+                    nls_seed(params, PAPER_OMEGA) if family == "paper" else _site_breather(P.site_K, N, ctx.device, ctx)
+                )
             else:
                 seed = _pad(state, N)
             b = require(
@@ -171,7 +234,12 @@ def run(ctx: Context) -> dict:
         families[family] = rows
         profiles[family] = state
 
+    foam = [_foam(P, N, ctx) for N in P.foam_sizes]
+
     root = ctx.store(ChainParams(PAPER_M, PAPER_K, P.sizes[-1]))
+    for row, columns in foam:
+        attrs = {"N": row["N"], "omega": PAPER_OMEGA, "note": "the site family's K-branch on a fixed grid"}
+        write_table(root, f"foam_N{row['N']}", columns, dim="point", attrs=attrs)
     for family, rows in families.items():
         write_table(
             root,
@@ -196,6 +264,17 @@ def run(ctx: Context) -> dict:
             attrs={"N": len(z), "note": "u - v at t = 0 of the largest chain"},
         )
     summary = {"M": PAPER_M, "omega": PAPER_OMEGA, "sizes": list(P.sizes), "families": families}
+    summary["foam"] = {"K": list(P.foam_K), "points": P.foam_points, "sizes": [row for row, _ in foam]}
+    if len(foam) >= 2:  # how the foam thins with N: the unstable fraction's and the largest modulus' slopes
+        Ns = np.log([row["N"] for row, _ in foam])
+        fraction = np.array([row["unstable_fraction"] for row, _ in foam])
+        largest = np.array([row["largest_modulus_minus_one"] for row, _ in foam])
+        summary["foam"]["unstable_fraction_slope"] = (
+            float(np.polyfit(Ns, np.log(fraction), 1)[0]) if np.all(fraction > 0) else None
+        )
+        summary["foam"]["largest_modulus_slope"] = (
+            float(np.polyfit(Ns, np.log(largest), 1)[0]) if np.all(largest > 1e-12) else None
+        )
     for family, rows in families.items():
         E = np.array([r["energy"] for r in rows])
         tails = np.array([r["outer_amplitude"] for r in rows])
@@ -213,7 +292,12 @@ def run(ctx: Context) -> dict:
 def plot(out) -> None:
     s = read_summary(out)
     plt = pyplot()
-    fig, axes = plt.subplots(1, 4, figsize=(18, 4.2), layout="constrained")
+    foam = s.get("foam", {}).get("sizes", [])
+    fig = plt.figure(figsize=(18, 8.4 if foam else 4.2), layout="constrained")
+    grid = fig.add_gridspec(2 if foam else 1, 4)
+    axes = [fig.add_subplot(grid[0, i]) for i in range(4)]
+    if foam:
+        _plot_foam(out, s, fig.add_subplot(grid[1, :2]), fig.add_subplot(grid[1, 2]), fig.add_subplot(grid[1, 3]))
     colors = {"paper": "C0", "site": "C3"}
     labels = {"paper": f"paper breather (K = {PAPER_K:g})", "site": "site breather (K = {:g})"}
     for family in FAMILIES:
@@ -255,3 +339,32 @@ def plot(out) -> None:
     axes[3].legend(fontsize=7, loc="lower left")
     fig.suptitle(f"finite size: M = {s['M']:g}, w_b = {s['omega']:g}", fontsize=11)
     save_figure(fig, out, "finite_size")
+
+
+def _plot_foam(out, s, strips, fraction, largest) -> None:
+    """The K-branch foam: where the grid's points are unstable at each N, and how the unstable fraction and the
+    largest modulus scale with N."""
+    import matplotlib.ticker
+
+    rows = s["foam"]["sizes"]
+    for i, row in enumerate(rows):
+        t, _ = read_group(out / "data.zarr", f"foam_N{row['N']}")
+        K, unstable = t["K"], t["stable"] == 0
+        strips.scatter(K[~unstable], np.full((~unstable).sum(), i), s=4, color="0.75", lw=0)
+        strips.scatter(K[unstable], np.full(unstable.sum(), i), s=10, color="C3", lw=0)
+    strips.set_yticks(range(len(rows)), [f"N = {row['N']}" for row in rows])
+    strips.set_ylim(-0.6, len(rows) - 0.4)
+    lo, hi = s["foam"]["K"]
+    strips.set(xlabel="K", title=f"site family, K in [{lo:g}, {hi:g}], {s['foam']['points']} points: unstable (red)")
+    Ns = [row["N"] for row in rows]
+    fraction.loglog(Ns, [max(row["unstable_fraction"], 1e-3) for row in rows], "o-", color="C3")
+    fraction.set(xlabel="N", ylabel="unstable fraction of the grid", title="the foam's unstable fraction")
+    largest.loglog(Ns, [row["largest_modulus_minus_one"] for row in rows], "o-", color="C3", label="largest")
+    largest.loglog(Ns, [row["median_unstable_modulus_minus_one"] or np.nan for row in rows], "s--", color="C1",
+                   label="median of the unstable points")  # fmt: skip
+    largest.set(xlabel="N", ylabel="|l| - 1", title="the foam's moduli")
+    largest.legend(fontsize=7, loc="lower left")
+    for ax in (fraction, largest):
+        ax.set_xticks(Ns, [str(n) for n in Ns])
+        ax.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
+        ax.grid(True, which="both", lw=0.3, alpha=0.5)

@@ -79,7 +79,7 @@ class SimulationResult:
         energy_t, energy_trace: times of the chunk ends and the energy of each lattice there,
             shapes (n_chunks + 1,) and (n_chunks + 1, batch) (the t = 0 value first).
         method, dt, nsteps, t_final, device, wall_seconds: how it ran (dt is the step used).
-        layout: the kernel layout that ran (``"block"`` or ``"thread"``).
+        layout: the kernel layout that ran (``"block"``, ``"sites"`` or ``"thread"``).
         stats: where the wall time went, host clock (seconds): ``setup`` (checks, buffers, the start's
             upload, until the first chunk is queued; ``runner`` of it: the device buffers taken from the
             pool and loaded with the batch's parameters), ``waiting`` (the host blocked on the device's

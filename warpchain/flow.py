@@ -123,7 +123,7 @@ class Flow:
         steps_per_period: steps in one period of the orbit (even: the half period is a whole
             number of steps).
         device: ``"cpu"``, ``"cuda"``, ``"cuda:N"`` or None (CUDA when Warp sees a GPU).
-        layout: kernel layout (``"auto"``, ``"block"``, ``"thread"``).
+        layout: kernel layout (``"auto"``, ``"block"``, ``"sites"``, ``"thread"``; ``warpchain.Placement``).
     """
 
     method: str = "kahan8"

@@ -10,9 +10,11 @@ Modules:
 - ``plans``: what one (layout, method type) launches, and the rules choosing a kernel variant.
 - ``runner``: device buffers of one batch, launches replayed as CUDA graphs or kept commands, the guard.
 - ``thread_kernels`` and ``thread_rk4_kernels`` (a thread per lattice: the CPU path), ``block_kernels`` (a
-  thread block per lattice, a thread per site) and ``site_group_kernels`` (a thread per run of sites: the GPU
-  path for large batches) hold the kernels; ``observe_kernels`` the step loops with frame reductions of
-  ``warpchain.observe``; ``warpchain.reference`` is their numpy oracle.
+  thread block per lattice, a thread per site), ``site_group_kernels`` (a thread per run of sites: the GPU
+  path for large batches) and ``site_kernels`` (the ``"sites"`` layout: a thread per site and a launch per
+  force evaluation, for lattices longer than a block; its one kernel serves base runs and tangent columns)
+  hold the kernels; ``observe_kernels`` the step loops with frame reductions of ``warpchain.observe``;
+  ``warpchain.reference`` is their numpy oracle.
 
 How the state moves (measured on an H100, ``benchmarks/h100-2026-11-25/engine-split``): through pinned
 staging buffers (``hostmem``), in lattice slices overlapped with the first and last chunk for large batches,
@@ -37,6 +39,11 @@ Adding a boundary that changes the wall values (like fixed or free ends), in 3 f
 
 A boundary that wraps like the ring also needs the neighbour indices of ``block_kernels.site_neighbours``, and
 ``observe.site_energies`` repeats the wall bonds on the host (until observe is folded into the engine).
-The tests over ``BOUNDARIES`` (``tests/test_gpu_engine.py``, ``tests/test_integrators.py``) check every
-layout against the reference bit for bit.
+The sites layout takes its walls from ``thread_kernels.laplacian_at`` (``wall_values``): nothing to add there.
+The tests over ``BOUNDARIES`` (``tests/test_gpu_engine.py``, ``tests/test_integrators.py``,
+``tests/test_site_kernels.py``) check every layout against the reference bit for bit.
+
+A 2-D lattice (the monolayer) is a new neighbour rule, not a new engine: ``site_kernels.evaluate`` reads a
+site's neighbours through ``laplacian_at``; a neighbour table (or a stencil) replaces it there, and the launch
+sequence, the kicks and drifts and the tangent lanes stay.
 """
