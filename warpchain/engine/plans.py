@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..integrators import Method, RungeKuttaMethod, SplittingMethod
-from .devices import _parts, held
+from .devices import _part, _parts, held
 from .tuning import active
 
 
@@ -184,7 +184,7 @@ class _ThreadRungeKutta(_Plan):
 
     def step(self, lo, hi, dt, nsteps, save_every, frames, record):
         r = self.r
-        inputs = _parts(lo, hi, r.x, *self.scratch, r.inv_mass, r.coupling)
+        inputs = [*_parts(lo, hi, r.x, *self.scratch), 0, r.no_base, *_parts(lo, hi, r.inv_mass, r.coupling)]
         inputs += [*self.tableau, r.boundary, r.wp.float64(dt), int(nsteps), int(save_every), *frames]
         inputs += [int(record), r.hist]
         r.launch_kernel(self.kernels.rk4_kernel, hi - lo, inputs)
@@ -192,9 +192,9 @@ class _ThreadRungeKutta(_Plan):
     def tangent(self, dx, column_base, lo, hi, dt, nsteps):
         r, wp = self.r, self.r.wp
         scratch = [self.kept(f"stage{i}", (dx.shape[0], 4, r.N)) for i in range(3)]
-        inputs = [*_parts(lo, hi, dx, *scratch, column_base), r.inv_mass, r.coupling, *self.tableau, r.boundary]
-        inputs += [wp.float64(dt), int(nsteps), r.hist]
-        wp.launch(self.kernels.rk4_tangent_kernel, dim=hi - lo, device=r.device, inputs=inputs)
+        inputs = [*_parts(lo, hi, dx, *scratch), 1, _part(column_base, lo, hi), r.inv_mass, r.coupling]
+        inputs += [*self.tableau, r.boundary, wp.float64(dt), int(nsteps), 0, r.no_record, r.no_record, 0, r.hist]
+        wp.launch(self.kernels.rk4_kernel, dim=hi - lo, device=r.device, inputs=inputs)
 
 
 class _SitesSplitting(_Plan):

@@ -1,6 +1,6 @@
 """The classical fourth-order Runge-Kutta method in the thread-per-lattice layout (the CPU path): base runs
-(``rk4_kernel``, a fused pass over contiguous rows per stage, the stage states in scratch arrays) and tangent
-columns (``rk4_tangent_kernel``), the arithmetic of ``warpchain.reference`` operation for operation."""
+and tangent columns in one kernel (``rk4_kernel``: for base runs a fused pass over contiguous rows per stage,
+the stage states in scratch arrays), the arithmetic of ``warpchain.reference`` operation for operation."""
 
 from __future__ import annotations
 
@@ -23,44 +23,29 @@ def rk4_stage_derivative(
     y: wp.array3d(dtype=wp.float64),
     out: wp.array3d(dtype=wp.float64),
     b: int,
-    n: int,
-    boundary: int,
-    inv_mass: wp.float64,
-    coupling: wp.float64,
-    record: int,
-    hist: wp.array3d(dtype=wp.float64),
-    slot: int,
-):
-    """out[b] = F(y[b]) = (y', a(y)); records f'(z) of the stage when asked."""
-    for j in range(n):
-        a = acceleration_at(y, b, j, n, boundary, inv_mass, coupling)
-        out[b, 0, j] = y[b, 2, j]
-        out[b, 1, j] = y[b, 3, j]
-        out[b, 2, j] = a[0]
-        out[b, 3, j] = a[1]
-        if record != 0:
-            hist[slot, b, j] = contact_stiffness(y[b, 0, j] - y[b, 1, j])
-
-
-@wp.func
-def rk4_tangent_stage_derivative(
-    dy: wp.array3d(dtype=wp.float64),
-    out: wp.array3d(dtype=wp.float64),
-    c: int,
     base: int,
     n: int,
     boundary: int,
     inv_mass: wp.float64,
     coupling: wp.float64,
+    tangent: int,
+    record: int,
     hist: wp.array3d(dtype=wp.float64),
     slot: int,
 ):
+    """out[b] = F(y[b]) = (y', a(y)): a base run's (recording f'(z) of the stage when asked), or with
+    ``tangent`` its linearisation along base lattice ``base``'s recorded f'(z)."""
     for j in range(n):
-        a = tangent_acceleration_at(dy, c, j, n, boundary, inv_mass, coupling, hist[slot, base, j])
-        out[c, 0, j] = dy[c, 2, j]
-        out[c, 1, j] = dy[c, 3, j]
-        out[c, 2, j] = a[0]
-        out[c, 3, j] = a[1]
+        if tangent != 0:
+            a = tangent_acceleration_at(y, b, j, n, boundary, inv_mass, coupling, hist[slot, base, j])
+        else:
+            a = acceleration_at(y, b, j, n, boundary, inv_mass, coupling)
+            if record != 0:
+                hist[slot, b, j] = contact_stiffness(y[b, 0, j] - y[b, 1, j])
+        out[b, 0, j] = y[b, 2, j]
+        out[b, 1, j] = y[b, 3, j]
+        out[b, 2, j] = a[0]
+        out[b, 3, j] = a[1]
 
 
 @wp.func
@@ -215,6 +200,8 @@ def rk4_kernel(
     y: wp.array3d(dtype=wp.float64),
     k: wp.array3d(dtype=wp.float64),
     total: wp.array3d(dtype=wp.float64),
+    tangent: int,
+    column_base: wp.array(dtype=wp.int32),
     inv_mass: wp.array(dtype=wp.float64),
     coupling: wp.array(dtype=wp.float64),
     tableau: wp.vec4d,
@@ -228,16 +215,20 @@ def rk4_kernel(
     record_stiffness: int,
     hist: wp.array3d(dtype=wp.float64),
 ):
-    """``nsteps`` Runge-Kutta steps (tableau: nodes and divisor, weights) for lattice b = tid;
-    hist slot 4 step + stage."""
+    """``nsteps`` Runge-Kutta steps (tableau: nodes and divisor, weights) for lattice b = tid; hist slot
+    4 step + stage. With ``tangent`` set, b is a tangent column along base lattice column_base[b] (the
+    linearised step, f'(z) read from hist; the per-pass path)."""
     b = wp.tid()
     n = x.shape[2]
-    m = inv_mass[b]
-    cpl = coupling[b]
-    record = wp.where(record_stiffness != 0, 1, 0)
+    base = b
+    if tangent != 0:
+        base = column_base[b]
+    m = inv_mass[base]
+    cpl = coupling[base]
+    record = wp.where(record_stiffness != 0 and tangent == 0, 1, 0)
     rows = unit_stride(x) * unit_stride(y) * unit_stride(k) * unit_stride(total)
     rows = rows * wp.where(record != 0, unit_stride(hist), 1)
-    if rows != 0:
+    if rows != 0 and tangent == 0:
         # the fast path: a stage in one pass over contiguous rows (``rk4_fused_stage``). The stage states
         # alternate between the scratch arrays y and k (k itself is not stored), so that no stage writes
         # the rows it reads (the last stage's next state, which nothing reads, goes to k)
@@ -259,41 +250,10 @@ def rk4_kernel(
             save_positions(x, rec_u, rec_v, b, n, step, save_every)
     else:
         for step in range(nsteps):
-            rk4_stage_derivative(x, k, b, n, boundary, m, cpl, record_stiffness, hist, 4 * step)
+            rk4_stage_derivative(x, k, b, base, n, boundary, m, cpl, tangent, record, hist, 4 * step)
             rk4_advance(x, y, k, total, b, n, 0, dt, tableau, weights)
             for stage in range(1, 4):
-                rk4_stage_derivative(y, k, b, n, boundary, m, cpl, record_stiffness, hist, 4 * step + stage)
+                rk4_stage_derivative(y, k, b, base, n, boundary, m, cpl, tangent, record, hist, 4 * step + stage)
                 rk4_advance(x, y, k, total, b, n, stage, dt, tableau, weights)
             rk4_finish(x, total, b, n, dt, tableau[3])
             save_positions(x, rec_u, rec_v, b, n, step, save_every)
-
-
-@wp.kernel
-def rk4_tangent_kernel(
-    dx: wp.array3d(dtype=wp.float64),
-    dy: wp.array3d(dtype=wp.float64),
-    dk: wp.array3d(dtype=wp.float64),
-    dtotal: wp.array3d(dtype=wp.float64),
-    column_base: wp.array(dtype=wp.int32),
-    inv_mass: wp.array(dtype=wp.float64),
-    coupling: wp.array(dtype=wp.float64),
-    tableau: wp.vec4d,
-    weights: wp.vec4d,
-    boundary: int,
-    dt: wp.float64,
-    nsteps: int,
-    hist: wp.array3d(dtype=wp.float64),
-):
-    """Tangent column c = tid of the RK4 step along base trajectory column_base[c]."""
-    c = wp.tid()
-    base = column_base[c]
-    n = dx.shape[2]
-    m = inv_mass[base]
-    cpl = coupling[base]
-    for step in range(nsteps):
-        rk4_tangent_stage_derivative(dx, dk, c, base, n, boundary, m, cpl, hist, 4 * step)
-        rk4_advance(dx, dy, dk, dtotal, c, n, 0, dt, tableau, weights)
-        for stage in range(1, 4):
-            rk4_tangent_stage_derivative(dy, dk, c, base, n, boundary, m, cpl, hist, 4 * step + stage)
-            rk4_advance(dx, dy, dk, dtotal, c, n, stage, dt, tableau, weights)
-        rk4_finish(dx, dtotal, c, n, dt, tableau[3])
