@@ -1,7 +1,8 @@
 """Write the README's statements about the two branches from their summary.json fields.
 
     python benchmarks/branch_report.py results            # after python -m scenarios paper
-    python benchmarks/branch_report.py benchmarks/h200-2026-11-22 --flat
+    python benchmarks/results/compact.py unpack benchmarks/results/cpu-2core-2026-11-25b.json /tmp/cpu-ref
+    python benchmarks/branch_report.py /tmp/cpu-ref   # the CPU reference's summaries
 
 Prints Markdown bullets (stop reason, stability changes, unstable intervals with kinds and
 localization, points and seconds) so that nothing in the README is typed by hand.

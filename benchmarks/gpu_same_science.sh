@@ -1,12 +1,13 @@
 #!/usr/bin/env bash
-# The GPU's science against the CPU's (run on a GPU machine, from the repo root; see benchmarks/cpu-reference):
+# The GPU's science against the CPU's (run on a GPU machine, from the repo root; CPU reference: benchmarks/results/):
 #   thread: benchmarks/thread_check.py (4 threads x 50 Newton + Floquet solves: the bits of the same solves in sequence)
 #   paper:  python -m scenarios paper --device cuda (JOBS scenes at once)
 #   site:   site-bond on the GPU, runs FIRST..LAST, PARALLEL processes at a time, each run's branch points counted
 # Usage: STEPS="thread paper site" JOBS=auto bash benchmarks/gpu_same_science.sh OUT FIRST LAST PARALLEL
 # Writes under OUT: logs, thread-check.json, runs.txt and summaries-FIRST-LAST.tgz (every summary.json and
 # failed.json), which `python -m scenarios compare` reads once unpacked:
-#   tar xzf summaries-1-4.tgz && python -m scenarios compare benchmarks/cpu-reference/paper gpu/paper
+#   tar xzf summaries-1-4.tgz && python benchmarks/results/compact.py compare \
+#     benchmarks/results/cpu-2core-2026-11-25b.json gpu/paper   # or a CPU paper run of the same commit
 set -uo pipefail
 out=${1:-results-gpu}
 first=${2:-1}

@@ -12,7 +12,7 @@ Command (GPU; the hand kernels need CuPy): ``python benchmarks/sites_per_thread.
 
 (Until commit 956cfc8 a ``--variants`` mode also timed the site-group kernel without one float64 per thread in
 the tile and without accelerations carried across steps, and register caps of the one-site kernel: all slower,
-``benchmarks/h200-2026-11-22k``; those options were removed from the kernels.)
+``benchmarks/results/h200-2026-11-22k.json``; those options were removed from the kernels.)
 """
 
 import argparse

@@ -1,6 +1,8 @@
 """The GPU throughput tables of docs/performance.md, generated from a throughput summary (no figure typed by hand).
 
-Command: ``python benchmarks/throughput_table.py benchmarks/h200-2026-11-22b/throughput-summary.json``
+Command: ``python benchmarks/throughput_table.py benchmarks/results/h200-2026-11-22o.json`` (a compact result set:
+its ``throughput-summary.json``; a second argument names another of its throughput summaries), or the path of
+a scene run's own ``throughput/summary.json``.
 """
 
 from __future__ import annotations
@@ -55,8 +57,18 @@ def print_simulate(s):
             )
 
 
-def main(path):
+def load(path, member=None):
+    """A throughput summary, from a scene run or from a compact set (benchmarks/results/README.md)."""
     s = json.load(open(path))
+    if isinstance(s.get("results"), dict):  # a compact set: its throughput summaries by raw file name
+        s = s["results"][member or "throughput-summary.json"]
+    if "rows" in s:  # compact rows: lists under row_keys
+        s = dict(s, results=[dict(zip(s["row_keys"], row)) for row in s["rows"]])
+    return s
+
+
+def main(path, member=None):
+    s = load(path, member)
     results = s["results"]
     batches = sorted({r["batch"] for r in results})
     if s["ratios"]["main_layout"] == "warp-thread":  # a CPU run
@@ -101,7 +113,8 @@ def main(path):
     print(f"single lattice: {ratios['single_lattice_ns_per_step']:.0f} ns per Verlet step (Warp block)")
     hand1 = [r for r in results if r["implementation"] == "cupy" and r["batch"] == 1]
     if hand1:
-        print(f"single lattice, hand CUDA: {hand1[0]['ns_per_step']:.0f} ns per step")
+        ns = hand1[0].get("ns_per_step") or 1e9 * s["N"] / hand1[0]["site_steps_per_second"]
+        print(f"single lattice, hand CUDA: {ns:.0f} ns per step")
     for b, per in ratios.get("force_eval_cost_over_verlet", {}).items():
         print(f"cost per force evaluation over Verlet at {b}: " + ", ".join(f"{k} {v:.2f}" for k, v in per.items()))
     mono = s.get("monodromy")
@@ -134,4 +147,4 @@ def main(path):
 
 
 if __name__ == "__main__":
-    main(sys.argv[1])
+    main(*sys.argv[1:3])
