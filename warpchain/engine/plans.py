@@ -156,17 +156,18 @@ class _ThreadSplitting(_Plan):
 
     def step(self, lo, hi, dt, nsteps, save_every, frames, record):
         r = self.r
-        inputs = [*_parts(lo, hi, r.x, self.acc, r.inv_mass, r.coupling), self.drifts, self.kicks]
-        inputs += [r.boundary, r.wp.float64(dt), int(nsteps), int(save_every), *frames, int(record), r.hist]
-        inputs += r.losses(lo, hi)
+        inputs = [*_parts(lo, hi, r.x, self.acc), 0, r.no_base, *_parts(lo, hi, r.inv_mass, r.coupling)]
+        inputs += [self.drifts, self.kicks, r.boundary, r.wp.float64(dt), int(nsteps), int(save_every), *frames]
+        inputs += [int(record), r.hist, *r.losses(lo, hi)]
         r.launch_kernel(r.k.splitting_kernel, hi - lo, inputs)
 
     def tangent(self, dx, column_base, lo, hi, dt, nsteps):
         r, wp = self.r, self.r.wp
         dacc = self.kept("dacc", (dx.shape[0], 2, r.N))  # written before it is read
-        inputs = [*_parts(lo, hi, dx, dacc, column_base), r.inv_mass, r.coupling, self.drifts, self.kicks]
-        inputs += [r.boundary, wp.float64(dt), int(nsteps), r.hist]
-        wp.launch(r.k.splitting_tangent_kernel, dim=hi - lo, device=r.device, inputs=inputs)
+        inputs = [*_parts(lo, hi, dx, dacc), 1, _part(column_base, lo, hi), r.inv_mass, r.coupling]
+        inputs += [self.drifts, self.kicks, r.boundary, wp.float64(dt), int(nsteps), 0, r.no_record, r.no_record]
+        inputs += [0, r.hist, r.lossy, r.no_damp]
+        wp.launch(r.k.splitting_kernel, dim=hi - lo, device=r.device, inputs=inputs)
 
 
 class _ThreadRungeKutta(_Plan):

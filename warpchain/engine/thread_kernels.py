@@ -128,40 +128,27 @@ def compute_accelerations(
     x: wp.array3d(dtype=wp.float64),
     acc: wp.array3d(dtype=wp.float64),
     b: int,
-    n: int,
-    boundary: int,
-    inv_mass: wp.float64,
-    coupling: wp.float64,
-    hist: wp.array3d(dtype=wp.float64),
-    record: int,
-    slot: int,
-):
-    """acc[b] = a(x[b]); when ``record`` is set, also hist[slot, b, :] = f'(z)."""
-    for j in range(n):
-        a = acceleration_at(x, b, j, n, boundary, inv_mass, coupling)
-        acc[b, 0, j] = a[0]
-        acc[b, 1, j] = a[1]
-        if record != 0:
-            hist[slot, b, j] = contact_stiffness(x[b, 0, j] - x[b, 1, j])
-
-
-@wp.func
-def compute_tangent_accelerations(
-    dx: wp.array3d(dtype=wp.float64),
-    dacc: wp.array3d(dtype=wp.float64),
-    c: int,
     base: int,
     n: int,
     boundary: int,
     inv_mass: wp.float64,
     coupling: wp.float64,
+    tangent: int,
     hist: wp.array3d(dtype=wp.float64),
+    record: int,
     slot: int,
 ):
+    """acc[b] = a(x[b]), recording hist[slot, b, :] = f'(z) when ``record`` is set; with ``tangent`` the
+    linear accelerations of column b along the f'(z) of base lattice ``base`` in hist[slot]."""
     for j in range(n):
-        a = tangent_acceleration_at(dx, c, j, n, boundary, inv_mass, coupling, hist[slot, base, j])
-        dacc[c, 0, j] = a[0]
-        dacc[c, 1, j] = a[1]
+        if tangent != 0:
+            a = tangent_acceleration_at(x, b, j, n, boundary, inv_mass, coupling, hist[slot, base, j])
+        else:
+            a = acceleration_at(x, b, j, n, boundary, inv_mass, coupling)
+            if record != 0:
+                hist[slot, b, j] = contact_stiffness(x[b, 0, j] - x[b, 1, j])
+        acc[b, 0, j] = a[0]
+        acc[b, 1, j] = a[1]
 
 
 @wp.func
@@ -266,141 +253,91 @@ def advance_site(
     return wp.vec4d(u[j] + c * qu, v[j] + c * qv, qu, qv)
 
 
-@wp.func
-def finish_site(
-    u: wp.array(dtype=wp.float64),
-    v: wp.array(dtype=wp.float64),
-    pu: wp.array(dtype=wp.float64),
-    pv: wp.array(dtype=wp.float64),
-    au: wp.array(dtype=wp.float64),
-    av: wp.array(dtype=wp.float64),
-    j: int,
-    left: wp.float64,
-    site: wp.vec4d,
-    right: wp.float64,
-    inv_mass: wp.float64,
-    coupling: wp.float64,
-    h: wp.float64,
-    record: int,
-    stiffness: wp.array(dtype=wp.float64),
-):
-    """Site j (``site``: from ``advance_site``) between neighbours at u = left and right: its acceleration
-    (and f'(z) when ``record``), the kick with it, and the stores."""
-    a = site_acceleration(site[0], site[1], left, right, inv_mass, coupling)
-    u[j] = site[0]
-    v[j] = site[1]
-    au[j] = a[0]
-    av[j] = a[1]
-    pu[j] = site[2] + h * a[0]
-    pv[j] = site[3] + h * a[1]
-    if record != 0:
-        stiffness[j] = contact_stiffness(site[0] - site[1])
+def _fused_stage(tangent: bool):
+    """``fused_stage`` compiled for base runs (``tangent`` False: the contact law, f'(z) recorded when asked)
+    or for tangent columns (``fused_tangent_stage``: the linear accelerations with the base's f'(z) of this
+    stage in ``stiffness``)."""
+
+    @wp.func
+    def finish_site(
+        u: wp.array(dtype=wp.float64),
+        v: wp.array(dtype=wp.float64),
+        pu: wp.array(dtype=wp.float64),
+        pv: wp.array(dtype=wp.float64),
+        au: wp.array(dtype=wp.float64),
+        av: wp.array(dtype=wp.float64),
+        j: int,
+        left: wp.float64,
+        site: wp.vec4d,
+        right: wp.float64,
+        inv_mass: wp.float64,
+        coupling: wp.float64,
+        h: wp.float64,
+        record: int,
+        stiffness: wp.array(dtype=wp.float64),
+    ):
+        """Site j (``site``: from ``advance_site``) between neighbours at u = left and right: its acceleration
+        (and f'(z) when ``record``), the kick with it, and the stores."""
+        if wp.static(tangent):
+            a = site_tangent_acceleration(site[0], site[1], left, right, inv_mass, coupling, stiffness[j])
+        else:
+            a = site_acceleration(site[0], site[1], left, right, inv_mass, coupling)
+        u[j] = site[0]
+        v[j] = site[1]
+        au[j] = a[0]
+        av[j] = a[1]
+        pu[j] = site[2] + h * a[0]
+        pv[j] = site[3] + h * a[1]
+        if wp.static(not tangent):
+            if record != 0:
+                stiffness[j] = contact_stiffness(site[0] - site[1])
+
+    @wp.func
+    def fused_stage(
+        u: wp.array(dtype=wp.float64),
+        v: wp.array(dtype=wp.float64),
+        pu: wp.array(dtype=wp.float64),
+        pv: wp.array(dtype=wp.float64),
+        au: wp.array(dtype=wp.float64),
+        av: wp.array(dtype=wp.float64),
+        n: int,
+        boundary: int,
+        inv_mass: wp.float64,
+        coupling: wp.float64,
+        pre: int,
+        h_pre: wp.float64,
+        c: wp.float64,
+        h: wp.float64,
+        record: int,
+        stiffness: wp.array(dtype=wp.float64),
+    ):
+        """One stage of a splitting step on one lattice's rows (n >= 2) in a single pass over the sites: the
+        kick h_pre (when ``pre``: the step's first), the drift c, the accelerations (f'(z) into ``stiffness``
+        when ``record``) and the kick h. Each value is computed as by ``kick``, ``drift`` and
+        ``compute_accelerations`` one after the other (same operations, same order): site j + 1 is drifted
+        just before site j's acceleration needs it, the sites at both ends first (a periodic wall needs
+        them), so that the loop over the interior has no branch."""
+        first = advance_site(u, v, pu, pv, au, av, 0, pre, h_pre, c)
+        last = advance_site(u, v, pu, pv, au, av, n - 1, pre, h_pre, c)
+        wall = wall_values(first[0], last[0], boundary)
+        left = wall[0]
+        right = wall[1]
+        here = first
+        j = wp.int32(0)
+        while j < n - 2:
+            nxt = advance_site(u, v, pu, pv, au, av, j + 1, pre, h_pre, c)
+            finish_site(u, v, pu, pv, au, av, j, left, here, nxt[0], inv_mass, coupling, h, record, stiffness)
+            left = here[0]
+            here = nxt
+            j += 1
+        finish_site(u, v, pu, pv, au, av, n - 2, left, here, last[0], inv_mass, coupling, h, record, stiffness)
+        finish_site(u, v, pu, pv, au, av, n - 1, here[0], last, right, inv_mass, coupling, h, record, stiffness)
+
+    return fused_stage
 
 
-@wp.func
-def fused_stage(
-    u: wp.array(dtype=wp.float64),
-    v: wp.array(dtype=wp.float64),
-    pu: wp.array(dtype=wp.float64),
-    pv: wp.array(dtype=wp.float64),
-    au: wp.array(dtype=wp.float64),
-    av: wp.array(dtype=wp.float64),
-    n: int,
-    boundary: int,
-    inv_mass: wp.float64,
-    coupling: wp.float64,
-    pre: int,
-    h_pre: wp.float64,
-    c: wp.float64,
-    h: wp.float64,
-    record: int,
-    stiffness: wp.array(dtype=wp.float64),
-):
-    """One stage of a splitting step on one lattice's rows (n >= 2) in a single pass over the sites: the
-    kick h_pre (when ``pre``: the step's first), the drift c, the accelerations (f'(z) into ``stiffness``
-    when ``record``) and the kick h. Each value is computed as by ``kick``, ``drift`` and
-    ``compute_accelerations`` one after the other (same operations, same order): site j + 1 is drifted
-    just before site j's acceleration needs it, the sites at both ends first (a periodic wall needs
-    them), so that the loop over the interior has no branch."""
-    first = advance_site(u, v, pu, pv, au, av, 0, pre, h_pre, c)
-    last = advance_site(u, v, pu, pv, au, av, n - 1, pre, h_pre, c)
-    wall = wall_values(first[0], last[0], boundary)
-    left = wall[0]
-    right = wall[1]
-    here = first
-    j = wp.int32(0)
-    while j < n - 2:
-        nxt = advance_site(u, v, pu, pv, au, av, j + 1, pre, h_pre, c)
-        finish_site(u, v, pu, pv, au, av, j, left, here, nxt[0], inv_mass, coupling, h, record, stiffness)
-        left = here[0]
-        here = nxt
-        j += 1
-    finish_site(u, v, pu, pv, au, av, n - 2, left, here, last[0], inv_mass, coupling, h, record, stiffness)
-    finish_site(u, v, pu, pv, au, av, n - 1, here[0], last, right, inv_mass, coupling, h, record, stiffness)
-
-
-@wp.func
-def finish_tangent_site(
-    du: wp.array(dtype=wp.float64),
-    dv: wp.array(dtype=wp.float64),
-    dpu: wp.array(dtype=wp.float64),
-    dpv: wp.array(dtype=wp.float64),
-    dau: wp.array(dtype=wp.float64),
-    dav: wp.array(dtype=wp.float64),
-    j: int,
-    left: wp.float64,
-    site: wp.vec4d,
-    right: wp.float64,
-    inv_mass: wp.float64,
-    coupling: wp.float64,
-    h: wp.float64,
-    stiffness: wp.array(dtype=wp.float64),
-):
-    """``finish_site`` of a tangent column: the linear acceleration (``tangent_acceleration_at``'s
-    arithmetic) with the recorded f'(z) of site j."""
-    a = site_tangent_acceleration(site[0], site[1], left, right, inv_mass, coupling, stiffness[j])
-    du[j] = site[0]
-    dv[j] = site[1]
-    dau[j] = a[0]
-    dav[j] = a[1]
-    dpu[j] = site[2] + h * a[0]
-    dpv[j] = site[3] + h * a[1]
-
-
-@wp.func
-def fused_tangent_stage(
-    du: wp.array(dtype=wp.float64),
-    dv: wp.array(dtype=wp.float64),
-    dpu: wp.array(dtype=wp.float64),
-    dpv: wp.array(dtype=wp.float64),
-    dau: wp.array(dtype=wp.float64),
-    dav: wp.array(dtype=wp.float64),
-    n: int,
-    boundary: int,
-    inv_mass: wp.float64,
-    coupling: wp.float64,
-    pre: int,
-    h_pre: wp.float64,
-    c: wp.float64,
-    h: wp.float64,
-    stiffness: wp.array(dtype=wp.float64),
-):
-    """``fused_stage`` of a tangent column (n >= 2), with the base trajectory's f'(z) of this stage."""
-    first = advance_site(du, dv, dpu, dpv, dau, dav, 0, pre, h_pre, c)
-    last = advance_site(du, dv, dpu, dpv, dau, dav, n - 1, pre, h_pre, c)
-    wall = wall_values(first[0], last[0], boundary)
-    left = wall[0]
-    right = wall[1]
-    here = first
-    j = wp.int32(0)
-    while j < n - 2:
-        nxt = advance_site(du, dv, dpu, dpv, dau, dav, j + 1, pre, h_pre, c)
-        finish_tangent_site(du, dv, dpu, dpv, dau, dav, j, left, here, nxt[0], inv_mass, coupling, h, stiffness)
-        left = here[0]
-        here = nxt
-        j += 1
-    finish_tangent_site(du, dv, dpu, dpv, dau, dav, n - 2, left, here, last[0], inv_mass, coupling, h, stiffness)
-    finish_tangent_site(du, dv, dpu, dpv, dau, dav, n - 1, here[0], last, right, inv_mass, coupling, h, stiffness)
+fused_stage = _fused_stage(False)
+fused_tangent_stage = _fused_stage(True)
 
 
 # ----------------------------------------------------------------------------- splitting methods
@@ -477,6 +414,8 @@ def kick_loss(
 def splitting_kernel(
     x: wp.array3d(dtype=wp.float64),
     acc: wp.array3d(dtype=wp.float64),
+    tangent: int,
+    column_base: wp.array(dtype=wp.int32),
     inv_mass: wp.array(dtype=wp.float64),
     coupling: wp.array(dtype=wp.float64),
     drifts: wp.array(dtype=wp.float64),
@@ -492,21 +431,27 @@ def splitting_kernel(
     lossy: wp.array(dtype=wp.int32),
     damp: wp.array3d(dtype=wp.float64),
 ):
-    """``nsteps`` steps of a kick-drift splitting method for lattice b = tid.
+    """``nsteps`` steps of a kick-drift splitting method for lattice b = tid, or with ``tangent`` set for
+    tangent column b along base trajectory column_base[b] (the linearised step, f'(z) read from hist).
 
     hist slot 0 holds f'(z) at the start, slot step*s + k + 1 after drift k of ``step``. Lattices with
     ``lossy[b]`` set take the damped kicks of ``damp`` (batch, stages + 1, 12: E, F, then H for the energy
-    dissipated) (``losses``).
+    dissipated) (``losses``; base runs only).
     """
     b = wp.tid()
     n = x.shape[2]
     stages = drifts.shape[0]
-    m = inv_mass[b]
-    k = coupling[b]
-    loss = lossy[b]
-    compute_accelerations(x, acc, b, n, boundary, m, k, hist, record_stiffness, 0)
-    record = wp.where(record_stiffness != 0, 1, 0)
-    rows = unit_stride(x) * unit_stride(acc) * wp.where(record != 0, unit_stride(hist), 1)
+    base = b
+    loss = int(0)
+    if tangent != 0:
+        base = column_base[b]
+    else:
+        loss = lossy[b]
+    m = inv_mass[base]
+    k = coupling[base]
+    record = wp.where(record_stiffness != 0 and tangent == 0, 1, 0)
+    compute_accelerations(x, acc, b, base, n, boundary, m, k, tangent, hist, record, 0)
+    rows = unit_stride(x) * unit_stride(acc) * wp.where(record != 0 or tangent != 0, unit_stride(hist), 1)
     if loss == 0 and n >= 2 and rows != 0:
         # the fast path: a stage in one pass over contiguous rows (``fused_stage``)
         u = row(x, b, 0)
@@ -517,68 +462,27 @@ def splitting_kernel(
         av = row(acc, b, 1)
         for step in range(nsteps):
             for s in range(stages):
-                stiffness = row(hist, (step * stages + s + 1) * record, b * record)
                 pre = wp.where(s == 0, 1, 0)
+                h0 = kicks[0] * dt
                 c = drifts[s] * dt
-                fused_stage(
-                    u, v, pu, pv, au, av, n, boundary, m, k, pre, kicks[0] * dt, c, kicks[s + 1] * dt, record, stiffness
-                )
+                h = kicks[s + 1] * dt
+                e = step * stages + s + 1
+                if tangent != 0:
+                    stiffness = row(hist, e, base)
+                    fused_tangent_stage(u, v, pu, pv, au, av, n, boundary, m, k, pre, h0, c, h, 0, stiffness)
+                else:
+                    stiffness = row(hist, e * record, b * record)
+                    fused_stage(u, v, pu, pv, au, av, n, boundary, m, k, pre, h0, c, h, record, stiffness)
             save_positions(x, rec_u, rec_v, b, n, step, save_every)
     else:
         for step in range(nsteps):
             any_kick(x, acc, b, n, kicks[0] * dt, loss, damp, 0)
             for s in range(stages):
                 drift(x, b, n, drifts[s] * dt)
-                compute_accelerations(x, acc, b, n, boundary, m, k, hist, record_stiffness, step * stages + s + 1)
+                e = step * stages + s + 1
+                compute_accelerations(x, acc, b, base, n, boundary, m, k, tangent, hist, record, e)
                 any_kick(x, acc, b, n, kicks[s + 1] * dt, loss, damp, s + 1)
             save_positions(x, rec_u, rec_v, b, n, step, save_every)
-
-
-@wp.kernel
-def splitting_tangent_kernel(
-    dx: wp.array3d(dtype=wp.float64),
-    dacc: wp.array3d(dtype=wp.float64),
-    column_base: wp.array(dtype=wp.int32),
-    inv_mass: wp.array(dtype=wp.float64),
-    coupling: wp.array(dtype=wp.float64),
-    drifts: wp.array(dtype=wp.float64),
-    kicks: wp.array(dtype=wp.float64),
-    boundary: int,
-    dt: wp.float64,
-    nsteps: int,
-    hist: wp.array3d(dtype=wp.float64),
-):
-    """Tangent column c = tid of the splitting step, along base trajectory column_base[c]."""
-    c = wp.tid()
-    base = column_base[c]
-    n = dx.shape[2]
-    stages = drifts.shape[0]
-    m = inv_mass[base]
-    k = coupling[base]
-    compute_tangent_accelerations(dx, dacc, c, base, n, boundary, m, k, hist, 0)
-    if n >= 2 and unit_stride(dx) * unit_stride(dacc) * unit_stride(hist) != 0:
-        # the fast path, as in ``splitting_kernel``
-        du = row(dx, c, 0)
-        dv = row(dx, c, 1)
-        dpu = row(dx, c, 2)
-        dpv = row(dx, c, 3)
-        dau = row(dacc, c, 0)
-        dav = row(dacc, c, 1)
-        for step in range(nsteps):
-            for s in range(stages):
-                pre = wp.where(s == 0, 1, 0)
-                stiffness = row(hist, step * stages + s + 1, base)
-                h = kicks[s + 1] * dt
-                fused_tangent_stage(
-                    du, dv, dpu, dpv, dau, dav, n, boundary, m, k, pre, kicks[0] * dt, drifts[s] * dt, h, stiffness
-                )
-    else:
-        for step in range(nsteps):
-            kick(dx, dacc, c, n, kicks[0] * dt)
-            for s in range(stages):
-                drift(dx, c, n, drifts[s] * dt)
-                compute_tangent_accelerations(dx, dacc, c, base, n, boundary, m, k, hist, step * stages + s + 1)
-                kick(dx, dacc, c, n, kicks[s + 1] * dt)
 
 
 # ----------------------------------------------------------------------------- run guard
