@@ -479,91 +479,66 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
 
         return splitting_tangent
 
-    @wp.kernel(**options)
-    def rk4(
-        x: wp.array3d(dtype=wp.float64),
-        inv_mass: wp.array(dtype=wp.float64),
-        coupling: wp.array(dtype=wp.float64),
-        tableau: wp.vec4d,
-        weights: wp.vec4d,
-        boundary: int,
-        dt: wp.float64,
-        nsteps: int,
-        save_every: int,
-        rec_u: wp.array3d(dtype=wp.float64),
-        rec_v: wp.array3d(dtype=wp.float64),
-        record_stiffness: int,
-        hist: wp.array3d(dtype=wp.float64),
-    ):
-        """``nsteps`` classical RK4 steps; block b = lattice; hist slot 4 step + stage."""
-        b, j = wp.tid()
-        n = x.shape[2]
-        active = j < n
-        state = load_site(x, b, j, active)  # (u, v, u', v') of site j
-        m = inv_mass[b]
-        k = coupling[b]
-        nbr = site_neighbours(j, n, boundary)
-        buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
-        parity = int(0)
-        for step in range(nsteps):
-            y = state
-            total = wp.vec4d()
-            for stage in range(4):
-                parity = 1 - parity
-                nb = exchange(buf, y[0], parity, nbr, boundary)
-                a = site_acceleration(y[0], y[1], nb[0], nb[1], m, k)
-                if record_stiffness != 0 and active:
-                    hist[4 * step + stage, b, j] = contact_stiffness(y[0] - y[1])
-                slope = wp.vec4d(y[2], y[3], a[0], a[1])
-                total = rk4_accumulate(stage, total, slope, weights)
-                if stage < 3:
-                    y = rk4_stage_state(stage, state, slope, dt, tableau)
-            state = state + (dt / tableau[3]) * total
-            if save_every > 0 and active:
-                if (step + 1) % save_every == 0:
-                    r = (step + 1) / save_every - 1
-                    rec_u[r, b, j] = state[0]
-                    rec_v[r, b, j] = state[1]
-        store_site(x, b, j, active, state)
+    def make_rk4(tangent: bool):
+        @wp.kernel(**options)
+        def rk4(
+            x: wp.array3d(dtype=wp.float64),
+            column_base: wp.array(dtype=wp.int32),
+            inv_mass: wp.array(dtype=wp.float64),
+            coupling: wp.array(dtype=wp.float64),
+            tableau: wp.vec4d,
+            weights: wp.vec4d,
+            boundary: int,
+            dt: wp.float64,
+            nsteps: int,
+            save_every: int,
+            rec_u: wp.array3d(dtype=wp.float64),
+            rec_v: wp.array3d(dtype=wp.float64),
+            record_stiffness: int,
+            hist: wp.array3d(dtype=wp.float64),
+        ):
+            """``nsteps`` classical RK4 steps; block b = lattice; hist slot 4 step + stage. Compiled ``tangent``:
+            block b is a tangent column along base trajectory column_base[b], f'(z) read from hist."""
+            b, j = wp.tid()
+            n = x.shape[2]
+            active = j < n
+            base = b
+            if wp.static(tangent):
+                base = column_base[b]
+            jj = wp.min(j, n - 1)  # idle threads read a valid (unused) history entry
+            state = load_site(x, b, j, active)  # (u, v, u', v') of site j
+            m = inv_mass[base]
+            k = coupling[base]
+            nbr = site_neighbours(j, n, boundary)
+            buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
+            parity = int(0)
+            for step in range(nsteps):
+                y = state
+                total = wp.vec4d()
+                for stage in range(4):
+                    parity = 1 - parity
+                    nb = exchange(buf, y[0], parity, nbr, boundary)
+                    if wp.static(tangent):
+                        s = hist[4 * step + stage, base, jj]
+                        a = site_tangent_acceleration(y[0], y[1], nb[0], nb[1], m, k, s)
+                    else:
+                        a = site_acceleration(y[0], y[1], nb[0], nb[1], m, k)
+                        if record_stiffness != 0 and active:
+                            hist[4 * step + stage, b, j] = contact_stiffness(y[0] - y[1])
+                    slope = wp.vec4d(y[2], y[3], a[0], a[1])
+                    total = rk4_accumulate(stage, total, slope, weights)
+                    if stage < 3:
+                        y = rk4_stage_state(stage, state, slope, dt, tableau)
+                state = state + (dt / tableau[3]) * total
+                if wp.static(not tangent):
+                    if save_every > 0 and active:
+                        if (step + 1) % save_every == 0:
+                            r = (step + 1) / save_every - 1
+                            rec_u[r, b, j] = state[0]
+                            rec_v[r, b, j] = state[1]
+            store_site(x, b, j, active, state)
 
-    @wp.kernel(**options)
-    def rk4_tangent(
-        dx: wp.array3d(dtype=wp.float64),
-        column_base: wp.array(dtype=wp.int32),
-        inv_mass: wp.array(dtype=wp.float64),
-        coupling: wp.array(dtype=wp.float64),
-        tableau: wp.vec4d,
-        weights: wp.vec4d,
-        boundary: int,
-        dt: wp.float64,
-        nsteps: int,
-        hist: wp.array3d(dtype=wp.float64),
-    ):
-        """Tangent column c (block) of the RK4 map along base trajectory column_base[c]."""
-        c, j = wp.tid()
-        n = dx.shape[2]
-        active = j < n
-        base = column_base[c]
-        jj = wp.min(j, n - 1)
-        state = load_site(dx, c, j, active)
-        m = inv_mass[base]
-        k = coupling[base]
-        nbr = site_neighbours(j, n, boundary)
-        buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
-        parity = int(0)
-        for step in range(nsteps):
-            y = state
-            total = wp.vec4d()
-            for stage in range(4):
-                parity = 1 - parity
-                nb = exchange(buf, y[0], parity, nbr, boundary)
-                a = site_tangent_acceleration(y[0], y[1], nb[0], nb[1], m, k, hist[4 * step + stage, base, jj])
-                slope = wp.vec4d(y[2], y[3], a[0], a[1])
-                total = rk4_accumulate(stage, total, slope, weights)
-                if stage < 3:
-                    y = rk4_stage_state(stage, state, slope, dt, tableau)
-            state = state + (dt / tableau[3]) * total
-        store_site(dx, c, j, active, state)
+        return rk4
 
     @wp.kernel(**options)
     def guard(
@@ -618,7 +593,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             "guard": lambda: guard,
             "splitting": make_splitting,
             "splitting_tangent": make_splitting_tangent,
-            "rk4": lambda: rk4,
-            "rk4_tangent": lambda: rk4_tangent,
+            "rk4": lambda: make_rk4(False),
+            "rk4_tangent": lambda: make_rk4(True),
         }
     )

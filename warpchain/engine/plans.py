@@ -133,14 +133,14 @@ class _BlockRungeKutta(_Plan):
 
     def step(self, lo, hi, dt, nsteps, save_every, frames, record):
         r = self.r
-        inputs = [*_parts(lo, hi, r.x, r.inv_mass, r.coupling), *self.tableau, r.boundary, r.wp.float64(dt)]
-        inputs += [int(nsteps), int(save_every), *frames, int(record), r.hist]
+        inputs = [_part(r.x, lo, hi), r.no_base, *_parts(lo, hi, r.inv_mass, r.coupling), *self.tableau, r.boundary]
+        inputs += [r.wp.float64(dt), int(nsteps), int(save_every), *frames, int(record), r.hist]
         r.launch_kernel(r.bk.rk4, (hi - lo, r.block), inputs, r.block)
 
     def tangent(self, dx, column_base, lo, hi, dt, nsteps):
         r = self.r
         inputs = [*_parts(lo, hi, dx, column_base), r.inv_mass, r.coupling, *self.tableau, r.boundary]
-        inputs += [r.wp.float64(dt), int(nsteps), r.hist]
+        inputs += [r.wp.float64(dt), int(nsteps), 0, r.no_record, r.no_record, 0, r.hist]
         r.wp.launch(r.bk.rk4_tangent, dim=(hi - lo, r.block), block_dim=r.block, device=r.device, inputs=inputs)
 
 
