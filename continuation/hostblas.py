@@ -11,7 +11,7 @@ pay depends on what else wants the cores:
   products from 32 to 11 ms).
 - **On a GPU** the process's own setting (``None``): the kernels need no host cores, and on the H200
   machines' hosts one thread factors the 402 x 402 Newton Jacobian in 9 ms against 2-4 ms on several
-  (``benchmarks/h200-2026-11-22g``).
+  (``benchmarks/results/h200-2026-11-22g.json``).
 - **The two parity blocks' eigs** (``floquet.parity_blocks``) always run on one BLAS thread each, on two
   host threads at once: LAPACK's ``dgeev`` is not threaded at these sizes, and two calls that each start
   OpenBLAS threads contend (2-core CPU: 27.6 ms for both on 2 BLAS threads, 13.3 ms on 1).

@@ -251,7 +251,8 @@ def cupy_verlet_runner(
         there: the hand kernel was timed on steps nsteps..2 nsteps while Warp's best of three covered steps
         1..3 nsteps + 1. The hand kernel's per-step cost moves over a long run: one lattice, segments of 2e6
         steps, 124.9, 130.7 and 149.7 ns from steps 0, 2e6 and 4e6, Warp's 117.8 ns throughout
-        (``benchmarks/h200-2026-11-22k/state-dependence.txt``). So both are now timed on the same segments.)"""
+        (``benchmarks/results/h200-2026-11-22k.json``, ``state-dependence.txt``). So both are now timed on the same
+        segments.)"""
         batch, _, n = x0.shape
         if sites_choice == "auto":
             per_thread = min(8, -(-n // 32)) if batch >= AUTO_SITES_BATCH else 1

@@ -5,8 +5,8 @@ Only the scenes' ``summary.json`` files are read, so a folder may hold summaries
 scene (a scene that raised leaves its folder with ``failed.json`` and no summary); one missing from a folder,
 without ``summary.json`` (it failed), unreadable, or marked failed (``"failed": true`` or ``"status":
 "failed"``) is a difference, also when so in both. ``--scenes a,b``
-compares those only. Calibration below: "22g" is ``benchmarks/cpu-2core-2026-11-22g`` against
-``benchmarks/h200-2026-11-22g`` (the same scenes on a CPU and on an H200).
+compares those only. Calibration below: "22g" is ``benchmarks/results/cpu-2core-2026-11-22g.json`` against
+``benchmarks/results/h200-2026-11-22g.json`` (the same scenes on a CPU and on an H200).
 
 Ignored at any depth: provenance and timing (``IGNORED``: command line, device, CPU, versions, dates, paths,
 worker / job / thread / GPU counts; ``IGNORED_RE``: ``*seconds*``, ``*_per_second``, ``*_rate``,

@@ -482,7 +482,8 @@ def run(ctx: Context) -> dict:
     one[:2] = 0.3 * shape / np.max(np.abs(shape))
     gpu = ctx.device.startswith("cuda")
     # simulate() first, as users call it: in a process that has not loaded JAX and CuPy (the baselines). With
-    # both loaded, simulate() at 805 lattices took 4.6 ms against 2.5 ms (benchmarks/h200-2026-11-22l/preload.txt)
+    # both loaded, simulate() at 805 lattices took 4.6 ms against 2.5 ms
+    # (benchmarks/results/h200-2026-11-22l.json, preload.txt)
     end_to_end = _simulate_end_to_end(ctx, P, params, one, gpu)
     batches, results = _ensemble(ctx, P, params, one, gpu)
     ratios = _ratios(batches, results, gpu)

@@ -79,7 +79,14 @@ def test_strided_rows_take_the_generic_path(method):
     no_base = [0, wp.zeros(1, dtype=wp.int32, device="cpu")]  # a base run (not a tangent column)
     if method == "verlet":
         acc = wp.zeros((2, 2, p.N), dtype=f64, device="cpu")
-        inputs = [x, acc, *no_base, *params, wp.array(np.array([1.0]), dtype=f64), wp.array(np.array([0.5, 0.5]), dtype=f64)]
+        inputs = [
+            x,
+            acc,
+            *no_base,
+            *params,
+            wp.array(np.array([1.0]), dtype=f64),
+            wp.array(np.array([0.5, 0.5]), dtype=f64),
+        ]
         inputs += [K.BOUNDARY_PERIODIC, f64(0.05), 40, 0, none, none, 0, none, wp.zeros(2, dtype=wp.int32), none]
         wp.launch(K.splitting_kernel, dim=2, inputs=inputs, device="cpu")
     else:

@@ -1,7 +1,7 @@
 """The same science from every way of running: ``paper --quick`` with its scenes one after the other in one
 process and two at a time in child processes, and site-bond with one worker thread and with four, compare
 equal (``python -m scenarios compare``). On a GPU machine the same check is ``paper --device cuda`` against a
-CPU run of the same commit (``benchmarks/cpu-reference/README.md``)."""
+CPU run of the same commit (``benchmarks/results/README.md``, "The CPU reference")."""
 
 import subprocess
 import sys

@@ -2,7 +2,7 @@
 
 Why: from a host array every call moves the whole state twice, and on the H200 host the moves (host copy
 into staging, PCIe both ways) cost as much as half the kernel at 805 lattices and 2000 steps
-(``benchmarks/h200-2026-11-22n``). A study that runs segment after segment (run, look at a few scalars,
+(``benchmarks/results/h200-2026-11-22n.json``). A study that runs segment after segment (run, look at a few scalars,
 run on) needs the state on the host only when it wants to look at it. ``simulate(..., keep_on_device=True)``
 returns the final state as a :class:`DeviceState`, and a ``DeviceState`` passed as ``x0`` is copied device to
 device (microseconds) into the run's buffers. The guard's per-lattice scalars (energy, finite flag, minimum

@@ -63,16 +63,33 @@ CITED = {
     "h200-2026-11-22e": ("sites-per-thread.txt",),
     "h200-2026-11-22h": ("linear-solve.txt",),
     "h200-2026-11-22i": ("slices-pageable.txt", "tangent-variants.txt", "tangent-variants-final.txt"),
-    "h200-2026-11-22j": ("tangent-variants.txt", "ncu-base-run.txt", "ncu-base-run-review.txt", "newton-profile-blas.txt"),
-    "h200-2026-11-22k": ("sites-variants-third.txt", "sites-variants-first.txt", "sites-variants.txt", "state-dependence.txt"),
+    "h200-2026-11-22j": (
+        "tangent-variants.txt",
+        "ncu-base-run.txt",
+        "ncu-base-run-review.txt",
+        "newton-profile-blas.txt",
+    ),
+    "h200-2026-11-22k": (
+        "sites-variants-third.txt",
+        "sites-variants-first.txt",
+        "sites-variants.txt",
+        "state-dependence.txt",
+    ),
     "h200-2026-11-22l": ("timeline-805.txt", "preload.txt"),
     "h200-2026-11-22m": (
-        "timeline-32768-locked.txt", "slices-final.txt", "slices-review.txt", "timeline-805.txt",
-        "timeline-8192.txt", "timeline-805-locked.txt",
+        "timeline-32768-locked.txt",
+        "slices-final.txt",
+        "slices-review.txt",
+        "timeline-805.txt",
+        "timeline-8192.txt",
+        "timeline-805-locked.txt",
     ),
     "h200-2026-11-22n": (
-        "slices-record-pool.txt", "host-copy.txt", "slices-grown.txt",
-        "slices-upload-thread.txt", "slices-staged.txt",
+        "slices-record-pool.txt",
+        "host-copy.txt",
+        "slices-grown.txt",
+        "slices-upload-thread.txt",
+        "slices-staged.txt",
     ),
     "h200-2026-11-22o": ("slices.txt", "timeline-on-device.txt", "timeline-on-device-first.txt"),
     "h200-2026-11-25/f5f67b4": ("long-lattice.log", "sites-check.log"),
@@ -94,9 +111,7 @@ MAIN_THROUGHPUT = (
     "h200-2026-11-22b/throughput-summary.json",
     "h200-2026-11-22o/throughput-summary.json",
 )
-NCU_RE = re.compile(
-    r"\)x\(|Duration|Registers Per Thread|stalled waiting|This stall type represents"
-)
+NCU_RE = re.compile(r"\)x\(|Duration|Registers Per Thread|stalled waiting|This stall type represents")
 LOG_RE = re.compile(r"done in|scenes in| failed|same science|differences|Error|error:|disagree|unstable \(|branch:")
 PROGRESS_RE = re.compile(r"%\||it/s\]|s/it\]|\r")
 STATS_RE = re.compile(r";? stats \{[^}]*\}|, median +[\d.]+ ms|, Context \d+, Stream \d+, Device \d+, CC [\d.]+")
@@ -110,9 +125,7 @@ class Source:
 
     def __init__(self, commit: str):
         self.worktree = commit == "WORKTREE"
-        self.commit = (
-            "WORKTREE" if self.worktree else _git("rev-parse", commit).decode().strip()
-        )
+        self.commit = "WORKTREE" if self.worktree else _git("rev-parse", commit).decode().strip()
 
     def files(self, folder: str) -> dict[str, int]:
         """{path relative to benchmarks/: size in bytes} of every file under benchmarks/<folder>."""
@@ -255,7 +268,10 @@ def throughput(s: dict, whole: bool) -> dict:
     if sim:
         rows = sim.get("rows", [])
         if not whole:
-            rows = [{k: v for k, v in r.items() if k == "batch" or k.endswith(("_over_kernel", "gb_per_second"))} for r in rows]
+            rows = [
+                {k: v for k, v in r.items() if k == "batch" or k.endswith(("_over_kernel", "gb_per_second"))}
+                for r in rows
+            ]
         out["simulate"] = {"record_every": sim.get("record_every"), "rows": rows}
     if whole and s.get("kernel_properties"):
         out["kernel_properties"] = [
@@ -270,7 +286,9 @@ def text(raw: bytes, name: str, whole: bool) -> str:
     an uncited long output to its last lines."""
     lines = [re.sub(r"[ \t]+", " ", line).rstrip() for line in raw.decode(errors="replace").splitlines()]
     lines = [STATS_RE.sub("", line) for line in lines if not PROGRESS_RE.search(line) and line.strip()]
-    if re.search(r"(^|[-_])ncu([-_.]|$)", name):  # kernel names shortened: a.<locals>.b for a__locals__b, no _cuda_kernel_forward
+    if re.search(
+        r"(^|[-_])ncu([-_.]|$)", name
+    ):  # kernel names shortened: a.<locals>.b for a__locals__b, no _cuda_kernel_forward
         lines = [
             line.strip().replace("__locals__", ".").replace("_cuda_kernel_forward", "")
             for line in lines

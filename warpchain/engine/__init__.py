@@ -16,7 +16,7 @@ Modules:
   hold the kernels; ``observe_kernels`` the step loops with frame reductions of ``warpchain.observe``;
   ``warpchain.reference`` is their numpy oracle.
 
-How the state moves (measured on an H100, ``benchmarks/h100-2026-11-25/engine-split``): through pinned
+How the state moves (measured on an H100, ``benchmarks/results/h100-2026-11-25/engine-split.json``): through pinned
 staging buffers (``hostmem``), in lattice slices overlapped with the first and last chunk for large batches,
 or not at all when the caller keeps it on the device (``DeviceState``, ``Placement(keep_on_device=True)``).
 

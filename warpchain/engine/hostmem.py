@@ -114,7 +114,8 @@ def slice_bounds(batch: int) -> list[tuple[int, int]]:
     """Lattice slices (lo, hi) of a sliced ``simulate`` run: ``Tuning.slices`` (else one per
     ``Tuning.slice_lattices`` lattices, 2 to ``Tuning.max_slices``) equal slices. Slices that grow from a small
     first one, so that the first kernel starts sooner, were slower on the H200 (13.7 against 12.0 ms at 8192
-    lattices): the uploads' host copies, not the kernels, bound the first chunk there (``h200-2026-11-22n``)."""
+    lattices): the uploads' host copies, not the kernels, bound the first chunk there
+    (``benchmarks/results/h200-2026-11-22n.json``)."""
     t = active()
     return _even_slices(
         batch, t.slices if t.slices is not None else max(2, min(t.max_slices, batch // t.slice_lattices))

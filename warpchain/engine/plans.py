@@ -29,7 +29,8 @@ def site_group_launch(sites: int, stages: int, device: str) -> bool:
     """Whether a block splitting launch with this many sites per thread runs ``site_group_kernels``: always
     for several sites, and on a GPU for one site per thread and few stages too (its walls compiled in, one
     float64 per thread in the tile: one lattice 118.6 ns per Verlet step, 3.08e11 site-steps/s at 805 lattices,
-    H200, ``benchmarks/h200-2026-11-22k``; in ``h200-2026-11-22e`` it was 170 ns against ``block_kernels``'
+    H200, ``benchmarks/results/h200-2026-11-22k.json``; in ``h200-2026-11-22e.json`` it was 170 ns against
+    ``block_kernels``'
     202 ns); the many-stage methods keep ``block_kernels``' register-capped kernel. ``Tuning.group_one_site``
     (tests, benchmarks) forces it."""
     if sites > 1:

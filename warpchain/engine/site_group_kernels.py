@@ -48,7 +48,8 @@ def site_group_kernels(
 
     Why: with one site per thread every force evaluation pays a shared-memory round trip and a block
     barrier per site, and at 805 lattices the 224-thread blocks need two waves of the GPU
-    (``benchmarks/h200-2026-11-22b/ncu.txt``: 36 % of the stall cycles at the barrier). A thread that owns
+    (``benchmarks/results/h200-2026-11-22b.json``, ``ncu.txt``: 36 % of the stall cycles at the barrier). A thread
+    that owns
     a run of sites takes its interior neighbours from its own registers; only the two ends of its run
     cross threads, through one shared tile entry (first u, last u) per thread and per force evaluation,
     ping-ponged as in ``block_kernels`` (one barrier). With 7 sites per thread a lattice of 201 sites is
@@ -66,14 +67,14 @@ def site_group_kernels(
     at the top of the loop, as in the hand-written kernel. (Both kicks inside the step, the second behind a
     ``step + 1 < nsteps`` test, hold fewer live registers but ran slower: one lattice 129.5 against 118.6 ns
     per Verlet step, 2.80e11 against 3.08e11 site-steps/s at 805 lattices on the H200,
-    ``benchmarks/h200-2026-11-22k``.)
+    ``benchmarks/results/h200-2026-11-22k.json``.)
 
     ``min_blocks_per_sm`` goes to ``__launch_bounds__`` (0: none), capping registers so that this many
     blocks fit on one SM.
 
     With one site per thread the first and last u of a run are the same value, so the shared tile holds one
     float64 per thread (8-byte stores and loads) instead of a pair: one lattice 129.5 ns per Verlet step
-    against 160 ns (H200, ``benchmarks/h200-2026-11-22k``).
+    against 160 ns (H200, ``benchmarks/results/h200-2026-11-22k.json``).
 
     Launch with ``dim=(lattices, threads), block_dim=threads``.
     """

@@ -35,10 +35,12 @@ class Tuning:
     #: on a GPU, a state of at least this many values (5.2k lattices of 201 sites) moves to and from the device
     #: in lattice slices overlapped with the first and the last chunk's kernels (``hostmem._SlicedTransfers``):
     #: H100, 2000 Verlet steps at 32768 lattices from a plain x0, ``simulate()`` ran at 0.56x the kernel
-    #: without slices (``benchmarks/h100-2026-11-25/engine-split``) and at 0.79x with them (``.../9fb3bfb``)
+    #: without slices (``benchmarks/results/h100-2026-11-25/engine-split.json``) and at 0.79x with them
+    #: (``.../9fb3bfb.json``)
     sliced_min_values: int = 1 << 22
     #: lattices per slice and the most slices (H200: 8 slices of 4096 lattices, 2 of 4096 and the whole batch
-    #: at 805 were each the best or within 2 % of it, ``h200-2026-11-22h``); ``slices`` forces a count
+    #: at 805 were each the best or within 2 % of it, ``benchmarks/results/h200-2026-11-22h.json``); ``slices``
+    #: forces a count
     slice_lattices: int = 4096
     max_slices: int = 8
     slices: int | None = None
@@ -51,7 +53,8 @@ class Tuning:
     slice_on_cpu: bool = False
     #: from this many lattices a GPU launch of a splitting method with at most ``sites_max_stages`` stages
     #: gives each thread a run of sites (one warp per lattice up to 256 sites). H200, N = 201
-    #: (``benchmarks/sites_per_thread.py``, ``h200-2026-11-22e``): Verlet 3.28e11 site-steps/s at 2400
+    #: (``benchmarks/sites_per_thread.py``, ``benchmarks/results/h200-2026-11-22e.json``): Verlet 3.28e11
+    #: site-steps/s at 2400
     #: lattices with 7 sites per thread against 3.19e11 with one, 4.40e11 against 3.75e11 at 32768; yoshida4
     #: 1.50e11 against 1.20e11 at 32768; kahan8 (15 stages) is slower that way at every batch (1.98e10
     #: against 2.46e10 at 32768), so it keeps one site per thread
@@ -62,7 +65,7 @@ class Tuning:
     sites_per_thread: int | None = None
     #: None: a one-site-per-thread launch runs the site-group kernel on a GPU for few stages (one float64 per
     #: thread in the tile, walls compiled in: 118.6 ns per Verlet step of one lattice against 202 ns, H200,
-    #: ``h200-2026-11-22k``); True/False force the choice (the tests run it on the CPU)
+    #: ``benchmarks/results/h200-2026-11-22k.json``); True/False force the choice (the tests run it on the CPU)
     group_one_site: bool | None = None
     #: a recording launch of at most this many lattices (a tangent base run) drops the many-stage kernels'
     #: register cap (under it the held stiffnesses would spill): one block per SM of an H200
@@ -70,7 +73,8 @@ class Tuning:
     #: tangent columns per block of the block splitting tangent kernel forced (1 or 2; None: the rule below)
     tangent_columns: int | None = None
     #: from this many columns a GPU tangent launch carries two columns per block. H200, the paper breather's
-    #: 804-column monodromy (kahan8, 32 steps; ``benchmarks/tangent_variants.py``, ``h200-2026-11-22i``):
+    #: 804-column monodromy (kahan8, 32 steps; ``benchmarks/tangent_variants.py``,
+    #: ``benchmarks/results/h200-2026-11-22i.json``):
     #: 0.348 ms with one column per block, 0.305 ms with its history loaded one evaluation ahead, 0.303 ms
     #: with two columns per block; 402 columns: 0.23-0.24 ms every way
     tangent_pair_min_columns: int = 256
@@ -84,7 +88,8 @@ class Tuning:
     #: graphs kept per runner (a frequency continuation changes dt, hence the graphs, at every point)
     graphs_per_runner: int = 8
     #: launch commands kept per runner (a launch repeated with the same arguments skips Warp's argument
-    #: packing: 0.1-0.35 ms per launch on the H200 host before, 0.05-0.11 ms after, ``h200-2026-11-22l``)
+    #: packing: 0.1-0.35 ms per launch on the H200 host before, 0.05-0.11 ms after,
+    #: ``benchmarks/results/h200-2026-11-22l.json``)
     commands_per_runner: int = 256
     #: the GPU-only host paths run on the CPU too (CUDA graphs as Warp's CPU graphs, kept launch commands),
     #: so that CI checks what they hold; off by default
@@ -93,7 +98,7 @@ class Tuning:
     #: runners (device buffers of one method, chain and batch) kept between ``simulate`` calls on a GPU
     runner_pool_size: int = 4
     #: float64 values per host copy thread (2 MB: with 8 MB, a 13 MB copy went on one thread at ~5 GB/s,
-    #: H200 host, ``h200-2026-11-22h``) and the most copy threads
+    #: H200 host, ``benchmarks/results/h200-2026-11-22h.json``) and the most copy threads
     copy_slice: int = 1 << 18
     max_copy_threads: int = 16
 
