@@ -1,7 +1,8 @@
 """``python -m scenarios compare A B``: do two result folders hold the same science?
 
 Only the scenes' ``summary.json`` files are read, so a folder may hold summaries alone (the kept CPU reference,
-``benchmarks/results/cpu-2core-2026-11-25b.json``, unpacks into one: ``benchmarks/results/compact.py compare``). A scene is a subfolder with ``summary.json`` or named like a known
+``benchmarks/results/cpu-2core-2026-11-25b.json``, unpacks into one: ``benchmarks/results/compact.py compare``).
+A scene is a subfolder with ``summary.json`` or named like a known
 scene (a scene that raised leaves its folder with ``failed.json`` and no summary); one missing from a folder,
 without ``summary.json`` (it failed), unreadable, or marked failed (``"failed": true`` or ``"status":
 "failed"``) is a difference, also when so in both. ``--scenes a,b``
