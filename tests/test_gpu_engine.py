@@ -17,7 +17,7 @@ from warpchain.flow import Flow, ReferenceFlow
 from warpchain.integrators import get_method
 from warpchain.model import min_contact
 
-LAYOUTS = ["thread", "block"]
+LAYOUTS = ["thread", "block", "sites"]
 
 
 @pytest.mark.parametrize("layout", LAYOUTS)
@@ -26,6 +26,10 @@ def test_cpu_results_bit_for_bit_with_the_reference(method, layout):
     p = ChainParams(30.0, 160.0, 41)
     x0 = localized_state(p.N, amplitude=0.8, batch=3, seed=3)
     M, K = np.array([30.0, 10.0, 50.0]), np.array([160.0, 40.0, 100.0])
+    if layout == "sites" and method == "rk4":  # the sites layout runs the splitting methods only
+        with pytest.raises(ValueError, match="splitting methods"):
+            simulate(p, x0, 0.1, 0.02, method=method, device="cpu", placement=Placement(layout=layout))
+        return
     run = simulate(
         p,
         x0,
@@ -203,7 +207,7 @@ def test_kernels_take_coefficients_from_the_method_type(layout):
     )
     split = SplittingMethod("split-test", 2, True, "two half Verlet steps", *_composition((0.5, 0.5)))
     assert rk.force_evaluations == 4 and split.force_evaluations == 2 and rk.family == "rk4"
-    for method in (rk, split):
+    for method in (rk, split) if layout != "sites" else (split,):  # sites: splitting methods only
         with warnings.catch_warnings():  # the made-up tableau is stable only for tiny steps: irrelevant here
             warnings.simplefilter("ignore")
             run = simulate(
