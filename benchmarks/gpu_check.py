@@ -47,7 +47,8 @@ def main(argv=None):
     M, K, dt = np.array([30.0, 10.0, 50.0]), np.array([160.0, 40.0, 100.0]), 0.02
     for method in sorted(METHODS):
         ref = reference.integrate(method, p, x0, dt, 1000, M=M, K=K)["x"]
-        for layout in ("block", "thread"):
+        splitting = isinstance(METHODS[method], SplittingMethod)
+        for layout in ("block", "thread", "sites") if splitting else ("block", "thread"):
             run = simulate(
                 p, x0, 1000 * dt, dt, method=method, device=args.device, M=M, K=K, placement=Placement(layout=layout)
             )
@@ -78,7 +79,8 @@ def main(argv=None):
     base = np.repeat([0, 1], n)
     for method in sorted(METHODS):
         ref = reference.integrate(method, q, xt, 0.05, 40, dx0=dx0.reshape(2, n, 4, q.N))["dx"].reshape(2 * n, 4, q.N)
-        for layout in ("block", "thread"):
+        splitting = isinstance(METHODS[method], SplittingMethod)
+        for layout in ("block", "thread", "sites") if splitting else ("block", "thread"):
             tan = propagate_tangent(
                 q, xt, dx0, 40, 0.05, method=method, column_base=base, device=args.device, layout=layout
             )
@@ -111,7 +113,7 @@ def on_device(p, x0, M, K, dt, device):
 
     ref = reference.integrate("verlet", p, x0, dt, 1000, M=M, K=K)["x"]
     out = {}
-    for layout in ("block", "thread"):
+    for layout in ("block", "thread", "sites"):
         kw = dict(device=device, M=M, K=K, placement=Placement(layout=layout))
         on_device = dict(kw, placement=Placement(layout=layout, keep_on_device=True))
         ends = []
@@ -135,7 +137,13 @@ def flow_replay(q, xt, device):
 
     out = {}
     cases = [(xt[:1], 0.05), (xt[1:], 0.05), (xt[:1], 0.04), (xt[1:], 0.05), (xt[:1], 0.05)]
-    for method, layout in (("kahan8", "block"), ("verlet", "block"), ("rk4", "block"), ("kahan8", "thread")):
+    for method, layout in (
+        ("kahan8", "block"),
+        ("verlet", "block"),
+        ("rk4", "block"),
+        ("kahan8", "thread"),
+        ("kahan8", "sites"),
+    ):
         results = {}
         for after in (1, None):
             with tuning.override(graph_after=after):
