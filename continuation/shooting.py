@@ -355,12 +355,10 @@ REST_AMPLITUDE = 1e-6
 
 #: ``find_breather(solver="auto")`` solves matrix-free from this many sites on. On the 2-core CPU the
 #: matrix-free path was faster at every size measured (paper breather from the NLS seed: 6.7x at N = 201,
-#: 53x at 801, 168x at 1601; ``benchmarks/newton_krylov.py``,
-#: ``benchmarks/results/cpu-2core-2026-11-25c.json``), and on an
-#: H200 too (1.1x at 201, 13x at 801, 1.2x at 1601 where one lattice runs on one thread;
-#: ``benchmarks/results/h200-2026-11-25/5a574a7.json``); the threshold keeps the paper's chains (N <= 401) on the
-#: dense
-#: reference path, whose Jacobian continuation and Floquet reuse.
+#: 53x at 801, 168x at 1601; ``benchmarks/newton_krylov.py``, ``benchmarks/results/cpu-2core-2026-11-25c.json``),
+#: and on an H200 too (1.1x at 201, 13x at 801, ``benchmarks/results/h200-2026-11-25/5a574a7.json``; with the
+#: sites layout 9.0x at 1601 and 32x at 3201, ``.../f5f67b4.json``); the threshold keeps the paper's chains
+#: (N <= 401) on the dense reference path, whose Jacobian continuation and Floquet reuse.
 KRYLOV_MIN_SITES = 1024
 
 
