@@ -3,6 +3,7 @@ pick a kernel variant (sites per thread, tangent columns per block) from the bat
 
 from __future__ import annotations
 
+import weakref
 
 import numpy as np
 
@@ -54,7 +55,7 @@ class _Plan:
     arguments. ``_PLANS`` maps (layout, method type) to the plan; the runner holds the buffers."""
 
     def __init__(self, runner):
-        self.r = runner
+        self.r = weakref.proxy(runner)  # the runner holds its plan: no cycle (the runner is freed by refcount)
 
     def step(self, lo: int, hi: int, dt: float, nsteps: int, save_every: int, frames, record: bool) -> None:
         raise NotImplementedError
