@@ -29,6 +29,7 @@ SCENES = {
     "throughput": "scenarios.throughput",
     "breakup-statistics": "scenarios.breakup_statistics",
     "finite-size": "scenarios.finite_size",
+    "stability-atlas": "scenarios.stability_atlas",
 }
 #: scenes that reproduce the paper (``python -m scenarios paper``); the rest chart speed and accuracy
 PAPER_SCENES = [

@@ -7,9 +7,10 @@ import dataclasses
 
 import numpy as np
 
+from continuation.branch import PseudoArclength
 from continuation.driver import AUTO_ALL_SITES, KREIN_MODES, Branch, ContinuationSettings, WalkState, continuation
 from continuation.floquet import KINDS
-from warpchain import Flow
+from warpchain import ChainParams, Flow
 
 from continuation.branch_store import BranchStore, StoreError, load_branch
 from ._common import BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD, PAPER_M, PAPER_N, Refused, progress_bars
@@ -63,6 +64,26 @@ class BranchParameters:
 
     def flow(self, device) -> Flow:
         return Flow(self.method, self.steps_per_period, device)
+
+
+def frequency_problem(P, device: str, K: float | None = None, eigenmode_amplitude: float | None = None) -> tuple:
+    """The frequency branch the ``continuation-omega`` scene walks, for the parameters ``P`` (a ``BranchParameters``
+    with ``omega_min``; ``K``: the coupling, default ``P.K``): pseudo-arclength in (positions, w_b) from the lowest
+    optical eigenmode (first point at mode amplitude ``eigenmode_amplitude``; None: the problem's default) down
+    until contact is lost or w_b < omega_min. Returns (chain, flow, settings, problem)."""
+    params = ChainParams(P.M, P.K if K is None else K, P.N)
+    flow = P.flow(device)
+    settings = P.settings()
+    start = {} if eigenmode_amplitude is None else {"eigenmode_amplitude": eigenmode_amplitude}
+    problem = PseudoArclength(params, flow, None, omega_min=P.omega_min, **start)
+    return params, flow, settings, problem
+
+
+def frequency_folds(omegas) -> list[int]:
+    """Indices of the points of a branch (in the order walked) where w_b turns back: the step into the point and
+    the step out of it change w_b with opposite signs (d w_b / d arclength changes sign)."""
+    dw = np.diff(np.asarray(omegas, dtype=float))
+    return [i + 1 for i in range(len(dw) - 1) if dw[i] * dw[i + 1] < 0]
 
 
 def step_rule(omega: str, K: str) -> Rule:

@@ -23,8 +23,7 @@ import dataclasses
 import numpy as np
 
 from continuation import find_breather, require
-from continuation.branch import PseudoArclength
-from warpchain import ChainParams, band_edges
+from warpchain import band_edges
 
 from continuation.branch_store import load_branch
 from ._common import (
@@ -40,6 +39,8 @@ from ._continuation_common import (
     KIND_COLOURS,
     BranchParameters,
     branch_summary,
+    frequency_folds,
+    frequency_problem,
     run_branch,
     stability_strip,
     step_rule,
@@ -78,10 +79,7 @@ QUICK = {"N": 101, "omega_min": 1.005, "resolution": 1e-2}
 
 def run(ctx: Context) -> dict:
     P: Parameters = ctx.params
-    params = ChainParams(P.M, P.K, P.N)
-    flow = P.flow(ctx.device)
-    settings = P.settings()
-    problem = PseudoArclength(params, flow, None, omega_min=P.omega_min)
+    params, flow, settings, problem = frequency_problem(P, ctx.device)
     attrs = {
         "K": P.K,
         "method": P.method,
@@ -100,7 +98,7 @@ def run(ctx: Context) -> dict:
     dw, dE = np.diff(omegas), np.diff(energies)
     in_gap = (omegas[:-1] > edges["acoustic_top"]) & (omegas[1:] > edges["acoustic_top"])
     monotonic_gap = bool(np.all(dE[in_gap] * dw[in_gap] < 0))
-    folds = [float(omegas[i + 1]) for i in range(len(dw) - 1) if dw[i] * dw[i + 1] < 0]
+    folds = [float(omegas[i]) for i in frequency_folds(omegas)]
     ctx.log(
         "energy vs frequency: monotonic in the gap: %s; %d folds in w_b along the branch", monotonic_gap, len(folds)
     )
