@@ -719,7 +719,10 @@ class _Walk:
         if last.min_contact <= 0:
             message = ""
             if len(points) > 1:
-                e = ev.contact_event(points[-2], last, par)
+                # the bracket's other end: the last point with contact (a bisected last step can leave points
+                # past the loss before ``last``, and interpolating between two of those lands outside)
+                held = [p for p in points[:-1] if p.min_contact > 0]
+                e = ev.contact_event(held[-1] if held else points[-2], last, par)
                 self.note(e)
                 message = e["message"]
             return StopReason.CONTACT_LOST, message
