@@ -11,9 +11,14 @@ lattice's preconditioner), dense below. Per size: the energy, the tail amplitude
 and parity. Matrix-free Floquet (Arnoldi) is not done yet: beyond ``floquet_sites`` the stability columns are
 empty.
 
-Command: ``python -m scenarios run finite-size`` (2-core CPU: about a minute, Floquet to N = 801;
-``--quick`` N = 101 .. 401, ~15 s). On a GPU ``--set floquet_sites=3201`` reaches the issue's sizes.
-Options: ``--set KEY=VALUE`` (fields of ``Parameters``).
+The K-branch foam: the site family at ``foam_points`` couplings log-spaced over ``foam_K`` (default [2, 4]),
+at each N of ``foam_sizes``, each point solved from the previous one and analysed by dense Floquet: the
+unstable fraction of the grid, its stability changes and moduli against N (a fixed grid, so that no step
+control decides which bubbles are seen).
+
+Command: ``python -m scenarios run finite-size`` (2-core CPU: ~7 min, of which the foam at N = 801 is ~5;
+``--quick`` N = 101 .. 401, foam at 101 and 201 on 24 points, ~15 s). On a GPU ``--set floquet_sites=3201``
+reaches the issue's sizes. Options: ``--set KEY=VALUE`` (fields of ``Parameters``).
 """
 
 from __future__ import annotations
