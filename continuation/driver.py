@@ -586,7 +586,8 @@ class _Walk:
             return None
         for sol in problem.start():
             if isinstance(sol, Failure):
-                self.stats["wall_seconds"] = time.perf_counter() - self.start
+                wall = time.perf_counter() - self.start
+                stats.update(points=0, wall_seconds=wall, seconds_per_point=0.0)  # the same keys as a walked branch
                 return Branch(
                     (),
                     StopReason.NEWTON_FAILED,

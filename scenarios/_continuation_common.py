@@ -186,6 +186,11 @@ def run_branch(
         branch.wall_seconds,
         branch.stats["seconds_per_point"],
     )
+    if not branch.points:
+        raise RuntimeError(
+            f"{group}: the branch's first point failed ({branch.message}); a smaller start (for a frequency branch "
+            "--set eigenmode_amplitude=..., the optical mode's amplitude) or a finer time grid may start it"
+        )
     return branch
 
 

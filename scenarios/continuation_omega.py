@@ -59,6 +59,9 @@ class Parameters(BranchParameters):
     ds: float = param(0.05, "first step: arclength in the weighted norm, theta = 1 / gap width", gt=0)
     ds_max: float = param(0.6, "largest step, arclength", gt=0)
     grow: float = param(1.3, "step growth after an easy Newton solve", ge=1)
+    eigenmode_amplitude: float = param(
+        0.03, "amplitude of the lowest optical mode the first point is solved from (smaller if the start fails)", gt=0
+    )
 
     RULES = (
         Rule(
@@ -79,7 +82,7 @@ QUICK = {"N": 101, "omega_min": 1.005, "resolution": 1e-2}
 
 def run(ctx: Context) -> dict:
     P: Parameters = ctx.params
-    params, flow, settings, problem = frequency_problem(P, ctx.device)
+    params, flow, settings, problem = frequency_problem(P, ctx.device, eigenmode_amplitude=P.eigenmode_amplitude)
     attrs = {
         "K": P.K,
         "method": P.method,

@@ -299,3 +299,25 @@ def test_a_store_written_in_the_background_equals_one_written_inline(k_branch, t
     assert len(a) == len(b) == 12
     for x, y in zip(a, b):
         assert np.array_equal(x.state, y.state) and x.K == y.K and np.array_equal(x.mu, y.mu, equal_nan=True)
+
+
+def test_a_branch_whose_start_fails_has_the_walked_branch_stats_and_the_scene_says_what_to_try(tmp_path):
+    """A failed start returns a branch with no points and the same stats keys as a walked one (the scenes' stop
+    line read ``seconds_per_point`` and raised KeyError); the scene then fails with a line naming the cure."""
+    from continuation.branch import PseudoArclength
+    from continuation.driver import ContinuationSettings, StopReason, continuation
+    from warpchain import ChainParams, Flow
+
+    p = ChainParams(30.0, 160.0, 31)
+    problem = PseudoArclength(p, Flow("verlet", 32, device="cpu"), None, omega_min=0.99, eigenmode_amplitude=3.0)
+    b = continuation(problem, ContinuationSettings(floquet=False))
+    assert b.stop_reason == StopReason.NEWTON_FAILED and not b.points
+    assert b.stats["points"] == 0 and b.stats["seconds_per_point"] == 0.0 and b.wall_seconds > 0
+    import subprocess
+    import sys
+
+    args = ["run", "continuation-omega", "--quick", "--device", "cpu", "--set", "eigenmode_amplitude=3"]
+    out = subprocess.run(
+        [sys.executable, "-m", "scenarios", *args, "--out", str(tmp_path)], capture_output=True, text=True
+    )
+    assert out.returncode != 0 and "eigenmode_amplitude" in out.stderr and "KeyError" not in out.stderr
