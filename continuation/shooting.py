@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import threading
 import time
 
 import numpy as np
@@ -207,9 +208,26 @@ def make_flow(
             raise ValueError("give dt or steps_per_period, not both")
         n_half, _ = time_grid(omega, dt, None)
         steps_per_period = 2 * n_half
-    return Flow(
+    return shared_flow(
         method or DEFAULT_METHOD, DEFAULT_STEPS_PER_PERIOD if steps_per_period is None else steps_per_period, device
     )
+
+
+_FLOWS: dict = {}
+_FLOWS_LOCK = threading.Lock()
+
+
+def shared_flow(method: str, steps_per_period: int, device: str | None) -> Flow:
+    """One Flow per (method, steps per period, device) for the whole process, so that calls solving breather after
+    breather (a scan, a size series) reuse its runners, buffers and captured graphs instead of building them per
+    call (on a GPU a new runner captures its graphs anew; at N = 801 its unit directions alone are 82 MB). The Flow
+    keeps the runners of its last ``warpchain.flow.POOL_KEYS`` shapes; threads may share it (every operation holds
+    the device's lock, and a history handed to another call since is re-run)."""
+    key = (method, int(steps_per_period), device)
+    with _FLOWS_LOCK:
+        if key not in _FLOWS:
+            _FLOWS[key] = Flow(method, steps_per_period, device)
+        return _FLOWS[key]
 
 
 class PeriodMap:

@@ -167,3 +167,26 @@ def test_a_tiny_seed_is_the_rest_state_not_a_breather():
     for bad in (float("nan"), -1.0, 0.0, 1.5):
         with pytest.raises(ValueError, match="collapse_ratio"):
             ct.find_breather(p, 1.0164, ct.eigenmode_seed(p, 1e-2), device="cpu", collapse_ratio=bad)
+
+
+def test_breathers_solved_one_after_another_share_one_flow_and_its_runners():
+    """``find_breather`` built from names uses one Flow per (method, steps, device) for the process, so a scan reuses
+    its runners (on a GPU their captured graphs too); the Flow keeps the runners of its last POOL_KEYS shapes."""
+    import continuation as ct
+    from continuation.shooting import shared_flow
+    from warpchain import ChainParams
+    from warpchain.flow import POOL_KEYS
+
+    p = ChainParams(30.0, 160.0, 31)
+    seed = ct.nls_seed(p, 1.01)
+    a = ct.find_breather(p, 1.01, seed, method="yoshida4", steps_per_period=32, device="cpu")
+    b = ct.find_breather(p, 1.01, a.state, method="yoshida4", steps_per_period=32, device="cpu")
+    flow = shared_flow("yoshida4", 32, "cpu")
+    assert a.success and b.success and len(flow._pool) >= 1
+    runners = {id(r) for slot in flow._pool.values() for r in slot["runners"]}
+    ct.find_breather(p, 1.01, b.state, method="yoshida4", steps_per_period=32, device="cpu")
+    assert {id(r) for slot in flow._pool.values() for r in slot["runners"]} == runners  # reused, not rebuilt
+    for n in range(33, 33 + 2 * (POOL_KEYS + 1), 2):  # more shapes than it keeps: the oldest go
+        q = ChainParams(30.0, 160.0, n)
+        ct.find_breather(q, 1.01, ct.nls_seed(q, 1.01), method="yoshida4", steps_per_period=32, device="cpu")
+    assert len(flow._pool) <= POOL_KEYS

@@ -115,6 +115,11 @@ class Linearization:
         return self.columns(eye, key=which)
 
 
+#: (N, boundary, batch, steps) keys whose runners a Flow keeps (two each, handed out in turn); a Flow that walks
+#: through more shapes (a scan over N) frees the oldest
+POOL_KEYS = 4
+
+
 @dataclasses.dataclass(frozen=True)
 class Flow:
     """The discrete map of one integrator on the float64 Warp kernels.
@@ -179,7 +184,10 @@ class Flow:
         batch = x0.shape[0]
         Mb, Kb = per_lattice_parameters(params, batch, None, None)
         key = (params.N, params.boundary, batch, int(nsteps) if record else 0, device)
-        slot = self._pool.setdefault(key, {"runners": [], "turn": 0})
+        slot = self._pool.pop(key, None) or {"runners": [], "turn": 0}
+        self._pool[key] = slot  # the most recent key last
+        while len(self._pool) > POOL_KEYS:  # the oldest key's runners go (freed once no Linearization holds them)
+            del self._pool[next(iter(self._pool))]
         if len(slot["runners"]) < 2:
             runner = _Runner(
                 get_method(self.method),
