@@ -165,6 +165,16 @@ def _cpu_threads(threads: int | None):
 START_TRIES = 4
 
 
+def branch_cost(index: dict, *, couplings: tuple) -> float:
+    """A branch's expected run time, relative, for handing out the longest first (``run_sweep(cost=...)``). From
+    the default grid on an H100 (``benchmarks/results/h100-2026-11-26/64fe2f6.json``, seconds per task): below
+    K ~ 1.85 the branch is stable to contact loss in ~15 points (5 s); from there to K ~ 7.2 it crosses the foam
+    of finite-size bubbles (350-450 stability changes, 50-80 s); above, 20-40 s, except the few that meet
+    ``max_points`` (130-170 s), which no estimate foresees."""
+    K = couplings[index["K"]]
+    return 0.2 if K < 1.85 else 3.0 if K <= 7.2 else 1.0
+
+
 def _task(index: dict, device: str, *, config: dict, cpu_threads: int | None = None) -> dict:
     """One K: the frequency branch, walked in memory, as the sweep's variables (padded to max_points)."""
     P = Parameters(**config)
@@ -369,6 +379,7 @@ def run(ctx: Context) -> dict:
             progress=progress_bars(),
             log=ctx.log,
             tasks_per_worker=1,  # a branch keeps its process busy; processes, not threads, run branches at once
+            cost=functools.partial(branch_cost, couplings=tuple(float(k) for k in k_grid(P))),
             **how,
         )
     except SweepMismatchError as exc:

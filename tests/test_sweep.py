@@ -332,3 +332,30 @@ def test_a_killed_worker_or_client_loses_nothing(tmp_path, clean_store):
     report = run_sweep(path, _demo_spec(), _demo_task, progress=False)
     assert (report.skipped, report.ran) == (4, 2)
     assert_same_store(clean_store, path)
+
+
+def test_tasks_run_longest_first_with_a_cost_and_the_report_gives_idle_time_per_worker(tmp_path):
+    """``cost=`` hands tasks out by descending estimate (here in-process, one at a time: the run order is the
+    estimate's); the store is the same bytes as grid order's, and the report has each worker's idle seconds."""
+    spec = _demo_spec()
+    cost = lambda index: index["a"] + 10 * index["b"]  # noqa: E731 - the last task of the grid is the longest
+    ordered = run_sweep(tmp_path / "cost.zarr", spec, _demo_task, progress=False, tasks_per_worker=1, cost=cost)
+    plain = run_sweep(tmp_path / "plain.zarr", spec, _demo_task, progress=False, tasks_per_worker=1)
+    assert_same_store(tmp_path / "cost.zarr", tmp_path / "plain.zarr")
+    assert ordered.task_indices == plain.task_indices == sorted(plain.task_indices)  # reported in grid order
+    assert set(ordered.idle_seconds) == {"main"} and ordered.idle_seconds["main"] >= 0.0
+    log = []
+    run_sweep(tmp_path / "log.zarr", spec, _demo_task, progress=False, tasks_per_worker=1, cost=cost, log=log.append)
+    assert "idle per worker: main" in log[-1]
+    seen = []
+
+    def recording(index, device):
+        seen.append((index["a"], index["b"]))
+        return _demo_task(index, device)
+
+    run_sweep(tmp_path / "order.zarr", spec, recording, progress=False, tasks_per_worker=1, cost=cost)
+    assert seen == sorted(seen, key=lambda ab: -(ab[0] + 10 * ab[1]))
+    from warpchain.sweep import _idle
+
+    # two overlapping spans and a gap: busy 0..3 and 5..6 of a 0..10 window, idle 6 s
+    assert _idle({"w": [(0.0, 2.0), (1.0, 3.0), (5.0, 6.0)]}, 0.0, 10.0) == {"w": 6.0}

@@ -186,6 +186,9 @@ class SweepReport:
     task_indices: list[tuple[int, ...]] = dataclasses.field(default_factory=list)
     failed: list[tuple[int, ...]] = dataclasses.field(default_factory=list)
     start_seconds: float = 0.0  # from the call to the first task handed out (cluster start, warm-up)
+    #: per worker (in-process: "main"): seconds between the first task handed out and the last task's end during
+    #: which none of its tasks ran (uneven tasks, a worker waiting for the host or the scheduler)
+    idle_seconds: dict = dataclasses.field(default_factory=dict)
 
 
 # --------------------------------------------------------------------------------------------- store
@@ -403,11 +406,27 @@ def _write_result(group: zarr.Group, layout: dict, index: tuple[int, ...], resul
     group[COMPLETED][index] = 1
 
 
-def _call_task(task, group, layout, index: tuple[int, ...], device: str) -> float:
-    t0 = time.perf_counter()
+def _call_task(task, group, layout, index: tuple[int, ...], device: str) -> dict:
+    """Runs one task and writes its region: its seconds and its (start, end) on the wall clock (``time.time``, for
+    the idle time per worker across processes of one host)."""
+    t0, start = time.perf_counter(), time.time()
     result = task(dict(zip(layout["task_dims"], (int(i) for i in index))), device)
     _write_result(group, layout, index, result)
-    return time.perf_counter() - t0
+    return {"seconds": time.perf_counter() - t0, "span": (start, time.time())}
+
+
+def _idle(spans: dict, begin: float, end: float) -> dict:
+    """Per worker, the time in [begin, end] covered by none of its task spans (the union of overlapping spans:
+    a worker runs several tasks at once)."""
+    out = {}
+    for worker, intervals in spans.items():
+        busy, reach = 0.0, begin
+        for a, b in sorted(intervals):
+            a, b = max(a, reach), min(b, end)
+            if b > a:
+                busy, reach = busy + (b - a), b
+        out[worker] = max(0.0, (end - begin) - busy)
+    return out
 
 
 def _device(ordinal: int, gpus: int) -> str:
@@ -454,8 +473,8 @@ def _run_on_worker(store_path: str, layout: dict, task, index: tuple[int, ...], 
     device = _worker_device(worker, ordinals, gpus)
     try:
         group = _open_root(store_path, "r+")[layout["group"]]
-        seconds = _call_task(task, group, layout, index, device)
-        return {"index": index, "ok": True, "seconds": seconds, "worker": str(worker.name), "device": device}
+        ran = _call_task(task, group, layout, index, device)
+        return {"index": index, "ok": True, **ran, "worker": str(worker.name), "device": device}
     except Exception as exc:
         return {
             "index": index,
@@ -570,6 +589,7 @@ def run_sweep(
     fail_fast: bool = True,
     tasks_per_worker: int = 2,
     warm_up=None,
+    cost=None,
 ) -> SweepReport:
     """Runs every task of ``spec`` not yet completed in ``store_path`` and writes its region.
 
@@ -590,6 +610,9 @@ def run_sweep(
             overlap one task's kernels with another's host work and zarr write; results do not change.
         warm_up: ``warm_up(device)``, run once in each Dask worker when the sweep starts (loads kernels,
             fills memory pools) so that no task pays for it; its errors are left to the tasks to meet.
+        cost: ``cost(index: dict[str, int]) -> float``, an estimate of each task's run time: tasks are handed out
+            longest first (in-process in that order; through Dask as priorities), so that uneven tasks do not
+            leave workers idle at the end. None: grid order.
         fail_fast: True: the first failing task raises :class:`SweepTaskError` naming its index, the
             others are cancelled (those already written stay completed). False: every task runs, then
             one :class:`SweepTaskError` names all that failed (its ``report`` holds the report).
@@ -619,10 +642,13 @@ def run_sweep(
             done[index] = False
             say(f"sweep {spec.group}: task ({_index_text(spec, index)}) is flagged completed but {why}: it runs again")
     todo = [tuple(int(i) for i in index) for index in np.ndindex(*spec.task_shape) if not done[index]]
+    if cost is not None:  # longest first (a stable sort: equal estimates keep grid order)
+        todo.sort(key=lambda index: -float(cost(dict(zip(spec.task_dims, index)))))
     n_tasks, skipped = int(done.size), int(done.sum())
     layout = _layout(spec)
     mode = "dask" if use_dask else "in-process"
     seconds: dict[tuple, float] = {}
+    spans: dict[str, list] = {}
     failures: list[tuple[tuple, str]] = []
     n_workers, t_ready = 0, t_start
     try:
@@ -648,6 +674,7 @@ def run_sweep(
                 index = tuple(out["index"])
                 if out["ok"]:
                     seconds[index] = out["seconds"]
+                    spans.setdefault(str(out.get("worker", "main")), []).append(tuple(out["span"]))
                 else:
                     where_ran = f" on worker {out['worker']} ({out['device']})" if out.get("worker") is not None else ""
                     message = f"sweep {spec.group}: task ({_index_text(spec, index)}) failed{where_ran}: {out['error']}"
@@ -661,6 +688,10 @@ def run_sweep(
         consolidate(store_path)
 
     ran_indices = [index for index in todo if index in seconds]
+    ran_indices.sort()  # grid order, whatever order they ran in
+    ends = [b for intervals in spans.values() for _, b in intervals]
+    first = min((a for intervals in spans.values() for a, _ in intervals), default=0.0)
+    idle = _idle(spans, first, max(ends)) if ends else {}
     report = SweepReport(
         tasks=n_tasks,
         skipped=skipped,
@@ -672,10 +703,12 @@ def run_sweep(
         task_indices=ran_indices,
         failed=[index for index, _ in failures],
         start_seconds=t_ready - t_start,
+        idle_seconds=idle,
     )
     say(
         f"sweep {spec.group}: {report.ran} tasks ran in {report.wall_seconds:.1f} s wall"
         f" ({sum(report.task_seconds):.1f} s in tasks), {report.skipped} skipped, {len(failures)} failed"
+        + (f"; idle per worker: {', '.join(f'{w} {t:.1f} s' for w, t in sorted(idle.items()))}" if idle else "")
     )
     if failures:
         names = "; ".join(f"({_index_text(spec, index)})" for index, _ in failures)
@@ -725,7 +758,12 @@ class _Pipeline:
             if index is None:
                 return
             try:
-                out = {"index": index, "ok": True, "seconds": _call_task(task, group, layout, index, self._device)}
+                out = {
+                    "index": index,
+                    "ok": True,
+                    **_call_task(task, group, layout, index, self._device),
+                    "worker": "main",
+                }
             except BaseException as exc:  # noqa: BLE001 - reported to the client, which decides
                 out = {"index": index, "ok": False, "error": repr(exc), "exception": exc}
                 if self._fail_fast:
@@ -777,9 +815,11 @@ def _dask_outcomes(
     where = f"({where}, {len(info)} workers on {', '.join(devices)})"
 
     task_ref = client.scatter(task, broadcast=True, hash=False)  # the task travels once per worker
-    futures = {
-        client.submit(_run_on_worker, store_path, layout, task_ref, index, gpus, ordinals, pure=False): index
-        for index in todo
+    futures = {  # todo's order as priorities (higher first): longest first when the sweep has a cost estimate
+        client.submit(
+            _run_on_worker, store_path, layout, task_ref, index, gpus, ordinals, pure=False, priority=len(todo) - rank
+        ): index
+        for rank, index in enumerate(todo)
     }
     stack.callback(client.cancel, list(futures))  # runs before the client closes (last in, first out)
 
