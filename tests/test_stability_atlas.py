@@ -89,3 +89,21 @@ def test_parameters_and_grid():
     assert plan["gpus"] == 0 and plan["scheduler"] is None
     assert atlas.plan(scene_parameters(atlas, False, {"in_process": "true"}), "cpu", 41)["workers"] == 0
     assert atlas.stable_share(np.array([1.0, 0.9, 0.8]), np.array([True, True, False])) == pytest.approx(0.75)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("scene", ["stability-atlas", "breakup-statistics"])
+def test_the_sweep_scenes_run_on_a_scheduler_started_elsewhere(tmp_path, scene):
+    """``--set scheduler=ADDRESS``: both sweep scenes hand their tasks to a running cluster (here two CPU workers
+    started by the test, as a user's cluster would be), every task completes there, and the store reads."""
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None, silence_logs=40
+    ) as cluster:
+        args = ("run", scene, "--quick", "--out", str(tmp_path), "--device", "cpu")
+        out = _run(*args, "--set", f"scheduler={cluster.scheduler_address}")
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert f"scheduler {cluster.scheduler_address}" in out.stderr + out.stdout
+    s = json.loads((tmp_path / scene / "summary.json").read_text())
+    sweep = s["sweep"]
+    assert sweep["mode"] == "dask" and sweep["skipped"] == 0 and sweep["ran"] > 0
