@@ -17,12 +17,12 @@ amplitude used is stored per K.
 
 Command: ``python -m scenarios run stability-atlas`` (``--quick``: 6 K values at N = 101, resolution 1e-2; a
 2-core CPU takes well under 2 min). Workers: by default a local Dask cluster (``pip install -e ".[dask]"``)
-of one single-threaded process per usable core on the CPU device; with ``--device cuda`` one process per GPU
-where several exist, else ``cuda_workers`` processes (default: half the usable cores) sharing the one GPU
-(the branch's Newton LU and Floquet eigs are host work). ``--set workers=W`` sets the count, ``--set
-scheduler=tcp://HOST:8786`` uses a running cluster (its workers must see the output folder), ``--set
-in_process=true`` runs the tasks one after another in this process. Resume: run the same command again;
-only the K values not yet completed run (``--set fresh=true`` starts over).
+of one single-threaded process per usable core on the CPU device; with ``--device cuda`` ``cuda_workers``
+processes (default: half the usable cores, at least one per GPU) spread over the GPUs by worker ordinal (the
+branch's Newton LU and Floquet eigs are host work: one process per GPU left the GPUs idle). ``--set
+workers=W`` sets the count, ``--set scheduler=tcp://HOST:8786`` uses a running cluster (its workers must see
+the output folder), ``--set in_process=true`` runs the tasks one after another in this process. Resume: run
+the same command again; only the K values not yet completed run (``--set fresh=true`` starts over).
 
 Figures (drawn from the store): ``stability_atlas``: the phase diagram, each branch a vertical strip at its K
 coloured by stability and by the kind of the leading instability, with the stability changes, the folds in
@@ -93,7 +93,7 @@ class Parameters(BranchParameters):
     )
     cuda_workers: int = param(
         0,
-        "workers sharing the GPU with --device cuda and one GPU (several GPUs: one each); 0: half the usable cores",
+        "processes with --device cuda, spread over the GPUs (at least one per GPU); 0: half the usable cores",
         ge=0,
     )
     scheduler: str = param("", "address of a running Dask scheduler, e.g. tcp://HOST:8786; empty: none")
@@ -325,7 +325,8 @@ def plan(P: Parameters, device: str, tasks: int) -> dict:
     elif on_cpu:
         workers = cores
     else:
-        workers = gpus if gpus > 1 else (P.cuda_workers or max(1, cores // 2))
+        # the branch's Newton LU and Floquet eigs are host work: half the cores' processes, spread over the GPUs
+        workers = max(gpus, P.cuda_workers or max(1, cores // 2))
     workers = max(1, min(workers, tasks))
     try:
         import distributed  # noqa: F401
