@@ -420,6 +420,7 @@ def run(ctx: Context) -> dict:
             "skipped": report.skipped,
             "wall_seconds": sweep_seconds,
             "start_seconds": report.start_seconds,  # cluster start and warm-up, inside wall_seconds
+            "idle_seconds": report.idle_seconds,  # per worker: no task of its running (timing, not science)
             "lattice_periods_per_second": (n_lattices * P.periods / sweep_seconds)
             if report.ran == report.tasks
             else None,

@@ -401,6 +401,7 @@ def run(ctx: Context) -> dict:
             "skipped": report.skipped,
             "wall_seconds": report.wall_seconds,
             "start_seconds": report.start_seconds,
+            "idle_seconds": report.idle_seconds,  # per worker: no task of its running (timing, not science)
             "task_seconds_sum": float(sum(report.task_seconds)),
             "task_seconds_max": float(max(report.task_seconds)) if report.task_seconds else None,
         },
