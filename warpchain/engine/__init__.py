@@ -39,11 +39,11 @@ Adding a boundary that changes the wall values (like fixed or free ends), in 3 f
 
 A boundary that wraps like the ring also needs the neighbour indices of ``block_kernels.site_neighbours``, and
 ``observe.site_energies`` repeats the wall bonds on the host (until observe is folded into the engine).
-The sites layout takes its walls from ``thread_kernels.laplacian_at`` (``wall_values``): nothing to add there.
+The sites layout takes its walls from ``thread_kernels.neighbours_at`` (``wall_values``): nothing to add there.
 The tests over ``BOUNDARIES`` (``tests/test_gpu_engine.py``, ``tests/test_integrators.py``,
 ``tests/test_site_kernels.py``) check every layout against the reference bit for bit.
 
 A 2-D lattice (the monolayer) is a new neighbour rule, not a new engine: ``site_kernels.evaluate`` reads a
-site's neighbours through ``laplacian_at``; a neighbour table (or a stencil) replaces it there, and the launch
+site's neighbours through ``neighbours_at``; a neighbour table (or a stencil) replaces it there, and the launch
 sequence, the kicks and drifts and the tangent lanes stay.
 """

@@ -162,13 +162,13 @@ def thread_kernel():
                 z = x[b, 0, j] - x[b, 1, j]
                 z_low[b, j] = z
                 z_high[b, j] = z
-        compute_accelerations(x, acc, b, b, n, boundary, m, k, 0, acc, 0, 0)  # no stiffness history (acc: unused)
+        compute_accelerations(x, acc, b, b, n, boundary, m, k, 0, acc, 0, 0, 0)  # no stiffness history (acc: unused)
         for step in range(first, nsteps):
             if step >= 0:
                 dissipated = dissipated + lossy_kick(x, acc, b, n, kicks[0] * dt, loss, damp, 0, mb)
                 for s in range(stages):
                     drift(x, b, n, drifts[s] * dt)
-                    compute_accelerations(x, acc, b, b, n, boundary, m, k, 0, acc, 0, 0)
+                    compute_accelerations(x, acc, b, b, n, boundary, m, k, 0, acc, 0, 0, 0)
                     h = kicks[s + 1] * dt
                     dissipated = dissipated + lossy_kick(x, acc, b, n, h, loss, damp, s + 1, mb)
                 for j in range(n):

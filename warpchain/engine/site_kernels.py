@@ -10,22 +10,23 @@ synchronisation, the neighbours' u before a force evaluation, is the end of a la
 ``kahan8`` at 16 steps is 241 launches, replayed as one CUDA graph by the ``Flow``.
 
 One launch is one force evaluation ``e`` (``evaluate``): site j reads its u from ``src`` (drifted for this
-evaluation) and its neighbours' u from the same array, computes the accelerations (the base's contact law,
-or for a tangent lane the linearisation with the base's recorded f'(z) of evaluation e), gives the kick
+evaluation) and its neighbours' u from the same array (``thread_kernels.neighbours_at``), computes the
+accelerations (``site_acceleration``: the base's contact law; ``site_tangent_acceleration`` for a tangent
+lane, with the base's recorded f'(z) of evaluation e), gives the kick
 that follows the evaluation, records the frame when a step ends, gives the next step's first kick with the
 same accelerations (as the reference, which does not recompute them) and writes the u of the next
 evaluation, drifted, into ``dst``. ``src`` and ``dst`` alternate between the state's row 0 and a scratch
 row (ping-pong), so no thread overwrites a u another thread still reads. Same operations in the same order
 as ``reference.integrate`` and the other layouts.
 
-A 2-D lattice (the monolayer) changes ``neighbour_sum``: the list of a site's neighbours (a table or a
+A 2-D lattice (the monolayer) changes ``neighbours_at``: the list of a site's neighbours (a table or a
 stencil); the launch sequence (``evaluations``) and the kick/drift arithmetic stay.
 """
 
 import warp as wp
 
 from .block_kernels import site_kick
-from .thread_kernels import contact_force, contact_stiffness, laplacian_at
+from .thread_kernels import contact_stiffness, neighbours_at, site_acceleration, site_tangent_acceleration
 
 #: ``drift`` values of ``evaluate``: drift u by c into dst; copy u into dst unchanged; leave dst alone
 DRIFT, COPY, KEEP = 1, 0, -1
@@ -79,15 +80,12 @@ def evaluate(
     k = coupling[base]
     u = src[b, src_row, j]
     v = x[b, 1, j]
-    lap = laplacian_at(src, b, src_row, j, n, boundary)
+    nb = neighbours_at(src, b, src_row, j, n, boundary)
     loss = int(0)
     if tangent != 0:
-        s = hist[slot, base, j]
-        dz = u - v
-        a = wp.vec2d(-(k * lap + s * dz) * m, s * dz)
+        a = site_tangent_acceleration(u, v, nb[0], nb[1], m, k, hist[slot, base, j])
     else:
-        force = contact_force(u - v)
-        a = wp.vec2d(-(k * lap + force) * m, force)
+        a = site_acceleration(u, v, nb[0], nb[1], m, k)
         loss = lossy[b]
         if record != 0:
             hist[slot, b, j] = contact_stiffness(u - v)

@@ -83,9 +83,8 @@ def wall_values(first: wp.float64, last: wp.float64, boundary: int) -> wp.vec2d:
 
 
 @wp.func
-def laplacian_at(x: wp.array3d(dtype=wp.float64), b: int, comp: int, j: int, n: int, boundary: int) -> wp.float64:
-    """(u_j - u_{j-1}) + (u_j - u_{j+1}) of component ``comp`` of lattice b at site j."""
-    u = x[b, comp, j]
+def neighbours_at(x: wp.array3d(dtype=wp.float64), b: int, comp: int, j: int, n: int, boundary: int) -> wp.vec2d:
+    """(u_{j-1}, u_{j+1}) of component ``comp`` of lattice b, the wall values (``wall_values``) at the ends."""
     wall = wall_values(x[b, comp, 0], x[b, comp, n - 1], boundary)
     left = wall[0]
     right = wall[1]
@@ -93,7 +92,15 @@ def laplacian_at(x: wp.array3d(dtype=wp.float64), b: int, comp: int, j: int, n: 
         left = x[b, comp, j - 1]
     if j < n - 1:
         right = x[b, comp, j + 1]
-    return (u - left) + (u - right)
+    return wp.vec2d(left, right)
+
+
+@wp.func
+def laplacian_at(x: wp.array3d(dtype=wp.float64), b: int, comp: int, j: int, n: int, boundary: int) -> wp.float64:
+    """(u_j - u_{j-1}) + (u_j - u_{j+1}) of component ``comp`` of lattice b at site j."""
+    u = x[b, comp, j]
+    nb = neighbours_at(x, b, comp, j, n, boundary)
+    return (u - nb[0]) + (u - nb[1])
 
 
 @wp.func
@@ -137,9 +144,10 @@ def compute_accelerations(
     hist: wp.array3d(dtype=wp.float64),
     record: int,
     slot: int,
+    row: int,
 ):
-    """acc[b] = a(x[b]), recording hist[slot, b, :] = f'(z) when ``record`` is set; with ``tangent`` the
-    linear accelerations of column b along the f'(z) of base lattice ``base`` in hist[slot]."""
+    """acc[b, row], acc[b, row + 1] = a(x[b]) (u'', v''), recording hist[slot, b, :] = f'(z) when ``record`` is set;
+    with ``tangent`` the linear accelerations of column b along the f'(z) of base lattice ``base`` in hist[slot]."""
     for j in range(n):
         if tangent != 0:
             a = tangent_acceleration_at(x, b, j, n, boundary, inv_mass, coupling, hist[slot, base, j])
@@ -147,8 +155,8 @@ def compute_accelerations(
             a = acceleration_at(x, b, j, n, boundary, inv_mass, coupling)
             if record != 0:
                 hist[slot, b, j] = contact_stiffness(x[b, 0, j] - x[b, 1, j])
-        acc[b, 0, j] = a[0]
-        acc[b, 1, j] = a[1]
+        acc[b, row, j] = a[0]
+        acc[b, row + 1, j] = a[1]
 
 
 @wp.func
@@ -450,7 +458,7 @@ def splitting_kernel(
     m = inv_mass[base]
     k = coupling[base]
     record = wp.where(record_stiffness != 0 and tangent == 0, 1, 0)
-    compute_accelerations(x, acc, b, base, n, boundary, m, k, tangent, hist, record, 0)
+    compute_accelerations(x, acc, b, base, n, boundary, m, k, tangent, hist, record, 0, 0)
     rows = unit_stride(x) * unit_stride(acc) * wp.where(record != 0 or tangent != 0, unit_stride(hist), 1)
     if loss == 0 and n >= 2 and rows != 0:
         # the fast path: a stage in one pass over contiguous rows (``fused_stage``)
@@ -480,7 +488,7 @@ def splitting_kernel(
             for s in range(stages):
                 drift(x, b, n, drifts[s] * dt)
                 e = step * stages + s + 1
-                compute_accelerations(x, acc, b, base, n, boundary, m, k, tangent, hist, record, e)
+                compute_accelerations(x, acc, b, base, n, boundary, m, k, tangent, hist, record, e, 0)
                 any_kick(x, acc, b, n, kicks[s + 1] * dt, loss, damp, s + 1)
             save_positions(x, rec_u, rec_v, b, n, step, save_every)
 

@@ -7,12 +7,11 @@ from __future__ import annotations
 import warp as wp
 
 from .thread_kernels import (
-    acceleration_at,
+    compute_accelerations,
     contact_stiffness,
     row,
     save_positions,
     site_acceleration,
-    tangent_acceleration_at,
     unit_stride,
     wall_values,
 )
@@ -34,18 +33,11 @@ def rk4_stage_derivative(
     slot: int,
 ):
     """out[b] = F(y[b]) = (y', a(y)): a base run's (recording f'(z) of the stage when asked), or with
-    ``tangent`` its linearisation along base lattice ``base``'s recorded f'(z)."""
+    ``tangent`` its linearisation along base lattice ``base``'s recorded f'(z) (``compute_accelerations``)."""
     for j in range(n):
-        if tangent != 0:
-            a = tangent_acceleration_at(y, b, j, n, boundary, inv_mass, coupling, hist[slot, base, j])
-        else:
-            a = acceleration_at(y, b, j, n, boundary, inv_mass, coupling)
-            if record != 0:
-                hist[slot, b, j] = contact_stiffness(y[b, 0, j] - y[b, 1, j])
         out[b, 0, j] = y[b, 2, j]
         out[b, 1, j] = y[b, 3, j]
-        out[b, 2, j] = a[0]
-        out[b, 3, j] = a[1]
+    compute_accelerations(y, out, b, base, n, boundary, inv_mass, coupling, tangent, hist, record, slot, 2)
 
 
 @wp.func
