@@ -104,6 +104,16 @@ def _pad(state: np.ndarray, N: int) -> np.ndarray:
     return np.pad(state, ((0, 0), (pad, pad)))
 
 
+def _solve(params: ChainParams, seed, device: str):
+    """The breather at w_b = 1.01 from ``seed``, with the scene's integrator (Newton as ``find_breather(solver=
+    "auto")`` picks it)."""
+    return require(
+        find_breather(
+            params, PAPER_OMEGA, seed, method=BREATHER_METHOD, steps_per_period=BREATHER_STEPS_PER_PERIOD, device=device
+        )
+    )
+
+
 def _site_breather(K: float, N: int, device: str, ctx) -> np.ndarray:
     """The site family's breather at coupling K on N sites, continued in K from the anti-continuum limit."""
     p = ChainParams(PAPER_M, 0.01, N)
@@ -127,16 +137,7 @@ def _foam(P: Parameters, N: int, ctx) -> dict:
     state = _site_breather(float(grid[0]), N, ctx.device, ctx)
     stable, modulus, extended, localized = [], [], [], []
     for K in grid:
-        b = require(
-            find_breather(
-                ChainParams(PAPER_M, float(K), N),
-                PAPER_OMEGA,
-                state,
-                method=BREATHER_METHOD,
-                steps_per_period=BREATHER_STEPS_PER_PERIOD,
-                device=ctx.device,
-            )
-        )
+        b = _solve(ChainParams(PAPER_M, float(K), N), state, ctx.device)
         state = b.state
         fl = floquet(b)
         stable.append(bool(fl.stable))
@@ -186,16 +187,7 @@ def run(ctx: Context) -> dict:
                 )
             else:
                 seed = _pad(state, N)
-            b = require(
-                find_breather(
-                    params,
-                    PAPER_OMEGA,
-                    seed,
-                    method=BREATHER_METHOD,
-                    steps_per_period=BREATHER_STEPS_PER_PERIOD,
-                    device=ctx.device,
-                )
-            )
+            b = _solve(params, seed, ctx.device)
             state = b.state
             tail, outer = _tails(state, P.tail_distance)
             row = {
