@@ -556,19 +556,10 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
         longer than the block (the ``"sites"`` layout) has each thread take sites j, j + block, ..."""
         b, j = wp.tid()
         n = x.shape[2]
-        active = j < n
-        state = load_site(x, b, j, active)
-        e = ZERO
+        e = ZERO  # idle threads (past the lattice's end) contribute these: 0, finite, no contact
         finite = ONE
         low = NO_CONTACT
-        if active:
-            right = x[b, 0, (j + 1) % n]
-            e = site_energy(state[0], state[1], state[2], state[3], right, j, n, boundary, mass[b], coupling[b])
-            finite = finite_state(state[0], state[1], state[2], state[3])
-            low = (ONE + state[0]) - state[1]
-            for r in range(n_rec):
-                low = wp.min(low, (ONE + rec_u[r, b, j]) - rec_v[r, b, j])
-        site = j + wp.static(threads)
+        site = j
         while site < n:
             state = load_site(x, b, site, True)
             right = x[b, 0, (site + 1) % n]
