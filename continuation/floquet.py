@@ -81,6 +81,9 @@ UNRELIABLE_TOLERANCE = 1e-6
 #: site weight M |a_u|^2 + |a_v|^2) is below this fraction of N
 LOCALIZED_FRACTION = 0.1
 
+#: ``floquet(solver="auto")`` takes the krylov path (a window of multipliers near +1 and -1) from this many sites on
+KRYLOV_FLOQUET_MIN_SITES = 1601
+
 #: sites on each side of the orbit's energy centre counted in an instability's ``central_weight``
 CENTRAL_SITES = 2
 
@@ -142,8 +145,13 @@ class FloquetResult:
             (reduced path; None on the full path).
         spectral: Mu and its eigenvectors per parity block (reduced path), for predicting what happens
             between two analysed orbits (``continuation.bubbles``).
-        accuracy: the measured gauges (``trivial_deviation``, ``symplecticity`` or ``pairing_error``).
-        path: ``"reduced"`` or ``"full"``.
+        accuracy: the measured gauges (``trivial_deviation``, ``symplecticity`` or ``pairing_error``; the
+            probe's ``probe_edge`` on the krylov path).
+        path: ``"reduced"``, ``"full"`` or ``"krylov"`` (the reduced problem's multipliers near +1 and -1 only:
+            every array above then holds that subset, and ``stable`` means "no instability in the window").
+        coverage: what the krylov path searched (``continuation.krylov_floquet``): the mu intervals swept
+            (``covered``), the half-height of the strip around the real axis they cover, the shifts; None on the
+            complete paths.
         pairing_error, symplecticity_error: kept for the full path's reports (0 / gauge on the reduced).
         monodromy: V (4N x 4N) when kept (full path).
         wall_seconds: time for the tangent columns and the eigenvalues.
@@ -171,6 +179,12 @@ class FloquetResult:
     central_weight: np.ndarray | None = None
     vectors: np.ndarray | None = dataclasses.field(default=None, repr=False, compare=False)
     spectral: "SpectralData | None" = dataclasses.field(default=None, repr=False, compare=False)
+    coverage: dict | None = None
+
+    @property
+    def complete(self) -> bool:
+        """Whether every multiplier was computed (the dense paths); False for a window (``solver="krylov"``)."""
+        return self.coverage is None
 
     @property
     def nontrivial(self) -> np.ndarray:
@@ -535,11 +549,34 @@ def reduced_floquet(
     else:
         parity = vector_parity(vec) if state is not None and mirror_symmetric(state) else np.zeros(len(mu), int)
     sympl = max(b.symplecticity for b in blocks)
-    spectral = SpectralData(blocks)
     # a = S y with S real: a^T P a = y^T (S^T P S) y, each block's own P
     act = np.concatenate([np.sum(np.real(b.vectors) * (b.P @ np.real(b.vectors)), axis=0) for b in blocks])
+    return assemble(
+        mu,
+        vec,
+        parity,
+        act,
+        M,
+        state,
+        {"symplecticity": sympl},
+        tolerance,
+        path="reduced",
+        spectral=SpectralData(blocks),
+        wall_seconds=wall_seconds + time.perf_counter() - start,
+        stats=stats,
+    )
+
+
+def assemble(
+    mu, vec, parity, act, M, state, accuracy, tolerance, *, path, spectral=None, coverage=None, wall_seconds, stats
+) -> FloquetResult:
+    """The reduced paths' result from the mu of Mu, their eigenvectors (position parts, columns), parities and
+    Krein forms a^T P a: the trivial mu, the tolerance, kinds, signatures, participation and the instabilities.
+    ``mu`` may be a subset of the 2N (``solver="krylov"``: ``coverage`` says which); N is read off ``vec``."""
+    N = vec.shape[0] // 2
+    sympl = accuracy["symplecticity"]
     trivial = int(np.argmin(np.abs(mu - 1.0)))
-    accuracy = {"trivial_deviation": float(abs(mu[trivial] - 1.0)), "symplecticity": sympl}
+    accuracy = {"trivial_deviation": float(abs(mu[trivial] - 1.0)), **accuracy}
     tol = 10.0 * max(accuracy["trivial_deviation"], sympl, 1e-13) if tolerance is None else float(tolerance)
     if tol < 0:
         raise ValueError(f"tolerance must be >= 0, got {tolerance!r}")
@@ -584,12 +621,13 @@ def reduced_floquet(
         central_weight=weight,
         vectors=vec,
         spectral=spectral,
+        coverage=coverage,
         accuracy=accuracy,
-        path="reduced",
+        path=path,
         pairing_error=0.0,
         symplecticity_error=sympl,
         monodromy=None,
-        wall_seconds=wall_seconds + time.perf_counter() - start,
+        wall_seconds=wall_seconds,
         stats=dict(stats or {}),
     )
 
@@ -694,6 +732,8 @@ def floquet(
     keep_monodromy: bool = False,
     tolerance: float | None = None,
     flow: Flow | None = None,
+    solver: str = "auto",
+    window=None,
 ) -> FloquetResult:
     """Floquet multipliers of a converged breather, with the integrator and step of its shooting.
 
@@ -706,6 +746,12 @@ def floquet(
         keep_monodromy: keep V on the result (full path).
         tolerance: override of the measured tolerance (>= 0).
         flow: the Flow to use (default: the breather's own).
+        solver: ``"dense"`` (every multiplier: 4N tangent columns and the eig of Mu, the reference),
+            ``"krylov"`` (the multipliers near +1 and -1 only, from a probed sparse Mu by shift-invert Arnoldi,
+            ``continuation.krylov_floquet``; the result's ``coverage`` says what it could not see) or ``"auto"``
+            (krylov from ``KRYLOV_FLOQUET_MIN_SITES`` sites on, on the reduced path). Both reduced paths need a
+            reversible orbit; the full path is always dense.
+        window: the krylov path's ``FloquetWindow`` (default: the 60 mu nearest each end).
 
     Raises:
         TypeError: ``breather`` is not a ShootingResult.
@@ -746,8 +792,20 @@ def floquet(
         )
     if reduced is None:
         reduced = breather.formulation == "reversible" and _is_reversible_method(flow.method)
+    if solver not in ("dense", "krylov", "auto"):
+        raise ValueError(f"solver must be 'dense', 'krylov' or 'auto', got {solver!r}")
+    if solver == "krylov" and not reduced:
+        raise ValueError("solver='krylov' works on the reduced problem (reversible orbit, symplectic method)")
+    if solver == "auto":
+        solver = "krylov" if reduced and breather.params.N >= KRYLOV_FLOQUET_MIN_SITES else "dense"
     params = breather.params
     start = time.perf_counter()
+    if solver == "krylov":
+        from .krylov_floquet import krylov_floquet
+
+        return krylov_floquet(breather.linearization(flow), params.M, breather.state, tolerance, window)
+    if window is not None:
+        raise ValueError("window= chooses the krylov path's multipliers; the dense path computes all of them")
     if reduced:
         lin = breather.linearization(flow)
         cols = lin.stats["tangent_columns"]

@@ -1,0 +1,325 @@
+"""Floquet multipliers of a long lattice without its 4N tangent columns or its 2N eig: the half-period map
+probed by colour groups, and the multipliers near +1 and -1 by shift-invert Arnoldi (``floquet(solver="krylov")``).
+
+**The half-period map is banded.** A tangent perturbation travels at most a few sites per unit time (the
+lattice's largest group velocity is ~ sqrt(K / M)), and beyond that light cone its amplitude falls faster than
+exponentially (Bessel-like). On the paper chain (M = 30, K = 160, w_b = 1.01, kahan8) an entry of the
+full-period reduced matrix Mu is 1e-14 of the largest at 30 sites from the diagonal and 1e-28 at 40. So the
+columns of A (4N x 4N, on (q, q')) for sites j and j' further apart than 2 b do not overlap, where b is the
+half-bandwidth: one tangent run started from all sites of a colour group {r, r + s, r + 2 s, ...} with
+s = 2 b + 1 gives all of their columns at once (the entries within b of each site belong to that site). The
+4 s runs (4 components x s residues) give all of A, whatever N: 260 columns at b = 32 instead of 4N (6404 at
+N = 1601, 51 204 at 12 801). The probe is checked, not assumed: the entries at distance b of each decoded
+column must be below ``PROBE_TOLERANCE`` of the largest entry, else b is doubled and the probe repeated.
+
+**Products stay sparse.** Mu = Mm^-1 (A22^T Mm A11 + A12^T Mm A21), P = A11^T Mm A21 (the Krein form) and the
+symplecticity gauge are formed from A's sparse blocks exactly as ``floquet.reduced_products`` forms them from
+dense ones (bandwidth 2 b).
+
+**Which multipliers: windows at +1 and -1.** mu = cos(arg l) on the unit circle, so the multipliers within
+angle theta of +1 (or -1) are the mu in [cos theta, 1] (or [-1, -cos theta]). Every instability of the breathers
+seen so far sits there: the symmetry-breaking real pair (mu = 1 + 1e-8), and the finite-size quadruplets
+(Re mu in [0.92, 0.997] at N = 201 .. 801), collisions of the acoustic modes with the optical ones near 2 w_b.
+The window [1 - ``width``, ...) and (..., -1 + ``width``] is swept by shift-invert Arnoldi (ARPACK through
+``scipy.sparse.linalg.eigs`` with a sparse LU of Mu - sigma, O(N b^2)): a shift sigma returns its k nearest
+eigenvalues; the disc out to the k-th one holds every eigenvalue there, so the shift keeps those whose real part
+lies within half the disc's radius of sigma on the far side, and the next shift sits at that cut. The discs
+thus cover the real segment and a strip around it of half-height >= sqrt(3)/2 times the smallest radius
+(``coverage["strip_half_height"]``). Beyond the ends the sweep marches outwards (real pairs, period doubling)
+to the bound ||Mu||_1 on |mu|.
+
+**What a window cannot see**: an instability whose mu lies in (-1 + width, 1 - width), i.e. a multiplier
+further than arccos(1 - width) from both +1 and -1 (a quadruplet from a collision in the middle of the
+circle), or one further off the axis than the strip. ``FloquetResult.coverage`` says both; ``stable`` there
+means "no instability in the window", and the dense path (``solver="dense"``) sees everything.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+#: an entry of a probed column at the edge of its band must be below this fraction of the column's largest
+PROBE_TOLERANCE = 1e-16
+
+#: the first half-bandwidth tried (sites); doubled until the probe passes
+FIRST_HALFWIDTH = 32
+
+
+class ProbeError(RuntimeError):
+    """The half-period map is not banded enough for the probe (a lattice shorter than the light cone)."""
+
+
+def probe_half_period_map(lin, N: int, halfwidth: int = FIRST_HALFWIDTH) -> tuple:
+    """The half-period map A (4N x 4N, on (q, q')) from 4 (2 b + 1) colour-group tangent runs (module
+    docstring), as a CSC matrix, and the half-bandwidth b that passed the check.
+
+    Falls back to b = N (every column its own run: the dense columns) when 2 b + 1 >= N.
+    """
+    b = int(halfwidth)
+    while True:
+        s = 2 * b + 1
+        if s >= N:  # no two sites of a group: the plain unit columns
+            return sp.csc_matrix(lin.unit_columns("all")), N
+        A, edge = _probe(lin, N, b, s)
+        if edge <= PROBE_TOLERANCE:
+            return A, b
+        b *= 2
+
+
+def _probe(lin, N: int, b: int, s: int) -> tuple:
+    """A from the 4 s colour-group runs at half-bandwidth b, and the largest band-edge entry (relative)."""
+    j = np.arange(N)
+    dirs = np.zeros((4, s, 4, N))
+    for comp in range(4):
+        dirs[comp, j % s, comp, j] = 1.0
+    C = lin.columns(dirs.reshape(4 * s, 4, N)).reshape(4, N, 4, s)  # [out, i, comp, r]
+    top = np.max(np.abs(C), axis=(0, 1))  # (4, s)
+    top[top == 0] = 1.0
+    offsets = np.arange(-b, b + 1)
+    band_rows = j[:, None] + offsets[None, :]  # (N, 2b+1): the rows of site j's band
+    ok = (band_rows >= 0) & (band_rows < N)
+    clipped = np.clip(band_rows, 0, N - 1)
+    r = (j % s)[:, None]
+    band = np.moveaxis(C, (0, 2), (2, 3))[clipped, r]  # (N, 2b+1, out, comp)
+    edge_rows = np.abs(band[:, [0, -1]]) / np.moveaxis(top, 0, 1)[j % s][:, None, None, :]  # (N, 2, out, comp)
+    edge = float(np.max(np.where(ok[:, [0, -1], None, None], edge_rows, 0.0)))
+    jj, oo = np.nonzero(ok)
+    vals = band[jj, oo]  # (nnz, out, comp)
+    rows = np.arange(4)[None, :, None] * N + band_rows[jj, oo][:, None, None]
+    cols = np.arange(4)[None, None, :] * N + jj[:, None, None]
+    rows, cols = np.broadcast_to(rows, vals.shape), np.broadcast_to(cols, vals.shape)
+    A = sp.csc_matrix((vals.ravel(), (rows.ravel(), cols.ravel())), shape=(4 * N, 4 * N))
+    return A, edge
+
+
+def sparse_products(A, M: float) -> tuple:
+    """``floquet.reduced_products`` on a sparse A: (Mu, symplecticity, P), Mu and P sparse (CSC)."""
+    n2 = A.shape[0] // 2
+    N = n2 // 2
+    m = np.concatenate([np.full(N, float(M)), np.ones(N)])
+    A = sp.csc_matrix(A)
+    A11, A12, A21, A22 = A[:n2, :n2], A[:n2, n2:], A[n2:, :n2], A[n2:, n2:]
+    Dm, Dinv = sp.diags(m), sp.diags(1.0 / m)
+    C = A12.T @ Dm
+    X = (A22.T @ Dm) @ A11
+    Y = C @ A21
+    P = (A11.T @ Dm) @ A21
+    Z = C @ A22
+    Mu = sp.csc_matrix(Dinv @ (X + Y))
+    S12 = Dinv @ (X - Y) - sp.identity(n2)
+    S22 = Dinv @ (Z - Z.T) @ Dinv
+
+    def amax(S):
+        S = sp.csr_matrix(S)
+        return float(np.max(np.abs(S.data))) if S.nnz else 0.0
+
+    sympl = max(amax(S12), amax(P - P.T), amax(S22))
+    return Mu, sympl, sp.csc_matrix(P)
+
+
+#: the sweeps start a little off +-1, where the trivial mu (and a weak real pair) sit: a shift exactly on an
+#: eigenvalue would factor a singular matrix
+START_OFFSET = 1.2345e-3
+
+
+@dataclasses.dataclass(frozen=True)
+class FloquetWindow:
+    """Which multipliers ``floquet(solver="krylov")`` computes.
+
+    Attributes:
+        count: eigenvalues per shift (ARPACK's k): the first shift at each end returns the ``count`` mu nearest
+            +1 (or -1), so ``count`` alone sets the window (0.9992 .. 1 at N = 3201 for 60).
+        width: sweep on inwards until the window reaches 1 - width (and -1 + width): more shifts, every mu there
+            (0: the first shift's disc only).
+    """
+
+    count: int = 60
+    width: float = 0.0
+
+    def __post_init__(self):
+        if not (isinstance(self.count, int) and self.count >= 4):
+            raise ValueError(f"count must be an integer >= 4, got {self.count!r}")
+        if not 0.0 <= self.width <= 2.0:
+            raise ValueError(f"width must be in [0, 2], got {self.width!r}")
+
+
+def window_eigs(Mu, window: FloquetWindow) -> tuple:
+    """The eigenvalues of the sparse Mu in the windows at +1 and -1, and every one beyond them (|mu| > 1), by
+    shift-invert Arnoldi (module docstring). The end at -1 is the end at +1 of -Mu.
+
+    Returns:
+        (mu (count,), vectors (2N, count), coverage dict).
+    """
+    k = int(min(window.count, Mu.shape[0] - 2))
+    mus, vecs, covered, radii = [], [], [], []
+    shifts, searched = 0, True
+    for sign in (1.0, -1.0):
+        op = sp.csc_matrix(sign * Mu)
+        found = []
+
+        def disc(sigma):
+            """The k eigenvalues of op nearest sigma, and the radius of the disc that surely holds all there."""
+            nonlocal shifts
+            vals, vectors = spla.eigs(op, k=k, sigma=sigma, which="LM", tol=0)
+            shifts += 1
+            d = np.abs(vals - sigma)
+            return vals, vectors, d, float(np.max(d)) * (1 - 1e-9)
+
+        def keep(vals, vectors, d, radius, low, high):
+            inside = (d < radius) & (np.real(vals) > low) & (np.real(vals) <= high)
+            found.append((vals[inside], vectors[:, inside]))
+
+        # the first disc, just outside the end; then inwards to 1 - width, each shift at the previous cut
+        sigma = 1.0 + START_OFFSET
+        vals, vectors, d, radius = disc(sigma)
+        keep(vals, vectors, d, radius, sigma - 0.5 * radius, sigma + 0.5 * radius)
+        outer, cut = sigma + 0.5 * radius, sigma - 0.5 * radius
+        radii.append(radius)
+        while cut > 1.0 - window.width:
+            vals, vectors, d, radius = disc(cut)
+            keep(vals, vectors, d, radius, cut - 0.5 * radius, cut)
+            cut -= 0.5 * radius
+            radii.append(radius)
+        beyond, converged = _outliers(op, outer, k=min(OUTLIER_COUNT, k))
+        found.append(beyond)
+        searched &= converged
+        covered.append(sorted((sign * cut, sign * outer)))
+        mus.extend(sign * v for v, _ in found)
+        vecs.extend(x for _, x in found)
+    mu = np.concatenate(mus)
+    order = np.argsort(-np.real(mu), kind="stable")
+    coverage = {
+        "count": k,
+        "width": float(window.width),
+        "covered": covered[::-1],  # [[-1 - r, -1 + w'], [1 - w', 1 + r]]
+        "beyond_converged": searched,
+        "strip_half_height": float(np.sqrt(3.0) / 2.0 * min(radii)),
+        "shifts": shifts,
+        "unseen": "multipliers with mu between the two covered intervals (further from +1 and -1 than the window), "
+        "further from the real axis than the strip, or beyond the intervals but not among the Arnoldi's converged "
+        "extreme eigenvalues (beyond_converged False): solver='dense' sees every one",
+    }
+    return mu[order], np.hstack(vecs)[:, order], coverage
+
+
+def parity_extensions(N: int) -> tuple:
+    """Sparse extensions E (2N x m) from the first half of the lattice (the centre included) to even and to odd
+    vectors (u then v): x = E y. Mu commutes with the reflection on a mirror-symmetric orbit, so Mu E = E B with
+    B = (Mu E)[first half] (banded too: the reflection only couples sites near the centre, or near the ends
+    where the breather is linear) and the eigenpairs of Mu per parity are those of B, extended by E."""
+    half = N // 2
+    centre = [N // 2] if N % 2 else []
+    out = []
+    for sign in (1, -1):
+        first = np.arange(half)
+        rows, cols, vals = [first, N - 1 - first], [first, first], [np.ones(half), sign * np.ones(half)]
+        if sign == 1 and centre:
+            rows.append(np.array(centre))
+            cols.append(np.array([half]))
+            vals.append(np.ones(1))
+        m = half + (1 if sign == 1 and centre else 0)
+        r, c, v = np.concatenate(rows), np.concatenate(cols), np.concatenate(vals)
+        E = sp.csc_matrix((np.r_[v, v], (np.r_[r, r + N], np.r_[c, c + m])), shape=(2 * N, 2 * m))
+        keep = np.r_[np.arange(m), N + np.arange(m)] if sign == 1 else np.r_[first, N + first]
+        out.append((sign, E, keep))
+    return tuple(out)
+
+
+#: extreme eigenvalues asked of the Arnoldi beyond the end discs (strong real pairs, period doubling)
+OUTLIER_COUNT = 4
+
+#: Arnoldi restarts for them: a separated outlier converges in a few; the cluster at the end does not, and needs not
+OUTLIER_RESTARTS = 40
+
+
+def _outliers(op, outer: float, k: int) -> tuple:
+    """The eigenvalues of ``op`` with real part beyond ``outer`` (an end disc's far cut), from ARPACK's ``k``
+    eigenvalues of largest real part without shift-invert (a shift far from the spectrum converges slowly;
+    Arnoldi finds separated outliers fast). Eigenpairs are kept when their residual is below 1e-10.
+
+    Returns:
+        ((mu, vectors), converged): ``converged`` False when the Arnoldi stopped before its k values converged
+        (then only outliers it did converge are known: the usual case, with none, is the cluster at the end).
+    """
+    try:
+        vals, vectors = spla.eigs(op, k=k, which="LR", tol=1e-13, maxiter=OUTLIER_RESTARTS)
+        converged = True
+    except spla.ArpackNoConvergence as err:
+        vals, vectors, converged = err.eigenvalues, err.eigenvectors, False
+    if len(vals):
+        residual = np.linalg.norm(op @ vectors - vectors * vals[None, :], axis=0) / np.linalg.norm(vectors, axis=0)
+        good = (np.real(vals) > outer) & (residual < 1e-10)
+        vals, vectors = vals[good], vectors[:, good]
+    if not len(vals):
+        return (np.zeros(0, complex), np.zeros((op.shape[0], 0), complex)), converged
+    return (vals, vectors), converged
+
+
+def krylov_floquet(lin, M: float, state=None, tolerance=None, window: FloquetWindow | None = None):
+    """The reduced Floquet analysis of a reversible orbit from its half-period Linearization, for the multipliers
+    in ``window`` (module docstring): a ``FloquetResult`` with ``path="krylov"`` and its ``coverage``. On a
+    mirror-symmetric orbit the even and the odd block are solved apart (``parity_extensions``), so each vector's
+    parity is exact, as on the dense path."""
+    from .floquet import PARITY_COUPLING_RTOL, SYMMETRIC_RTOL, assemble, mirror_symmetric
+
+    start = time.perf_counter()
+    window = window or FloquetWindow()
+    N = lin.x0.shape[1]
+    cols = lin.stats["tangent_columns"]
+    A, halfwidth = probe_half_period_map(lin, N)
+    Mu, sympl, P = sparse_products(A, M)
+    blocks = [(0, None, None)]
+    if state is not None and mirror_symmetric(state, SYMMETRIC_RTOL):
+        flip = np.r_[np.arange(N)[::-1], N + np.arange(N)[::-1]]
+        asym = abs(Mu - Mu[flip][:, flip])
+        if asym.nnz == 0 or asym.max() <= PARITY_COUPLING_RTOL * abs(Mu).max():
+            blocks = parity_extensions(N)
+    mus, vecs, parities, coverages = [], [], [], []
+    for parity, E, keep in blocks:
+        B = Mu if E is None else sp.csc_matrix((Mu @ E)[keep])
+        mu, vec, coverage = window_eigs(B, window)
+        mus.append(mu)
+        vecs.append(vec if E is None else E @ vec)
+        parities.append(np.full(len(mu), parity, int))
+        coverages.append(coverage)
+    mu, vec, parity = np.concatenate(mus), np.hstack(vecs), np.concatenate(parities)
+    covered = [  # what every block covered; a block that reached further reports only this much
+        [max(c["covered"][0][0] for c in coverages), min(c["covered"][0][1] for c in coverages)],
+        [max(c["covered"][1][0] for c in coverages), min(c["covered"][1][1] for c in coverages)],
+    ]
+    inside = np.zeros(len(mu), bool)
+    for low, high in covered:
+        inside |= (mu.real >= low) & (mu.real <= high)
+    mu, vec, parity = mu[inside], vec[:, inside], parity[inside]
+    vec = vec / np.linalg.norm(vec, axis=0)
+    # eigenvectors of real mu are real up to a phase: rotate each onto its largest component, then take the
+    # real part (the Krein form reads real vectors, as on the dense path)
+    big = vec[np.argmax(np.abs(vec), axis=0), np.arange(vec.shape[1])]
+    vec = vec * (np.abs(big) / big)[None, :]
+    vec = np.where(np.abs(mu.imag)[None, :] > 0, vec, np.real(vec))
+    act = np.sum(np.real(vec) * (P @ np.real(vec)), axis=0)
+    coverage = dict(coverages[0])
+    coverage["covered"] = covered
+    coverage["strip_half_height"] = min(c["strip_half_height"] for c in coverages)
+    coverage["shifts"] = sum(c["shifts"] for c in coverages)
+    coverage["parity_blocks"] = len(blocks) == 2
+    accuracy = {"symplecticity": sympl, "probe_halfwidth": halfwidth}
+    return assemble(
+        mu,
+        vec,
+        parity,
+        act,
+        M,
+        state,
+        accuracy,
+        tolerance,
+        path="krylov",
+        coverage=coverage,
+        wall_seconds=time.perf_counter() - start,
+        stats={"tangent_columns": lin.stats["tangent_columns"] - cols},
+    )

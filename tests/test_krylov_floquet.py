@@ -1,0 +1,105 @@
+"""Floquet near +1 and -1 from the probed half-period map (``floquet(solver="krylov")``,
+``continuation.krylov_floquet``) against the dense reference on the CPU: the probe gives the 4N unit columns,
+every multiplier the window reports is the dense one to 1e-12 with the same kind, Krein signature and parity,
+the verdict and the instabilities inside the window are the dense ones, and the result says what it could not
+see."""
+
+import numpy as np
+import pytest
+
+import continuation as ct
+from continuation.floquet import half_period_map, multipliers_from_mu
+from continuation.krylov_floquet import FloquetWindow, probe_half_period_map
+from warpchain import ChainParams
+
+
+@pytest.fixture(scope="module", params=[201, 401])
+def paper_breather(request):
+    p = ChainParams(30.0, 160.0, request.param)
+    return ct.require(ct.find_breather(p, 1.01, ct.nls_seed(p, 1.01), device="cpu"))
+
+
+def test_the_probe_gives_the_unit_columns(paper_breather):
+    b = paper_breather
+    lin = b.linearization()
+    probed, halfwidth = probe_half_period_map(lin, b.params.N)
+    dense = half_period_map(lin)
+    assert halfwidth == 32 and lin.stats["tangent_columns"] >= 4 * 65
+    assert np.max(np.abs(probed.toarray() - dense)) <= 1e-15 * np.max(np.abs(dense))
+
+
+def _match(dense, krylov):
+    """Index of the dense mu nearest each krylov mu, within the same parity."""
+    out = []
+    for m, par in zip(krylov.mu, krylov.parity):
+        cand = np.flatnonzero(dense.parity == par)
+        out.append(cand[np.argmin(np.abs(dense.mu[cand] - m))])
+    return np.array(out)
+
+
+@pytest.mark.parametrize("width", [0.0, 0.1])
+def test_the_window_agrees_with_dense(paper_breather, width):
+    _agree(paper_breather, width)
+
+
+def test_the_window_agrees_with_dense_at_801():
+    p = ChainParams(30.0, 160.0, 801)
+    _agree(ct.require(ct.find_breather(p, 1.01, ct.nls_seed(p, 1.01), device="cpu")), 0.0)
+
+
+def _agree(b, width):
+    dense = ct.floquet(b, solver="dense")
+    krylov = ct.floquet(b, solver="krylov", window=FloquetWindow(width=width))
+    assert dense.complete and not krylov.complete and krylov.path == "krylov"
+    cov = krylov.coverage
+    (lo_minus, hi_minus), (lo_plus, hi_plus) = cov["covered"]
+    assert lo_plus <= 1.0 - width and hi_minus >= -1.0 + width and cov["parity_blocks"]
+    # every reported mu is a dense one, with its kind, signature and parity
+    j = _match(dense, krylov)
+    assert np.max(np.abs(dense.mu[j] - krylov.mu)) <= 1e-12
+    assert np.array_equal(dense.signature[j], krylov.signature)
+    assert np.allclose(dense.participation[j], krylov.participation, rtol=1e-6)
+    # and every dense mu inside the covered intervals and strip is reported (one off the strip may be too)
+    mu = dense.mu
+    inside = ((mu.real >= lo_plus) & (mu.real <= hi_plus)) | ((mu.real >= lo_minus) & (mu.real <= hi_minus))
+    surely = inside & (np.abs(mu.imag) < cov["strip_half_height"])
+    assert surely.sum() >= 0.9 * inside.sum() and len(krylov.mu) <= inside.sum()
+    assert all(np.min(np.abs(krylov.mu - m)) <= 1e-12 for m in mu[surely])
+    # the instabilities inside the window, their kinds, moduli and parities
+    seen = [i for i in dense.instabilities if i.mu.real >= lo_plus or i.mu.real <= hi_minus]
+    assert [i.kind for i in krylov.instabilities] == [i.kind for i in seen]
+    assert [i.parity for i in krylov.instabilities] == [i.parity for i in seen]
+    # multipliers within 1e-9 (the issue's bar; l - 1 ~ sqrt(2 (mu - 1)) magnifies mu's 1e-14 near +1)
+    assert np.allclose([i.modulus for i in krylov.instabilities], [i.modulus for i in seen], rtol=0, atol=1e-9)
+    # (the pair (l, 1/l) of each nontrivial mu, as a set: a real mu's +-0j decides which member comes first;
+    # the trivial one is the accuracy gauge, l - 1 ~ 1.7e-6 from mu - 1 ~ 1.5e-12, and is left out)
+    nontrivial = np.arange(len(j)) != krylov.mu_trivial
+    lam_k = multipliers_from_mu(krylov.mu[nontrivial])
+    lam_d = multipliers_from_mu(dense.mu[j][nontrivial])
+    assert max(float(np.min(np.abs(lam_d - lam))) for lam in lam_k) <= 1e-9
+    assert krylov.stable == dense.stable is False  # the localized real pair, at mu = 1 + 1e-8, is always seen
+    assert abs(krylov.accuracy["trivial_deviation"] - dense.accuracy["trivial_deviation"]) <= 1e-13
+    assert "solver='dense'" in cov["unseen"]
+
+
+def test_the_paper_quadruplet_needs_the_wider_window():
+    p = ChainParams(30.0, 160.0, 201)
+    b = ct.require(ct.find_breather(p, 1.01, ct.nls_seed(p, 1.01), device="cpu"))
+    narrow = ct.floquet(b, solver="krylov")
+    wide = ct.floquet(b, solver="krylov", window=FloquetWindow(width=0.1))
+    assert narrow.kinds == ("real_pair",)  # mu = 0.9916 lies outside the 60 nearest +1
+    assert wide.kinds == ("real_pair", "complex_quadruplet") == ct.floquet(b, solver="dense").kinds
+
+
+def test_solver_choices_are_checked():
+    p = ChainParams(30.0, 160.0, 101)
+    b = ct.require(ct.find_breather(p, 1.01, ct.nls_seed(p, 1.01), device="cpu"))
+    assert ct.floquet(b).path == "reduced"  # auto: dense below KRYLOV_FLOQUET_MIN_SITES
+    with pytest.raises(ValueError, match="solver must be"):
+        ct.floquet(b, solver="arnoldi")
+    with pytest.raises(ValueError, match="reduced problem"):
+        ct.floquet(b, solver="krylov", reduced=False)
+    with pytest.raises(ValueError, match="window="):
+        ct.floquet(b, solver="dense", window=FloquetWindow())
+    with pytest.raises(ValueError, match="count"):
+        FloquetWindow(count=2)
