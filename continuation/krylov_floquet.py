@@ -185,7 +185,7 @@ def window_eigs(Mu, window: FloquetWindow) -> tuple:
             keep(vals, vectors, d, radius, cut - 0.5 * radius, cut)
             cut -= 0.5 * radius
             radii.append(radius)
-        beyond, converged = _outliers(op, outer, k=min(OUTLIER_COUNT, k))
+        beyond, converged = _outliers(sp.csr_matrix(op), outer, k=min(OUTLIER_COUNT, k))  # CSR: faster products
         found.append(beyond)
         searched &= converged
         covered.append(sorted((sign * cut, sign * outer)))
@@ -234,7 +234,7 @@ def parity_extensions(N: int) -> tuple:
 OUTLIER_COUNT = 4
 
 #: Arnoldi restarts for them: a separated outlier converges in a few; the cluster at the end does not, and needs not
-OUTLIER_RESTARTS = 40
+OUTLIER_RESTARTS = 20
 
 
 def _outliers(op, outer: float, k: int) -> tuple:
