@@ -207,29 +207,6 @@ def window_eigs(Mu, window: FloquetWindow) -> tuple:
     return mu[order], np.hstack(vecs)[:, order], coverage
 
 
-def parity_extensions(N: int) -> tuple:
-    """Sparse extensions E (2N x m) from the first half of the lattice (the centre included) to even and to odd
-    vectors (u then v): x = E y. Mu commutes with the reflection on a mirror-symmetric orbit, so Mu E = E B with
-    B = (Mu E)[first half] (banded too: the reflection only couples sites near the centre, or near the ends
-    where the breather is linear) and the eigenpairs of Mu per parity are those of B, extended by E."""
-    half = N // 2
-    centre = [N // 2] if N % 2 else []
-    out = []
-    for sign in (1, -1):
-        first = np.arange(half)
-        rows, cols, vals = [first, N - 1 - first], [first, first], [np.ones(half), sign * np.ones(half)]
-        if sign == 1 and centre:
-            rows.append(np.array(centre))
-            cols.append(np.array([half]))
-            vals.append(np.ones(1))
-        m = half + (1 if sign == 1 and centre else 0)
-        r, c, v = np.concatenate(rows), np.concatenate(cols), np.concatenate(vals)
-        E = sp.csc_matrix((np.r_[v, v], (np.r_[r, r + N], np.r_[c, c + m])), shape=(2 * N, 2 * m))
-        keep = np.r_[np.arange(m), N + np.arange(m)] if sign == 1 else np.r_[first, N + first]
-        out.append((sign, E, keep))
-    return tuple(out)
-
-
 #: extreme eigenvalues asked of the Arnoldi beyond the end discs (strong real pairs, period doubling)
 OUTLIER_COUNT = 4
 
@@ -265,7 +242,8 @@ def krylov_floquet(lin, M: float, state=None, tolerance=None, window: FloquetWin
     in ``window`` (module docstring): a ``FloquetResult`` with ``path="krylov"`` and its ``coverage``. On a
     mirror-symmetric orbit the even and the odd block are solved apart (``parity_extensions``), so each vector's
     parity is exact, as on the dense path."""
-    from .floquet import PARITY_COUPLING_RTOL, SYMMETRIC_RTOL, assemble, mirror_symmetric
+    from .floquet import assemble
+    from .parity import PARITY_COUPLING_RTOL, SYMMETRIC_RTOL, mirror_symmetric, parity_extensions
 
     start = time.perf_counter()
     window = window or FloquetWindow()
