@@ -1,16 +1,11 @@
 """Floquet multipliers of a long lattice without its 4N tangent columns or its 2N eig: the half-period map
 probed by colour groups, and the multipliers near +1 and -1 by shift-invert Arnoldi (``floquet(solver="krylov")``).
 
-**The half-period map is banded.** A tangent perturbation travels at most a few sites per unit time (the
-lattice's largest group velocity is ~ sqrt(K / M)), and beyond that light cone its amplitude falls faster than
-exponentially (Bessel-like). On the paper chain (M = 30, K = 160, w_b = 1.01, kahan8) an entry of the
-full-period reduced matrix Mu is 1e-14 of the largest at 30 sites from the diagonal and 1e-28 at 40. So the
-columns of A (4N x 4N, on (q, q')) for sites j and j' further apart than 2 b do not overlap, where b is the
-half-bandwidth: one tangent run started from all sites of a colour group {r, r + s, r + 2 s, ...} with
-s = 2 b + 1 gives all of their columns at once (the entries within b of each site belong to that site). The
-4 s runs (4 components x s residues) give all of A, whatever N: 260 columns at b = 32 instead of 4N (6404 at
-N = 1601, 51 204 at 12 801). The probe is checked, not assumed: the entries at distance b of each decoded
-column must be below ``PROBE_TOLERANCE`` of the largest entry, else b is doubled and the probe repeated.
+**The half-period map is banded.** A tangent perturbation travels a few sites per unit time and beyond that light
+cone its amplitude falls faster than exponentially (an entry of the paper chain's full-period Mu is 1e-14 of the
+largest at 30 sites from the diagonal, 1e-28 at 40). So one tangent run from a colour group of sites 2 b + 1 apart
+gives all of their columns at once, and 4 (2 b + 1) runs give all of A whatever N: 260 at b = 32 instead of 4N
+(6404 at N = 1601, 51 204 at 12 801), checked at the band's edge (``warpchain.Linearization.probed_columns``).
 
 **Products stay sparse.** Mu = Mm^-1 (A22^T Mm A11 + A12^T Mm A21), P = A11^T Mm A21 (the Krein form) and the
 symplecticity gauge are formed from A's sparse blocks exactly as ``floquet.reduced_products`` forms them from
@@ -42,59 +37,6 @@ import time
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
-
-#: an entry of a probed column at the edge of its band must be below this fraction of the column's largest
-PROBE_TOLERANCE = 1e-16
-
-#: the first half-bandwidth tried (sites); doubled until the probe passes
-FIRST_HALFWIDTH = 32
-
-
-class ProbeError(RuntimeError):
-    """The half-period map is not banded enough for the probe (a lattice shorter than the light cone)."""
-
-
-def probe_half_period_map(lin, N: int, halfwidth: int = FIRST_HALFWIDTH) -> tuple:
-    """The half-period map A (4N x 4N, on (q, q')) from 4 (2 b + 1) colour-group tangent runs (module
-    docstring), as a CSC matrix, and the half-bandwidth b that passed the check.
-
-    Falls back to b = N (every column its own run: the dense columns) when 2 b + 1 >= N.
-    """
-    b = int(halfwidth)
-    while True:
-        s = 2 * b + 1
-        if s >= N:  # no two sites of a group: the plain unit columns
-            return sp.csc_matrix(lin.unit_columns("all")), N
-        A, edge = _probe(lin, N, b, s)
-        if edge <= PROBE_TOLERANCE:
-            return A, b
-        b *= 2
-
-
-def _probe(lin, N: int, b: int, s: int) -> tuple:
-    """A from the 4 s colour-group runs at half-bandwidth b, and the largest band-edge entry (relative)."""
-    j = np.arange(N)
-    dirs = np.zeros((4, s, 4, N))
-    for comp in range(4):
-        dirs[comp, j % s, comp, j] = 1.0
-    C = lin.columns(dirs.reshape(4 * s, 4, N)).reshape(4, N, 4, s)  # [out, i, comp, r]
-    top = np.max(np.abs(C), axis=(0, 1))  # (4, s)
-    top[top == 0] = 1.0
-    offsets = np.arange(-b, b + 1)
-    band_rows = j[:, None] + offsets[None, :]  # (N, 2b+1): the rows of site j's band
-    ok = (band_rows >= 0) & (band_rows < N)
-    clipped = np.clip(band_rows, 0, N - 1)
-    r = (j % s)[:, None]
-    band = np.moveaxis(C, (0, 2), (2, 3))[clipped, r]  # (N, 2b+1, out, comp)
-    edge_rows = np.abs(band[:, [0, -1]]) / np.moveaxis(top, 0, 1)[j % s][:, None, None, :]  # (N, 2, out, comp)
-    edge = float(np.max(np.where(ok[:, [0, -1], None, None], edge_rows, 0.0)))
-    jj, oo = np.nonzero(ok)
-    vals = band[jj, oo]  # (nnz, out, comp)
-    rows = np.arange(4)[None, :, None] * N + band_rows[jj, oo][:, None, None]
-    cols = np.arange(4)[None, None, :] * N + jj[:, None, None]
-    rows, cols = np.broadcast_to(rows, vals.shape), np.broadcast_to(cols, vals.shape)
-    A = sp.csc_matrix((vals.ravel(), (rows.ravel(), cols.ravel())), shape=(4 * N, 4 * N))
-    return A, edge
 
 
 def sparse_products(A, M: float) -> tuple:
@@ -249,7 +191,7 @@ def krylov_floquet(lin, M: float, state=None, tolerance=None, window: FloquetWin
     window = window or FloquetWindow()
     N = lin.x0.shape[1]
     cols = lin.stats["tangent_columns"]
-    A, halfwidth = probe_half_period_map(lin, N)
+    A, halfwidth = lin.probed_columns("all")
     Mu, sympl, P = sparse_products(A, M)
     blocks = [(0, None, None)]
     if state is not None and mirror_symmetric(state, SYMMETRIC_RTOL):

@@ -254,6 +254,7 @@ class PeriodMap:
         self.solver, self.krylov = solver, krylov or KrylovSettings()
         self.krylov_iterations: list = []  # GMRES matrix-vector products per Newton step (solver "krylov")
         self.krylov_unconverged = 0  # GMRES solves that missed their tolerance (a dense step replaced them)
+        self.tangent_columns = 0  # tangent runs of the dense Jacobians (unit columns, or colour groups when probed)
         n_half, self.dt = flow.grid(omega)
         N = params.N
         if formulation == "reversible":
@@ -308,7 +309,10 @@ class ShootingPoint:
         pmap, N = self.pmap, self.pmap.params.N
         which = "positions" if pmap.formulation == "reversible" else "all"
         if pmap.jacobian == "tangent":
-            return self.linearization.unit_columns(which)
+            before = self.linearization.stats["tangent_columns"]
+            cols = self.linearization.unit_columns(which)
+            pmap.tangent_columns += self.linearization.stats["tangent_columns"] - before  # fewer when probed
+            return cols
         eye = np.eye(4 * N).reshape(4 * N, 4, N)
         directions = eye[: 2 * N] if which == "positions" else eye
         h = pmap.fd_step
@@ -508,12 +512,13 @@ def shooting_result(pmap: PeriodMap, outcome: NewtonOutcome, start: float) -> Sh
         )
     ev = outcome.evaluation
     lin = ev.linearization if ev is not None and status is not ShootingStatus.INTEGRATION_ERROR else None
-    stats = dict(outcome.stats, tangent_columns=outcome.stats["jacobians"] * pmap.n_unknowns)
+    columns = pmap.tangent_columns if pmap.jacobian == "tangent" else outcome.stats["jacobians"] * pmap.n_unknowns
+    stats = dict(outcome.stats, tangent_columns=columns)
     if pmap.solver == "krylov":
         stats.update(
             solver="krylov", krylov_iterations=list(pmap.krylov_iterations), krylov_unconverged=pmap.krylov_unconverged
         )
-        stats["tangent_columns"] = sum(pmap.krylov_iterations) + pmap.krylov_unconverged * pmap.n_unknowns
+        stats["tangent_columns"] = sum(pmap.krylov_iterations) + pmap.tangent_columns
     else:
         stats["solver"] = "dense"
     return ShootingResult(

@@ -9,7 +9,8 @@ import pytest
 
 import continuation as ct
 from continuation.floquet import half_period_map, multipliers_from_mu
-from continuation.krylov_floquet import FloquetWindow, probe_half_period_map
+from continuation.krylov_floquet import FloquetWindow
+from warpchain.flow import PROBE_MIN_SITES
 from warpchain import ChainParams
 
 
@@ -22,10 +23,27 @@ def paper_breather(request):
 def test_the_probe_gives_the_unit_columns(paper_breather):
     b = paper_breather
     lin = b.linearization()
-    probed, halfwidth = probe_half_period_map(lin, b.params.N)
+    probed, halfwidth = lin.probed_columns("all")
     dense = half_period_map(lin)
     assert halfwidth == 32 and lin.stats["tangent_columns"] >= 4 * 65
     assert np.max(np.abs(probed.toarray() - dense)) <= 1e-15 * np.max(np.abs(dense))
+    for which in ("positions", "velocities"):
+        part, _ = lin.probed_columns(which)
+        assert np.max(np.abs(part.toarray() - lin.unit_columns(which))) <= 1e-15 * np.max(np.abs(dense))
+
+
+def test_long_chains_get_probed_unit_columns():
+    """From PROBE_MIN_SITES sites on, ``unit_columns`` (Newton's Jacobian, dense Floquet) comes from 2 (2 b + 1)
+    runs per half of the state: the same columns as one run per direction."""
+    p = ChainParams(30.0, 160.0, PROBE_MIN_SITES)
+    b = ct.require(ct.find_breather(p, 1.01, ct.nls_seed(p, 1.01), device="cpu"))
+    lin = b.linearization()
+    before = lin.stats["tangent_columns"]
+    probed = lin.unit_columns("positions")
+    assert lin.stats["tangent_columns"] - before == 2 * 65
+    N = p.N
+    every = lin.columns(np.eye(4 * N)[: 2 * N].reshape(2 * N, 4, N))
+    assert np.max(np.abs(probed - every)) <= 1e-15 * np.max(np.abs(every))
 
 
 def _match(dense, krylov):
