@@ -362,6 +362,7 @@ def run(ctx: Context) -> dict:
         workers=P.workers,
         scheduler=P.scheduler or None,
         gpus=gpus if ctx.device != "cpu" else 0,
+        processes=ctx.device == "cpu",  # GPU tasks: local workers as threads (warpchain.sweep.run_sweep)
         progress=progress_bars(),
         log=ctx.log,
     )

@@ -3,6 +3,7 @@ a failure or a half-written task, and refuse to mix grids."""
 
 import dataclasses
 import functools
+import os
 import subprocess
 import sys
 
@@ -96,7 +97,10 @@ def test_in_process_sweep(tmp_path):
     assert (again.skipped, again.ran, again.task_seconds) == (6, 0, [])
 
 
-def test_two_workers_equal_in_process(tmp_path, clean_store):
+@pytest.mark.parametrize("processes", [True, False])
+def test_two_workers_equal_in_process(tmp_path, clean_store, processes):
+    """Two local workers, as processes or as threads of this process (``processes=False``, the GPU scenes' choice):
+    the in-process store, each worker warmed up before its tasks."""
     pytest.importorskip("distributed")
     path = tmp_path / "data.zarr"
     lines = []
@@ -108,10 +112,12 @@ def test_two_workers_equal_in_process(tmp_path, clean_store):
         progress=False,
         log=lines.append,
         warm_up=functools.partial(_demo_warm_up, folder=str(tmp_path / "warm")),
+        processes=processes,
     )
     assert (report.mode, report.workers, report.ran, report.skipped) == ("dask", 2, 6, 0)
-    warmed = sorted(p.read_text() for p in (tmp_path / "warm").iterdir())  # once per worker, before its tasks
-    assert warmed == ["cpu 32.0 MiB", "cpu 32.0 MiB"]
+    warmed = sorted(p.read_text() for p in (tmp_path / "warm").iterdir())  # one file per process
+    assert warmed == ["cpu 32.0 MiB"] * (2 if processes else 1)
+    assert (tmp_path / "warm" / str(os.getpid())).exists() != processes  # threads: warmed in this process
     assert sorted(report.task_indices) == report.task_indices and len(report.task_seconds) == 6
     assert "dask (local cluster, 2 workers on cpu)" in lines[0]
     assert_same_store(clean_store, path)
