@@ -12,7 +12,7 @@ instability with its kind, modulus, participation and parity: from the dense Flo
 ``continuation.krylov_floquet``: the half-period map probed in 260 tangent runs, shift-invert Arnoldi). The window
 sees the localized real pair (the symmetry-breaking instability, mu = 1 + 1e-8) at every N; the extended
 quadruplets further from +1 (Re mu ~ 0.9 .. 0.99) only with ``window_width`` (each row's ``floquet_covered``
-says what was searched).
+says what was searched). ``--set solver=dense|krylov`` puts Newton and Floquet on one path at every size.
 
 The K-branch foam: the site family at ``foam_points`` couplings log-spaced over ``foam_K`` (default [2, 4]),
 at each N of ``foam_sizes``, each point solved from the previous one and analysed by dense Floquet: the
@@ -67,6 +67,12 @@ class Parameters:
     floquet_sites: int = param(
         801, "dense Floquet analysis up to this many sites (its cost grows like N^3); the window beyond", ge=0
     )
+    solver: str = param(
+        "auto",
+        "Newton's and Floquet's path at every size: auto (Newton matrix-free from 1025 sites, Floquet dense up to "
+        "floquet_sites and the window beyond), dense or krylov",
+        choices=("auto", "dense", "krylov"),
+    )
     window_width: float = param(
         0.0, "beyond floquet_sites: the krylov window sweeps to mu = 1 - width (0: the 60 mu nearest +-1)", ge=0, le=2
     )
@@ -113,12 +119,18 @@ def _pad(state: np.ndarray, N: int) -> np.ndarray:
     return np.pad(state, ((0, 0), (pad, pad)))
 
 
-def _solve(params: ChainParams, seed, device: str):
-    """The breather at w_b = 1.01 from ``seed``, with the scene's integrator (Newton as ``find_breather(solver=
-    "auto")`` picks it)."""
+def _solve(params: ChainParams, seed, device: str, solver: str = "auto"):
+    """The breather at w_b = 1.01 from ``seed``, with the scene's integrator (Newton's linear solves as
+    ``find_breather(solver=...)``)."""
     return require(
         find_breather(
-            params, PAPER_OMEGA, seed, method=BREATHER_METHOD, steps_per_period=BREATHER_STEPS_PER_PERIOD, device=device
+            params,
+            PAPER_OMEGA,
+            seed,
+            method=BREATHER_METHOD,
+            steps_per_period=BREATHER_STEPS_PER_PERIOD,
+            device=device,
+            solver=solver,
         )
     )
 
@@ -197,7 +209,7 @@ def run(ctx: Context) -> dict:
                 )
             else:
                 seed = _pad(state, N)
-            b = _solve(params, seed, ctx.device)
+            b = _solve(params, seed, ctx.device, P.solver)
             state = b.state
             tail, outer = _tails(state, P.tail_distance)
             row = {
@@ -212,7 +224,7 @@ def run(ctx: Context) -> dict:
                 "outer_amplitude": outer,
                 "min_contact": b.min_contact,
             }
-            dense = N <= P.floquet_sites
+            dense = P.solver == "dense" or (P.solver == "auto" and N <= P.floquet_sites)
             fl = floquet(b, solver="dense") if dense else floquet(b, solver="krylov", window=window)
             row.update(
                 max_modulus=fl.max_modulus,
