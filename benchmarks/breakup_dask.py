@@ -3,7 +3,8 @@
 Command (on a machine with two GPUs): ``python benchmarks/breakup_dask.py OUT_DIR``. Runs the full grid
 (``--set grid=full``, 100 320 lattices x 200 periods) three times: in-process on one GPU, through a local
 Dask cluster with one worker on one GPU, and with two workers on two GPUs; then interrupts a two-worker
-run after a few seconds and runs the same command again (the resume). Compares the stores array by array
+run after a few seconds (SIGINT) and runs the same command again (the resume), and the same after a SIGKILL of
+the client (whose threads are the workers on a GPU). Compares the stores array by array
 and writes ``breakup-dask.json`` (sweep wall seconds from each summary, throughput ratios, equality).
 """
 
@@ -21,17 +22,17 @@ BASE = [sys.executable, "-m", "scenarios", "run", "breakup-statistics", "--set",
 BASE += ["--set", "checks=false"]
 
 
-def run(out: str, *sets: str, timeout: float | None = None) -> dict:
+def run(out: str, *sets: str, timeout: float | None = None, kill: bool = False) -> dict:
     cmd = BASE + [a for s in sets for a in ("--set", s)] + ["--out", out]
     t0 = time.perf_counter()
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         output, _ = proc.communicate(timeout=timeout)
         rc = proc.returncode
-    except subprocess.TimeoutExpired:  # interrupt it as Ctrl-C would
-        proc.send_signal(signal.SIGINT)
+    except subprocess.TimeoutExpired:  # interrupt it as Ctrl-C would, or kill it (SIGKILL: no handler runs)
+        proc.send_signal(signal.SIGKILL if kill else signal.SIGINT)
         output, _ = proc.communicate()
-        rc = f"interrupted (SIGINT after {timeout} s), exit {proc.returncode}"
+        rc = f"{'killed (SIGKILL' if kill else 'interrupted (SIGINT'} after {timeout} s), exit {proc.returncode}"
     tail = output.replace("\r", "\n")[-1500:]
     wall = time.perf_counter() - t0
     summary = Path(out) / "breakup-statistics" / "summary.json"
@@ -69,6 +70,10 @@ def main(out_dir: Path) -> None:
     result["interrupted"] = run("/tmp/d3", "workers=2", "gpus=2", timeout=15)
     result["resumed"] = run("/tmp/d3", "workers=2", "gpus=2")
     result["store_resumed_equals_in_process"] = same_store("/tmp/d0", "/tmp/d3")
+    # the client killed outright (SIGKILL: with thread workers, the workers die with it), then the same command
+    result["killed"] = run("/tmp/d4", "workers=2", "gpus=2", timeout=8, kill=True)
+    result["resumed_after_kill"] = run("/tmp/d4", "workers=2", "gpus=2")
+    result["store_resumed_after_kill_equals_in_process"] = same_store("/tmp/d0", "/tmp/d4")
     (out_dir / "breakup-dask.json").write_text(json.dumps(result, indent=1) + "\n")
 
 
