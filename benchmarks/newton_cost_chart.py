@@ -1,9 +1,11 @@
-"""Chart: Newton's cost per breather against N, dense against matrix-free, on each device, from the JSON that
-``benchmarks/newton_krylov.py --json`` writes (or a compact result set holding it, ``benchmarks/results``).
+"""Chart: the cost per breather against N, dense against matrix-free, on each device: Newton (left), from the JSON
+that ``benchmarks/newton_krylov.py --json`` writes, and its multipliers (right: dense Floquet, every multiplier,
+against the window near +1 and -1, ``floquet(solver="krylov")``), from ``benchmarks/breather_scaling.py --json``;
+either may also be a compact result set holding it (``benchmarks/results``).
 
 Command: ``python benchmarks/newton_cost_chart.py --out newton-cost.png LABEL=FILE [LABEL=FILE ...]``, e.g.
-``cpu=benchmarks/results/cpu-2core-2026-11-25c.json h100=newton-krylov.json``. Rows with the same N in
-several files of one label keep the last.
+``cpu=benchmarks/results/cpu-2core-2026-11-25c.json cpu=benchmarks/results/cpu-2core-2026-11-26.json``. Rows
+with the same N in several files of one label keep the last.
 """
 
 import argparse
@@ -11,12 +13,18 @@ import json
 from pathlib import Path
 
 
-def rows_of(path: Path) -> list:
-    """The benchmark's rows, from its own JSON or from a compact set's ``results["newton-krylov.json"]``."""
+def rows_of(path: Path) -> tuple[list, list]:
+    """(Newton rows, Floquet rows) of a file: a benchmark's own JSON (its rows are one kind or the other) or a
+    compact set's ``results["newton-krylov.json"]`` and ``results["scaling.json"]``."""
     data = json.loads(path.read_text())
-    if "rows" not in data:
-        data = data["results"]["newton-krylov.json"]
-    return data["rows"]
+    if "rows" in data:
+        rows = data["rows"]
+        return ([], rows) if rows and "krylov_floquet_seconds" in rows[0] else (rows, [])
+    results = data["results"]
+    return (
+        results.get("newton-krylov.json", {}).get("rows", []),
+        results.get("scaling.json", {}).get("rows", []),
+    )
 
 
 def main():
@@ -29,13 +37,20 @@ def main():
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    series: dict = {}
+    newton: dict = {}
+    floq: dict = {}
     for source in args.sources:
         label, _, name = source.partition("=")
-        for row in rows_of(Path(name)):
-            series.setdefault(label, {})[row["N"]] = row
-    fig, ax = plt.subplots(figsize=(7, 4.5), layout="constrained")
-    for i, (label, rows) in enumerate(series.items()):
+        n_rows, f_rows = rows_of(Path(name))
+        for row in n_rows:
+            newton.setdefault(label, {})[row["N"]] = row
+        for row in f_rows:
+            floq.setdefault(label, {})[row["N"]] = row
+    labels = list(dict.fromkeys([*newton, *floq]))
+    fig, axes = plt.subplots(1, 2 if floq else 1, figsize=(13 if floq else 7, 4.5), layout="constrained", squeeze=False)
+    ax = axes[0, 0]
+    for label, rows in newton.items():
+        i = labels.index(label)
         Ns = sorted(rows)
         for path, marker, style in (("dense", "s", "--"), ("krylov", "o", "-")):
             pts = [(n, rows[n].get(f"{path}_seconds")) for n in Ns if rows[n].get(f"{path}_seconds")]
@@ -46,6 +61,23 @@ def main():
     ax.set_title("paper breather: dense against matrix-free Newton", fontsize=10)
     ax.grid(True, which="both", lw=0.3, alpha=0.5)
     ax.legend(fontsize=8, loc="upper left")
+    if floq:
+        ax = axes[0, 1]
+        for label, rows in floq.items():
+            i = labels.index(label)
+            Ns = sorted(rows)
+            for key, name, marker, style in (
+                ("dense_floquet_seconds", "dense Floquet (every multiplier)", "s", "--"),
+                ("krylov_floquet_seconds", "window near +-1 (probe + shift-invert Arnoldi)", "o", "-"),
+            ):
+                pts = [(n, rows[n][key]) for n in Ns if rows[n].get(key)]
+                if pts:
+                    x, y = zip(*pts)
+                    ax.loglog(x, y, marker + style, color=f"C{i}", label=f"{label}: {name}")
+        ax.set(xlabel="N (sites)", ylabel="seconds per breather's multipliers")
+        ax.set_title("its multipliers: dense Floquet against the window near +-1", fontsize=10)
+        ax.grid(True, which="both", lw=0.3, alpha=0.5)
+        ax.legend(fontsize=8, loc="upper left")
     fig.savefig(args.out, dpi=130)
     print(f"wrote {args.out}")
 
