@@ -121,3 +121,21 @@ def test_solver_choices_are_checked():
         ct.floquet(b, solver="dense", window=FloquetWindow())
     with pytest.raises(ValueError, match="count"):
         FloquetWindow(count=2)
+
+
+def test_a_periodic_ring_is_not_probed():
+    """On a ring a perturbation wraps round to the other end, where a colour group's decoding would hand it to
+    the wrong site: ``probed_columns`` falls back to one run per direction there."""
+    from warpchain import Flow
+
+    p = ChainParams(30.0, 160.0, 201, boundary="periodic")
+    rng = np.random.default_rng(7)
+    x0 = np.zeros((4, p.N))
+    x0[:2] = 1e-2 * rng.standard_normal((2, p.N))
+    lin = Flow(device="cpu").linearize(p, x0, 40, 0.2)
+    assert not lin.banded
+    probed, halfwidth = lin.probed_columns("positions")
+    every = lin.columns(np.eye(4 * p.N)[: 2 * p.N].reshape(2 * p.N, 4, p.N))
+    assert halfwidth == p.N and np.array_equal(probed.toarray(), every)
+    fixed = Flow(device="cpu").linearize(p.replace(boundary="fixed"), x0, 40, 0.2)
+    assert fixed.banded

@@ -81,6 +81,7 @@ class Linearization:
         dt,
         columns: Callable[[np.ndarray], np.ndarray],
         unit: Callable[[int, int], np.ndarray] | None = None,
+        banded: bool = True,
     ):
         self.x0, self.x_end, self.min_contact = x0, x_end, float(min_contact_value)
         self.nsteps, self.dt = int(nsteps), float(dt)
@@ -88,6 +89,9 @@ class Linearization:
         # optional: (first, count) -> the end-state derivatives along unit directions first .. first + count - 1
         # of the 4N, shape (count, 4, N), without the directions crossing from the host
         self._unit = unit
+        # whether a perturbation stays near its site (fixed and free ends; a periodic ring carries it round to the
+        # other end, where a colour group's decoding would give it to the wrong site): ``probed_columns`` needs it
+        self.banded = bool(banded)
         self._cache: dict[str, np.ndarray] = {}
         self.stats = {"tangent_columns": 0}
 
@@ -118,7 +122,7 @@ class Linearization:
         first, count = {"positions": (0, 2 * N), "velocities": (2 * N, 2 * N), "all": (0, 4 * N)}[which]
         if which in self._cache:
             return self._cache[which]
-        if N >= PROBE_MIN_SITES:
+        if N >= PROBE_MIN_SITES and self.banded:
             cols = self.probed_columns(which)[0].toarray()
             self._cache[which] = cols
             return cols
@@ -142,14 +146,14 @@ class Linearization:
         sites {r, r + s, r + 2 s, ...} of a component (s = 2 b + 1) gives all their columns at once: the entries
         within b of each site are that site's. The check is measured, not assumed: each decoded column's entries at
         distance b must be below ``PROBE_TOLERANCE`` of its run's largest, else b is doubled (plain unit columns once
-        2 b + 1 >= N).
+        2 b + 1 >= N, and on a periodic ring, where a perturbation wraps round to the other end).
         """
         import scipy.sparse as sp
 
         N = self.x0.shape[1]
         comps = {"positions": (0, 1), "velocities": (2, 3), "all": (0, 1, 2, 3)}[which]
         b = int(halfwidth)
-        while 2 * b + 1 < N:
+        while self.banded and 2 * b + 1 < N:
             A, edge = self._probe(comps, b)
             if edge <= PROBE_TOLERANCE:
                 return A, b
@@ -371,7 +375,8 @@ class Flow:
                 lambda dx: wp.copy(dx, eye, src_offset=first * n, count=count * n), count, key=("unit", first, count)
             )
 
-        return Linearization(x0[0], x_end[0], contact[0], nsteps, dt, columns, unit=unit)
+        banded = params.boundary != "periodic"
+        return Linearization(x0[0], x_end[0], contact[0], nsteps, dt, columns, unit=unit, banded=banded)
 
 
 def _column_buffers(runner, count: int):
@@ -470,4 +475,5 @@ class ReferenceFlow(Flow):
             out = reference.integrate(self.method, params, x0, float(dt), int(nsteps), dx0=directions[None])
             return out["dx"][0]
 
-        return Linearization(x0[0], traj.x_end[0], traj.min_contact[0], nsteps, dt, columns)
+        banded = params.boundary != "periodic"
+        return Linearization(x0[0], traj.x_end[0], traj.min_contact[0], nsteps, dt, columns, banded=banded)
