@@ -47,35 +47,35 @@ def main():
         for row in f_rows:
             floq.setdefault(label, {})[row["N"]] = row
     labels = list(dict.fromkeys([*newton, *floq]))
-    fig, axes = plt.subplots(1, 2 if floq else 1, figsize=(13 if floq else 7, 4.5), layout="constrained", squeeze=False)
-    ax = axes[0, 0]
-    for label, rows in newton.items():
-        i = labels.index(label)
-        Ns = sorted(rows)
-        for path, marker, style in (("dense", "s", "--"), ("krylov", "o", "-")):
-            pts = [(n, rows[n].get(f"{path}_seconds")) for n in Ns if rows[n].get(f"{path}_seconds")]
-            if pts:
-                x, y = zip(*pts)
-                ax.loglog(x, y, marker + style, color=f"C{i}", label=f"{label}: {path}")
-    ax.set(xlabel="N (sites)", ylabel="seconds per breather (Newton from the NLS seed)")
-    ax.set_title("paper breather: dense against matrix-free Newton", fontsize=10)
-    ax.grid(True, which="both", lw=0.3, alpha=0.5)
-    ax.legend(fontsize=8, loc="upper left")
-    if floq:
-        ax = axes[0, 1]
-        for label, rows in floq.items():
-            i = labels.index(label)
-            Ns = sorted(rows)
-            for key, name, marker, style in (
+    count = bool(newton) + bool(floq)
+    fig, axes = plt.subplots(1, count, figsize=(6.5 * count, 4.5), layout="constrained", squeeze=False)
+    panels = [
+        (
+            newton,
+            (("dense_seconds", "dense", "s", "--"), ("krylov_seconds", "krylov", "o", "-")),
+            "seconds per breather (Newton from the NLS seed)",
+            "paper breather: dense against matrix-free Newton",
+        ),
+        (
+            floq,
+            (
                 ("dense_floquet_seconds", "dense Floquet (every multiplier)", "s", "--"),
                 ("krylov_floquet_seconds", "window near +-1 (probe + shift-invert Arnoldi)", "o", "-"),
-            ):
+            ),
+            "seconds per breather's multipliers",
+            "its multipliers: dense Floquet against the window near +-1",
+        ),
+    ]
+    for ax, (series, curves, ylabel, title) in zip(axes[0], [p for p in panels if p[0]]):
+        for label, rows in series.items():
+            Ns = sorted(rows)
+            for key, name, marker, style in curves:
                 pts = [(n, rows[n][key]) for n in Ns if rows[n].get(key)]
                 if pts:
                     x, y = zip(*pts)
-                    ax.loglog(x, y, marker + style, color=f"C{i}", label=f"{label}: {name}")
-        ax.set(xlabel="N (sites)", ylabel="seconds per breather's multipliers")
-        ax.set_title("its multipliers: dense Floquet against the window near +-1", fontsize=10)
+                    ax.loglog(x, y, marker + style, color=f"C{labels.index(label)}", label=f"{label}: {name}")
+        ax.set(xlabel="N (sites)", ylabel=ylabel)
+        ax.set_title(title, fontsize=10)
         ax.grid(True, which="both", lw=0.3, alpha=0.5)
         ax.legend(fontsize=8, loc="upper left")
     fig.savefig(args.out, dpi=130)
