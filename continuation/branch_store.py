@@ -296,10 +296,20 @@ class BranchStore:
         hist = np.full(self.max_newton + 1, np.nan)
         h = np.asarray(point.residual_history, dtype=float)[: self.max_newton + 1]
         hist[: len(h)] = h
-        mu = point.mu if point.mu is not None else np.full(N2, np.nan + 0j)
+        def padded(a, fill):
+            """A point's per-mu array as a row of 2N: all of them (dense Floquet), the window's first with the
+            fill after (``floquet_solver="krylov"``), or the fill alone (no Floquet)."""
+            out = np.full(N2, fill, dtype=type(fill) if not isinstance(fill, float) else None)
+            if a is not None:
+                a = np.asarray(a)
+                out = out.astype(np.result_type(out.dtype, a.dtype))
+                out[: len(a)] = a
+            return out
+
+        mu = padded(point.mu, np.nan + 0j)
 
         def ints(a):
-            return np.full(N2, INT_FILL) if a is None else np.asarray(a)
+            return padded(a, INT_FILL)
 
         values = {
             "K": point.K,
@@ -316,8 +326,8 @@ class BranchStore:
             "mu_imag": np.imag(mu),
             "signature": ints(point.signature),
             "parity": ints(point.parity),
-            "participation": np.full(N2, np.nan) if point.participation is None else point.participation,
-            "central_weight": np.full(N2, np.nan) if point.central_weight is None else point.central_weight,
+            "participation": padded(point.participation, np.nan),
+            "central_weight": padded(point.central_weight, np.nan),
             "newton_residuals": hist,
             "instability_kind": table(lambda i: KINDS.index(i.kind), INT_FILL),
             "instability_mu_real": table(lambda i: i.mu.real, np.nan),
@@ -463,10 +473,12 @@ def load_branch(path, group: str = "branch") -> tuple[ChainParams, list, dict]:
             _fail(path, group, "instability_count", i, f"{count} with {stored} instabilities stored")
         if a["iterations"][i] < 0:
             _fail(path, group, "iterations", i, "negative (a missing or damaged chunk)")
-        # a point with multipliers (finite max_modulus) has all of them; one without (a branch run
-        # with floquet=False) has none and is not marked stable: anything else is damage
+        # a point with multipliers (finite max_modulus) has all of them, or the krylov window's first and NaN
+        # after (never a gap); one without (a branch run with floquet=False) has none and is not marked stable:
+        # anything else is damage
         mu_finite = np.isfinite(a["mu_real"][i]) & np.isfinite(a["mu_imag"][i])
-        if np.isfinite(a["max_modulus"][i]) and not mu_finite.all():
+        prefix = int(np.argmin(mu_finite)) if not mu_finite.all() else len(mu_finite)
+        if np.isfinite(a["max_modulus"][i]) and (prefix == 0 or mu_finite[prefix:].any()):
             _fail(path, group, "mu_real", i, "non-finite multipliers at an analysed point (a missing or damaged chunk)")
         if not np.isfinite(a["max_modulus"][i]) and (mu_finite.any() or a["stable"][i] == 1):
             _fail(
@@ -475,7 +487,9 @@ def load_branch(path, group: str = "branch") -> tuple[ChainParams, list, dict]:
     points = []
     for i in range(n):
         mu = a["mu_real"][i] + 1j * a["mu_imag"][i]
-        have_mu = bool(np.isfinite(mu).all())
+        count = int(np.sum(np.isfinite(mu)))  # all 2N, or the krylov window's (a prefix, checked above)
+        have_mu = count > 0
+        mu = mu[:count]
         insts = []
         for k in range(MAX_INSTABILITIES):
             code = int(a["instability_kind"][i][k])
@@ -499,7 +513,7 @@ def load_branch(path, group: str = "branch") -> tuple[ChainParams, list, dict]:
         pr = params.replace(K=float(a["K"][i]))
 
         def ints(name):
-            return None if (a[name][i] == INT_FILL).all() else a[name][i].astype(int)
+            return None if (a[name][i] == INT_FILL).all() else a[name][i][:count].astype(int)
 
         points.append(
             BranchPoint(
@@ -513,8 +527,8 @@ def load_branch(path, group: str = "branch") -> tuple[ChainParams, list, dict]:
                 mu=mu if have_mu else None,
                 signature=ints("signature") if have_mu else None,
                 parity=ints("parity") if have_mu else None,
-                participation=a["participation"][i] if have_mu else None,
-                central_weight=a["central_weight"][i] if have_mu else None,
+                participation=a["participation"][i][:count] if have_mu else None,
+                central_weight=a["central_weight"][i][:count] if have_mu else None,
                 max_modulus=float(a["max_modulus"][i]),
                 tolerance=float(a["tolerance"][i]),
                 stable=bool(a["stable"][i]),

@@ -65,7 +65,8 @@ from warpchain.model import real_number, whole_number
 from . import bubbles
 from . import events as ev
 from .events import StopReason
-from .floquet import FloquetResult, half_period_map, reduced_floquet
+from .floquet import KRYLOV_FLOQUET_MIN_SITES, FloquetResult, half_period_map, reduced_floquet
+from .krylov_floquet import FloquetWindow, krylov_floquet
 from .hostblas import blas_threads, threads_for
 from .shooting import frequency_report
 
@@ -114,6 +115,13 @@ class ContinuationSettings:
         chord: start each corrector with chord steps on the neighbouring point's Jacobian (from its
             Floquet analysis), forming true Jacobians only when they converge slowly.
         floquet: compute multipliers at every point (False: energies only, no stability).
+        floquet_solver: ``"dense"`` (every multiplier: the reference), ``"krylov"`` (the window near +1 and -1,
+            ``floquet(solver="krylov")``) or ``"auto"`` (krylov from ``KRYLOV_FLOQUET_MIN_SITES`` sites on). On the
+            window, stability and its changes are those of the multipliers there; the spectral step bound
+            compares the window's elliptic mu of each (signature, parity) class where two points have as many (a
+            class whose count changed between them bounds nothing); Krein passes are counted among them; the
+            bubble predictor, which needs all of Mu, is off (no predicted bubbles).
+        floquet_window: the window (``FloquetWindow``; None: its default).
         max_seconds: opt-in time budget (None: stop only on physics or max_points).
         blas_threads: threads of the host BLAS during the walk: ``"auto"`` (default: one on the CPU
             device, the process's setting on a GPU; ``continuation.hostblas``), a whole number, or None
@@ -134,6 +142,8 @@ class ContinuationSettings:
     bubble_width: float | None = None
     chord: bool = True
     floquet: bool = True
+    floquet_solver: str = "auto"
+    floquet_window: "FloquetWindow | None" = None
     max_seconds: float | None = None
     blas_threads: int | str | None = "auto"
 
@@ -149,6 +159,8 @@ class ContinuationSettings:
             "resolution",
         ):
             real_number(name, getattr(self, name), positive=True)
+        if self.floquet_solver not in ("dense", "krylov", "auto"):
+            raise ValueError(f"floquet_solver must be 'dense', 'krylov' or 'auto'; got {self.floquet_solver!r}")
         if self.bisect_krein not in KREIN_MODES:
             raise ValueError(f"bisect_krein must be one of {', '.join(KREIN_MODES)}; got {self.bisect_krein!r}")
         if self.bubble_width is not None:
@@ -167,6 +179,12 @@ class ContinuationSettings:
 
     def replace(self, **changes) -> "ContinuationSettings":
         return dataclasses.replace(self, **changes)
+
+    def floquet_path(self, N: int) -> str:
+        """``"dense"`` or ``"krylov"``: the Floquet analysis of a point on N sites."""
+        if self.floquet_solver == "auto":
+            return "krylov" if N >= KRYLOV_FLOQUET_MIN_SITES else "dense"
+        return self.floquet_solver
 
 
 @dataclasses.dataclass(frozen=True)
@@ -286,14 +304,21 @@ class Branch:
         ]
 
 
-def analyse(solution: Solution, with_floquet: bool = True, spectra: dict | None = None) -> BranchPoint:
-    """Energy, multipliers (reduced Floquet on the solution's own linearization), harmonics.
+def analyse(
+    solution: Solution, with_floquet: bool = True, spectra: dict | None = None, settings=None
+) -> BranchPoint:
+    """Energy, multipliers (reduced Floquet on the solution's own linearization: dense, or the window near +-1 as
+    ``settings.floquet_path`` says), harmonics.
 
-    ``spectra``: where to keep the point's reduced matrix and eigenvectors (``floquet.SpectralData``),
-    keyed by id(point), for predicting bubbles in the steps next to it."""
+    ``spectra``: where to keep the point's reduced matrix and eigenvectors (``floquet.SpectralData``, dense path
+    only), keyed by id(point), for predicting bubbles in the steps next to it."""
     params, lin = solution.params, solution.linearization
+    settings = settings or ContinuationSettings()
+    if with_floquet and settings.floquet_path(params.N) == "krylov":
+        fl: FloquetResult = krylov_floquet(lin, params.M, solution.state, window=settings.floquet_window)
+    elif with_floquet:
+        fl = reduced_floquet(half_period_map(lin), params.M, solution.state)
     if with_floquet:
-        fl: FloquetResult = reduced_floquet(half_period_map(lin), params.M, solution.state)
         fields = dict(
             multipliers=fl.multipliers,
             mu=fl.mu,
@@ -332,7 +357,7 @@ def analyse(solution: Solution, with_floquet: bool = True, spectra: dict | None 
         s=float(solution.s),
         **fields,
     )
-    if with_floquet and spectra is not None:
+    if with_floquet and spectra is not None and fl.spectral is not None:
         spectra[id(point)] = (point, fl.spectral)
     return point
 
@@ -536,7 +561,7 @@ class _Walk:
         return solution.linearization.unit_columns("positions")[2 * solution.params.N :, :]
 
     def analysed(self, solution):
-        point = analyse(solution, self.settings.floquet, self.spectra)
+        point = analyse(solution, self.settings.floquet, self.spectra, self.settings)
         if self.settings.floquet and self.settings.chord and hasattr(self.problem, "remember"):
             self.problem.remember(point, self.chord_jacobian(solution))
         return point
@@ -578,9 +603,10 @@ class _Walk:
             if restored is not None:  # the last point's spectra and chord Jacobian, as its first analysis left them
                 last = self.points[-1]
                 again = problem.revisit(last)
-                fresh = analyse(again, settings.floquet, self.spectra)
+                fresh = analyse(again, settings.floquet, self.spectra, settings)
                 if settings.floquet:
-                    self.spectra[id(last)] = (last, self.spectra.pop(id(fresh))[1])
+                    if id(fresh) in self.spectra:  # the dense path's (the window keeps none)
+                        self.spectra[id(last)] = (last, self.spectra.pop(id(fresh))[1])
                     if settings.chord and hasattr(problem, "restore") and resume_state.chord is not None:
                         problem.restore(last, self.chord_jacobian(again), resume_state.chord)
             return None

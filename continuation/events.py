@@ -109,7 +109,7 @@ def localized_krein_crossings(a, b) -> int:
         return 0
     total = 0
     ca, cb = elliptic_table(a), elliptic_table(b)
-    N = len(a.mu) // 2
+    N = np.shape(a.state)[-1]  # sites (len(mu) is 2N only on the dense path)
     for sig in (1, -1):
         for par in set(ca["parity"]) | set(cb["parity"]):
             la = np.sort(ca["mu"][(ca["sig"] == sig) & (ca["parity"] == par) & (ca["pr"] < LOCALIZED_FRACTION * N)])

@@ -49,6 +49,13 @@ class BranchParameters:
         choices=KREIN_MODES,
     )
 
+    floquet_solver: str = param(
+        "auto",
+        "multipliers at each point: dense (every one), krylov (the window near +-1, continuation.krylov_floquet) or "
+        "auto (krylov from 1601 sites)",
+        choices=("auto", "dense", "krylov"),
+    )
+
     def settings(self) -> ContinuationSettings:
         return ContinuationSettings(
             ds=self.ds,
@@ -60,6 +67,7 @@ class BranchParameters:
             max_points=self.max_points,
             max_seconds=self.max_seconds,
             bisect_krein=self.bisect_krein,
+            floquet_solver=self.floquet_solver,
         )
 
     def flow(self, device) -> Flow:

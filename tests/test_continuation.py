@@ -321,3 +321,30 @@ def test_a_branch_whose_start_fails_has_the_walked_branch_stats_and_the_scene_sa
         [sys.executable, "-m", "scenarios", *args, "--out", str(tmp_path)], capture_output=True, text=True
     )
     assert out.returncode != 0 and "eigenmode_amplitude" in out.stderr and "KeyError" not in out.stderr
+
+
+def test_a_branch_on_the_krylov_window_is_stored_and_read_back(tmp_path):
+    """``floquet_solver="krylov"``: each point keeps the window's mu (fewer than 2N), the store pads them with NaN
+    and reads them back as they were, and a resume from the store continues the branch."""
+    from continuation.krylov_floquet import FloquetWindow
+
+    p = ChainParams(30.0, 0.01, 41)
+    settings = K_SETTINGS.replace(floquet_solver="krylov", floquet_window=FloquetWindow(count=8))
+    store = BranchStore(tmp_path / "w.zarr", "branch", p, {"omega": 1.01})
+    seed = ct.anticontinuum_seed(p, 1.01)
+    branch = continue_in_coupling(p, 1.01, seed, 20.0, settings=settings, on_point=store.append)
+    store.finish(branch)
+    assert branch.stop_reason is StopReason.END_REACHED
+    assert all(q.mu is not None and 1 <= len(q.mu) < 2 * 41 for q in branch.points)  # (fewest at K ~ 0: degenerate)
+    params, points, _ = load_branch(tmp_path / "w.zarr", "branch")
+    assert len(points) == len(branch.points)
+    for a, b in zip(points, branch.points):
+        assert len(a.mu) == len(b.mu) and np.allclose(a.mu, b.mu) and np.array_equal(a.signature, b.signature)
+        assert a.stable == b.stable and [i.kind for i in a.instabilities] == [i.kind for i in b.instabilities]
+    upto = [q for q in points if q.K <= 5.0]
+    resumed = continue_in_coupling(
+        params.replace(K=upto[-1].K), 1.01, upto[-1].state, 20.0, settings=settings, resume=upto
+    )
+    assert resumed.points[-1].K == 20.0
+    with pytest.raises(ValueError, match="floquet_solver"):
+        ContinuationSettings(floquet_solver="arnoldi")
