@@ -296,6 +296,7 @@ class BranchStore:
         hist = np.full(self.max_newton + 1, np.nan)
         h = np.asarray(point.residual_history, dtype=float)[: self.max_newton + 1]
         hist[: len(h)] = h
+
         def padded(a, fill):
             """A point's per-mu array as a row of 2N: all of them (dense Floquet), the window's first with the
             fill after (``floquet_solver="krylov"``), or the fill alone (no Floquet)."""

@@ -304,9 +304,7 @@ class Branch:
         ]
 
 
-def analyse(
-    solution: Solution, with_floquet: bool = True, spectra: dict | None = None, settings=None
-) -> BranchPoint:
+def analyse(solution: Solution, with_floquet: bool = True, spectra: dict | None = None, settings=None) -> BranchPoint:
     """Energy, multipliers (reduced Floquet on the solution's own linearization: dense, or the window near +-1 as
     ``settings.floquet_path`` says), harmonics.
 

@@ -15,18 +15,21 @@ dense ones (bandwidth 2 b).
 angle theta of +1 (or -1) are the mu in [cos theta, 1] (or [-1, -cos theta]). Every instability of the breathers
 seen so far sits there: the symmetry-breaking real pair (mu = 1 + 1e-8), and the finite-size quadruplets
 (Re mu in [0.92, 0.997] at N = 201 .. 801), collisions of the acoustic modes with the optical ones near 2 w_b.
-The window [1 - ``width``, ...) and (..., -1 + ``width``] is swept by shift-invert Arnoldi (ARPACK through
-``scipy.sparse.linalg.eigs`` with a sparse LU of Mu - sigma, O(N b^2)): a shift sigma returns its k nearest
-eigenvalues; the disc out to the k-th one holds every eigenvalue there, so the shift keeps those whose real part
-lies within half the disc's radius of sigma on the far side, and the next shift sits at that cut. The discs
-thus cover the real segment and a strip around it of half-height >= sqrt(3)/2 times the smallest radius
-(``coverage["strip_half_height"]``). Beyond the ends the sweep marches outwards (real pairs, period doubling)
-to the bound ||Mu||_1 on |mu|.
+Per parity block and per end, shift-invert Arnoldi (ARPACK through ``scipy.sparse.linalg.eigs``; the solves by
+LAPACK's banded LU of Mu - sigma in the interleaved order, ``BandedShifts``) returns the ``count`` eigenvalues nearest
+a shift sigma just outside the end; the disc out to the last of them holds every eigenvalue there, so the shift keeps
+those whose real part lies within half the disc's radius of sigma. With ``width`` > 0 further shifts sweep inwards,
+each at the previous one's cut, until the window reaches 1 - width (and -1 + width). The discs cover the real
+segment and a strip around it of half-height >= sqrt(3)/2 times the smallest radius
+(``coverage["strip_half_height"]``). Beyond the first disc (strong real pairs, period doubling: |mu| well above 1)
+an Arnoldi without shift looks for the eigenvalues of largest real part, which converge fast when they stand apart
+(``coverage["beyond_converged"]`` says whether it converged).
 
-**What a window cannot see**: an instability whose mu lies in (-1 + width, 1 - width), i.e. a multiplier
-further than arccos(1 - width) from both +1 and -1 (a quadruplet from a collision in the middle of the
-circle), or one further off the axis than the strip. ``FloquetResult.coverage`` says both; ``stable`` there
-means "no instability in the window", and the dense path (``solver="dense"``) sees everything.
+**What a window cannot see**: an instability whose mu lies between the covered intervals (a multiplier further
+from both +1 and -1 than the window reaches: a quadruplet from a collision in the middle of the circle), one further
+off the axis than the strip, or an outlier the last Arnoldi did not converge to. ``FloquetResult.coverage`` says
+what was covered; ``stable`` there means "no instability in the window", and the dense path (``solver="dense"``)
+sees everything.
 """
 
 from __future__ import annotations
