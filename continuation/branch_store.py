@@ -300,10 +300,8 @@ class BranchStore:
         def padded(a, fill):
             """A point's per-mu array as a row of 2N: all of them (dense Floquet), the window's first with the
             fill after (``floquet_solver="krylov"``), or the fill alone (no Floquet)."""
-            out = np.full(N2, fill, dtype=type(fill) if not isinstance(fill, float) else None)
+            out = np.full(N2, fill)  # complex, float or int, as the fill
             if a is not None:
-                a = np.asarray(a)
-                out = out.astype(np.result_type(out.dtype, a.dtype))
                 out[: len(a)] = a
             return out
 

@@ -65,8 +65,8 @@ from warpchain.model import real_number, whole_number
 from . import bubbles
 from . import events as ev
 from .events import StopReason
-from .floquet import KRYLOV_FLOQUET_MIN_SITES, FloquetResult, half_period_map, reduced_floquet
-from .krylov_floquet import FloquetWindow, krylov_floquet
+from .floquet import SOLVERS, FloquetResult, reduced_analysis
+from .krylov_floquet import FloquetWindow
 from .hostblas import blas_threads, threads_for
 from .shooting import frequency_report
 
@@ -159,7 +159,7 @@ class ContinuationSettings:
             "resolution",
         ):
             real_number(name, getattr(self, name), positive=True)
-        if self.floquet_solver not in ("dense", "krylov", "auto"):
+        if self.floquet_solver not in SOLVERS:
             raise ValueError(f"floquet_solver must be 'dense', 'krylov' or 'auto'; got {self.floquet_solver!r}")
         if self.bisect_krein not in KREIN_MODES:
             raise ValueError(f"bisect_krein must be one of {', '.join(KREIN_MODES)}; got {self.bisect_krein!r}")
@@ -179,12 +179,6 @@ class ContinuationSettings:
 
     def replace(self, **changes) -> "ContinuationSettings":
         return dataclasses.replace(self, **changes)
-
-    def floquet_path(self, N: int) -> str:
-        """``"dense"`` or ``"krylov"``: the Floquet analysis of a point on N sites."""
-        if self.floquet_solver == "auto":
-            return "krylov" if N >= KRYLOV_FLOQUET_MIN_SITES else "dense"
-        return self.floquet_solver
 
 
 @dataclasses.dataclass(frozen=True)
@@ -306,17 +300,16 @@ class Branch:
 
 def analyse(solution: Solution, with_floquet: bool = True, spectra: dict | None = None, settings=None) -> BranchPoint:
     """Energy, multipliers (reduced Floquet on the solution's own linearization: dense, or the window near +-1 as
-    ``settings.floquet_path`` says), harmonics.
+    ``settings.floquet_solver`` says: ``floquet.reduced_analysis``), harmonics.
 
     ``spectra``: where to keep the point's reduced matrix and eigenvectors (``floquet.SpectralData``, dense path
     only), keyed by id(point), for predicting bubbles in the steps next to it."""
     params, lin = solution.params, solution.linearization
     settings = settings or ContinuationSettings()
-    if with_floquet and settings.floquet_path(params.N) == "krylov":
-        fl: FloquetResult = krylov_floquet(lin, params.M, solution.state, window=settings.floquet_window)
-    elif with_floquet:
-        fl = reduced_floquet(half_period_map(lin), params.M, solution.state)
     if with_floquet:
+        fl: FloquetResult = reduced_analysis(
+            lin, params.M, solution.state, solver=settings.floquet_solver, window=settings.floquet_window
+        )
         fields = dict(
             multipliers=fl.multipliers,
             mu=fl.mu,

@@ -493,6 +493,44 @@ def assemble(
     )
 
 
+#: the reduced analysis' paths (``floquet(solver=...)``, ``ContinuationSettings.floquet_solver``)
+SOLVERS = ("dense", "krylov", "auto")
+
+
+def floquet_path(solver: str, N: int) -> str:
+    """``"dense"`` or ``"krylov"``: the path ``solver`` names on N sites (``"auto"``: krylov from
+    ``KRYLOV_FLOQUET_MIN_SITES`` sites on)."""
+    if solver not in SOLVERS:
+        raise ValueError(f"solver must be 'dense', 'krylov' or 'auto', got {solver!r}")
+    if solver == "auto":
+        return "krylov" if N >= KRYLOV_FLOQUET_MIN_SITES else "dense"
+    return solver
+
+
+def reduced_analysis(lin, M: float, state=None, tolerance=None, *, solver: str = "auto", window=None) -> FloquetResult:
+    """The reduced Floquet analysis of a reversible orbit from its half-period Linearization, on the path ``solver``
+    names: every multiplier (``reduced_floquet`` on A's 4N columns) or the window near +1 and -1
+    (``krylov_floquet.krylov_floquet``; ``window``: its ``FloquetWindow``). ``floquet`` and the continuation
+    driver both analyse through here."""
+    if floquet_path(solver, lin.x0.shape[1]) == "krylov":
+        from .krylov_floquet import krylov_floquet
+
+        return krylov_floquet(lin, M, state, tolerance, window)
+    if window is not None:
+        raise ValueError("window= chooses the krylov path's multipliers; the dense path computes all of them")
+    start = time.perf_counter()
+    cols = lin.stats["tangent_columns"]
+    A = half_period_map(lin)
+    return reduced_floquet(
+        A,
+        M,
+        state,
+        tolerance,
+        wall_seconds=time.perf_counter() - start,
+        stats={"tangent_columns": lin.stats["tangent_columns"] - cols},
+    )
+
+
 def analyse_multipliers(multipliers: np.ndarray, tolerance: float | None = None) -> dict:
     """Full path: trivial pair, pairing error, tolerance, largest nontrivial modulus and the verdict."""
     lam = np.asarray(multipliers)
@@ -653,32 +691,17 @@ def floquet(
         )
     if reduced is None:
         reduced = breather.formulation == "reversible" and _is_reversible_method(flow.method)
-    if solver not in ("dense", "krylov", "auto"):
-        raise ValueError(f"solver must be 'dense', 'krylov' or 'auto', got {solver!r}")
+    params = breather.params
+    floquet_path(solver, params.N)  # a bad name fails before any work
     if solver == "krylov" and not reduced:
         raise ValueError("solver='krylov' works on the reduced problem (reversible orbit, symplectic method)")
-    if solver == "auto":
-        solver = "krylov" if reduced and breather.params.N >= KRYLOV_FLOQUET_MIN_SITES else "dense"
-    params = breather.params
-    start = time.perf_counter()
-    if solver == "krylov":
-        from .krylov_floquet import krylov_floquet
-
-        return krylov_floquet(breather.linearization(flow), params.M, breather.state, tolerance, window)
+    if reduced:
+        return reduced_analysis(
+            breather.linearization(flow), params.M, breather.state, tolerance, solver=solver, window=window
+        )
     if window is not None:
         raise ValueError("window= chooses the krylov path's multipliers; the dense path computes all of them")
-    if reduced:
-        lin = breather.linearization(flow)
-        cols = lin.stats["tangent_columns"]
-        A = half_period_map(lin)
-        return reduced_floquet(
-            A,
-            params.M,
-            breather.state,
-            tolerance,
-            wall_seconds=time.perf_counter() - start,
-            stats={"tangent_columns": lin.stats["tangent_columns"] - cols},
-        )
+    start = time.perf_counter()
     half = breather.nsteps if breather.formulation == "reversible" else breather.nsteps // 2
     V = monodromy(params, breather.state, 2 * half, breather.dt, method=flow.method, device=flow.device)
     return full_floquet(

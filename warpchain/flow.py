@@ -118,16 +118,22 @@ class Linearization:
 
         From ``PROBE_MIN_SITES`` sites on they come from colour groups (``probed_columns``: 2 (2 b + 1) tangent
         runs per half of the state instead of 2N, the same columns to ~1e-33)."""
+        if which in self._cache:
+            return self._cache[which]
+        if which == "all" and "positions" in self._cache and "velocities" in self._cache:
+            return np.hstack([self._cache["positions"], self._cache["velocities"]])
+        if self.x0.shape[1] >= PROBE_MIN_SITES and self.banded:
+            cols = self.probed_columns(which)[0].toarray()
+            self._cache[which] = cols
+            return cols
+        return self._plain_columns(which)
+
+    def _plain_columns(self, which: str) -> np.ndarray:
+        """``unit_columns`` from one tangent run per unit direction (cached under ``which``)."""
         N = self.x0.shape[1]
         first, count = {"positions": (0, 2 * N), "velocities": (2 * N, 2 * N), "all": (0, 4 * N)}[which]
         if which in self._cache:
             return self._cache[which]
-        if N >= PROBE_MIN_SITES and self.banded:
-            cols = self.probed_columns(which)[0].toarray()
-            self._cache[which] = cols
-            return cols
-        if which == "all" and "positions" in self._cache and "velocities" in self._cache:
-            return np.hstack([self._cache["positions"], self._cache["velocities"]])
         if self._unit is not None:
             cols = self._unit(first, count).reshape(count, -1).T
             self.stats["tangent_columns"] += count
@@ -158,9 +164,7 @@ class Linearization:
             if edge <= PROBE_TOLERANCE:
                 return A, b
             b *= 2
-        first = 2 * N if which == "velocities" else 0
-        eye = np.eye(4 * N)[first : first + len(comps) * N].reshape(-1, 4, N)
-        return sp.csc_matrix(self.columns(eye)), N
+        return sp.csc_matrix(self._plain_columns(which)), N
 
     def _probe(self, comps: tuple, b: int) -> tuple:
         """The columns of components ``comps`` from the len(comps) (2 b + 1) colour-group runs at half-bandwidth b,
