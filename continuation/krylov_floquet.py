@@ -230,6 +230,39 @@ def _outliers(op, outer: float, k: int) -> tuple:
     return (vals, vectors), converged
 
 
+def blocks_window(Mu, blocks, window: FloquetWindow) -> tuple:
+    """``window_eigs`` on each parity block (``(parity, E, keep)``: ``parity_extensions``, or ``(0, None, None)`` for
+    the whole Mu), merged: the mu, their vectors (2N, extended from the block), parities and one coverage. The
+    intervals are those every block covered (a block that reached further inwards reports only as far); what lies
+    beyond their outer ends (strong real pairs, period doubling: the outlier Arnoldi's) is kept.
+
+    Returns:
+        (mu, vectors, parity, coverage).
+    """
+    mus, vecs, parities, coverages = [], [], [], []
+    for parity, E, keep in blocks:
+        B = Mu if E is None else sp.csc_matrix((Mu @ E)[keep])
+        mu, vec, coverage = window_eigs(B, window)
+        mus.append(mu)
+        vecs.append(vec if E is None else E @ vec)
+        parities.append(np.full(len(mu), parity, int))
+        coverages.append(coverage)
+    mu, vec, parity = np.concatenate(mus), np.hstack(vecs), np.concatenate(parities)
+    covered = [
+        [max(c["covered"][0][0] for c in coverages), min(c["covered"][0][1] for c in coverages)],
+        [max(c["covered"][1][0] for c in coverages), min(c["covered"][1][1] for c in coverages)],
+    ]
+    (minus_outer, minus_inner), (plus_inner, plus_outer) = covered
+    keep = (mu.real <= minus_inner) | (mu.real >= plus_inner)
+    coverage = dict(coverages[0])
+    coverage["covered"] = covered
+    coverage["strip_half_height"] = min(c["strip_half_height"] for c in coverages)
+    coverage["shifts"] = sum(c["shifts"] for c in coverages)
+    coverage["beyond_converged"] = all(c["beyond_converged"] for c in coverages)
+    coverage["parity_blocks"] = len(blocks) == 2
+    return mu[keep], vec[:, keep], parity[keep], coverage
+
+
 def krylov_floquet(lin, M: float, state=None, tolerance=None, window: FloquetWindow | None = None):
     """The reduced Floquet analysis of a reversible orbit from its half-period Linearization, for the multipliers
     in ``window`` (module docstring): a ``FloquetResult`` with ``path="krylov"`` and its ``coverage``. On a
@@ -250,23 +283,7 @@ def krylov_floquet(lin, M: float, state=None, tolerance=None, window: FloquetWin
         asym = abs(Mu - Mu[flip][:, flip])
         if asym.nnz == 0 or asym.max() <= PARITY_COUPLING_RTOL * abs(Mu).max():
             blocks = parity_extensions(N)
-    mus, vecs, parities, coverages = [], [], [], []
-    for parity, E, keep in blocks:
-        B = Mu if E is None else sp.csc_matrix((Mu @ E)[keep])
-        mu, vec, coverage = window_eigs(B, window)
-        mus.append(mu)
-        vecs.append(vec if E is None else E @ vec)
-        parities.append(np.full(len(mu), parity, int))
-        coverages.append(coverage)
-    mu, vec, parity = np.concatenate(mus), np.hstack(vecs), np.concatenate(parities)
-    covered = [  # what every block covered; a block that reached further reports only this much
-        [max(c["covered"][0][0] for c in coverages), min(c["covered"][0][1] for c in coverages)],
-        [max(c["covered"][1][0] for c in coverages), min(c["covered"][1][1] for c in coverages)],
-    ]
-    inside = np.zeros(len(mu), bool)
-    for low, high in covered:
-        inside |= (mu.real >= low) & (mu.real <= high)
-    mu, vec, parity = mu[inside], vec[:, inside], parity[inside]
+    mu, vec, parity, coverage = blocks_window(Mu, blocks, window)
     vec = vec / np.linalg.norm(vec, axis=0)
     # eigenvectors of real mu are real up to a phase: rotate each onto its largest component, then take the
     # real part (the Krein form reads real vectors, as on the dense path)
@@ -274,11 +291,6 @@ def krylov_floquet(lin, M: float, state=None, tolerance=None, window: FloquetWin
     vec = vec * (np.abs(big) / big)[None, :]
     vec = np.where(np.abs(mu.imag)[None, :] > 0, vec, np.real(vec))
     act = np.sum(np.real(vec) * (P @ np.real(vec)), axis=0)
-    coverage = dict(coverages[0])
-    coverage["covered"] = covered
-    coverage["strip_half_height"] = min(c["strip_half_height"] for c in coverages)
-    coverage["shifts"] = sum(c["shifts"] for c in coverages)
-    coverage["parity_blocks"] = len(blocks) == 2
     accuracy = {"symplecticity": sympl, "probe_halfwidth": halfwidth}
     return assemble(
         mu,

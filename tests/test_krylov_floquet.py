@@ -139,3 +139,22 @@ def test_a_periodic_ring_is_not_probed():
     assert halfwidth == p.N and np.array_equal(probed.toarray(), every)
     fixed = Flow(device="cpu").linearize(p.replace(boundary="fixed"), x0, 40, 0.2)
     assert fixed.banded
+
+
+def test_an_outlier_beyond_the_end_discs_is_reported():
+    """A strong real pair (mu = 1.3) and a period doubling (mu = -1.2) lie beyond the discs at +-1: the Arnoldi
+    without shift finds them, and the merged window reports them with the discs' mu."""
+    import scipy.sparse as sp
+
+    from continuation.krylov_floquet import blocks_window
+
+    rng = np.random.default_rng(3)
+    diag = np.cos(np.sort(rng.uniform(0.0, np.pi, 400)))
+    diag[[10, 390]] = 1.3, -1.2
+    Mu = sp.diags(diag, format="csc")
+    mu, vec, parity, cov = blocks_window(Mu, [(0, None, None)], FloquetWindow(count=20))
+    assert np.min(np.abs(mu - 1.3)) < 1e-12 and np.min(np.abs(mu + 1.2)) < 1e-12
+    (_, minus_inner), (plus_inner, _) = cov["covered"]
+    near = diag[(diag >= plus_inner) | (diag <= minus_inner)]
+    assert len(mu) == len(near) and np.allclose(np.sort(mu.real), np.sort(near))
+    assert vec.shape == (400, len(mu)) and not parity.any()
