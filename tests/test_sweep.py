@@ -230,8 +230,8 @@ def test_bad_task_result_and_spec(tmp_path):
         out["x"] = out["x"][:, :3]
         return out
 
-    with pytest.raises(SweepTaskError, match=r"a=0, b=0.*'x'.*\(4, 3\)"):
-        run_sweep(tmp_path / "d.zarr", spec, wrong_shape, progress=False)
+    with pytest.raises(SweepTaskError, match=r"a=0, b=0.*'x'.*\(4, 3\)"):  # one in flight: the first task fails first
+        run_sweep(tmp_path / "d.zarr", spec, wrong_shape, progress=False, tasks_per_worker=1)
     assert not completed(tmp_path / "d.zarr", spec).any()
     with pytest.raises(ValueError, match="must start with the task dims"):
         dataclasses.replace(spec, variables={"z": Variable(("r", "a", "b"))})
