@@ -23,7 +23,9 @@ each at the previous one's cut, until the window reaches 1 - width (and -1 + wid
 segment and a strip around it of half-height >= sqrt(3)/2 times the smallest radius
 (``coverage["strip_half_height"]``). Beyond the first disc (strong real pairs, period doubling: |mu| well above 1)
 an Arnoldi without shift looks for the eigenvalues of largest real part, which converge fast when they stand apart
-(``coverage["beyond_converged"]`` says whether it converged).
+(``coverage["beyond_converged"]`` says whether it converged). The four solves (two parity blocks, two ends) run on
+four threads: the banded solves (LAPACK through ctypes) and scipy's sparse products let go of the GIL, and ARPACK
+starts from a fixed vector, so each solve gives the same bits alone or beside the others, and in any process.
 
 **What a window cannot see**: an instability whose mu lies between the covered intervals (a multiplier further
 from both +1 and -1 than the window reaches: a quadruplet from a collision in the middle of the circle), one further
@@ -36,6 +38,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import scipy.sparse as sp
@@ -51,10 +54,9 @@ def sparse_products(A, M: float) -> tuple:
     A11, A12, A21, A22 = A[:n2, :n2], A[:n2, n2:], A[n2:, :n2], A[n2:, n2:]
     Dm, Dinv = sp.diags(m), sp.diags(1.0 / m)
     C = A12.T @ Dm
-    X = (A22.T @ Dm) @ A11
-    Y = C @ A21
-    P = (A11.T @ Dm) @ A21
-    Z = C @ A22
+    pairs = ((A22.T @ Dm, A11), (C, A21), (A11.T @ Dm, A21), (C, A22))
+    with ThreadPoolExecutor(len(pairs), thread_name_prefix="window-products") as pool:  # scipy lets go of the GIL
+        X, Y, P, Z = pool.map(lambda pair: pair[0] @ pair[1], pairs)
     Mu = sp.csc_matrix(Dinv @ (X + Y))
     S12 = Dinv @ (X - Y) - sp.identity(n2)
     S22 = Dinv @ (Z - Z.T) @ Dinv
@@ -67,9 +69,26 @@ def sparse_products(A, M: float) -> tuple:
     return Mu, sympl, sp.csc_matrix(P)
 
 
-#: the sweeps start a little off +-1, where the trivial mu (and a weak real pair) sit: a shift exactly on an
-#: eigenvalue would factor a singular matrix
-START_OFFSET = 1.2345e-3
+#: entries of Mu below this fraction of its largest are dropped before the eigensolves: far below a float64's
+#: resolution of the eigenvalues, and they halve the band (the paper chain's Mu falls to 1e-17 of its largest
+#: 32 sites off the diagonal and to 1e-28 at 40, where the products of the probed A reach 64)
+MU_DROP = 1e-20
+
+
+def negligible_dropped(Mu):
+    """Mu (CSC) without its entries below ``MU_DROP`` of the largest: a narrower band for the banded LU's solves."""
+    Mu = sp.csc_matrix(Mu, copy=True)
+    if Mu.nnz:
+        Mu.data[np.abs(Mu.data) < MU_DROP * np.max(np.abs(Mu.data))] = 0.0
+        Mu.eliminate_zeros()
+    return Mu
+
+
+#: the first shift sits this far beyond +1 (and -1), where the trivial mu sits: a shift exactly on an eigenvalue
+#: would factor a singular matrix. Small, because the disc's half beyond the end mostly holds nothing: at
+#: 1.2345e-3 the first disc at N = 12801 covered nothing below 1, and each end took two or three shifts instead of one
+#: (N = 3201: 6 shifts in 1.64 s against 4 in 1.35 s at 1e-4; 12801: 10 shifts against 4)
+START_OFFSET = 1e-4
 
 
 @dataclasses.dataclass(frozen=True)
@@ -78,7 +97,7 @@ class FloquetWindow:
 
     Attributes:
         count: eigenvalues per shift (ARPACK's k): the first shift at each end returns the ``count`` mu nearest
-            +1 (or -1), so ``count`` alone sets the window (0.9992 .. 1 at N = 3201 for 60).
+            +1 (or -1), so ``count`` alone sets the window (0.99956 .. 1 at N = 3201 for 60).
         width: sweep on inwards until the window reaches 1 - width (and -1 + width): more shifts, every mu there
             (0: the first shift's disc only).
     """
@@ -96,8 +115,10 @@ class FloquetWindow:
 class BandedShifts:
     """(op - sigma)^-1 for many shifts sigma of one sparse op, by LAPACK's banded LU (dgbtrf / dgbtrs) in the
     interleaved order (u_1, v_1, u_2, v_2, ...), where Mu's band is 2 (2 b + 1) wide: ~3.5x faster solves than
-    SuperLU on the paper chain (0.18 ms against 0.65 ms at N = 3201). ``None`` from ``make`` when the band is
-    not narrow (then ARPACK factors op - sigma with SuperLU)."""
+    SuperLU on the paper chain (0.18 ms against 0.65 ms at N = 3201). LAPACK is called through ctypes (scipy's
+    own LAPACK, ``_lapack``), which lets go of the GIL: the four eigensolves of ``blocks_window`` run on four
+    threads at once. ``None`` from ``make`` when the band is not narrow (then ARPACK factors op - sigma with
+    SuperLU)."""
 
     def __init__(self, n, perm, rows, cols, data, kl, ku):
         self.n, self.perm, self.rows, self.cols, self.data, self.kl, self.ku = n, perm, rows, cols, data, kl, ku
@@ -115,89 +136,140 @@ class BandedShifts:
         return cls(n, perm, coo.row, coo.col, coo.data, kl, ku)
 
     def inverse(self, sigma: float):
-        from scipy.linalg import lapack
-
-        n, kl, ku = self.n, self.kl, self.ku
-        ab = np.zeros((2 * kl + ku + 1, n))
-        ab[kl + ku + self.rows - self.cols, self.cols] = self.data
-        ab[kl + ku, :] -= sigma
-        lu, piv, info = lapack.dgbtrf(ab, kl, ku)
+        n, kl, ku, perm = self.n, self.kl, self.ku, self.perm
+        ldab = 2 * kl + ku + 1
+        lu = np.zeros((ldab, n), order="F")
+        lu[kl + ku + self.rows - self.cols, self.cols] = self.data
+        lu[kl + ku, :] -= sigma
+        piv = np.zeros(n, np.int32)
+        info = _lapack("dgbtrf")(n, n, kl, ku, lu, ldab, piv)
         if info != 0:
-            raise np.linalg.LinAlgError(f"op - sigma is singular at sigma = {sigma!r}")
-        perm = self.perm
+            raise np.linalg.LinAlgError(f"op - sigma is singular at sigma = {sigma!r} (dgbtrf info {info})")
+        dgbtrs = _lapack("dgbtrs")
 
         def solve(x):
             x = np.asarray(x).reshape(n)
+            parts = np.asfortranarray(np.stack([x.real, x.imag], axis=1)[perm] if np.iscomplexobj(x) else x[perm])
+            dgbtrs(b"N", n, kl, ku, parts.size // n, lu, ldab, piv, parts, n)
             out = np.empty(n, dtype=np.result_type(x.dtype, np.float64))
-            y, _ = lapack.dgbtrs(lu, kl, ku, np.real(x)[perm], piv)
-            out[perm] = y
-            if np.iscomplexobj(x):
-                yi, _ = lapack.dgbtrs(lu, kl, ku, np.imag(x)[perm], piv)
-                out[perm] += 1j * yi
+            out[perm] = parts[:, 0] + 1j * parts[:, 1] if parts.ndim == 2 else parts
             return out
 
         return spla.LinearOperator((n, n), matvec=solve, dtype=np.float64)
 
 
+_LAPACK: dict = {}
+
+
+def _lapack(name: str):
+    """scipy's LAPACK routine ``name`` (``dgbtrf`` or ``dgbtrs``) through ctypes, which releases the GIL while it
+    runs (scipy's own wrappers hold it). Arguments: integers and arrays as the Fortran routine's, without ``info``,
+    which the call returns."""
+    if name not in _LAPACK:
+        import ctypes
+
+        from scipy.linalg import cython_lapack
+
+        capsule = cython_lapack.__pyx_capi__[name]
+        api = ctypes.pythonapi
+        api.PyCapsule_GetName.restype, api.PyCapsule_GetName.argtypes = ctypes.c_char_p, [ctypes.py_object]
+        api.PyCapsule_GetPointer.restype = ctypes.c_void_p
+        api.PyCapsule_GetPointer.argtypes = [ctypes.py_object, ctypes.c_char_p]
+        pointer = api.PyCapsule_GetPointer(capsule, api.PyCapsule_GetName(capsule))
+        c_int, ptr = ctypes.c_int, ctypes.c_void_p
+        int_p = ctypes.POINTER(c_int)
+        if name == "dgbtrf":  # m, n, kl, ku, ab, ldab, ipiv, info
+            signature = [int_p, int_p, int_p, int_p, ptr, int_p, ptr, int_p]
+        else:  # trans, n, kl, ku, nrhs, ab, ldab, ipiv, b, ldb, info
+            signature = [ctypes.c_char_p, int_p, int_p, int_p, int_p, ptr, int_p, ptr, ptr, int_p, int_p]
+        function = ctypes.CFUNCTYPE(None, *signature)(pointer)
+
+        def call(*args):
+            info = c_int(0)
+            converted = [
+                a if isinstance(a, bytes) else a.ctypes.data if isinstance(a, np.ndarray) else ctypes.byref(c_int(a))
+                for a in args
+            ]
+            function(*converted, ctypes.byref(info))
+            return info.value
+
+        _LAPACK[name] = call
+    return _LAPACK[name]
+
+
 def window_eigs(Mu, window: FloquetWindow) -> tuple:
     """The eigenvalues of the sparse Mu in the windows at +1 and -1, and every one beyond them (|mu| > 1), by
-    shift-invert Arnoldi (module docstring). The end at -1 is the end at +1 of -Mu.
+    shift-invert Arnoldi (module docstring). The end at -1 is the end at +1 of -Mu; the two ends are solved on
+    two threads (the banded solves and the sparse products let go of the GIL), each the same as alone.
 
     Returns:
         (mu (count,), vectors (2N, count), coverage dict).
     """
     k = int(min(window.count, Mu.shape[0] - 2))
-    mus, vecs, covered, radii = [], [], [], []
-    shifts, searched = 0, True
-    for sign in (1.0, -1.0):
-        op = sp.csc_matrix(sign * Mu)
-        banded = BandedShifts.make(op)
-        found = []
-
-        def disc(sigma):
-            """The k eigenvalues of op nearest sigma, and the radius of the disc that surely holds all there."""
-            nonlocal shifts
-            inverse = banded.inverse(sigma) if banded is not None else None
-            vals, vectors = spla.eigs(op, k=k, sigma=sigma, which="LM", tol=0, OPinv=inverse)
-            shifts += 1
-            d = np.abs(vals - sigma)
-            return vals, vectors, d, float(np.max(d)) * (1 - 1e-9)
-
-        def keep(vals, vectors, d, radius, low, high):
-            inside = (d < radius) & (np.real(vals) > low) & (np.real(vals) <= high)
-            found.append((vals[inside], vectors[:, inside]))
-
-        # the first disc, just outside the end; then inwards to 1 - width, each shift at the previous cut
-        sigma = 1.0 + START_OFFSET
-        vals, vectors, d, radius = disc(sigma)
-        keep(vals, vectors, d, radius, sigma - 0.5 * radius, sigma + 0.5 * radius)
-        outer, cut = sigma + 0.5 * radius, sigma - 0.5 * radius
-        radii.append(radius)
-        while cut > 1.0 - window.width:
-            vals, vectors, d, radius = disc(cut)
-            keep(vals, vectors, d, radius, cut - 0.5 * radius, cut)
-            cut -= 0.5 * radius
-            radii.append(radius)
-        beyond, converged = _outliers(sp.csr_matrix(op), outer, k=min(OUTLIER_COUNT, k))  # CSR: faster products
-        found.append(beyond)
-        searched &= converged
-        covered.append(sorted((sign * cut, sign * outer)))
-        mus.extend(sign * v for v, _ in found)
-        vecs.extend(x for _, x in found)
-    mu = np.concatenate(mus)
+    with ThreadPoolExecutor(2, thread_name_prefix="window-end") as pool:
+        ends = list(pool.map(lambda sign: _end(sp.csc_matrix(sign * Mu), window, k), (1.0, -1.0)))
+    mu = np.concatenate([sign * end["mu"] for sign, end in zip((1.0, -1.0), ends)])
     order = np.argsort(-np.real(mu), kind="stable")
+    plus, minus = ends
     coverage = {
         "count": k,
         "width": float(window.width),
-        "covered": covered[::-1],  # [[-1 - r, -1 + w'], [1 - w', 1 + r]]
-        "beyond_converged": searched,
-        "strip_half_height": float(np.sqrt(3.0) / 2.0 * min(radii)),
-        "shifts": shifts,
+        "covered": [[-minus["outer"], -minus["cut"]], [plus["cut"], plus["outer"]]],
+        "beyond_converged": plus["converged"] and minus["converged"],
+        "strip_half_height": float(np.sqrt(3.0) / 2.0 * min(plus["radii"] + minus["radii"])),
+        "shifts": plus["shifts"] + minus["shifts"],
         "unseen": "multipliers with mu between the two covered intervals (further from +1 and -1 than the window), "
         "further from the real axis than the strip, or beyond the intervals but not among the Arnoldi's converged "
         "extreme eigenvalues (beyond_converged False): solver='dense' sees every one",
     }
-    return mu[order], np.hstack(vecs)[:, order], coverage
+    return mu[order], np.hstack([plus["vectors"], minus["vectors"]])[:, order], coverage
+
+
+def _end(op, window: FloquetWindow, k: int) -> dict:
+    """The window at +1 of ``op``: the first disc just outside the end, then inwards to 1 - width, each shift at the
+    previous one's cut, then the outliers beyond the first disc. Returns its mu and vectors, the covered interval
+    (``cut``, ``outer``), the discs' radii, the number of shifts and whether the outlier Arnoldi converged."""
+    banded = BandedShifts.make(op)
+    found, radii = [], []
+
+    def disc(sigma):
+        """The k eigenvalues of op nearest sigma, and the radius of the disc that surely holds all there."""
+        inverse = banded.inverse(sigma) if banded is not None else None
+        vals, vectors = spla.eigs(op, k=k, sigma=sigma, which="LM", tol=0, OPinv=inverse, v0=start_vector(op))
+        d = np.abs(vals - sigma)
+        radii.append(float(np.max(d)) * (1 - 1e-9))
+        return vals, vectors, d, radii[-1]
+
+    def keep(vals, vectors, d, radius, low, high):
+        inside = (d < radius) & (np.real(vals) > low) & (np.real(vals) <= high)
+        found.append((vals[inside], vectors[:, inside]))
+
+    sigma = 1.0 + START_OFFSET
+    vals, vectors, d, radius = disc(sigma)
+    keep(vals, vectors, d, radius, sigma - 0.5 * radius, sigma + 0.5 * radius)
+    outer, cut = sigma + 0.5 * radius, sigma - 0.5 * radius
+    while cut > 1.0 - window.width:
+        vals, vectors, d, radius = disc(cut)
+        keep(vals, vectors, d, radius, cut - 0.5 * radius, cut)
+        cut -= 0.5 * radius
+    beyond, converged = _outliers(sp.csr_matrix(op), outer, k=min(OUTLIER_COUNT, k))  # CSR: faster products
+    found.append(beyond)
+    return {
+        "mu": np.concatenate([v for v, _ in found]),
+        "vectors": np.hstack([x for _, x in found]),
+        "cut": cut,
+        "outer": outer,
+        "radii": radii,
+        "shifts": len(radii),
+        "converged": converged,
+    }
+
+
+def start_vector(op) -> np.ndarray:
+    """ARPACK's starting vector: fixed pseudo-random numbers. Without one ARPACK draws it from a seed that lives
+    in the process and advances with every call, so the same orbit's multipliers would differ in the last bits
+    with the calls made before (a resumed branch, a sweep's worker)."""
+    return np.random.default_rng(20261126).standard_normal(op.shape[0])
 
 
 #: extreme eigenvalues asked of the Arnoldi beyond the end discs (strong real pairs, period doubling)
@@ -217,7 +289,7 @@ def _outliers(op, outer: float, k: int) -> tuple:
         (then only outliers it did converge are known: the usual case, with none, is the cluster at the end).
     """
     try:
-        vals, vectors = spla.eigs(op, k=k, which="LR", tol=1e-13, maxiter=OUTLIER_RESTARTS)
+        vals, vectors = spla.eigs(op, k=k, which="LR", tol=1e-13, maxiter=OUTLIER_RESTARTS, v0=start_vector(op))
         converged = True
     except spla.ArpackNoConvergence as err:
         vals, vectors, converged = err.eigenvalues, err.eigenvectors, False
@@ -239,14 +311,15 @@ def blocks_window(Mu, blocks, window: FloquetWindow) -> tuple:
     Returns:
         (mu, vectors, parity, coverage).
     """
-    mus, vecs, parities, coverages = [], [], [], []
-    for parity, E, keep in blocks:
+
+    def solve(block):
+        parity, E, keep = block
         B = Mu if E is None else sp.csc_matrix((Mu @ E)[keep])
         mu, vec, coverage = window_eigs(B, window)
-        mus.append(mu)
-        vecs.append(vec if E is None else E @ vec)
-        parities.append(np.full(len(mu), parity, int))
-        coverages.append(coverage)
+        return mu, (vec if E is None else E @ vec), np.full(len(mu), parity, int), coverage
+
+    with ThreadPoolExecutor(len(blocks), thread_name_prefix="window-block") as pool:
+        mus, vecs, parities, coverages = zip(*pool.map(solve, blocks))
     mu, vec, parity = np.concatenate(mus), np.hstack(vecs), np.concatenate(parities)
     covered = [
         [max(c["covered"][0][0] for c in coverages), min(c["covered"][0][1] for c in coverages)],
@@ -277,6 +350,7 @@ def krylov_floquet(lin, M: float, state=None, tolerance=None, window: FloquetWin
     cols = lin.stats["tangent_columns"]
     A, halfwidth = lin.probed_columns("all")
     Mu, sympl, P = sparse_products(A, M)
+    Mu = negligible_dropped(Mu)
     blocks = [(0, None, None)]
     if state is not None and mirror_symmetric(state, SYMMETRIC_RTOL):
         flip = np.r_[np.arange(N)[::-1], N + np.arange(N)[::-1]]

@@ -158,3 +158,39 @@ def test_an_outlier_beyond_the_end_discs_is_reported():
     near = diag[(diag >= plus_inner) | (diag <= minus_inner)]
     assert len(mu) == len(near) and np.allclose(np.sort(mu.real), np.sort(near))
     assert vec.shape == (400, len(mu)) and not parity.any()
+
+
+def test_the_window_does_not_depend_on_earlier_calls(paper_breather):
+    """ARPACK's own starting vector comes from a seed that advances with every call in the process: the window
+    passes a fixed one, so the same orbit gives the same bits whatever ran before (a resumed branch, a sweep's
+    worker); and its banded solves (LAPACK through ctypes, off the GIL) are scipy's ``dgbtrs`` bit for bit."""
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
+    from scipy.linalg import lapack
+
+    from continuation.krylov_floquet import BandedShifts
+
+    first = ct.floquet(paper_breather, solver="krylov")
+    spla.eigs(sp.diags(np.arange(1.0, 101.0)), k=3)  # advances ARPACK's seed
+    again = ct.floquet(paper_breather, solver="krylov")
+    assert np.array_equal(first.mu, again.mu) and np.array_equal(first.participation, again.participation)
+
+    rng = np.random.default_rng(5)
+    n, kl, ku = 200, 7, 5
+    perm = np.r_[np.arange(n // 2)[:, None], n // 2 + np.arange(n // 2)[:, None]].reshape(2, -1).T.ravel()
+    dense = np.empty((n, n))  # banded in the interleaved order (u_1, v_1, u_2, ...), as Mu is
+    dense[np.ix_(perm, perm)] = np.triu(np.tril(rng.standard_normal((n, n)), ku), -kl) + 10.0 * np.eye(n)
+    shifts = BandedShifts.make(sp.csc_matrix(dense))
+    x = rng.standard_normal(n)
+    ab = np.zeros((2 * shifts.kl + shifts.ku + 1, n))
+    coo = sp.coo_matrix(sp.csr_matrix(dense)[shifts.perm][:, shifts.perm])
+    ab[shifts.kl + shifts.ku + coo.row - coo.col, coo.col] = coo.data
+    ab[shifts.kl + shifts.ku] -= 0.5
+    lu, piv, _ = lapack.dgbtrf(ab, shifts.kl, shifts.ku)
+    y, _ = lapack.dgbtrs(lu, shifts.kl, shifts.ku, x[shifts.perm], piv)
+    expected = np.empty(n)
+    expected[shifts.perm] = y
+    solve = shifts.inverse(0.5)
+    assert np.array_equal(solve @ x, expected)
+    assert np.allclose(solve @ (x + 2j * x), expected + 2j * expected, rtol=0, atol=1e-14)
+    assert np.allclose((dense - 0.5 * np.eye(n)) @ expected, x, rtol=0, atol=1e-12)
