@@ -342,6 +342,7 @@ def krylov_floquet(lin, M: float, state=None, tolerance=None, window: FloquetWin
     mirror-symmetric orbit the even and the odd block are solved apart (``parity_extensions``), so each vector's
     parity is exact, as on the dense path."""
     from .floquet import assemble
+    from .hostblas import blas_threads
     from .parity import PARITY_COUPLING_RTOL, SYMMETRIC_RTOL, mirror_symmetric, parity_extensions
 
     start = time.perf_counter()
@@ -357,7 +358,8 @@ def krylov_floquet(lin, M: float, state=None, tolerance=None, window: FloquetWin
         asym = abs(Mu - Mu[flip][:, flip])
         if asym.nnz == 0 or asym.max() <= PARITY_COUPLING_RTOL * abs(Mu).max():
             blocks = parity_extensions(N)
-    mu, vec, parity, coverage = blocks_window(Mu, blocks, window)
+    with blas_threads(1):  # four solves on four threads: BLAS threads of their own would only contend
+        mu, vec, parity, coverage = blocks_window(Mu, blocks, window)
     vec = vec / np.linalg.norm(vec, axis=0)
     # eigenvectors of real mu are real up to a phase: rotate each onto its largest component, then take the
     # real part (the Krein form reads real vectors, as on the dense path)
