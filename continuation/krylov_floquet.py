@@ -47,26 +47,42 @@ import scipy.sparse.linalg as spla
 
 def sparse_products(A, M: float) -> tuple:
     """``floquet.reduced_products`` on a sparse A: (Mu, symplecticity, P), Mu and P sparse (CSC)."""
+    blocks = _blocks(A, M)
+    Mu, X, Y = _mu(*blocks)
+    return (Mu, *_checks(X, Y, *blocks))
+
+
+def _blocks(A, M: float) -> tuple:
+    """The four blocks of A (CSC) and the diagonal mass matrix Mm."""
     n2 = A.shape[0] // 2
     N = n2 // 2
-    m = np.concatenate([np.full(N, float(M)), np.ones(N)])
     A = sp.csc_matrix(A)
-    A11, A12, A21, A22 = A[:n2, :n2], A[:n2, n2:], A[n2:, :n2], A[n2:, n2:]
-    Dm, Dinv = sp.diags(m), sp.diags(1.0 / m)
-    C = A12.T @ Dm
-    pairs = ((A22.T @ Dm, A11), (C, A21), (A11.T @ Dm, A21), (C, A22))
-    with ThreadPoolExecutor(len(pairs), thread_name_prefix="window-products") as pool:  # scipy lets go of the GIL
-        X, Y, P, Z = pool.map(lambda pair: pair[0] @ pair[1], pairs)
-    Mu = sp.csc_matrix(Dinv @ (X + Y))
-    S12 = Dinv @ (X - Y) - sp.identity(n2)
+    m = np.concatenate([np.full(N, float(M)), np.ones(N)])
+    return A[:n2, :n2], A[:n2, n2:], A[n2:, :n2], A[n2:, n2:], sp.diags(m)
+
+
+def _mu(A11, A12, A21, A22, Dm) -> tuple:
+    """(Mu, X, Y): Mu = Mm^-1 (X + Y), X = A22^T Mm A11, Y = A12^T Mm A21, the two products on two threads
+    (scipy's sparse products let go of the GIL)."""
+    with ThreadPoolExecutor(2, thread_name_prefix="window-products") as pool:
+        X, Y = pool.map(lambda pair: pair[0] @ pair[1], ((A22.T @ Dm, A11), (A12.T @ Dm, A21)))
+    return sp.csc_matrix(sp.diags(1.0 / Dm.diagonal()) @ (X + Y)), X, Y
+
+
+def _checks(X, Y, A11, A12, A21, A22, Dm) -> tuple:
+    """(symplecticity, P): the largest entry of S12 = Mm^-1 (X - Y) - 1, P - P^T and Mm^-1 (Z - Z^T) Mm^-1
+    (Z = A12^T Mm A22), as ``floquet.reduced_products``, and the Krein form P = A11^T Mm A21. ``krylov_floquet``
+    runs it beside the eigensolves, which need Mu alone."""
+    Dinv = sp.diags(1.0 / Dm.diagonal())
+    P, Z = (A11.T @ Dm) @ A21, (A12.T @ Dm) @ A22
+    S12 = Dinv @ (X - Y) - sp.identity(X.shape[0])
     S22 = Dinv @ (Z - Z.T) @ Dinv
 
     def amax(S):
         S = sp.csr_matrix(S)
         return float(np.max(np.abs(S.data))) if S.nnz else 0.0
 
-    sympl = max(amax(S12), amax(P - P.T), amax(S22))
-    return Mu, sympl, sp.csc_matrix(P)
+    return max(amax(S12), amax(P - P.T), amax(S22)), sp.csc_matrix(P)
 
 
 #: entries of Mu below this fraction of its largest are dropped before the eigensolves: far below a float64's
@@ -350,7 +366,8 @@ def krylov_floquet(lin, M: float, state=None, tolerance=None, window: FloquetWin
     N = lin.x0.shape[1]
     cols = lin.stats["tangent_columns"]
     A, halfwidth = lin.probed_columns("all")
-    Mu, sympl, P = sparse_products(A, M)
+    blocks_of_A = _blocks(A, M)
+    Mu, X, Y = _mu(*blocks_of_A)
     Mu = negligible_dropped(Mu)
     blocks = [(0, None, None)]
     if state is not None and mirror_symmetric(state, SYMMETRIC_RTOL):
@@ -358,8 +375,11 @@ def krylov_floquet(lin, M: float, state=None, tolerance=None, window: FloquetWin
         asym = abs(Mu - Mu[flip][:, flip])
         if asym.nnz == 0 or asym.max() <= PARITY_COUPLING_RTOL * abs(Mu).max():
             blocks = parity_extensions(N)
-    with blas_threads(1):  # four solves on four threads: BLAS threads of their own would only contend
+    with ThreadPoolExecutor(1, thread_name_prefix="window-checks") as side, blas_threads(1):
+        checks = side.submit(_checks, X, Y, *blocks_of_A)  # beside the eigensolves: they need Mu alone
+        # four solves on four threads: BLAS threads of their own would only contend
         mu, vec, parity, coverage = blocks_window(Mu, blocks, window)
+        sympl, P = checks.result()
     vec = vec / np.linalg.norm(vec, axis=0)
     # eigenvectors of real mu are real up to a phase: rotate each onto its largest component, then take the
     # real part (the Krein form reads real vectors, as on the dense path)
