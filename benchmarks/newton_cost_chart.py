@@ -5,7 +5,8 @@ either may also be a compact result set holding it (``benchmarks/results``).
 
 Command: ``python benchmarks/newton_cost_chart.py --out newton-cost.png LABEL=FILE [LABEL=FILE ...]``, e.g.
 ``cpu=benchmarks/results/cpu-2core-2026-11-25c.json cpu=benchmarks/results/cpu-2core-2026-11-26.json``. Rows
-with the same N in several files of one label keep the last.
+with the same N in several files of one label keep the last, and the earlier value of a key the last lacks (a
+dense timing where the later run stopped its dense runs at a smaller N).
 """
 
 import argparse
@@ -42,10 +43,10 @@ def main():
     for source in args.sources:
         label, _, name = source.partition("=")
         n_rows, f_rows = rows_of(Path(name))
-        for row in n_rows:
-            newton.setdefault(label, {})[row["N"]] = row
-        for row in f_rows:
-            floq.setdefault(label, {})[row["N"]] = row
+        for series, rows in ((newton, n_rows), (floq, f_rows)):
+            for row in rows:  # a later row wins; a key it lacks (no dense run there) keeps the earlier value
+                at = series.setdefault(label, {})
+                at[row["N"]] = {**at.get(row["N"], {}), **row}
     labels = list(dict.fromkeys([*newton, *floq]))
     count = bool(newton) + bool(floq)
     fig, axes = plt.subplots(1, count, figsize=(6.5 * count, 4.5), layout="constrained", squeeze=False)
@@ -55,6 +56,7 @@ def main():
             (("dense_seconds", "dense", "s", "--"), ("krylov_seconds", "krylov", "o", "-")),
             "seconds per breather (Newton from the NLS seed)",
             "paper breather: dense against matrix-free Newton",
+            "upper left",
         ),
         (
             floq,
@@ -64,9 +66,10 @@ def main():
             ),
             "seconds per breather's multipliers",
             "its multipliers: dense Floquet against the window near +-1",
+            "lower right",
         ),
     ]
-    for ax, (series, curves, ylabel, title) in zip(axes[0], [p for p in panels if p[0]]):
+    for ax, (series, curves, ylabel, title, where) in zip(axes[0], [p for p in panels if p[0]]):
         for label, rows in series.items():
             Ns = sorted(rows)
             for key, name, marker, style in curves:
@@ -77,7 +80,7 @@ def main():
         ax.set(xlabel="N (sites)", ylabel=ylabel)
         ax.set_title(title, fontsize=10)
         ax.grid(True, which="both", lw=0.3, alpha=0.5)
-        ax.legend(fontsize=8, loc="upper left")
+        ax.legend(fontsize=8, loc=where)
     fig.savefig(args.out, dpi=130)
     print(f"wrote {args.out}")
 
