@@ -24,8 +24,9 @@ segment and a strip around it of half-height >= sqrt(3)/2 times the smallest rad
 (``coverage["strip_half_height"]``). Beyond the first disc (strong real pairs, period doubling: |mu| well above 1)
 an Arnoldi without shift looks for the eigenvalues of largest real part, which converge fast when they stand apart
 (``coverage["beyond_converged"]`` says whether it converged). The four solves (two parity blocks, two ends) run on
-four threads: the banded solves (LAPACK through ctypes) and scipy's sparse products let go of the GIL, and ARPACK
-starts from a fixed vector, so each solve gives the same bits alone or beside the others, and in any process.
+four threads where scipy's ARPACK is reentrant (``REENTRANT_ARPACK``, scipy >= 1.17): the banded solves (LAPACK
+through ctypes) and scipy's sparse products let go of the GIL, and ARPACK starts from a fixed vector (``eigs``),
+so each solve gives the same bits alone or beside the others, and in any process.
 
 **What a window cannot see**: an instability whose mu lies between the covered intervals (a multiplier further
 from both +1 and -1 than the window reaches: a quadruplet from a collision in the middle of the circle), one further
@@ -37,6 +38,7 @@ sees everything.
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import time
 from concurrent.futures import ThreadPoolExecutor
 
@@ -222,7 +224,7 @@ def window_eigs(Mu, window: FloquetWindow) -> tuple:
         (mu (count,), vectors (2N, count), coverage dict).
     """
     k = int(min(window.count, Mu.shape[0] - 2))
-    with ThreadPoolExecutor(2, thread_name_prefix="window-end") as pool:
+    with ThreadPoolExecutor(_threads(2), thread_name_prefix="window-end") as pool:
         ends = list(pool.map(lambda sign: _end(sp.csc_matrix(sign * Mu), window, k), (1.0, -1.0)))
     mu = np.concatenate([sign * end["mu"] for sign, end in zip((1.0, -1.0), ends)])
     order = np.argsort(-np.real(mu), kind="stable")
@@ -251,7 +253,7 @@ def _end(op, window: FloquetWindow, k: int) -> dict:
     def disc(sigma):
         """The k eigenvalues of op nearest sigma, and the radius of the disc that surely holds all there."""
         inverse = banded.inverse(sigma) if banded is not None else None
-        vals, vectors = spla.eigs(op, k=k, sigma=sigma, which="LM", tol=0, OPinv=inverse, v0=start_vector(op))
+        vals, vectors = eigs(op, k=k, sigma=sigma, which="LM", tol=0, OPinv=inverse)
         d = np.abs(vals - sigma)
         radii.append(float(np.max(d)) * (1 - 1e-9))
         return vals, vectors, d, radii[-1]
@@ -281,11 +283,27 @@ def _end(op, window: FloquetWindow, k: int) -> dict:
     }
 
 
-def start_vector(op) -> np.ndarray:
-    """ARPACK's starting vector: fixed pseudo-random numbers. Without one ARPACK draws it from a seed that lives
-    in the process and advances with every call, so the same orbit's multipliers would differ in the last bits
-    with the calls made before (a resumed branch, a sweep's worker)."""
-    return np.random.default_rng(20261126).standard_normal(op.shape[0])
+#: scipy's ARPACK keeps its whole state in the call's arguments since its C translation (scipy 1.17, which also
+#: takes ``rng`` for the random vectors it asks for): eigensolves may then run on threads at once. The Fortran
+#: ARPACK before kept it in SAVE variables shared by every call, so there they run one after the other.
+REENTRANT_ARPACK = "rng" in inspect.signature(spla.eigs).parameters
+#: the seed of ARPACK's starting vector (and of any vector it asks for on a restart)
+ARPACK_SEED = 20261126
+
+
+def eigs(op, **options):
+    """``scipy.sparse.linalg.eigs`` from a fixed starting vector (and fixed random vectors on a restart, where scipy
+    takes an ``rng``). Without one ARPACK draws it afresh (OS entropy in scipy >= 1.17, a process-wide seed that
+    advances with every call before), so the same orbit's multipliers would differ in the last bits from call
+    to call (a resumed branch, a sweep's worker)."""
+    rng = np.random.default_rng(ARPACK_SEED)
+    extra = {"rng": rng} if REENTRANT_ARPACK else {}
+    return spla.eigs(op, v0=rng.standard_normal(op.shape[0]), **extra, **options)
+
+
+def _threads(n: int) -> int:
+    """Threads for n independent eigensolves: n where ARPACK is reentrant, else 1."""
+    return n if REENTRANT_ARPACK else 1
 
 
 #: extreme eigenvalues asked of the Arnoldi beyond the end discs (strong real pairs, period doubling)
@@ -305,7 +323,7 @@ def _outliers(op, outer: float, k: int) -> tuple:
         (then only outliers it did converge are known: the usual case, with none, is the cluster at the end).
     """
     try:
-        vals, vectors = spla.eigs(op, k=k, which="LR", tol=1e-13, maxiter=OUTLIER_RESTARTS, v0=start_vector(op))
+        vals, vectors = eigs(op, k=k, which="LR", tol=1e-13, maxiter=OUTLIER_RESTARTS)
         converged = True
     except spla.ArpackNoConvergence as err:
         vals, vectors, converged = err.eigenvalues, err.eigenvectors, False
@@ -334,7 +352,7 @@ def blocks_window(Mu, blocks, window: FloquetWindow) -> tuple:
         mu, vec, coverage = window_eigs(B, window)
         return mu, (vec if E is None else E @ vec), np.full(len(mu), parity, int), coverage
 
-    with ThreadPoolExecutor(len(blocks), thread_name_prefix="window-block") as pool:
+    with ThreadPoolExecutor(_threads(len(blocks)), thread_name_prefix="window-block") as pool:
         mus, vecs, parities, coverages = zip(*pool.map(solve, blocks))
     mu, vec, parity = np.concatenate(mus), np.hstack(vecs), np.concatenate(parities)
     covered = [
