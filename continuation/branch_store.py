@@ -24,7 +24,6 @@ from.
 
 from __future__ import annotations
 
-import asyncio
 import json
 import queue
 import threading
@@ -347,23 +346,15 @@ class BranchStore:
     def _write_points(self, points: list, state: WalkState | None = None) -> None:
         """Points n .. n + k - 1 in one write per array (zarr writes the k chunks at once), then their
         checksums, then ``n_points``: a group commit, so a writer that fell behind catches up."""
-        from zarr.core.sync import sync
-
-        n, k = self.n_points, len(points)
+        n = self.n_points
         rows = [self._rows(p) for p in points]
         crc = np.array([[row_checksum(r[name], n + i) for name in self.arrays] for i, r in enumerate(rows)])
-
-        async def grow(arr, data):
-            await arr.async_array.resize((n + k, *arr.shape[1:]))
-            await arr.async_array.setitem(slice(n, n + k), data)
-
-        async def commit():  # every array at once (one round trip to zarr's event loop, not two per array)
-            await asyncio.gather(*(grow(a, np.stack([r[name] for r in rows])) for name, a in self.arrays.items()))
-            await grow(self.checksum, crc)  # after the rows: a point whose rows were not all written does not match
-
-        sync(commit())
+        slabs = [(a, np.stack([r[name] for r in rows])) for name, a in self.arrays.items()]
+        store.append_rows(slabs, [(self.checksum, crc)], start=n)  # the checksums after the rows
         # the count and the walk state in one write of the group's metadata: never a count without its state
-        self.group.attrs.update({"n_points": n + k, **(self._state_attrs(state) if state is not None else {})})
+        self.group.attrs.update(
+            {"n_points": n + len(points), **(self._state_attrs(state) if state is not None else {})}
+        )
 
     def finish(self, branch: Branch) -> None:
         self.flush()

@@ -162,7 +162,8 @@ def test_an_outlier_beyond_the_end_discs_is_reported():
 
 def test_the_window_does_not_depend_on_earlier_calls(paper_breather):
     """ARPACK's own starting vector is drawn afresh on every call: the window passes a fixed one, so the same orbit
-    gives the same bits whatever ran before (a resumed branch, a sweep's worker); and its banded solves (LAPACK through ctypes, off the GIL) are scipy's ``dgbtrs`` bit for bit."""
+    gives the same bits whatever ran before (a resumed branch, a sweep's worker); and its banded solves (LAPACK
+    through ctypes, off the GIL) are scipy's ``dgbtrs`` bit for bit."""
     import scipy.sparse as sp
     import scipy.sparse.linalg as spla
     from scipy.linalg import lapack

@@ -173,6 +173,26 @@ def open_store(path, *, params: dict | None = None, provenance_info: dict | None
     return root
 
 
+def append_rows(*stages, start: int) -> None:
+    """Grow zarr arrays along their first axis and write rows at ``start``: the one append of the field writer and
+    the branch store. Each stage is a list of (array, rows) pairs written at once (one round trip to zarr's event
+    loop, not two per array); a stage starts once the one before has landed (a branch's checksums after its rows:
+    a point whose rows were not all written does not match)."""
+    import asyncio
+
+    from zarr.core.sync import sync
+
+    async def grow(arr, rows):
+        await arr.async_array.resize((start + len(rows), *arr.shape[1:]))
+        await arr.async_array.setitem(slice(start, start + len(rows)), rows)
+
+    async def write():
+        for stage in stages:
+            await asyncio.gather(*(grow(arr, rows) for arr, rows in stage))
+
+    sync(write())
+
+
 class FieldWriter:
     """Streams time-dependent fields into a group, one whole time chunk at a time.
 
@@ -288,14 +308,13 @@ class FieldWriter:
             return
         t_all = np.concatenate(self._pending_t)
         start, stop = self.n_written, self.n_written + take
-        for name, arr in self.arrays.items():
-            values = np.concatenate(self._pending[name])
-            arr.resize((stop, *arr.shape[1:]))
-            arr[start:stop] = values[:take]
-            self._chunk_crc[name] += self._blocks(values[:take])
-            self._pending[name] = [values[take:]] if take < n else []
-        self.t.resize((stop,))
-        self.t[start:stop] = t_all[:take]
+        values = {name: np.concatenate(self._pending[name]) for name in self.arrays}
+        append_rows(
+            [(self.arrays[name], v[:take]) for name, v in values.items()] + [(self.t, t_all[:take])], start=start
+        )
+        for name, v in values.items():
+            self._chunk_crc[name] += self._blocks(v[:take])
+            self._pending[name] = [v[take:]] if take < n else []
         self._chunk_crc["t"] += self._blocks(t_all[:take])
         self._pending_t = [t_all[take:]] if take < n else []
         self.n_written = stop
