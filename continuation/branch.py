@@ -92,7 +92,8 @@ def _revisit(params: ChainParams, omega: float, point: BranchPoint, flow: Flow) 
 
 
 class NaturalParameter(_JacobianMemory):
-    """Continuation in K at fixed omega from ``params.K`` to ``K_end`` (natural parameter).
+    """Continuation in K at fixed omega from ``params.K`` to ``K_end`` (natural parameter), in steps of log10 K
+    (its ``CouplingAxis``).
 
     Args:
         params: the chain at the first K.
@@ -101,18 +102,14 @@ class NaturalParameter(_JacobianMemory):
         K_end: the end of the branch.
         flow: the integrator.
         targets: K values the branch must land on exactly.
-        log_spacing: the coordinate (and the steps) is log10 K, else K.
     """
 
-    parameter = "K"
-
-    def __init__(
-        self, params: ChainParams, omega: float, seed, K_end: float, flow: Flow, *, targets=(), log_spacing: bool = True
-    ):
+    def __init__(self, params: ChainParams, omega: float, seed, K_end: float, flow: Flow, *, targets=()):
         if not (isinstance(K_end, (int, float, np.integer, np.floating)) and math.isfinite(K_end) and K_end > 0):
             raise ValueError(f"K_end must be a finite number > 0, got {K_end!r}")
         self.params, self.omega, self.seed, self.K_end, self.flow = params, float(omega), seed, float(K_end), flow
-        self.log_spacing = log_spacing
+        self.axis = CouplingAxis(params, omega)
+        self.parameter = self.axis.name
         self.direction = 1.0 if K_end >= params.K else -1.0
         self.targets = sorted(
             {float(t) for t in targets if (t - params.K) * self.direction > 0 and (K_end - t) * self.direction > 0}
@@ -121,20 +118,12 @@ class NaturalParameter(_JacobianMemory):
         )
         self.description = f"K-continuation, w_b = {omega:g}"
 
-    def coord(self, K: float) -> float:
-        return math.log10(K) if self.log_spacing else K
-
-    def inverse(self, s: float) -> float:
-        return 10.0**s if self.log_spacing else s
-
-    def _solve(self, K: float, guess, s: float, max_newton: int, tol: float, hint=None):
-        pr = self.params.replace(K=K)
-        res = find_breather(
-            pr, self.omega, guess, flow=self.flow, tol=tol, max_iterations=max_newton, jacobian_hint=hint
-        )
+    def _solve(self, value: float, guess, s: float, max_newton: int, tol: float, hint=None):
+        pr, omega = self.axis.at(value)
+        res = find_breather(pr, omega, guess, flow=self.flow, tol=tol, max_iterations=max_newton, jacobian_hint=hint)
         if not res.success:
             return Failure(res.message)
-        return Solution(pr, self.omega, res.state, res.iterations, res.residual_history, res.linearization(), s)
+        return Solution(pr, omega, res.state, res.iterations, res.residual_history, res.linearization(), s)
 
     def prepare(self, settings: ContinuationSettings, resume=None, walk=None) -> None:
         self._settings = settings
@@ -142,39 +131,36 @@ class NaturalParameter(_JacobianMemory):
     def revisit(self, point: BranchPoint) -> Solution:
         """The Solution at a stored point as its corrector ended on it: the same linearization, so its
         analysis gives the same multipliers, spectra and chord Jacobian (a resumed walk needs them)."""
-        return _revisit(self.params.replace(K=point.K), self.omega, point, self.flow)
+        return _revisit(*self.axis.at(self.axis.value(point)), point, self.flow)
 
     def start(self):
         settings = self._settings
-        return [
-            self._solve(
-                self.params.K, self.seed, self.coord(self.params.K), 3 * settings.max_newton, settings.newton_tol
-            )
-        ]
+        first = self.params.K
+        return [self._solve(first, self.seed, self.axis.of(first), 3 * settings.max_newton, settings.newton_tol)]
 
-    def _next_target(self, K: float) -> float:
-        return next(t for t in self.targets if (t - K) * self.direction > 1e-12 * max(1.0, abs(t)))
+    def _next_target(self, value: float) -> float:
+        return next(t for t in self.targets if (t - value) * self.direction > 1e-12 * max(1.0, abs(t)))
 
     def clip_step(self, last: BranchPoint, h: float) -> float:
-        return min(h, abs(self.coord(self._next_target(last.K)) - self.coord(last.K)))
+        return min(h, abs(self.axis.of(self._next_target(self.axis.value(last))) - self.axis.coordinate(last)))
 
     def step(self, points, h: float):
-        last = points[-1]
-        s_last = self.coord(last.K)
+        axis, last = self.axis, points[-1]
+        s_last = axis.coordinate(last)
         s_new = s_last + self.direction * h
-        target = self._next_target(last.K)
-        K_new = target if abs(s_new - self.coord(target)) <= 1e-12 * max(1.0, abs(s_new)) else self.inverse(s_new)
-        if len(points) >= 2 and points[-2].K != last.K:
-            s_prev = self.coord(points[-2].K)
+        target = self._next_target(axis.value(last))
+        value = target if abs(s_new - axis.of(target)) <= 1e-12 * max(1.0, abs(s_new)) else axis.value_of(s_new)
+        if len(points) >= 2 and axis.value(points[-2]) != axis.value(last):
+            s_prev = axis.coordinate(points[-2])
             guess = last.state + (last.state - points[-2].state) * (s_new - s_last) / (s_last - s_prev)
         else:
             guess = last.state
-        return self._solve(K_new, guess, s_new, self._settings.max_newton, self._settings.newton_tol, self.hint(last))
+        return self._solve(value, guess, s_new, self._settings.max_newton, self._settings.newton_tol, self.hint(last))
 
     def between(self, a: BranchPoint, b: BranchPoint, t: float = 0.5):
-        s = (1.0 - t) * self.coord(a.K) + t * self.coord(b.K)
+        s = (1.0 - t) * self.axis.coordinate(a) + t * self.axis.coordinate(b)
         return self._solve(
-            self.inverse(s),
+            self.axis.value_of(s),
             (1.0 - t) * a.state + t * b.state,
             s,
             self._settings.max_newton,
@@ -183,28 +169,61 @@ class NaturalParameter(_JacobianMemory):
         )
 
     def is_between(self, a, m, b) -> bool:
-        return (m.K - a.K) * (b.K - m.K) > 0
+        value = self.axis.value
+        return (value(m) - value(a)) * (value(b) - value(m)) > 0
 
     def is_forward(self, points, new) -> bool:
-        return (new.K - points[-1].K) * self.direction > 0
+        return (self.axis.value(new) - self.axis.value(points[-1])) * self.direction > 0
 
     def finished(self, last: BranchPoint):
-        if abs(last.K - self.K_end) <= 1e-12 * max(1.0, abs(self.K_end)):
+        if abs(self.axis.value(last) - self.K_end) <= 1e-12 * max(1.0, abs(self.K_end)):
             return True, f"K = {last.K:.8g}"
         return False, ""
 
     def progress(self, first: BranchPoint, last: BranchPoint) -> float:
-        total = self.coord(self.K_end) - self.coord(first.K)
-        return (self.coord(last.K) - self.coord(first.K)) / total if total else 1.0
+        total = self.axis.of(self.K_end) - self.axis.coordinate(first)
+        return (self.axis.coordinate(last) - self.axis.coordinate(first)) / total if total else 1.0
 
     def describe(self, p: BranchPoint) -> str:
-        return f"K = {p.K:.8g}: E = {p.energy:.8f}, max|l| = {p.max_modulus:.8f}"
+        return self.axis.describe(p)
 
 
 # ----------------------------------------------------------------------------- pseudo-arclength
 
 
-class FrequencyAxis:
+class ParameterAxis:
+    """What a branch is continued in, for both problems (``NaturalParameter`` steps along it, ``PseudoArclength``
+    solves for its coordinate): ``name``, the ``BranchPoint`` field it is (``"K"`` or ``"omega"``, also the
+    events' ``parameter``); ``value(point)``; the coordinate c the steps are taken in (``of(value)``,
+    ``value_of(c)``, ``coordinate(point)``); the chain and frequency at a value (``at``) or at a coordinate
+    (``chain``, which refuses one the corrector should not have reached); dR/dc (``derivative``, for the
+    arclength corrector's bordered Jacobian). A new axis (another parameter of the chain) is a subclass."""
+
+    name: str
+
+    def value(self, point) -> float:
+        return float(getattr(point, self.name))
+
+    def of(self, value: float) -> float:
+        return float(value)
+
+    def value_of(self, c: float) -> float:
+        return float(c)
+
+    def coordinate(self, point) -> float:
+        return self.of(self.value(point))
+
+    def at(self, value: float) -> tuple:
+        raise NotImplementedError
+
+    def chain(self, c: float) -> tuple:
+        return self.at(self.value_of(c))
+
+    def describe(self, p) -> str:
+        return f"{self.name} = {self.value(p):.8g}: E = {p.energy:.8f}, max|l| = {p.max_modulus:.8f}"
+
+
+class FrequencyAxis(ParameterAxis):
     """The arclength parameter w_b at fixed K (the chain's ``params``): the half period keeps its
     number of steps, so dt follows w, and dR/dw is read from the trajectory (module docstring)."""
 
@@ -214,13 +233,13 @@ class FrequencyAxis:
         self.params = params
         self.edges = band_edges(params.M, params.K)
 
-    def coordinate(self, point) -> float:
-        return float(point.omega)
+    def at(self, value: float) -> tuple:
+        return self.params, float(value)
 
     def chain(self, c: float) -> tuple:
         if not (math.isfinite(c) and c > 0):
             raise _BadParameter(f"the corrector left the positive frequencies (w = {c:.3g})")
-        return self.params, float(c)
+        return self.at(c)
 
     def default_theta(self) -> float:
         return 1.0 / self.edges["gap_width"]
@@ -253,8 +272,8 @@ class FrequencyAxis:
         return f"w = {p.omega:.8f}: E = {p.energy:.8f}, max|l| = {p.max_modulus:.8f}, min contact {p.min_contact:.4f}"
 
 
-class CouplingAxis:
-    """The arclength parameter log10 K at fixed w_b (``omega``): dR/d(log10 K) by a central difference
+class CouplingAxis(ParameterAxis):
+    """The parameter K at fixed w_b (``omega``), in the coordinate log10 K: dR/d(log10 K) by a central difference
     of two runs at K 10^(+-h) (R depends on K through the force only; h = 1e-6 keeps the truncation
     error ~1e-12 and the round-off ~1e-10 relative, below the corrector's tolerance)."""
 
@@ -264,13 +283,19 @@ class CouplingAxis:
     def __init__(self, params: ChainParams, omega: float):
         self.params, self.omega = params, float(omega)
 
-    def coordinate(self, point) -> float:
-        return math.log10(point.K)
+    def of(self, value: float) -> float:
+        return math.log10(value)
+
+    def value_of(self, c: float) -> float:
+        return 10.0**c
+
+    def at(self, value: float) -> tuple:
+        return self.params.replace(K=value), self.omega
 
     def chain(self, c: float) -> tuple:
         if not (math.isfinite(c) and -12.0 < c < 12.0):
             raise _BadParameter(f"the corrector left the couplings 1e-12 < K < 1e12 (log10 K = {c:.3g})")
-        return self.params.replace(K=10.0**c), self.omega
+        return self.at(self.value_of(c))
 
     def default_theta(self) -> float:
         return 1.0
@@ -298,9 +323,6 @@ class CouplingAxis:
         lo, hi = (math.log10(k) for k in problem.K_range)
         k0, k1 = math.log10(first.K), math.log10(last.K)
         return abs(k1 - k0) / max(max(hi - k0, k0 - lo), 1e-12)
-
-    def describe(self, p) -> str:
-        return f"K = {p.K:.8g}: E = {p.energy:.8f}, max|l| = {p.max_modulus:.8f}"
 
 
 def _pack(state, c) -> np.ndarray:
@@ -617,7 +639,6 @@ def continue_in_coupling(
     K_end: float,
     *,
     targets=(),
-    log_spacing: bool = True,
     settings: ContinuationSettings | None = None,
     flow: Flow | None = None,
     method: str | None = None,
@@ -635,7 +656,7 @@ def continue_in_coupling(
     """
     settings = settings or ContinuationSettings(ds=0.15, ds_min=1e-4, ds_max=0.3, resolution=1e-4)
     flow = make_flow(flow, method=method, steps_per_period=steps_per_period, device=device)
-    problem = NaturalParameter(params, omega, seed, K_end, flow, targets=targets, log_spacing=log_spacing)
+    problem = NaturalParameter(params, omega, seed, K_end, flow, targets=targets)
     return continuation(
         problem, settings, resume=resume, on_point=on_point, on_event=on_event, log=log, progress=progress
     )
