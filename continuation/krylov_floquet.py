@@ -21,12 +21,16 @@ a shift sigma just outside the end; the disc out to the last of them holds every
 those whose real part lies within half the disc's radius of sigma. With ``width`` > 0 further shifts sweep inwards,
 each at the previous one's cut, until the window reaches 1 - width (and -1 + width). The discs cover the real
 segment and a strip around it of half-height >= sqrt(3)/2 times the smallest radius
-(``coverage["strip_half_height"]``). Beyond the first disc (strong real pairs, period doubling: |mu| well above 1)
-an Arnoldi without shift looks for the eigenvalues of largest real part, which converge fast when they stand apart
-(``coverage["beyond_converged"]`` says whether it converged). The four solves (two parity blocks, two ends) run on
-four threads where scipy's ARPACK is reentrant (``REENTRANT_ARPACK``, scipy >= 1.17): the banded solves (LAPACK
-through ctypes) and scipy's sparse products let go of the GIL, and ARPACK starts from a fixed vector (``eigs``),
-so each solve gives the same bits alone or beside the others, and in any process.
+(``coverage["strip_half_height"]``). Beyond the first disc one more shift, at 1 + ``OUTWARD_SHIFT``, holds every
+eigenvalue out to ~1.008 (real pairs of |l| up to ~1.13, which the first disc at large N no longer reaches and the
+plain Arnoldi does not yet separate from the cluster at the end); beyond that (strong real pairs, period doubling:
+|mu| well above 1) an Arnoldi without shift looks for the eigenvalues of largest real part, which converge fast
+when they stand apart (``coverage["beyond_converged"]`` says whether all it was asked for converged: usually not,
+as the cluster at the end does not, and only converged ones are reported). The four solves (two parity blocks,
+two ends) run on four threads where scipy's ARPACK is reentrant (``REENTRANT_ARPACK``, scipy >= 1.17; one after
+the other before): the banded solves (LAPACK through ctypes) and scipy's sparse products let go of the GIL, and
+ARPACK starts from a fixed vector (``eigs``), so each solve gives the same bits alone or beside the others, and in
+any process.
 
 **What a window cannot see**: an instability whose mu lies between the covered intervals (a multiplier further
 from both +1 and -1 than the window reaches: a quadruplet from a collision in the middle of the circle), one further
@@ -39,6 +43,7 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
+import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 
@@ -103,9 +108,10 @@ def negligible_dropped(Mu):
 
 
 #: the first shift sits this far beyond +1 (and -1), where the trivial mu sits: a shift exactly on an eigenvalue
-#: would factor a singular matrix. Small, because the disc's half beyond the end mostly holds nothing: at
-#: 1.2345e-3 the first disc at N = 12801 covered nothing below 1, and each end took two or three shifts instead of one
-#: (N = 3201: 6 shifts in 1.64 s against 4 in 1.35 s at 1e-4; 12801: 10 shifts against 4)
+#: would factor a singular matrix. Small, so that the first disc's radius goes inwards: at 1.2345e-3 the first disc
+#: at N = 12801 covered nothing below 1, and each end took two or three shifts instead of one (N = 3201: 6 shifts
+#: in 1.64 s against 4 in 1.35 s at 1e-4; 12801: 10 shifts against 4). What lies further out is the outward disc's
+#: (``OUTWARD_SHIFT``).
 START_OFFSET = 1e-4
 
 
@@ -134,8 +140,8 @@ class BandedShifts:
     """(op - sigma)^-1 for many shifts sigma of one sparse op, by LAPACK's banded LU (dgbtrf / dgbtrs) in the
     interleaved order (u_1, v_1, u_2, v_2, ...), where Mu's band is 2 (2 b + 1) wide: ~3.5x faster solves than
     SuperLU on the paper chain (0.18 ms against 0.65 ms at N = 3201). LAPACK is called through ctypes (scipy's
-    own LAPACK, ``_lapack``), which lets go of the GIL: the four eigensolves of ``blocks_window`` run on four
-    threads at once. ``None`` from ``make`` when the band is not narrow (then ARPACK factors op - sigma with
+    own LAPACK, ``_lapack``), which lets go of the GIL: the eigensolves of ``blocks_window`` can run on threads
+    at once. ``None`` from ``make`` when the band is not narrow (then ARPACK factors op - sigma with
     SuperLU)."""
 
     def __init__(self, n, perm, rows, cols, data, kl, ku):
@@ -167,6 +173,7 @@ class BandedShifts:
 
         def solve(x):
             x = np.asarray(x).reshape(n)
+            x = x.astype(np.complex128 if np.iscomplexobj(x) else np.float64, copy=False)  # what dgbtrs reads
             parts = np.asfortranarray(np.stack([x.real, x.imag], axis=1)[perm] if np.iscomplexobj(x) else x[perm])
             dgbtrs(b"N", n, kl, ku, parts.size // n, lu, ldab, piv, parts, n)
             out = np.empty(n, dtype=np.result_type(x.dtype, np.float64))
@@ -177,48 +184,55 @@ class BandedShifts:
 
 
 _LAPACK: dict = {}
+_LAPACK_LOCK = threading.Lock()
 
 
 def _lapack(name: str):
     """scipy's LAPACK routine ``name`` (``dgbtrf`` or ``dgbtrs``) through ctypes, which releases the GIL while it
     runs (scipy's own wrappers hold it). Arguments: integers and arrays as the Fortran routine's, without ``info``,
     which the call returns."""
-    if name not in _LAPACK:
-        import ctypes
+    with _LAPACK_LOCK:  # ctypes.pythonapi is the process's: set its signatures once
+        if name not in _LAPACK:
+            import ctypes
 
-        from scipy.linalg import cython_lapack
+            from scipy.linalg import cython_lapack
 
-        capsule = cython_lapack.__pyx_capi__[name]
-        api = ctypes.pythonapi
-        api.PyCapsule_GetName.restype, api.PyCapsule_GetName.argtypes = ctypes.c_char_p, [ctypes.py_object]
-        api.PyCapsule_GetPointer.restype = ctypes.c_void_p
-        api.PyCapsule_GetPointer.argtypes = [ctypes.py_object, ctypes.c_char_p]
-        pointer = api.PyCapsule_GetPointer(capsule, api.PyCapsule_GetName(capsule))
-        c_int, ptr = ctypes.c_int, ctypes.c_void_p
-        int_p = ctypes.POINTER(c_int)
-        if name == "dgbtrf":  # m, n, kl, ku, ab, ldab, ipiv, info
-            signature = [int_p, int_p, int_p, int_p, ptr, int_p, ptr, int_p]
-        else:  # trans, n, kl, ku, nrhs, ab, ldab, ipiv, b, ldb, info
-            signature = [ctypes.c_char_p, int_p, int_p, int_p, int_p, ptr, int_p, ptr, ptr, int_p, int_p]
-        function = ctypes.CFUNCTYPE(None, *signature)(pointer)
+            capsule = cython_lapack.__pyx_capi__[name]
+            api = ctypes.pythonapi
+            api.PyCapsule_GetName.restype, api.PyCapsule_GetName.argtypes = ctypes.c_char_p, [ctypes.py_object]
+            api.PyCapsule_GetPointer.restype = ctypes.c_void_p
+            api.PyCapsule_GetPointer.argtypes = [ctypes.py_object, ctypes.c_char_p]
+            pointer = api.PyCapsule_GetPointer(capsule, api.PyCapsule_GetName(capsule))
+            c_int, ptr = ctypes.c_int, ctypes.c_void_p
+            int_p = ctypes.POINTER(c_int)
+            if name == "dgbtrf":  # m, n, kl, ku, ab, ldab, ipiv, info
+                signature = [int_p, int_p, int_p, int_p, ptr, int_p, ptr, int_p]
+            else:  # trans, n, kl, ku, nrhs, ab, ldab, ipiv, b, ldb, info
+                signature = [ctypes.c_char_p, int_p, int_p, int_p, int_p, ptr, int_p, ptr, ptr, int_p, int_p]
+            function = ctypes.CFUNCTYPE(None, *signature)(pointer)
 
-        def call(*args):
-            info = c_int(0)
-            converted = [
-                a if isinstance(a, bytes) else a.ctypes.data if isinstance(a, np.ndarray) else ctypes.byref(c_int(a))
-                for a in args
-            ]
-            function(*converted, ctypes.byref(info))
-            return info.value
+            def call(*args):
+                info = c_int(0)
+                converted = [
+                    a
+                    if isinstance(a, bytes)
+                    else a.ctypes.data
+                    if isinstance(a, np.ndarray)
+                    else ctypes.byref(c_int(a))
+                    for a in args
+                ]
+                function(*converted, ctypes.byref(info))
+                return info.value
 
-        _LAPACK[name] = call
+            _LAPACK[name] = call
     return _LAPACK[name]
 
 
 def window_eigs(Mu, window: FloquetWindow) -> tuple:
     """The eigenvalues of the sparse Mu in the windows at +1 and -1, and every one beyond them (|mu| > 1), by
     shift-invert Arnoldi (module docstring). The end at -1 is the end at +1 of -Mu; the two ends are solved on
-    two threads (the banded solves and the sparse products let go of the GIL), each the same as alone.
+    two threads where ARPACK is reentrant (the banded solves and the sparse products let go of the GIL), each the
+    same as alone.
 
     Returns:
         (mu (count,), vectors (2N, count), coverage dict).
@@ -245,31 +259,47 @@ def window_eigs(Mu, window: FloquetWindow) -> tuple:
 
 def _end(op, window: FloquetWindow, k: int) -> dict:
     """The window at +1 of ``op``: the first disc just outside the end, then inwards to 1 - width, each shift at the
-    previous one's cut, then the outliers beyond the first disc. Returns its mu and vectors, the covered interval
-    (``cut``, ``outer``), the discs' radii, the number of shifts and whether the outlier Arnoldi converged."""
+    previous one's cut; then one disc at 1 + ``OUTWARD_SHIFT``, which holds every
+    eigenvalue between the first disc's far cut and it (weak real pairs too strong for the first disc, but not
+    separated enough for the Arnoldi), then the outliers beyond by the Arnoldi. Returns its mu and vectors, the
+    covered interval (``cut``, ``outer``), the discs' radii, the number of shifts and whether the outlier Arnoldi
+    converged."""
     banded = BandedShifts.make(op)
-    found, radii = [], []
 
-    def disc(sigma):
-        """The k eigenvalues of op nearest sigma, and the radius of the disc that surely holds all there."""
-        inverse = banded.inverse(sigma) if banded is not None else None
-        vals, vectors = eigs(op, k=k, sigma=sigma, which="LM", tol=0, OPinv=inverse)
+    def disc(sigma, count=k):
+        """The ``count`` eigenvalues of op nearest sigma, the radius of the disc that surely holds all there, and
+        sigma (moved by 1e-9 if it sat on an eigenvalue)."""
+        try:
+            inverse = banded.inverse(sigma) if banded is not None else None
+        except np.linalg.LinAlgError:
+            sigma += 1e-9
+            inverse = banded.inverse(sigma)
+        vals, vectors = eigs(op, k=count, sigma=sigma, which="LM", tol=0, OPinv=inverse)
         d = np.abs(vals - sigma)
-        radii.append(float(np.max(d)) * (1 - 1e-9))
-        return vals, vectors, d, radii[-1]
+        return vals, vectors, d, float(np.max(d)) * (1 - 1e-9), sigma
 
-    def keep(vals, vectors, d, radius, low, high):
+    def kept(vals, vectors, d, radius, low, high):
         inside = (d < radius) & (np.real(vals) > low) & (np.real(vals) <= high)
-        found.append((vals[inside], vectors[:, inside]))
+        return vals[inside], vectors[:, inside]
 
-    sigma = 1.0 + START_OFFSET
-    vals, vectors, d, radius = disc(sigma)
-    keep(vals, vectors, d, radius, sigma - 0.5 * radius, sigma + 0.5 * radius)
-    outer, cut = sigma + 0.5 * radius, sigma - 0.5 * radius
-    while cut > 1.0 - window.width:
-        vals, vectors, d, radius = disc(cut)
-        keep(vals, vectors, d, radius, cut - 0.5 * radius, cut)
-        cut -= 0.5 * radius
+    def inward():
+        vals, vectors, d, radius, sigma = disc(1.0 + START_OFFSET)
+        found, radii = [kept(vals, vectors, d, radius, sigma - 0.5 * radius, sigma + 0.5 * radius)], [radius]
+        outer, cut = sigma + 0.5 * radius, sigma - 0.5 * radius
+        while cut > 1.0 - window.width:
+            vals, vectors, d, radius, _ = disc(cut)
+            found.append(kept(vals, vectors, d, radius, cut - 0.5 * radius, cut))
+            radii.append(radius)
+            cut -= 0.5 * radius
+        return found, radii, cut, outer
+
+    found, radii, cut, outer = inward()
+    vals, vectors, d, radius, sigma = disc(1.0 + OUTWARD_SHIFT, min(OUTWARD_COUNT, k))
+    shifts = len(radii) + 1
+    found.append(kept(vals, vectors, d, radius, outer, np.inf))  # what it holds beyond the first disc
+    if sigma - radius <= outer < sigma + 0.5 * radius:  # it reaches back to the first disc's far cut: contiguous
+        radii.append(radius)
+        outer = sigma + 0.5 * radius
     beyond, converged = _outliers(sp.csr_matrix(op), outer, k=min(OUTLIER_COUNT, k))  # CSR: faster products
     found.append(beyond)
     return {
@@ -278,7 +308,7 @@ def _end(op, window: FloquetWindow, k: int) -> dict:
         "cut": cut,
         "outer": outer,
         "radii": radii,
-        "shifts": len(radii),
+        "shifts": shifts,
         "converged": converged,
     }
 
@@ -305,6 +335,16 @@ def _threads(n: int) -> int:
     """Threads for n independent eigensolves: n where ARPACK is reentrant, else 1."""
     return n if REENTRANT_ARPACK else 1
 
+
+#: the outward disc's shift beyond +1 (and -1): its disc holds the cluster at the end on its rim and every
+#: eigenvalue nearer, so it covers from the first disc's far cut (1 + 6e-4 at N = 3201) to 1 + 1.5 OUTWARD_SHIFT,
+#: where the Arnoldi alone left real pairs of mu 1.001 .. 1.005 (|l| 1.05 .. 1.1) unseen at N = 3201; not a round
+#: number, so that it does not sit on an eigenvalue put there by hand
+OUTWARD_SHIFT = 5.1234e-3
+
+#: eigenvalues asked of the outward disc: the cluster at the end sits on its rim whatever the count (so it reaches
+#: back), and a few converge 3x (N = 3201) to 8x faster than the end discs' 60 (12801: 1.3 s against 7.5 s)
+OUTWARD_COUNT = 10
 
 #: extreme eigenvalues asked of the Arnoldi beyond the end discs (strong real pairs, period doubling)
 OUTLIER_COUNT = 4
@@ -395,7 +435,7 @@ def krylov_floquet(lin, M: float, state=None, tolerance=None, window: FloquetWin
             blocks = parity_extensions(N)
     with ThreadPoolExecutor(1, thread_name_prefix="window-checks") as side, blas_threads(1):
         checks = side.submit(_checks, X, Y, *blocks_of_A)  # beside the eigensolves: they need Mu alone
-        # four solves on four threads: BLAS threads of their own would only contend
+        # the solves on threads: BLAS threads of their own would only contend
         mu, vec, parity, coverage = blocks_window(Mu, blocks, window)
         sympl, P = checks.result()
     vec = vec / np.linalg.norm(vec, axis=0)
