@@ -67,11 +67,9 @@ import numpy as np
 from warpchain import ChainParams, Flow, get_method, propagate_tangent
 from warpchain.model import real_number
 
-from .parity import (  # noqa: F401 (importable from here as before)
-    PARITY_COUPLING_RTOL,
+from .parity import (  # noqa: F401 (ParityBlock: importable from here as before)
     SYMMETRIC_RTOL,
     ParityBlock,
-    _block_pool,
     _expand,
     mirror_symmetric,
     parity_blocks,

@@ -52,13 +52,6 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 
-def sparse_products(A, M: float) -> tuple:
-    """``floquet.reduced_products`` on a sparse A: (Mu, symplecticity, P), Mu and P sparse (CSC)."""
-    blocks = _blocks(A, M)
-    Mu, X, Y = _mu(*blocks)
-    return (Mu, *_checks(X, Y, *blocks))
-
-
 def _blocks(A, M: float) -> tuple:
     """The four blocks of A (CSC) and the diagonal mass matrix Mm."""
     n2 = A.shape[0] // 2
@@ -282,25 +275,22 @@ def _end(op, window: FloquetWindow, k: int) -> dict:
         inside = (d < radius) & (np.real(vals) > low) & (np.real(vals) <= high)
         return vals[inside], vectors[:, inside]
 
-    def inward():
-        vals, vectors, d, radius, sigma = disc(1.0 + START_OFFSET)
-        found, radii = [kept(vals, vectors, d, radius, sigma - 0.5 * radius, sigma + 0.5 * radius)], [radius]
-        outer, cut = sigma + 0.5 * radius, sigma - 0.5 * radius
-        while cut > 1.0 - window.width:
-            vals, vectors, d, radius, _ = disc(cut)
-            found.append(kept(vals, vectors, d, radius, cut - 0.5 * radius, cut))
-            radii.append(radius)
-            cut -= 0.5 * radius
-        return found, radii, cut, outer
-
-    found, radii, cut, outer = inward()
-    vals, vectors, d, radius, sigma = disc(1.0 + OUTWARD_SHIFT, min(OUTWARD_COUNT, k))
+    vals, vectors, d, radius, sigma = disc(1.0 + START_OFFSET)
+    found, radii = [kept(vals, vectors, d, radius, sigma - 0.5 * radius, sigma + 0.5 * radius)], [radius]
+    outer, cut = sigma + 0.5 * radius, sigma - 0.5 * radius
+    while cut > 1.0 - window.width:
+        vals, vectors, d, radius, _ = disc(cut)
+        found.append(kept(vals, vectors, d, radius, cut - 0.5 * radius, cut))
+        radii.append(radius)
+        cut -= 0.5 * radius
     shifts = len(radii) + 1
-    found.append(kept(vals, vectors, d, radius, outer, np.inf))  # what it holds beyond the first disc
+    vals, vectors, d, radius, sigma = disc(1.0 + OUTWARD_SHIFT, min(OUTWARD_COUNT, k))
+    found.append(kept(vals, vectors, d, radius, outer, np.inf))  # all it holds beyond the first disc
     if sigma - radius <= outer < sigma + 0.5 * radius:  # it reaches back to the first disc's far cut: contiguous
         radii.append(radius)
         outer = sigma + 0.5 * radius
-    beyond, converged = _outliers(sp.csr_matrix(op), outer, k=min(OUTLIER_COUNT, k))  # CSR: faster products
+    # the Arnoldi's, but for those within the outward disc's radius: it holds every one there
+    beyond, converged = _outliers(sp.csr_matrix(op), outer, min(OUTLIER_COUNT, k), taken=(sigma, radius))
     found.append(beyond)
     return {
         "mu": np.concatenate([v for v, _ in found]),
@@ -353,10 +343,12 @@ OUTLIER_COUNT = 4
 OUTLIER_RESTARTS = 20
 
 
-def _outliers(op, outer: float, k: int) -> tuple:
+def _outliers(op, outer: float, k: int, taken: tuple) -> tuple:
     """The eigenvalues of ``op`` with real part beyond ``outer`` (an end disc's far cut), from ARPACK's ``k``
     eigenvalues of largest real part without shift-invert (a shift far from the spectrum converges slowly;
-    Arnoldi finds separated outliers fast). Eigenpairs are kept when their residual is below 1e-10.
+    Arnoldi finds separated outliers fast; ``op`` CSR: faster products). Eigenpairs are kept when their residual
+    is below 1e-10, and unless a disc holds them: ``taken`` = (sigma, radius), the disc's shift and the radius
+    within which it found every eigenvalue.
 
     Returns:
         ((mu, vectors), converged): ``converged`` False when the Arnoldi stopped before its k values converged
@@ -369,7 +361,8 @@ def _outliers(op, outer: float, k: int) -> tuple:
         vals, vectors, converged = err.eigenvalues, err.eigenvectors, False
     if len(vals):
         residual = np.linalg.norm(op @ vectors - vectors * vals[None, :], axis=0) / np.linalg.norm(vectors, axis=0)
-        good = (np.real(vals) > outer) & (residual < 1e-10)
+        sigma, radius = taken
+        good = (np.real(vals) > outer) & (residual < 1e-10) & (np.abs(vals - sigma) >= radius)
         vals, vectors = vals[good], vectors[:, good]
     if not len(vals):
         return (np.zeros(0, complex), np.zeros((op.shape[0], 0), complex)), converged
