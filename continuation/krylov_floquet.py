@@ -26,11 +26,10 @@ eigenvalue out to ~1.008 (real pairs of |l| up to ~1.13, which the first disc at
 plain Arnoldi does not yet separate from the cluster at the end); beyond that (strong real pairs, period doubling:
 |mu| well above 1) an Arnoldi without shift looks for the eigenvalues of largest real part, which converge fast
 when they stand apart (``coverage["beyond_converged"]`` says whether all it was asked for converged: usually not,
-as the cluster at the end does not, and only converged ones are reported). The four solves (two parity blocks,
-two ends) run on four threads where scipy's ARPACK is reentrant (``REENTRANT_ARPACK``, scipy >= 1.17; one after
-the other before): the banded solves (LAPACK through ctypes) and scipy's sparse products let go of the GIL, and
-ARPACK starts from a fixed vector (``eigs``), so each solve gives the same bits alone or beside the others, and in
-any process.
+as the cluster at the end does not, and only converged ones are reported). ARPACK starts from a fixed vector
+(``eigs``), so a solve gives the same bits in any process and after any other call. The four solves (two parity
+blocks, two ends) are independent; on long chains (``PROCESS_MIN_ROWS``) they run in worker processes, all at once
+(``_ends``, ``_Workers``): ARPACK holds the GIL, so threads would run them one after the other.
 
 **What a window cannot see**: an instability whose mu lies between the covered intervals (a multiplier further
 from both +1 and -1 than the window reaches: a quadruplet from a collision in the middle of the circle), one further
@@ -43,6 +42,8 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
+import os
+import queue
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -50,6 +51,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+from scipy.linalg.lapack import dgbtrf, dgbtrs
 
 
 def _blocks(A, M: float) -> tuple:
@@ -74,7 +76,8 @@ def _checks(X, Y, A11, A12, A21, A22, Dm) -> tuple:
     (Z = A12^T Mm A22), as ``floquet.reduced_products``, and the Krein form P = A11^T Mm A21. ``krylov_floquet``
     runs it beside the eigensolves, which need Mu alone."""
     Dinv = sp.diags(1.0 / Dm.diagonal())
-    P, Z = (A11.T @ Dm) @ A21, (A12.T @ Dm) @ A22
+    with ThreadPoolExecutor(2, thread_name_prefix="window-krein") as pool:  # scipy's products let go of the GIL
+        P, Z = pool.map(lambda pair: (pair[0].T @ Dm) @ pair[1], ((A11, A21), (A12, A22)))
     S12 = Dinv @ (X - Y) - sp.identity(X.shape[0])
     S22 = Dinv @ (Z - Z.T) @ Dinv
 
@@ -132,10 +135,8 @@ class FloquetWindow:
 class BandedShifts:
     """(op - sigma)^-1 for many shifts sigma of one sparse op, by LAPACK's banded LU (dgbtrf / dgbtrs) in the
     interleaved order (u_1, v_1, u_2, v_2, ...), where Mu's band is 2 (2 b + 1) wide: ~3.5x faster solves than
-    SuperLU on the paper chain (0.18 ms against 0.65 ms at N = 3201). LAPACK is called through ctypes (scipy's
-    own LAPACK, ``_lapack``), which lets go of the GIL: the eigensolves of ``blocks_window`` can run on threads
-    at once. ``None`` from ``make`` when the band is not narrow (then ARPACK factors op - sigma with
-    SuperLU)."""
+    SuperLU on the paper chain (0.18 ms against 0.65 ms at N = 3201). ``None`` from ``make`` when the band is not
+    narrow (then ARPACK factors op - sigma with SuperLU)."""
 
     def __init__(self, n, perm, rows, cols, data, kl, ku):
         self.n, self.perm, self.rows, self.cols, self.data, self.kl, self.ku = n, perm, rows, cols, data, kl, ku
@@ -154,91 +155,35 @@ class BandedShifts:
 
     def inverse(self, sigma: float):
         n, kl, ku, perm = self.n, self.kl, self.ku, self.perm
-        ldab = 2 * kl + ku + 1
-        lu = np.zeros((ldab, n), order="F")
-        lu[kl + ku + self.rows - self.cols, self.cols] = self.data
-        lu[kl + ku, :] -= sigma
-        piv = np.zeros(n, np.int32)
-        info = _lapack("dgbtrf")(n, n, kl, ku, lu, ldab, piv)
+        ab = np.zeros((2 * kl + ku + 1, n))
+        ab[kl + ku + self.rows - self.cols, self.cols] = self.data
+        ab[kl + ku, :] -= sigma
+        lu, piv, info = dgbtrf(ab, kl, ku, overwrite_ab=True)
         if info != 0:
             raise np.linalg.LinAlgError(f"op - sigma is singular at sigma = {sigma!r} (dgbtrf info {info})")
-        dgbtrs = _lapack("dgbtrs")
 
         def solve(x):
             x = np.asarray(x).reshape(n)
-            x = x.astype(np.complex128 if np.iscomplexobj(x) else np.float64, copy=False)  # what dgbtrs reads
-            parts = np.asfortranarray(np.stack([x.real, x.imag], axis=1)[perm] if np.iscomplexobj(x) else x[perm])
-            dgbtrs(b"N", n, kl, ku, parts.size // n, lu, ldab, piv, parts, n)
+            parts = np.stack([x.real, x.imag], axis=1)[perm] if np.iscomplexobj(x) else x[perm, None]
+            y, _ = dgbtrs(lu, kl, ku, parts, piv, overwrite_b=True)
             out = np.empty(n, dtype=np.result_type(x.dtype, np.float64))
-            out[perm] = parts[:, 0] + 1j * parts[:, 1] if parts.ndim == 2 else parts
+            out[perm] = y[:, 0] + 1j * y[:, 1] if np.iscomplexobj(x) else y[:, 0]
             return out
 
         return spla.LinearOperator((n, n), matvec=solve, dtype=np.float64)
 
 
-_LAPACK: dict = {}
-_LAPACK_LOCK = threading.Lock()
-
-
-def _lapack(name: str):
-    """scipy's LAPACK routine ``name`` (``dgbtrf`` or ``dgbtrs``) through ctypes, which releases the GIL while it
-    runs (scipy's own wrappers hold it). Arguments: integers and arrays as the Fortran routine's, without ``info``,
-    which the call returns."""
-    with _LAPACK_LOCK:  # ctypes.pythonapi is the process's: set its signatures once
-        if name not in _LAPACK:
-            import ctypes
-
-            from scipy.linalg import cython_lapack
-
-            capsule = cython_lapack.__pyx_capi__[name]
-            api = ctypes.pythonapi
-            api.PyCapsule_GetName.restype, api.PyCapsule_GetName.argtypes = ctypes.c_char_p, [ctypes.py_object]
-            api.PyCapsule_GetPointer.restype = ctypes.c_void_p
-            api.PyCapsule_GetPointer.argtypes = [ctypes.py_object, ctypes.c_char_p]
-            pointer = api.PyCapsule_GetPointer(capsule, api.PyCapsule_GetName(capsule))
-            c_int, ptr = ctypes.c_int, ctypes.c_void_p
-            int_p = ctypes.POINTER(c_int)
-            if name == "dgbtrf":  # m, n, kl, ku, ab, ldab, ipiv, info
-                signature = [int_p, int_p, int_p, int_p, ptr, int_p, ptr, int_p]
-            else:  # trans, n, kl, ku, nrhs, ab, ldab, ipiv, b, ldb, info
-                signature = [ctypes.c_char_p, int_p, int_p, int_p, int_p, ptr, int_p, ptr, ptr, int_p, int_p]
-            function = ctypes.CFUNCTYPE(None, *signature)(pointer)
-
-            def call(*args):
-                info = c_int(0)
-                converted = [
-                    a
-                    if isinstance(a, bytes)
-                    else a.ctypes.data
-                    if isinstance(a, np.ndarray)
-                    else ctypes.byref(c_int(a))
-                    for a in args
-                ]
-                function(*converted, ctypes.byref(info))
-                return info.value
-
-            _LAPACK[name] = call
-    return _LAPACK[name]
-
-
-def window_eigs(Mu, window: FloquetWindow) -> tuple:
-    """The eigenvalues of the sparse Mu in the windows at +1 and -1, and every one beyond them (|mu| > 1), by
-    shift-invert Arnoldi (module docstring). The end at -1 is the end at +1 of -Mu; the two ends are solved on
-    two threads where ARPACK is reentrant (the banded solves and the sparse products let go of the GIL), each the
-    same as alone.
+def _window(plus: dict, minus: dict, k: int, width: float) -> tuple:
+    """One op's window from its two ends (``_end`` of op and of -op): the mu, their vectors and the coverage.
 
     Returns:
         (mu (count,), vectors (2N, count), coverage dict).
     """
-    k = int(min(window.count, Mu.shape[0] - 2))
-    with ThreadPoolExecutor(_threads(2), thread_name_prefix="window-end") as pool:
-        ends = list(pool.map(lambda sign: _end(sp.csc_matrix(sign * Mu), window, k), (1.0, -1.0)))
-    mu = np.concatenate([sign * end["mu"] for sign, end in zip((1.0, -1.0), ends)])
+    mu = np.concatenate([plus["mu"], -minus["mu"]])
     order = np.argsort(-np.real(mu), kind="stable")
-    plus, minus = ends
     coverage = {
         "count": k,
-        "width": float(window.width),
+        "width": float(width),
         "covered": [[-minus["outer"], -minus["cut"]], [plus["cut"], plus["outer"]]],
         "beyond_converged": plus["converged"] and minus["converged"],
         "strip_half_height": float(np.sqrt(3.0) / 2.0 * min(plus["radii"] + minus["radii"])),
@@ -250,48 +195,73 @@ def window_eigs(Mu, window: FloquetWindow) -> tuple:
     return mu[order], np.hstack([plus["vectors"], minus["vectors"]])[:, order], coverage
 
 
-def _end(op, window: FloquetWindow, k: int) -> dict:
-    """The window at +1 of ``op``: the first disc just outside the end, then inwards to 1 - width, each shift at the
-    previous one's cut; then one disc at 1 + ``OUTWARD_SHIFT``, which holds every
-    eigenvalue between the first disc's far cut and it (weak real pairs too strong for the first disc, but not
-    separated enough for the Arnoldi), then the outliers beyond by the Arnoldi. Returns its mu and vectors, the
-    covered interval (``cut``, ``outer``), the discs' radii, the number of shifts and whether the outlier Arnoldi
-    converged."""
-    banded = BandedShifts.make(op)
+#: an end's three eigensolves (``_solve``), independent of each other: the unit of work of ``_ends``
+PARTS = ("discs", "outward", "beyond")
 
-    def disc(sigma, count=k):
-        """The ``count`` eigenvalues of op nearest sigma, the radius of the disc that surely holds all there, and
-        sigma (moved by 1e-9 if it sat on an eigenvalue)."""
-        try:
-            inverse = banded.inverse(sigma) if banded is not None else None
-        except np.linalg.LinAlgError:
-            sigma += 1e-9
-            inverse = banded.inverse(sigma)
-        vals, vectors = eigs(op, k=count, sigma=sigma, which="LM", tol=0, OPinv=inverse)
-        d = np.abs(vals - sigma)
-        return vals, vectors, d, float(np.max(d)) * (1 - 1e-9), sigma
+
+def _solve(op, part: str, width: float, k: int):
+    """One of the three eigensolves of the window at +1 of ``op`` (CSC), which ``_end`` merges:
+
+    - ``"discs"``: the first disc just outside the end, then inwards to 1 - width, each shift at the previous
+      one's cut: a list of ``_disc`` results;
+    - ``"outward"``: the disc at 1 + ``OUTWARD_SHIFT``, which holds every eigenvalue between the first disc's far
+      cut and it (weak real pairs too strong for the first disc, but not separated enough for the Arnoldi);
+    - ``"beyond"``: the Arnoldi without shift for the outliers beyond (``_arnoldi``).
+    """
+    if part == "beyond":
+        return _arnoldi(sp.csr_matrix(op), min(OUTLIER_COUNT, k))
+    banded = BandedShifts.make(op)
+    if part == "outward":
+        return _disc(op, banded, 1.0 + OUTWARD_SHIFT, min(OUTWARD_COUNT, k))
+    discs = [_disc(op, banded, 1.0 + START_OFFSET, k)]
+    cut = discs[0][4] - 0.5 * discs[0][3]
+    while cut > 1.0 - width:
+        discs.append(_disc(op, banded, cut, k))
+        cut -= 0.5 * discs[-1][3]
+    return discs
+
+
+def _disc(op, banded, sigma: float, count: int) -> tuple:
+    """The ``count`` eigenvalues of op nearest sigma by shift-invert Arnoldi, their vectors and distances to sigma,
+    the radius of the disc that surely holds all there, and sigma (moved by 1e-9 if it sat on an eigenvalue)."""
+    try:
+        inverse = banded.inverse(sigma) if banded is not None else None
+    except np.linalg.LinAlgError:
+        sigma += 1e-9
+        inverse = banded.inverse(sigma)
+    vals, vectors = eigs(op, k=count, sigma=sigma, which="LM", tol=0, OPinv=inverse)
+    d = np.abs(vals - sigma)
+    return vals, vectors, d, float(np.max(d)) * (1 - 1e-9), sigma
+
+
+def _end(discs: list, outward: tuple, beyond: tuple) -> dict:
+    """The window at +1 of an op from its three eigensolves (``_solve``): each disc keeps the eigenvalues whose real
+    part lies within half its radius of its shift (the first) or of its cut (the sweep's), the outward disc all it
+    holds beyond the first disc's far cut, the Arnoldi the converged ones beyond the outward disc. Returns the mu
+    and vectors, the covered interval (``cut``, ``outer``), the discs' radii, the number of shifts and whether the
+    Arnoldi converged."""
 
     def kept(vals, vectors, d, radius, low, high):
         inside = (d < radius) & (np.real(vals) > low) & (np.real(vals) <= high)
         return vals[inside], vectors[:, inside]
 
-    vals, vectors, d, radius, sigma = disc(1.0 + START_OFFSET)
+    vals, vectors, d, radius, sigma = discs[0]
     found, radii = [kept(vals, vectors, d, radius, sigma - 0.5 * radius, sigma + 0.5 * radius)], [radius]
     outer, cut = sigma + 0.5 * radius, sigma - 0.5 * radius
-    while cut > 1.0 - window.width:
-        vals, vectors, d, radius, _ = disc(cut)
+    for vals, vectors, d, radius, _ in discs[1:]:
         found.append(kept(vals, vectors, d, radius, cut - 0.5 * radius, cut))
         radii.append(radius)
         cut -= 0.5 * radius
     shifts = len(radii) + 1
-    vals, vectors, d, radius, sigma = disc(1.0 + OUTWARD_SHIFT, min(OUTWARD_COUNT, k))
+    vals, vectors, d, radius, sigma = outward
     found.append(kept(vals, vectors, d, radius, outer, np.inf))  # all it holds beyond the first disc
     if sigma - radius <= outer < sigma + 0.5 * radius:  # it reaches back to the first disc's far cut: contiguous
         radii.append(radius)
         outer = sigma + 0.5 * radius
     # the Arnoldi's, but for those within the outward disc's radius: it holds every one there
-    beyond, converged = _outliers(sp.csr_matrix(op), outer, min(OUTLIER_COUNT, k), taken=(sigma, radius))
-    found.append(beyond)
+    vals, vectors, residual, converged = beyond
+    good = (np.real(vals) > outer) & (residual < 1e-10) & (np.abs(vals - sigma) >= radius)
+    found.append((vals[good], vectors[:, good]))
     return {
         "mu": np.concatenate([v for v, _ in found]),
         "vectors": np.hstack([x for _, x in found]),
@@ -303,28 +273,21 @@ def _end(op, window: FloquetWindow, k: int) -> dict:
     }
 
 
-#: scipy's ARPACK keeps its whole state in the call's arguments since its C translation (scipy 1.17, which also
-#: takes ``rng`` for the random vectors it asks for): eigensolves may then run on threads at once. The Fortran
-#: ARPACK before kept it in SAVE variables shared by every call, so there they run one after the other.
-REENTRANT_ARPACK = "rng" in inspect.signature(spla.eigs).parameters
 #: the seed of ARPACK's starting vector (and of any vector it asks for on a restart)
 ARPACK_SEED = 20261126
 
 
 def eigs(op, **options):
     """``scipy.sparse.linalg.eigs`` from a fixed starting vector (and fixed random vectors on a restart, where scipy
-    takes an ``rng``). Without one ARPACK draws it afresh (OS entropy in scipy >= 1.17, a process-wide seed that
-    advances with every call before), so the same orbit's multipliers would differ in the last bits from call
-    to call (a resumed branch, a sweep's worker)."""
+    takes an ``rng``: 1.17 on). Without one ARPACK draws it afresh (OS entropy in scipy >= 1.17, a process-wide
+    seed that advances with every call before), so the same orbit's multipliers would differ in the last bits from
+    call to call (a resumed branch, a sweep's worker)."""
     rng = np.random.default_rng(ARPACK_SEED)
-    extra = {"rng": rng} if REENTRANT_ARPACK else {}
+    extra = {"rng": rng} if _TAKES_RNG else {}
     return spla.eigs(op, v0=rng.standard_normal(op.shape[0]), **extra, **options)
 
 
-def _threads(n: int) -> int:
-    """Threads for n independent eigensolves: n where ARPACK is reentrant, else 1."""
-    return n if REENTRANT_ARPACK else 1
-
+_TAKES_RNG = "rng" in inspect.signature(spla.eigs).parameters
 
 #: the outward disc's shift beyond +1 (and -1): its disc holds the cluster at the end on its rim and every
 #: eigenvalue nearer, so it covers from the first disc's far cut (1 + 6e-4 at N = 3201) to 1 + 1.5 OUTWARD_SHIFT,
@@ -343,50 +306,150 @@ OUTLIER_COUNT = 4
 OUTLIER_RESTARTS = 20
 
 
-def _outliers(op, outer: float, k: int, taken: tuple) -> tuple:
-    """The eigenvalues of ``op`` with real part beyond ``outer`` (an end disc's far cut), from ARPACK's ``k``
-    eigenvalues of largest real part without shift-invert (a shift far from the spectrum converges slowly;
-    Arnoldi finds separated outliers fast; ``op`` CSR: faster products). Eigenpairs are kept when their residual
-    is below 1e-10, and unless a disc holds them: ``taken`` = (sigma, radius), the disc's shift and the radius
-    within which it found every eigenvalue.
+def _arnoldi(op, k: int) -> tuple:
+    """ARPACK's ``k`` eigenvalues of ``op`` (CSR: faster products) of largest real part without shift-invert, for
+    the outliers beyond the discs (a shift far from the spectrum converges slowly; Arnoldi finds separated outliers
+    fast), each with its relative residual (``_end`` keeps those below 1e-10).
 
     Returns:
-        ((mu, vectors), converged): ``converged`` False when the Arnoldi stopped before its k values converged
-        (then only outliers it did converge are known: the usual case, with none, is the cluster at the end).
+        (mu, vectors, residuals, converged): ``converged`` False when the Arnoldi stopped before its k values
+        converged (then only outliers it did converge are known: the usual case, with none, is the cluster at the
+        end).
     """
     try:
         vals, vectors = eigs(op, k=k, which="LR", tol=1e-13, maxiter=OUTLIER_RESTARTS)
         converged = True
     except spla.ArpackNoConvergence as err:
         vals, vectors, converged = err.eigenvalues, err.eigenvectors, False
-    if len(vals):
-        residual = np.linalg.norm(op @ vectors - vectors * vals[None, :], axis=0) / np.linalg.norm(vectors, axis=0)
-        sigma, radius = taken
-        good = (np.real(vals) > outer) & (residual < 1e-10) & (np.abs(vals - sigma) >= radius)
-        vals, vectors = vals[good], vectors[:, good]
     if not len(vals):
-        return (np.zeros(0, complex), np.zeros((op.shape[0], 0), complex)), converged
-    return (vals, vectors), converged
+        return np.zeros(0, complex), np.zeros((op.shape[0], 0), complex), np.zeros(0), converged
+    residual = np.linalg.norm(op @ vectors - vectors * vals[None, :], axis=0) / np.linalg.norm(vectors, axis=0)
+    return vals, vectors, residual, converged
 
 
-def blocks_window(Mu, blocks, window: FloquetWindow) -> tuple:
-    """``window_eigs`` on each parity block (``(parity, E, keep)``: ``parity_extensions``, or ``(0, None, None)`` for
-    the whole Mu), merged: the mu, their vectors (2N, extended from the block), parities and one coverage. The
-    intervals are those every block covered (a block that reached further inwards reports only as far); what lies
-    beyond their outer ends (strong real pairs, period doubling: the outlier Arnoldi's) is kept.
+#: from this many rows of Mu on, the window's eigensolves (two ends of each parity block) run in worker processes
+#: at once (``_ends``). scipy's ARPACK holds the GIL while it orthogonalises, so on threads they ran one after the
+#: other, and slower (H100 host, N = 12801: 13.4 s for the four on four threads, 20.6 s one after the other, 7.4 s
+#: in four processes; N = 1601: 0.86 s here and 0.87 s in fresh processes)
+PROCESS_MIN_ROWS = 3000
+
+#: worker processes at most: one per eigensolve (two parity blocks, two ends, ``PARTS``)
+PROCESS_COUNT = 12
+
+
+def _ends(ops: list, width: float, ks: list, processes: bool) -> list:
+    """``_end`` of each op (CSC) and its k from its three eigensolves (``_solve``), here one after the other, or
+    all twelve (two parity blocks, two ends) in the worker processes at once (``processes``, ``_Workers``): the same
+    code on the same libraries from the same starting vector, so the same bits."""
+    tasks = [(op, part, k) for op, k in zip(ops, ks) for part in PARTS]
+    if not processes:
+        parts = [_solve(op, part, width, k) for op, part, k in tasks]
+    else:
+        workers = _Workers.shared()
+
+        def call(task):
+            op, part, k = task
+            return workers.call((op.data, op.indices, op.indptr, op.shape, part, width, k))
+
+        with ThreadPoolExecutor(len(tasks), thread_name_prefix="window-worker") as pool:  # threads that only wait
+            parts = list(pool.map(call, tasks))
+    return [_end(*parts[i : i + len(PARTS)]) for i in range(0, len(parts), len(PARTS))]
+
+
+class _Workers:
+    """Python processes that run ``_solve`` on pickled ops: this file loaded alone (no package, no Warp) with one BLAS
+    thread, started on first use and kept for the process's life, so a branch pays their start (~0.3 s: python,
+    numpy, scipy) once. Each call takes an idle worker; a worker's error is raised here with its traceback, and a
+    worker that died is replaced. Their stderr is the parent's."""
+
+    _shared = None
+    _lock = threading.Lock()
+
+    @classmethod
+    def shared(cls):
+        with cls._lock:
+            if cls._shared is None or cls._shared.pid != os.getpid():  # a forked child starts its own
+                cls._shared = cls(min(PROCESS_COUNT, os.cpu_count() or 1))
+            return cls._shared
+
+    def __init__(self, count: int):
+        self.pid, self.count, self.idle = os.getpid(), count, queue.SimpleQueue()
+        for _ in range(count):
+            self.idle.put(None)  # started when first taken
+
+    @staticmethod
+    def _start():
+        import subprocess
+        import sys
+
+        command = [sys.executable, *(["-P"] if sys.version_info >= (3, 11) else []), "-c", _WORKER, __file__]
+        env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
+        return subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env)
+
+    def call(self, task):
+        import pickle
+
+        worker = self.idle.get()
+        try:
+            if worker is None or worker.poll() is not None:
+                worker = self._start()
+            payload = pickle.dumps(task, protocol=pickle.HIGHEST_PROTOCOL)
+            worker.stdin.write(len(payload).to_bytes(8, "little") + payload)
+            worker.stdin.flush()
+            size = int.from_bytes(worker.stdout.read(8) or b"\0" * 8, "little")
+            reply = pickle.loads(worker.stdout.read(size)) if size else ("error", "it exited")
+        except (BrokenPipeError, EOFError, pickle.UnpicklingError) as err:
+            reply = ("error", f"it exited ({err!r})")
+        if reply[0] == "error":
+            worker.kill()
+            worker.wait()
+            self.idle.put(None)
+            raise RuntimeError(f"a window worker process failed (one end of a {task[3][0]}-row Mu): {reply[1]}")
+        self.idle.put(worker)
+        return reply[1]
+
+
+#: a worker (``_Workers``): this file loaded as a module of its own; per task, an 8-byte length and a pickle in,
+#: ("ok", ``_solve``'s result) or ("error", traceback) out the same way; it ends when its stdin closes
+_WORKER = """import importlib.util, pickle, sys, traceback
+spec = importlib.util.spec_from_file_location("_window_worker", sys.argv[1])
+module = sys.modules[spec.name] = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(module)
+while (head := sys.stdin.buffer.read(8)):
+    data, indices, indptr, shape, part, width, k = pickle.loads(sys.stdin.buffer.read(int.from_bytes(head, "little")))
+    try:
+        reply = ("ok", module._solve(module.sp.csc_matrix((data, indices, indptr), shape=shape), part, width, k))
+    except Exception:
+        reply = ("error", traceback.format_exc())
+    out = pickle.dumps(reply, protocol=pickle.HIGHEST_PROTOCOL)
+    sys.stdout.buffer.write(len(out).to_bytes(8, "little") + out)
+    sys.stdout.buffer.flush()
+"""
+
+
+def blocks_window(Mu, blocks, window: FloquetWindow, *, processes: bool | None = None) -> tuple:
+    """The window at +1 and -1 of each parity block (``(parity, E, keep)``: ``parity_extensions``, or
+    ``(0, None, None)`` for the whole Mu), merged: the mu, their vectors (2N, extended from the block), parities
+    and one coverage. The end at -1 is the end at +1 of -Mu. The intervals are those every block covered (a block
+    that reached further inwards reports only as far); what lies beyond their outer ends (strong real pairs,
+    period doubling: the outlier Arnoldi's) is kept. ``processes``: the ends' eigensolves in worker processes at
+    once (default: from ``PROCESS_MIN_ROWS`` rows of Mu on; the same bits either way).
 
     Returns:
         (mu, vectors, parity, coverage).
     """
-
-    def solve(block):
-        parity, E, keep = block
-        B = Mu if E is None else sp.csc_matrix((Mu @ E)[keep])
-        mu, vec, coverage = window_eigs(B, window)
-        return mu, (vec if E is None else E @ vec), np.full(len(mu), parity, int), coverage
-
-    with ThreadPoolExecutor(_threads(len(blocks)), thread_name_prefix="window-block") as pool:
-        mus, vecs, parities, coverages = zip(*pool.map(solve, blocks))
+    if processes is None:
+        processes = Mu.shape[0] >= PROCESS_MIN_ROWS
+    ops = [Mu if E is None else sp.csc_matrix((Mu @ E)[keep]) for _, E, keep in blocks]
+    ks = [int(min(window.count, B.shape[0] - 2)) for B in ops for _ in (1.0, -1.0)]
+    ends = _ends([sp.csc_matrix(sign * B) for B in ops for sign in (1.0, -1.0)], window.width, ks, processes)
+    mus, vecs, parities, coverages = [], [], [], []
+    for i, (parity, E, _) in enumerate(blocks):
+        mu, vec, coverage = _window(ends[2 * i], ends[2 * i + 1], ks[2 * i], window.width)
+        mus.append(mu)
+        vecs.append(vec if E is None else E @ vec)
+        parities.append(np.full(len(mu), parity, int))
+        coverages.append(coverage)
     mu, vec, parity = np.concatenate(mus), np.hstack(vecs), np.concatenate(parities)
     covered = [
         [max(c["covered"][0][0] for c in coverages), min(c["covered"][0][1] for c in coverages)],
@@ -400,6 +463,7 @@ def blocks_window(Mu, blocks, window: FloquetWindow) -> tuple:
     coverage["shifts"] = sum(c["shifts"] for c in coverages)
     coverage["beyond_converged"] = all(c["beyond_converged"] for c in coverages)
     coverage["parity_blocks"] = len(blocks) == 2
+    coverage["processes"] = bool(processes)
     return mu[keep], vec[:, keep], parity[keep], coverage
 
 
@@ -428,7 +492,7 @@ def krylov_floquet(lin, M: float, state=None, tolerance=None, window: FloquetWin
             blocks = parity_extensions(N)
     with ThreadPoolExecutor(1, thread_name_prefix="window-checks") as side, blas_threads(1):
         checks = side.submit(_checks, X, Y, *blocks_of_A)  # beside the eigensolves: they need Mu alone
-        # the solves on threads: BLAS threads of their own would only contend
+        # one BLAS thread: the products and solves are small, and spinning OpenBLAS threads would contend
         mu, vec, parity, coverage = blocks_window(Mu, blocks, window)
         sympl, P = checks.result()
     vec = vec / np.linalg.norm(vec, axis=0)

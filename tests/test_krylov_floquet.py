@@ -181,35 +181,39 @@ def test_real_pairs_between_the_end_disc_and_the_arnoldis_reach_are_reported():
 
 def test_the_window_does_not_depend_on_earlier_calls(paper_breather):
     """ARPACK's own starting vector is drawn afresh on every call: the window passes a fixed one, so the same orbit
-    gives the same bits whatever ran before (a resumed branch, a sweep's worker); and its banded solves (LAPACK
-    through ctypes, off the GIL) are scipy's ``dgbtrs`` bit for bit."""
+    gives the same bits whatever ran before (a resumed branch, a sweep's worker) and in worker processes, as on
+    long chains; and its banded solves are LAPACK's ``dgbtrf``/``dgbtrs`` on the interleaved band."""
     import scipy.sparse as sp
     import scipy.sparse.linalg as spla
-    from scipy.linalg import lapack
 
-    from continuation.krylov_floquet import BandedShifts
+    from continuation.krylov_floquet import BandedShifts, blocks_window
 
     first = ct.floquet(paper_breather, solver="krylov")
     spla.eigs(sp.diags(np.arange(1.0, 101.0)), k=3)  # advances ARPACK's seed
     again = ct.floquet(paper_breather, solver="krylov")
     assert np.array_equal(first.mu, again.mu) and np.array_equal(first.participation, again.participation)
 
-    rng = np.random.default_rng(5)
+    rng = np.random.default_rng(4)
+    diag = np.cos(np.sort(rng.uniform(0.0, np.pi, 600)))
+    diag[[50, 550]] = 1.003, -1.2
+    Mu = sp.diags(diag, format="csc") + sp.diags(1e-3 * rng.standard_normal(599), 1, format="csc")
+    halves = [(1, sp.identity(600, format="csc")[:, :300], np.arange(300)), (-1, None, None)]
+    here = blocks_window(Mu, halves[1:], FloquetWindow(count=20), processes=False)
+    there = blocks_window(Mu, halves[1:], FloquetWindow(count=20), processes=True)
+    assert not here[3]["processes"] and there[3]["processes"]
+    for a, b in zip(here[:3], there[:3]):
+        assert np.array_equal(a, b)
+    assert np.min(np.abs(here[0] - 1.003)) < 1e-9 and np.min(np.abs(here[0] + 1.2)) < 1e-9
+
     n, kl, ku = 200, 7, 5
     perm = np.r_[np.arange(n // 2)[:, None], n // 2 + np.arange(n // 2)[:, None]].reshape(2, -1).T.ravel()
     dense = np.empty((n, n))  # banded in the interleaved order (u_1, v_1, u_2, ...), as Mu is
     dense[np.ix_(perm, perm)] = np.triu(np.tril(rng.standard_normal((n, n)), ku), -kl) + 10.0 * np.eye(n)
     shifts = BandedShifts.make(sp.csc_matrix(dense))
+    assert (shifts.kl, shifts.ku) == (kl, ku)
     x = rng.standard_normal(n)
-    ab = np.zeros((2 * shifts.kl + shifts.ku + 1, n))
-    coo = sp.coo_matrix(sp.csr_matrix(dense)[shifts.perm][:, shifts.perm])
-    ab[shifts.kl + shifts.ku + coo.row - coo.col, coo.col] = coo.data
-    ab[shifts.kl + shifts.ku] -= 0.5
-    lu, piv, _ = lapack.dgbtrf(ab, shifts.kl, shifts.ku)
-    y, _ = lapack.dgbtrs(lu, shifts.kl, shifts.ku, x[shifts.perm], piv)
-    expected = np.empty(n)
-    expected[shifts.perm] = y
     solve = shifts.inverse(0.5)
-    assert np.array_equal(solve @ x, expected)
-    assert np.allclose(solve @ (x + 2j * x), expected + 2j * expected, rtol=0, atol=1e-14)
-    assert np.allclose((dense - 0.5 * np.eye(n)) @ expected, x, rtol=0, atol=1e-12)
+    y = solve @ x
+    assert np.allclose((dense - 0.5 * np.eye(n)) @ y, x, rtol=0, atol=1e-12)
+    assert np.array_equal(solve @ (x + 2j * x), y + 2j * y)
+    assert np.array_equal(solve @ x.astype(np.float32), solve @ x.astype(np.float32).astype(float))
