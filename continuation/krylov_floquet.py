@@ -327,10 +327,11 @@ def _arnoldi(op, k: int) -> tuple:
     return vals, vectors, residual, converged
 
 
-#: from this many rows of Mu on, the window's eigensolves (two ends of each parity block) run in worker processes
-#: at once (``_ends``). scipy's ARPACK holds the GIL while it orthogonalises, so on threads they ran one after the
-#: other, and slower (H100 host, N = 12801: 13.4 s for the four on four threads, 20.6 s one after the other, 7.4 s
-#: in four processes; N = 1601: 0.86 s here and 0.87 s in fresh processes)
+#: from this many rows of Mu on, the window's eigensolves run in worker processes, all at once (``_ends``).
+#: scipy's ARPACK holds the GIL while it orthogonalises, so four threads ran them one after the other, and slower
+#: (H100 host, N = 12801: 13.4 s on four threads). H100 host at 1d65c2b, the eigensolves of one window, here and
+#: in the workers once started (``benchmarks/results/h100-2026-11-26e.json``): N = 1601 1.0 s against 0.25 s,
+#: 3201 1.8 s against 0.32 s, 12801 23 s against 5.6 s; the first call of a process also starts them (~0.9 s)
 PROCESS_MIN_ROWS = 3000
 
 #: worker processes at most: one per eigensolve (two parity blocks, two ends, ``PARTS``)
