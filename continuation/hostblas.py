@@ -18,9 +18,10 @@ pay depends on what else wants the cores:
 
 ``blas_threads(n)`` limits every loaded BLAS (numpy's and scipy's OpenBLAS, MKL, ...) to n threads for
 the duration of a ``with`` block, through one cached ``threadpoolctl.ThreadpoolController`` (11 us per
-block, against 1.5 ms for a fresh ``threadpool_limits``), and restores the previous limits after. ``None``
-leaves them alone. The limit is the process's, not the calling thread's: two branches walked at once on
-two threads of one process share it, and the first to finish restores the old value.
+block, against 1.5 ms for a fresh ``threadpool_limits``). ``None`` leaves them alone. The limit is the
+process's, not the calling thread's, so blocks are counted: while any is open (two branches walked at once on
+two threads of one process, two Floquet analyses) the BLAS runs at the smallest limit asked, and the limits
+from before the first come back when the last one ends, whichever order they end in.
 """
 
 from __future__ import annotations
@@ -60,5 +61,25 @@ def blas_threads(threads: int | None = 1):
         return
     if int(threads) < 1:
         raise ValueError(f"BLAS threads must be a whole number >= 1 or None, got {threads!r}")
-    with _controller().limit(limits=int(threads), user_api="blas"):
+    global _ORIGINAL
+    controller = _controller()
+    with _LOCK:
+        if not _OPEN:
+            _ORIGINAL = controller.limit(limits=int(threads), user_api="blas")  # remembers the limits before
+        elif int(threads) < min(_OPEN):
+            controller.limit(limits=int(threads), user_api="blas")
+        _OPEN.append(int(threads))
+    try:
         yield
+    finally:
+        with _LOCK:
+            _OPEN.remove(int(threads))
+            if not _OPEN:
+                _ORIGINAL.restore_original_limits()
+            elif int(threads) < min(_OPEN):
+                controller.limit(limits=min(_OPEN), user_api="blas")
+
+
+#: the limits of the open ``blas_threads`` blocks, and the limiter of the first (it restores what was before)
+_OPEN: list = []
+_ORIGINAL = None

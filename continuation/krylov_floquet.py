@@ -208,6 +208,8 @@ def _solve(op, part: str, width: float, k: int):
       cut and it (weak real pairs too strong for the first disc, but not separated enough for the Arnoldi);
     - ``"beyond"``: the Arnoldi without shift for the outliers beyond (``_arnoldi``).
     """
+    if part not in PARTS:
+        raise ValueError(f"part must be one of {PARTS}, got {part!r}")
     if part == "beyond":
         return _arnoldi(sp.csr_matrix(op), min(OUTLIER_COUNT, k))
     banded = BandedShifts.make(op)
@@ -410,22 +412,30 @@ class _Workers:
         return reply[1]
 
 
-#: a worker (``_Workers``): this file loaded as a module of its own; per task, an 8-byte length and a pickle in,
-#: ("ok", ``_solve``'s result) or ("error", traceback) out the same way; it ends when its stdin closes
-_WORKER = """import importlib.util, pickle, sys, traceback
-spec = importlib.util.spec_from_file_location("_window_worker", sys.argv[1])
-module = sys.modules[spec.name] = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(module)
-while (head := sys.stdin.buffer.read(8)):
-    data, indices, indptr, shape, part, width, k = pickle.loads(sys.stdin.buffer.read(int.from_bytes(head, "little")))
-    try:
-        reply = ("ok", module._solve(module.sp.csc_matrix((data, indices, indptr), shape=shape), part, width, k))
-    except Exception:
-        reply = ("error", traceback.format_exc())
-    out = pickle.dumps(reply, protocol=pickle.HIGHEST_PROTOCOL)
-    sys.stdout.buffer.write(len(out).to_bytes(8, "little") + out)
-    sys.stdout.buffer.flush()
-"""
+#: a worker's command line (``_Workers``): this file loaded as a module of its own, then ``_serve``
+_WORKER = (
+    "import importlib.util as u, sys; s = u.spec_from_file_location('_window_worker', sys.argv[1]); "
+    "m = sys.modules[s.name] = u.module_from_spec(s); s.loader.exec_module(m); m._serve()"
+)
+
+
+def _serve():
+    """A worker's loop: per task an 8-byte length and a pickle in, ("ok", ``_solve``'s result) or
+    ("error", traceback) out the same way; it ends when its stdin closes."""
+    import pickle
+    import sys
+    import traceback
+
+    read, write = sys.stdin.buffer.read, sys.stdout.buffer
+    while head := read(8):
+        data, indices, indptr, shape, part, width, k = pickle.loads(read(int.from_bytes(head, "little")))
+        try:
+            reply = ("ok", _solve(sp.csc_matrix((data, indices, indptr), shape=shape), part, width, k))
+        except Exception:
+            reply = ("error", traceback.format_exc())
+        out = pickle.dumps(reply, protocol=pickle.HIGHEST_PROTOCOL)
+        write.write(len(out).to_bytes(8, "little") + out)
+        write.flush()
 
 
 def blocks_window(Mu, blocks, window: FloquetWindow, *, processes: bool | None = None) -> tuple:

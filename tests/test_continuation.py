@@ -267,6 +267,29 @@ def test_the_walk_runs_on_one_blas_thread_and_restores_the_setting():
             pass
 
 
+def test_blas_limits_of_blocks_open_at_once_come_back_when_the_last_ends():
+    """Two blocks open at once that do not end in the order they began (two Floquet analyses on two threads): the
+    smallest limit holds while both are open and while the one that asked for it is, and the limits from before
+    come back when the last ends (the first to end used to restore them under the other)."""
+    from threadpoolctl import threadpool_info
+
+    from continuation.hostblas import blas_threads
+
+    def counts():
+        return [lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"]
+
+    before = counts()
+    first, second = blas_threads(2), blas_threads(1)
+    first.__enter__()
+    second.__enter__()
+    both = counts()
+    first.__exit__(None, None, None)
+    after_first = counts()
+    second.__exit__(None, None, None)
+    assert both == [1] * len(before) and after_first == [1] * len(before)
+    assert counts() == before
+
+
 def test_a_branch_without_floquet_is_stored_and_read_back(tmp_path):
     p = ChainParams(30.0, 0.01, 21)
     store = BranchStore(tmp_path / "nf.zarr", "branch", p, {"omega": 1.01})

@@ -217,3 +217,19 @@ def test_the_window_does_not_depend_on_earlier_calls(paper_breather):
     assert np.allclose((dense - 0.5 * np.eye(n)) @ y, x, rtol=0, atol=1e-12)
     assert np.array_equal(solve @ (x + 2j * x), y + 2j * y)
     assert np.array_equal(solve @ x.astype(np.float32), solve @ x.astype(np.float32).astype(float))
+
+
+def test_a_worker_error_is_raised_with_its_traceback():
+    """An eigensolve that fails in a worker process fails the call with the worker's traceback, and the next call
+    gets a fresh worker."""
+    import scipy.sparse as sp
+
+    from continuation.krylov_floquet import _Workers
+
+    op = sp.diags(np.linspace(-1.0, 1.0, 40), format="csc")
+    task = (op.data, op.indices, op.indptr, op.shape)
+    workers = _Workers.shared()
+    with pytest.raises(RuntimeError, match="ValueError: part must be one of"):
+        workers.call((*task, "nonsense", 0.0, 6))
+    vals, _, _, _ = workers.call((*task, "beyond", 0.0, 6))
+    assert np.isclose(np.max(vals.real), 1.0)
