@@ -372,7 +372,8 @@ class _Workers:
     def shared(cls):
         with cls._lock:
             if cls._shared is None or cls._shared.pid != os.getpid():  # a forked child starts its own
-                cls._shared = cls(min(PROCESS_COUNT, os.cpu_count() or 1))
+                cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+                cls._shared = cls(min(PROCESS_COUNT, cores or 1))
             return cls._shared
 
     def __init__(self, count: int):
@@ -403,13 +404,21 @@ class _Workers:
             reply = pickle.loads(worker.stdout.read(size)) if size else ("error", "it exited")
         except (BrokenPipeError, EOFError, pickle.UnpicklingError) as err:
             reply = ("error", f"it exited ({err!r})")
+        except BaseException:  # interrupted mid-task (or could not start one): its worker is not reused
+            self._discard(worker)
+            raise
         if reply[0] == "error":
-            worker.kill()
-            worker.wait()
-            self.idle.put(None)
+            self._discard(worker)
             raise RuntimeError(f"a window worker process failed (one end of a {task[3][0]}-row Mu): {reply[1]}")
         self.idle.put(worker)
         return reply[1]
+
+    def _discard(self, worker) -> None:
+        """End a worker that failed or was interrupted, and free its place for a fresh one."""
+        if worker is not None:
+            worker.kill()
+            worker.wait()
+        self.idle.put(None)
 
 
 #: a worker's command line (``_Workers``): this file loaded as a module of its own, then ``_serve``
