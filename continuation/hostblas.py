@@ -62,24 +62,41 @@ def blas_threads(threads: int | None = 1):
     if int(threads) < 1:
         raise ValueError(f"BLAS threads must be a whole number >= 1 or None, got {threads!r}")
     global _ORIGINAL
-    controller = _controller()
+    limit = int(threads)
+    libraries = _controller().select(user_api="blas").lib_controllers
     with _LOCK:
         if not _OPEN:
-            _ORIGINAL = controller.limit(limits=int(threads), user_api="blas")  # remembers the limits before
-        elif int(threads) < min(_OPEN):
-            controller.limit(limits=int(threads), user_api="blas")
-        _OPEN.append(int(threads))
+            _ORIGINAL = [library.get_num_threads() for library in libraries]
+            _set(libraries, [limit] * len(libraries))
+        elif limit < min(_OPEN):
+            _set(libraries, [limit] * len(libraries))
+        _OPEN.append(limit)
     try:
         yield
     finally:
         with _LOCK:
-            _OPEN.remove(int(threads))
+            _OPEN.remove(limit)
             if not _OPEN:
-                _ORIGINAL.restore_original_limits()
-            elif int(threads) < min(_OPEN):
-                controller.limit(limits=min(_OPEN), user_api="blas")
+                _set(libraries, _ORIGINAL)
+            elif limit < min(_OPEN):
+                _set(libraries, [min(_OPEN)] * len(libraries))
 
 
-#: the limits of the open ``blas_threads`` blocks, and the limiter of the first (it restores what was before)
+#: the limits of the open ``blas_threads`` blocks, and each library's limit from before the first
 _OPEN: list = []
-_ORIGINAL = None
+_ORIGINAL: list = []
+
+
+def _set(libraries, limits) -> None:
+    """Set each library's limit (under ``_LOCK``), from whichever thread. threadpoolctl (3.8 on) lets one thread
+    alone set a process-wide OpenBLAS pool, the first to set it, until a ``with`` block of its own ends; these
+    blocks keep their own count, so control is cleared before each set and after (``OpenBLASController``)."""
+    from threadpoolctl import OpenBLASController
+
+    clear = getattr(OpenBLASController, "clear_controlling_thread", None)
+    for library, limit in zip(libraries, limits):
+        if clear is not None:
+            clear(force=True)
+        library.set_num_threads(limit)
+    if clear is not None:
+        clear(force=True)

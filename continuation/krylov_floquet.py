@@ -179,7 +179,7 @@ def _window(plus: dict, minus: dict, k: int, width: float) -> tuple:
     Returns:
         (mu (count,), vectors (2N, count), coverage dict).
     """
-    mu = np.concatenate([plus["mu"], -minus["mu"]])
+    mu = np.concatenate([plus["mu"], -1.0 * minus["mu"]])  # not -mu: a real mu keeps its +0j (the sqrt branch)
     order = np.argsort(-np.real(mu), kind="stable")
     coverage = {
         "count": k,
@@ -339,6 +339,9 @@ PROCESS_MIN_ROWS = 3000
 #: worker processes at most: one per eigensolve (two parity blocks, two ends, ``PARTS``)
 PROCESS_COUNT = 12
 
+#: the module's settings a worker takes from the caller with each task (a script or a test may have changed them)
+_SETTINGS = ("START_OFFSET", "OUTWARD_SHIFT", "OUTWARD_COUNT", "OUTLIER_COUNT", "OUTLIER_RESTARTS", "ARPACK_SEED")
+
 
 def _ends(ops: list, width: float, ks: list, processes: bool) -> list:
     """``_end`` of each op (CSC) and its k from its three eigensolves (``_solve``), here one after the other, or
@@ -350,9 +353,11 @@ def _ends(ops: list, width: float, ks: list, processes: bool) -> list:
     else:
         workers = _Workers.shared()
 
+        settings = {name: globals()[name] for name in _SETTINGS}  # as set in this process, not as in the file
+
         def call(task):
             op, part, k = task
-            return workers.call((op.data, op.indices, op.indptr, op.shape, part, width, k))
+            return workers.call((op.data, op.indices, op.indptr, op.shape, part, width, k, settings))
 
         with ThreadPoolExecutor(len(tasks), thread_name_prefix="window-worker") as pool:  # threads that only wait
             parts = list(pool.map(call, tasks))
@@ -362,8 +367,9 @@ def _ends(ops: list, width: float, ks: list, processes: bool) -> list:
 class _Workers:
     """Python processes that run ``_solve`` on pickled ops: this file loaded alone (no package, no Warp) with one BLAS
     thread, started on first use and kept for the process's life, so a branch pays their start (~0.3 s: python,
-    numpy, scipy) once. Each call takes an idle worker; a worker's error is raised here with its traceback, and a
-    worker that died is replaced. Their stderr is the parent's."""
+    numpy, scipy) once, and ended at its exit. Each call takes an idle worker and sends, with the task, the module's
+    settings as the caller has them (``_SETTINGS``); a worker's error is raised here with its traceback, and a
+    worker that died, failed or was interrupted mid-task is replaced. Their stderr is the parent's."""
 
     _shared = None
     _lock = threading.Lock()
@@ -377,9 +383,24 @@ class _Workers:
             return cls._shared
 
     def __init__(self, count: int):
-        self.pid, self.count, self.idle = os.getpid(), count, queue.SimpleQueue()
+        import atexit
+
+        self.pid, self.count, self.idle, self.started = os.getpid(), count, queue.SimpleQueue(), []
         for _ in range(count):
             self.idle.put(None)  # started when first taken
+        atexit.register(self.close)
+
+    def close(self) -> None:
+        """End the workers (at exit): close their stdin, so that each leaves its loop, and wait for them."""
+        if self.pid != os.getpid():
+            return
+        for worker in list(self.started):
+            self._forget(worker)
+            try:
+                worker.wait(timeout=5)
+            except Exception:
+                worker.kill()
+                worker.wait()
 
     @staticmethod
     def _start():
@@ -395,8 +416,12 @@ class _Workers:
 
         worker = self.idle.get()
         try:
-            if worker is None or worker.poll() is not None:
+            if worker is not None and worker.poll() is not None:  # it died while idle
+                self._forget(worker)
+                worker = None
+            if worker is None:
                 worker = self._start()
+                self.started.append(worker)
             payload = pickle.dumps(task, protocol=pickle.HIGHEST_PROTOCOL)
             worker.stdin.write(len(payload).to_bytes(8, "little") + payload)
             worker.stdin.flush()
@@ -418,7 +443,18 @@ class _Workers:
         if worker is not None:
             worker.kill()
             worker.wait()
+            self._forget(worker)
         self.idle.put(None)
+
+    def _forget(self, worker) -> None:
+        """Close a worker's pipes and drop it."""
+        for pipe in (worker.stdin, worker.stdout):
+            try:
+                pipe.close()
+            except OSError:
+                pass
+        if worker in self.started:
+            self.started.remove(worker)
 
 
 #: a worker's command line (``_Workers``): this file loaded as a module of its own, then ``_serve``
@@ -437,7 +473,8 @@ def _serve():
 
     read, write = sys.stdin.buffer.read, sys.stdout.buffer
     while head := read(8):
-        data, indices, indptr, shape, part, width, k = pickle.loads(read(int.from_bytes(head, "little")))
+        data, indices, indptr, shape, part, width, k, settings = pickle.loads(read(int.from_bytes(head, "little")))
+        globals().update(settings)
         try:
             reply = ("ok", _solve(sp.csc_matrix((data, indices, indptr), shape=shape), part, width, k))
         except Exception:

@@ -270,7 +270,10 @@ def test_the_walk_runs_on_one_blas_thread_and_restores_the_setting():
 def test_blas_limits_of_blocks_open_at_once_come_back_when_the_last_ends():
     """Two blocks open at once that do not end in the order they began (two Floquet analyses on two threads): the
     smallest limit holds while both are open and while the one that asked for it is, and the limits from before
-    come back when the last ends (the first to end used to restore them under the other)."""
+    come back when the last ends (the first to end used to restore them under the other); a block on another
+    thread than the first to set them takes effect."""
+    import threading
+
     from threadpoolctl import threadpool_info
 
     from continuation.hostblas import blas_threads
@@ -279,6 +282,20 @@ def test_blas_limits_of_blocks_open_at_once_come_back_when_the_last_ends():
         return [lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"]
 
     before = counts()
+    with blas_threads(1):  # the main thread sets the limits first: threadpoolctl then ignored other threads
+        pass
+    seen = {}
+
+    def on_a_thread():
+        with blas_threads(1):
+            seen["thread"] = counts()
+
+    with blas_threads(2):
+        worker = threading.Thread(target=on_a_thread)
+        worker.start()
+        worker.join()
+        seen["main"] = counts()
+    assert seen == {"thread": [1] * len(before), "main": [2] * len(before)} and counts() == before
     first, second = blas_threads(2), blas_threads(1)
     first.__enter__()
     second.__enter__()

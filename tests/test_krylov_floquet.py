@@ -175,6 +175,8 @@ def test_real_pairs_between_the_end_disc_and_the_arnoldis_reach_are_reported():
     mu, _, _, cov = blocks_window(sp.diags(diag, format="csc"), [(0, None, None)], FloquetWindow(count=20))
     for value in extras:  # each once: 1.009 lies in the outward disc and within the Arnoldi's reach too
         assert np.sum(np.abs(mu - value) < 1e-12) == 1, value
+    real = mu[mu.imag == 0]  # +0j at both ends (the multipliers' sqrt branch reads the sign of a zero)
+    assert len(real) and not np.signbit(real.imag).any()
     (minus_outer, _), (_, plus_outer) = cov["covered"]
     assert plus_outer > 1.006 and minus_outer < -1.004  # contiguous out to the outward discs' far cuts
 
@@ -220,16 +222,31 @@ def test_the_window_does_not_depend_on_earlier_calls(paper_breather):
 
 
 def test_a_worker_error_is_raised_with_its_traceback():
-    """An eigensolve that fails in a worker process fails the call with the worker's traceback, and the next call
-    gets a fresh worker."""
+    """An eigensolve that fails in a worker process fails the call with the worker's traceback; a worker that cannot
+    start fails the call; either way the next call gets a fresh worker, and a worker takes the caller's settings
+    with each task."""
     import scipy.sparse as sp
 
     from continuation.krylov_floquet import _Workers
 
     op = sp.diags(np.linspace(-1.0, 1.0, 40), format="csc")
     task = (op.data, op.indices, op.indptr, op.shape)
-    workers = _Workers.shared()
-    with pytest.raises(RuntimeError, match="ValueError: part must be one of"):
-        workers.call((*task, "nonsense", 0.0, 6))
-    vals, _, _, _ = workers.call((*task, "beyond", 0.0, 6))
-    assert np.isclose(np.max(vals.real), 1.0)
+    workers = _Workers(1)
+    try:
+        with pytest.raises(RuntimeError, match="ValueError: part must be one of"):
+            workers.call((*task, "nonsense", 0.0, 6, {}))
+
+        def cannot_start():
+            raise OSError("no more processes")
+
+        workers._start = cannot_start  # this instance's: the shared pool is not touched
+        with pytest.raises(OSError, match="no more processes"):
+            workers.call((*task, "beyond", 0.0, 6, {}))
+        del workers._start
+        vals, _, _, _ = workers.call((*task, "beyond", 0.0, 6, {}))  # its place was freed, not lost
+        assert len(vals) == 4 and np.isclose(np.max(vals.real), 1.0)  # OUTLIER_COUNT of them
+        vals, _, _, _ = workers.call((*task, "beyond", 0.0, 6, {"OUTLIER_COUNT": 2}))
+        assert len(vals) == 2
+    finally:
+        workers.close()
+    assert not workers.started
