@@ -127,3 +127,35 @@ def test_a_failed_scene_leaves_failed_json_and_no_stale_summary(tmp_path, monkey
         _common.run_scene("nls", tmp_path, "cpu", True)
     assert not (tmp_path / "nls" / "summary.json").exists()  # the earlier run's summary does not stand for this one
     assert "Failed to allocate" in json.loads((tmp_path / "nls" / "failed.json").read_text())["error"]
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "fork"), reason="needs os.fork")
+def test_a_forked_child_copies_with_threads_of_its_own():
+    """The host copies run on a pool of threads; a child forked after the parent used it (a multiprocessing or
+    Dask worker started by fork) has none of them, and its first copy used to wait for them for ever."""
+    import os
+
+    from warpchain.engine import hostmem
+
+    src = np.arange(4 << 18, dtype=np.float64)
+    dst = np.empty_like(src)
+    hostmem._copy(dst, src)  # the pool starts
+    assert np.array_equal(dst, src)
+    pid = os.fork()
+    if pid == 0:  # the child: exit 0 if its copy finishes and is right
+        try:
+            out = np.empty_like(src)
+            hostmem._copy(out, src)
+            os._exit(0 if np.array_equal(out, src) else 1)
+        except BaseException:
+            os._exit(2)
+    for _ in range(300):
+        done, status = os.waitpid(pid, os.WNOHANG)
+        if done:
+            break
+        threading.Event().wait(0.1)
+    else:
+        os.kill(pid, 9)
+        os.waitpid(pid, 0)
+        pytest.fail("the forked child's copy did not finish in 30 s")
+    assert os.waitstatus_to_exitcode(status) == 0

@@ -4,6 +4,7 @@ their way into the result arrays (``FrameSink``), straight into page-locked ``fr
 
 from __future__ import annotations
 
+import os
 import threading
 
 import numpy as np
@@ -95,6 +96,17 @@ def _fill_zero(arr: np.ndarray) -> None:
     jobs = [_COPY_POOL.submit(flat[a:b].fill, 0.0) for a, b in _even_slices(flat.size, workers)]
     for job in jobs:
         job.result()
+
+
+def _after_fork_in_child() -> None:
+    """A forked child has none of its parent's threads: the copy pool's are gone (a copy would wait for them for
+    ever) and a lock one of them held stays held. Start both afresh there."""
+    global _COPY_POOL, _STAGING_LOCK
+    _COPY_POOL, _STAGING_LOCK = None, threading.Lock()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_after_fork_in_child)
 
 
 def _copy_pool(workers: int):
