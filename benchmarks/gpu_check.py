@@ -97,7 +97,8 @@ def main(argv=None):
             print(f"tangent  {method:9s} 2 columns/block, odd count, rel diff {err:.2e}", flush=True)
     out["flow_replay"] = flow_replay(q, xt, args.device)
     out["on_device"] = on_device(p, x0, M, K, dt, args.device)
-    worst = max(max(out[key].values()) for key in ("ensemble", "tangent", "flow_replay", "on_device"))
+    out["observe"] = observed(p, x0, M, K, dt, args.device)
+    worst = max(max(out[key].values()) for key in ("ensemble", "tangent", "flow_replay", "on_device", "observe"))
     out["worst"] = worst
     print(f"worst relative difference {worst:.2e}")
     if args.out:
@@ -126,6 +127,28 @@ def on_device(p, x0, M, K, dt, device):
         err = float(np.max(np.abs(ends[0] - ref)) / np.max(np.abs(ref)))
         out[f"verlet/{layout}"] = err if same else 1.0
         print(f"on device  {layout:6s} same bits as through the host: {same}, rel diff {err:.2e}", flush=True)
+    return out
+
+
+def observed(p, x0, M, K, dt, device):
+    """``observe`` (the observed splitting kernels, with losses on two of three lattices) against its numpy
+    oracle ``reference_observe``: the largest relative difference of the final state, of the observables and
+    of the last envelope (a peak count that differs is reported as 1.0)."""
+    from warpchain.observe import Observation, observe, reference_observe
+
+    obs = Observation(frame_every=50, threshold=0.05, radius=5, contrast=0.7, spot=np.array([3.0, 5.0, 8.0]))
+    damping = (np.array([0.0, 0.02, 0.05]), np.array([0.0, 0.01, 0.0]))
+    out = {}
+    for method in ("verlet", "kahan8"):
+        values, env, x = reference_observe(method, p, x0, dt, 1000, obs, M=M, K=K, damping=damping)
+        for layout in ("block", "thread"):
+            run = observe(p, x0, 1000 * dt, dt, observation=obs, method=method, damping=damping, M=M, K=K,
+                          device=device, layout=layout)  # fmt: skip
+            same_peaks = np.array_equal(run["peaks"], values[..., 0])
+            pairs = ((run.x, x), (run.values, values), (run.envelope, env))
+            err = max(float(np.max(np.abs(a - b)) / np.max(np.abs(b))) for a, b in pairs)
+            out[f"{method}/{layout}"] = err if same_peaks else 1.0
+            print(f"observe {method:9s} {layout:6s} same peaks: {same_peaks}, rel diff {err:.2e}", flush=True)
     return out
 
 

@@ -17,6 +17,7 @@ import warp as wp
 
 from warpchain import ChainParams, lowest_optical_mode
 from warpchain.engine import block_kernels as bk
+from warpchain.engine.thread_kernels import Observer
 from warpchain.engine.block_kernels import (
     load_site,
     neighbour_or_wall,
@@ -113,7 +114,7 @@ def main():
                 dim=(batch, BLOCK),
                 block_dim=BLOCK,
                 device="cuda",
-                inputs=[x, mass, cpl, dr, ki, 0, n, 0, rec, rec, 0, hist, lossy, damp],
+                inputs=[x, mass, cpl, dr, ki, 0, n, 0, rec, rec, 0, hist, lossy, damp, Observer()],
             )
 
         def run_verlet(n):

@@ -88,6 +88,7 @@ def test_strided_rows_take_the_generic_path(method):
             wp.array(np.array([0.5, 0.5]), dtype=f64),
         ]
         inputs += [K.BOUNDARY_PERIODIC, f64(0.05), 40, 0, none, none, 0, none, wp.zeros(2, dtype=wp.int32), none]
+        inputs += [K.Observer()]  # not observed
         wp.launch(K.splitting_kernel, dim=2, inputs=inputs, device="cpu")
     else:
         scratch = [wp.zeros((2, 4, p.N), dtype=f64, device="cpu") for _ in range(3)]

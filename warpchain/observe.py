@@ -41,9 +41,8 @@ from .engine.devices import on_one_thread, resolve_device, resolve_layout
 from .ensemble import IntegrationError, _signed_energy_change
 from .integrators import check_step
 from .integrators import SplittingMethod, get_method, steps_for
-from .losses import KICK_ENTRIES, Damping, as_damping, kick_matrices, lossless
+from .losses import Damping, as_damping
 from .model import (
-    BOUNDARY_CODES,
     ChainParams,
     as_batch,
     contact_potential,
@@ -51,7 +50,6 @@ from .model import (
     real_number,
     whole_number,
 )
-from .reference import inverse_mass
 
 OBSERVABLES = ("peaks", "participation", "spot_energy", "max_envelope", "min_contact", "energy", "dissipated")
 N_OBSERVABLES = len(OBSERVABLES)
@@ -332,12 +330,11 @@ def observe(
         ValueError: bad input. StepSizeError: dt above the stability limit.
         IntegrationError: non-finite state or energy error above the bound (names method, dt, limit).
     """
-    import warp as wp
-
-    from .engine import block_kernels, observe_kernels
     from .engine.devices import _warp
+    from .engine.runner import _Runner
+    from .engine.thread_kernels import Observer
 
-    _warp()
+    wp = _warp()
     start = time.perf_counter()
     meth = get_method(method)
     if not isinstance(meth, SplittingMethod):
@@ -353,7 +350,7 @@ def observe(
     if max_energy_error is not None:
         max_energy_error = real_number("max_energy_error", max_energy_error, positive=True)
     device = resolve_device(device)
-    layout = resolve_layout(layout, device, params.N)
+    layout = "block" if resolve_layout(layout, device, params.N) == "block" else "thread"
     fe = observation.frame_every
     nsteps, dt_used = steps_for(t_final, real_number("dt", dt, positive=True))
     n_frames = max(1, math.ceil(nsteps / fe - 1e-9))  # whole frames, the step no longer than asked
@@ -362,58 +359,34 @@ def observe(
     limit = check_step(meth, params, dt_used, Mb, Kb, False)
     lag = min(observation.lag_frames, n_frames)
 
+    # the engine's runner (state, parameters, losses, launches); the observables in an ``Observer``
+    runner = _Runner(meth, params, x0, Mb, Kb, device, layout=layout)
+    runner.set_damping(damping, dt_used)
     f64 = wp.float64
-    x = wp.array(x0, dtype=f64, device=device)
-    inv_mass = wp.array(inverse_mass(Mb), dtype=f64, device=device)
-    mass = wp.array(Mb, dtype=f64, device=device)
-    coupling = wp.array(Kb, dtype=f64, device=device)
-    if damping is not None:
-        coefficients = kick_matrices(meth.kicks, dt_used, Mb, damping, batch)
-        lossy = wp.array((~lossless(coefficients)).astype(np.int32), dtype=wp.int32, device=device)
-        damp = wp.array(coefficients, dtype=f64, device=device)
-    else:
-        lossy = wp.zeros(batch, dtype=wp.int32, device=device)
-        damp = wp.zeros((1, 1, KICK_ENTRIES), dtype=f64, device=device)
-    spot = wp.array(np.broadcast_to(np.asarray(observation.spot, dtype=np.float64), (batch,)), dtype=f64, device=device)
-    # the tracked z extremes (set by the kernels at frame 0), the last frame's envelope, the observables
-    zlo = wp.empty((batch, params.N), dtype=f64, device=device)
-    zhi = wp.empty((batch, params.N), dtype=f64, device=device)
-    # the energy dissipated so far: per site (block layout) or per lattice (thread layout), across launches
-    lost = wp.zeros((batch, params.N if layout == "block" else 1), dtype=f64, device=device)
-    envelope = wp.zeros((batch, params.N), dtype=f64, device=device)
+    shape = (batch, params.N)
+    spot = np.broadcast_to(np.asarray(observation.spot, dtype=np.float64), (batch,))
+    kept = {
+        "mass": runner.mass,
+        "spot": wp.array(spot, dtype=f64, device=device),
+        "z_low": wp.empty(shape, dtype=f64, device=device),  # the tracked z extremes (set at frame 0)
+        "z_high": wp.empty(shape, dtype=f64, device=device),
+        # the energy dissipated so far: per site (block layout) or per lattice (thread layout), across launches
+        "lost": wp.zeros((batch, params.N if layout == "block" else 1), dtype=f64, device=device),
+        "envelope": wp.zeros(shape, dtype=f64, device=device),
+    }
     obs = wp.zeros((n_frames + 1, batch, N_OBSERVABLES), dtype=f64, device=device)
-    boundary = BOUNDARY_CODES[params.boundary]
-    threshold, radius, contrast = f64(observation.threshold), int(observation.radius), f64(observation.contrast)
 
-    if layout == "block":
-        block = block_kernels.block_size(params.N)
-        kernel = observe_kernels.block_kernel(block, meth.stages)
-        drifts = block_kernels.pack_coefficients(meth.drifts, dt_used)
-        kicks = block_kernels.pack_coefficients(meth.kicks, dt_used)
-        if device == "cpu":
-            wp.config.enable_cpu_blocks = True
+    def launch(first, steps):
+        def observer(lo, hi):
+            ob = Observer()
+            ob.first_step, ob.frame_every, ob.radius = int(first), fe, int(observation.radius)
+            ob.threshold, ob.contrast = f64(observation.threshold), f64(observation.contrast)
+            for name, array in kept.items():
+                setattr(ob, name, array[lo:hi])
+            ob.values = obs[:, lo:hi]
+            return ob
 
-        def launch(first, steps):
-            inputs = [x, inv_mass, mass, coupling, drifts, kicks, boundary, int(steps), lossy, damp]
-            inputs += [int(first), fe, threshold, radius, contrast, spot, zlo, zhi, lost, envelope, obs]
-            wp.launch(kernel, dim=(batch, block), block_dim=block, device=device, inputs=inputs)
-
-    else:
-        kernel = observe_kernels.thread_kernel()
-        acc = wp.zeros((batch, 2, params.N), dtype=f64, device=device)
-        drifts = wp.array(np.array(meth.drifts), dtype=f64, device=device)
-        kicks = wp.array(np.array(meth.kicks), dtype=f64, device=device)
-        from .engine.devices import _in_parallel, _slices
-
-        def launch(first, steps):
-            def task(lo, hi):
-                inputs = [x[lo:hi], acc[lo:hi], inv_mass[lo:hi], mass[lo:hi], coupling[lo:hi], drifts, kicks]
-                inputs += [boundary, f64(dt_used), int(steps), lossy[lo:hi], damp[lo:hi] if damping else damp]
-                inputs += [int(first), fe, threshold, radius, contrast, spot[lo:hi], zlo[lo:hi]]
-                inputs += [zhi[lo:hi], lost[lo:hi], envelope[lo:hi], obs[:, lo:hi]]
-                wp.launch(kernel, dim=hi - lo, device=device, inputs=inputs)
-
-            _in_parallel([lambda lo=lo, hi=hi: task(lo, hi) for lo, hi in _slices(batch, device)])
+        runner.launch(int(steps), dt_used, observer=observer)
 
     # chunks: whole frames; the last `lag` frames form their own chunk so that the envelope is read there
     n_chunks = chunks or 20
@@ -439,7 +412,7 @@ def observe(
             if E0 is None:
                 E0 = values[0, :, _ENERGY].copy()
             if b == main_frames:
-                env_lag = envelope.numpy().copy()
+                env_lag = kept["envelope"].numpy().copy()
             E = (
                 values[b, :, _ENERGY] + values[b, :, _DISSIPATED]
             )  # plus what the losses took: E(0), to the scheme's accuracy
@@ -467,10 +440,10 @@ def observe(
     return ObservedRun(
         t=np.arange(n_frames + 1) * fe * dt_used,
         values=values,
-        envelope=envelope.numpy().copy(),
+        envelope=kept["envelope"].numpy().copy(),
         envelope_lag=env_lag,
         t_lag=(n_frames - lag) * fe * dt_used,
-        x=x.numpy().copy(),
+        x=runner.x.numpy().copy(),
         energy_initial=E0,
         method=meth.name,
         dt=dt_used,

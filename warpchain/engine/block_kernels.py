@@ -26,6 +26,11 @@ import functools
 import warp as wp
 
 from .thread_kernels import (
+    F64,
+    Array1,
+    Array2,
+    Array3,
+    Indices,
     wall_values,
     BOUNDARY_PERIODIC,
     NO_CONTACT,
@@ -34,9 +39,12 @@ from .thread_kernels import (
     contact_force,
     contact_stiffness,
     finite_state,
+    kick_loss,
+    Observer,
     site_acceleration,
     site_energy,
     site_tangent_acceleration,
+    store_observables,
 )
 
 #: Largest block Warp launches (CUDA's limit); longer lattices use the thread-per-lattice kernels.
@@ -77,7 +85,7 @@ def right_index(j: int, n: int, boundary: int) -> int:
 
 
 @wp.func
-def neighbour_or_wall(value: wp.float64, u: wp.float64, has_neighbour: int, boundary: int) -> wp.float64:
+def neighbour_or_wall(value: F64, u: F64, has_neighbour: int, boundary: int) -> F64:
     """The neighbour's u, or at a chain end the wall value (``thread_kernels.wall_values``: 0 at a fixed
     wall, u itself at a free end; a ring always has a neighbour)."""
     if has_neighbour != 0:
@@ -108,7 +116,7 @@ def site_neighbours(j: int, n: int, boundary: int) -> wp.vec4i:
 
 
 @wp.func
-def load_site(x: wp.array3d(dtype=wp.float64), b: int, j: int, active: bool) -> wp.vec4d:
+def load_site(x: Array3, b: int, j: int, active: bool) -> wp.vec4d:
     """(u, v, u', v') of site j of lattice (or column) b; zeros for the block's idle threads."""
     if active:
         return wp.vec4d(x[b, 0, j], x[b, 1, j], x[b, 2, j], x[b, 3, j])
@@ -116,16 +124,14 @@ def load_site(x: wp.array3d(dtype=wp.float64), b: int, j: int, active: bool) -> 
 
 
 @wp.func
-def store_site(x: wp.array3d(dtype=wp.float64), b: int, j: int, active: bool, state: wp.vec4d):
+def store_site(x: Array3, b: int, j: int, active: bool, state: wp.vec4d):
     if active:
         for i in range(4):
             x[b, i, j] = state[i]
 
 
 @wp.func
-def site_acceleration_times(
-    u: wp.float64, v: wp.float64, left: wp.float64, right: wp.float64, minus_inv_mass: wp.float64, coupling: wp.float64
-) -> wp.vec2d:
+def site_acceleration_times(u: F64, v: F64, left: F64, right: F64, minus_inv_mass: F64, coupling: F64) -> wp.vec2d:
     """``site_acceleration`` with -1/M given: (K lap + f) * (-1/M) has the same bits as -(K lap + f) * (1/M)
     (rounding is symmetric in sign), and saves the negation (a dependent DADD on the GPU) in the time loop."""
     force = contact_force(u - v)
@@ -134,16 +140,7 @@ def site_acceleration_times(
 
 
 @wp.func
-def site_kick(
-    pu: wp.float64,
-    pv: wp.float64,
-    a: wp.vec2d,
-    h: wp.float64,
-    lossy: int,
-    damp: wp.array3d(dtype=wp.float64),
-    b: int,
-    i: int,
-) -> wp.vec2d:
+def site_kick(pu: F64, pv: F64, a: wp.vec2d, h: F64, lossy: int, damp: Array3, b: int, i: int) -> wp.vec2d:
     """Kick i of one site: w + h a without losses, else the exact damped kick E w + F a (``losses``;
     ``damp[b, i]`` = E00, E01, E10, E11, F00, F01, F10, F11, the reference's operation order)."""
     if lossy != 0:
@@ -155,15 +152,7 @@ def site_kick(
 
 @wp.func
 def column_acceleration(
-    du: wp.float64,
-    dv: wp.float64,
-    left: wp.float64,
-    right: wp.float64,
-    nbr: wp.vec4i,
-    boundary: int,
-    inv_mass: wp.float64,
-    coupling: wp.float64,
-    stiffness: wp.float64,
+    du: F64, dv: F64, left: F64, right: F64, nbr: wp.vec4i, boundary: int, inv_mass: F64, coupling: F64, stiffness: F64
 ) -> wp.vec2d:
     """``site_tangent_acceleration`` of one tangent column at a site, from the shared tile's neighbour values
     (replaced at a chain end by the wall's, as ``neighbour_or_wall``)."""
@@ -187,7 +176,7 @@ def rk4_accumulate(stage: int, total: wp.vec4d, k: wp.vec4d, weights: wp.vec4d) 
 
 
 @wp.func
-def rk4_stage_state(stage: int, x: wp.vec4d, k: wp.vec4d, dt: wp.float64, tableau: wp.vec4d) -> wp.vec4d:
+def rk4_stage_state(stage: int, x: wp.vec4d, k: wp.vec4d, dt: F64, tableau: wp.vec4d) -> wp.vec4d:
     """The state of the next stage, x + tableau[stage] dt k (classical RK4: 1/2, 1/2, 1)."""
     return x + (tableau[stage] * dt) * k
 
@@ -224,12 +213,15 @@ class BlockKernels:
             self._built[key] = self._makers[key[0]](*key[1:])
         return self._built[key]
 
-    def splitting(self, stages: int, record: bool = False, save: bool = False, damped: bool = False):
-        """Splitting kernel for ``stages`` stages; ``record``/``save``/``damped`` compile in the stiffness
-        history, the field recording and the damped kicks (left out, they cost nothing)."""
+    def splitting(
+        self, stages: int, record: bool = False, save: bool = False, damped: bool = False, observed: bool = False
+    ):
+        """Splitting kernel for ``stages`` stages; ``record``/``save``/``damped``/``observed`` compile in the
+        stiffness history, the field recording, the damped kicks and the observables of ``warpchain.observe``
+        (left out, they cost nothing)."""
         if not 1 <= stages <= MAX_STAGES:
             raise ValueError(f"the block kernels support 1 to {MAX_STAGES} stages, got {stages}")
-        return self._get("splitting", int(stages), bool(record), bool(save), bool(damped))
+        return self._get("splitting", int(stages), bool(record), bool(save), bool(damped), bool(observed))
 
     def splitting_tangent(self, stages: int, columns: int = 1):
         """Tangent kernel for ``stages`` stages carrying ``columns`` tangent columns per block (1 or 2;
@@ -283,9 +275,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
     halves = 2 * threads
 
     @wp.func
-    def exchange(
-        buf: wp.tile[wp.float64, halves], u: wp.float64, parity: int, nbr: wp.vec4i, boundary: int
-    ) -> wp.vec2d:
+    def exchange(buf: wp.tile[wp.float64, halves], u: F64, parity: int, nbr: wp.vec4i, boundary: int) -> wp.vec2d:
         """Publish u in half ``parity`` of the shared tile; return (left, right) neighbour values."""
         offset = parity * threads
         wp.tile_assign(buf, wp.tile(u), offset=(offset,))
@@ -293,33 +283,100 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
         right = neighbour_or_wall(buf[offset + nbr[1]], u, nbr[3], boundary)
         return wp.vec2d(left, right)
 
+    @wp.func
+    def observe_frame(
+        buf: wp.tile[wp.float64, halves],
+        parity: int,
+        state: wp.vec4d,
+        right_u: F64,
+        z_range: wp.vec2d,
+        active: bool,
+        b: int,
+        j: int,
+        n: int,
+        boundary: int,
+        coupling: F64,
+        ob: Observer,
+        r: int,
+        lost_site: F64,
+    ):
+        """``thread_kernels.observe_frame`` as block reductions: frame r of lattice b from each site's state,
+        z extremes (``z_range``: low, high) and dissipated energy; the envelope is shared through half
+        ``parity`` of the tile (the caller flips parity before, as for an exchange). Idle threads add nothing."""
+        env = ZERO
+        e = ZERO
+        inside = ZERO
+        low = NO_CONTACT
+        mine = ZERO  # idle threads run a fake dynamics (never stored): they dissipate nothing real
+        if active:
+            env = wp.max(z_range[1], -z_range[0])
+            e = site_energy(state[0], state[1], state[2], state[3], right_u, j, n, boundary, ob.mass[b], coupling)
+            if wp.abs(wp.float64(j - n / 2)) <= ob.spot[b]:
+                inside = e
+            low = ONE + z_range[0]
+            mine = lost_site
+            ob.envelope[b, j] = env
+        offset = parity * threads
+        wp.tile_assign(buf, wp.tile(env), offset=(offset,))
+        peak = ZERO
+        if active and env > ob.threshold:
+            peak = ONE
+            left_low = env
+            right_low = env
+            for i in range(1, ob.radius + 1):
+                left = ZERO  # past the chain's end
+                right = ZERO
+                if j - i >= 0:
+                    left = buf[offset + j - i]
+                    if left >= env:
+                        peak = ZERO
+                if j + i < n:
+                    right = buf[offset + j + i]
+                    if right > env:
+                        peak = ZERO
+                left_low = wp.min(left_low, left)
+                right_low = wp.min(right_low, right)
+            if left_low > ob.contrast * env or right_low > ob.contrast * env:
+                peak = ZERO
+        lost_total = wp.tile_sum(wp.tile(mine))
+        peaks = wp.tile_sum(wp.tile(peak))
+        total = wp.tile_sum(wp.tile(e))
+        squares = wp.tile_sum(wp.tile(e * e))
+        spot_total = wp.tile_sum(wp.tile(inside))
+        top = wp.tile_max(wp.tile(env))
+        lowest = wp.tile_min(wp.tile(low))
+        if j == 0:
+            store_observables(ob, r, b, peaks[0], total[0], squares[0], spot_total[0], top[0], lowest[0], lost_total[0])
+
     bounds = (threads, min_blocks_per_sm) if min_blocks_per_sm else threads
     options = {"enable_backward": False, "module": "unique", "grid_stride": False, "launch_bounds": bounds}
 
-    def make_splitting(stages: int, record: bool, save: bool, damped: bool = False):
+    def make_splitting(stages: int, record: bool, save: bool, damped: bool = False, observed: bool = False):
         held_type = wp.types.vector(length=stages, dtype=wp.float64)
 
         @wp.kernel(**options)
         def splitting(
-            x: wp.array3d(dtype=wp.float64),
-            inv_mass: wp.array(dtype=wp.float64),
-            coupling: wp.array(dtype=wp.float64),
+            x: Array3,
+            inv_mass: Array1,
+            coupling: Array1,
             drifts: coefficients,
             kicks: coefficients,
             boundary: int,
             nsteps: int,
             save_every: int,
-            rec_u: wp.array3d(dtype=wp.float64),
-            rec_v: wp.array3d(dtype=wp.float64),
+            rec_u: Array3,
+            rec_v: Array3,
             record_stiffness: int,
-            hist: wp.array3d(dtype=wp.float64),
-            lossy: wp.array(dtype=wp.int32),
-            damp: wp.array3d(dtype=wp.float64),
+            hist: Array3,
+            lossy: Indices,
+            damp: Array3,
+            ob: Observer,
         ):
             """``nsteps`` steps of a kick-drift splitting method; lattice b, thread j = site. hist slot 0
             holds f'(z) at the start, slot step*s + k + 1 after drift k of ``step``. Compiled ``damped``:
             lattices with ``lossy[b]`` set take the damped kicks of ``damp`` (batch, stages + 1, 12: E, F,
-            and H for the energy dissipated).
+            and H for the energy dissipated). Compiled ``observed`` (and ``damped``): the observables of ``ob``
+            (``warpchain.observe``), each site's z extremes and dissipated energy in registers.
             The step's stiffnesses are held in registers and stored after its last stage: a barrier waits for
             the stores issued before it, so a store at every force evaluation put that wait between every two."""
             b, j = wp.tid()
@@ -344,10 +401,23 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             if wp.static(record):
                 if active:
                     hist[0, b, j] = contact_stiffness(u - v)
+            lost_site = ZERO  # observed: the energy this site has dissipated (exact over each damped kick)
+            z_range = wp.vec2d(u - v, u - v)  # observed: the site's z extremes since the last frame
+            if wp.static(observed):
+                if ob.first_step == 0:  # frame 0: the start (envelope |z|)
+                    parity = 1 - parity
+                    observe_frame(buf, parity, start, nb[1], z_range, active, b, j, n, boundary, k, ob, 0, ZERO)
+                    z_range = wp.vec2d(NO_CONTACT, -NO_CONTACT)
+                elif active:
+                    z_range = wp.vec2d(ob.z_low[b, j], ob.z_high[b, j])
+                    lost_site = ob.lost[b, j]
             held = held_type()  # the step's stiffnesses, stored after its last stage
             for step in range(nsteps):
                 h = kicks[0]  # the coefficients arrive multiplied by dt (on the host: the same product)
                 if wp.static(damped):
+                    if wp.static(observed):
+                        if loss != 0:
+                            lost_site = lost_site + kick_loss(pu, pv, a[0], a[1], damp, b_read, 0, ob.mass[b])
                     w = site_kick(pu, pv, a, h, loss, damp, b_read, 0)
                     pu = w[0]
                     pv = w[1]
@@ -365,6 +435,9 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
                         held[s] = contact_stiffness(u - v)
                     h = kicks[s + 1]
                     if wp.static(damped):
+                        if wp.static(observed):
+                            if loss != 0:
+                                lost_site = lost_site + kick_loss(pu, pv, a[0], a[1], damp, b_read, s + 1, ob.mass[b])
                         w = site_kick(pu, pv, a, h, loss, damp, b_read, s + 1)
                         pu = w[0]
                         pv = w[1]
@@ -380,7 +453,22 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
                         r = (step + 1) / save_every - 1
                         rec_u[r, b, j] = u
                         rec_v[r, b, j] = v
+                if wp.static(observed):
+                    z_range = wp.vec2d(wp.min(z_range[0], u - v), wp.max(z_range[1], u - v))
+                    done = ob.first_step + step + 1
+                    if done % ob.frame_every == 0:
+                        parity = 1 - parity
+                        state = wp.vec4d(u, v, pu, pv)
+                        r = done / ob.frame_every
+                        lost = lost_site
+                        observe_frame(buf, parity, state, nb[1], z_range, active, b, j, n, boundary, k, ob, r, lost)
+                        z_range = wp.vec2d(NO_CONTACT, -NO_CONTACT)
             store_site(x, b, j, active, wp.vec4d(u, v, pu, pv))
+            if wp.static(observed):
+                if active:
+                    ob.z_low[b, j] = z_range[0]
+                    ob.z_high[b, j] = z_range[1]
+                    ob.lost[b, j] = lost_site
 
         return splitting
 
@@ -391,15 +479,15 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
 
         @wp.kernel(**options)
         def splitting_tangent(
-            dx: wp.array3d(dtype=wp.float64),
-            column_base: wp.array(dtype=wp.int32),
-            inv_mass: wp.array(dtype=wp.float64),
-            coupling: wp.array(dtype=wp.float64),
+            dx: Array3,
+            column_base: Indices,
+            inv_mass: Array1,
+            coupling: Array1,
             drifts: coefficients,
             kicks: coefficients,
             boundary: int,
             nsteps: int,
-            hist: wp.array3d(dtype=wp.float64),
+            hist: Array3,
         ):
             """Tangent columns g * columns + q (q < ``columns``) of the splitting map along base trajectories
             column_base[c]: block g, thread j = site; a thread carries its site of every column of its block
@@ -482,20 +570,20 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
     def make_rk4(tangent: bool):
         @wp.kernel(**options)
         def rk4(
-            x: wp.array3d(dtype=wp.float64),
-            column_base: wp.array(dtype=wp.int32),
-            inv_mass: wp.array(dtype=wp.float64),
-            coupling: wp.array(dtype=wp.float64),
+            x: Array3,
+            column_base: Indices,
+            inv_mass: Array1,
+            coupling: Array1,
             tableau: wp.vec4d,
             weights: wp.vec4d,
             boundary: int,
-            dt: wp.float64,
+            dt: F64,
             nsteps: int,
             save_every: int,
-            rec_u: wp.array3d(dtype=wp.float64),
-            rec_v: wp.array3d(dtype=wp.float64),
+            rec_u: Array3,
+            rec_v: Array3,
             record_stiffness: int,
-            hist: wp.array3d(dtype=wp.float64),
+            hist: Array3,
         ):
             """``nsteps`` classical RK4 steps; block b = lattice; hist slot 4 step + stage. Compiled ``tangent``:
             block b is a tangent column along base trajectory column_base[b], f'(z) read from hist."""
@@ -542,15 +630,15 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
 
     @wp.kernel(**options)
     def guard(
-        x: wp.array3d(dtype=wp.float64),
-        mass: wp.array(dtype=wp.float64),
-        coupling: wp.array(dtype=wp.float64),
+        x: Array3,
+        mass: Array1,
+        coupling: Array1,
         boundary: int,
-        rec_u: wp.array3d(dtype=wp.float64),
-        rec_v: wp.array3d(dtype=wp.float64),
+        rec_u: Array3,
+        rec_v: Array3,
         n_rec: int,
-        contact: wp.array(dtype=wp.float64),
-        out: wp.array2d(dtype=wp.float64),
+        contact: Array1,
+        out: Array2,
     ):
         """``kernels.guard_kernel`` with a block per lattice (coalesced reads, block reductions); a lattice
         longer than the block (the ``"sites"`` layout) has each thread take sites j, j + block, ..."""

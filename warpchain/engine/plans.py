@@ -60,6 +60,11 @@ class _Plan:
     def step(self, lo: int, hi: int, dt: float, nsteps: int, save_every: int, frames, record: bool) -> None:
         raise NotImplementedError
 
+    def observe(self, lo: int, hi: int, dt: float, nsteps: int, observer) -> None:
+        """``step`` compiled with the observables of ``warpchain.observe`` (``observer``: a
+        ``thread_kernels.Observer`` for lattices lo..hi)."""
+        raise ValueError(f"observables are reduced in the block and thread layouts, not by {type(self).__name__}")
+
     def tangent(self, dx, column_base, lo: int, hi: int, dt: float, nsteps: int) -> None:
         raise NotImplementedError
 
@@ -106,6 +111,15 @@ class _BlockSplitting(_Plan):
         if record and hi - lo <= active().record_uncapped_max_batch:
             kernels = block_kernels.block_kernels(r.block, 0)  # the step's history in registers: no cap
         kernel = kernels.splitting(stages, record=record, save=save_every > 0, damped=damped)
+        r.launch_kernel(kernel, (hi - lo, r.block), inputs + [r.no_observer], r.block)
+
+    def observe(self, lo, hi, dt, nsteps, observer):
+        r = self.r
+        from . import block_kernels
+
+        inputs = [*_parts(lo, hi, r.x, r.inv_mass, r.coupling), *self.coefficients(dt), r.boundary]
+        inputs += [int(nsteps), 0, r.no_record, r.no_record, 0, r.hist, *r.losses(lo, hi), observer]
+        kernel = block_kernels.block_kernels(r.block, 0).splitting(r.method.stages, damped=True, observed=True)
         r.launch_kernel(kernel, (hi - lo, r.block), inputs, r.block)
 
     def tangent(self, dx, column_base, lo, hi, dt, nsteps):
@@ -160,15 +174,22 @@ class _ThreadSplitting(_Plan):
         r = self.r
         inputs = [*_parts(lo, hi, r.x, self.acc), 0, r.no_base, *_parts(lo, hi, r.inv_mass, r.coupling)]
         inputs += [self.drifts, self.kicks, r.boundary, r.wp.float64(dt), int(nsteps), int(save_every), *frames]
-        inputs += [int(record), r.hist, *r.losses(lo, hi)]
+        inputs += [int(record), r.hist, *r.losses(lo, hi), r.no_observer]
         r.launch_kernel(r.k.splitting_kernel, hi - lo, inputs)
+
+    def observe(self, lo, hi, dt, nsteps, observer):
+        r = self.r
+        inputs = [*_parts(lo, hi, r.x, self.acc), 0, r.no_base, *_parts(lo, hi, r.inv_mass, r.coupling)]
+        inputs += [self.drifts, self.kicks, r.boundary, r.wp.float64(dt), int(nsteps), 0, r.no_record, r.no_record]
+        inputs += [0, r.hist, *r.losses(lo, hi), observer]
+        r.launch_kernel(r.k.observed_splitting_kernel, hi - lo, inputs)
 
     def tangent(self, dx, column_base, lo, hi, dt, nsteps):
         r, wp = self.r, self.r.wp
         dacc = self.kept("dacc", (dx.shape[0], 2, r.N))  # written before it is read
         inputs = [*_parts(lo, hi, dx, dacc), 1, _part(column_base, lo, hi), r.inv_mass, r.coupling]
         inputs += [self.drifts, self.kicks, r.boundary, wp.float64(dt), int(nsteps), 0, r.no_record, r.no_record]
-        inputs += [0, r.hist, r.lossy, r.no_damp]
+        inputs += [0, r.hist, r.lossy, r.no_damp, r.no_observer]
         wp.launch(r.k.splitting_kernel, dim=hi - lo, device=r.device, inputs=inputs)
 
 

@@ -95,6 +95,7 @@ class _Runner:
         self.plan = _plan_for(self.layout, method)(self)
         self.no_record = wp.zeros((1, 1, 1), dtype=f64, device=device)
         self.no_base = wp.zeros(1, dtype=wp.int32, device=device)
+        self.no_observer = kernels.Observer()  # the unobserved kernels' (unused) observables
         if record_stiffness_steps:
             self.hist = wp.zeros(
                 (self.history_length(record_stiffness_steps), self.batch, self.N), dtype=f64, device=device
@@ -210,9 +211,12 @@ class _Runner:
         rec=None,
         record_stiffness: bool = False,
         lattices: tuple | None = None,
+        observer=None,
     ):
         """Advance every lattice by nsteps; with ``rec`` (device (u, v) frame buffers from ``frames``)
-        also record u and v every ``save_every`` steps into them. Asynchronous on a GPU.
+        also record u and v every ``save_every`` steps into them; with ``observer`` (a function of (lo, hi)
+        giving the ``thread_kernels.Observer`` of lattices lo..hi) reduce the observables of
+        ``warpchain.observe`` instead. Asynchronous on a GPU.
 
         On the CPU the batch is split into one slice per thread (launched concurrently); a run that
         records the contact stiffness (tangent base) runs as one slice, since its history is shared."""
@@ -222,6 +226,9 @@ class _Runner:
         save = int(save_every) if rec is not None else 0
 
         def task(lo, hi):
+            if observer is not None:
+                self.plan.observe(lo, hi, dt, nsteps, observer(lo, hi))
+                return
             if rec is None:
                 frames = [self.no_record, self.no_record]
             else:
@@ -312,6 +319,8 @@ def _launch_key(wp, kernel, dim, block_dim, inputs) -> tuple | None:
             key.append((type(arg), arg.value))
         elif hasattr(arg, "_length_"):  # a Warp vector (coefficients, tableau)
             key.append((type(arg), bytes(arg)))  # its values' bytes
+        elif hasattr(arg, "_ctype"):  # a Warp struct (``thread_kernels.Observer``): its arrays' pointers, values
+            key.append((type(arg), bytes(arg._ctype)))
         else:
             return None
     return tuple(key)

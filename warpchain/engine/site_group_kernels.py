@@ -16,6 +16,10 @@ from .block_kernels import (
     site_kick,
 )
 from .thread_kernels import (
+    F64,
+    Array1,
+    Array3,
+    Indices,
     BOUNDARY_FIXED,
     BOUNDARY_FREE,
     BOUNDARY_PERIODIC,
@@ -38,12 +42,7 @@ SITE_GROUPS: dict = {}
 
 
 @functools.lru_cache(maxsize=None)
-def site_group_kernels(
-    threads: int,
-    sites: int,
-    boundary: int,
-    min_blocks_per_sm: int = 0,
-) -> BlockKernels:
+def site_group_kernels(threads: int, sites: int, boundary: int, min_blocks_per_sm: int = 0) -> BlockKernels:
     """Block kernels in which each of ``threads`` threads owns ``sites`` consecutive sites of one lattice.
 
     Why: with one site per thread every force evaluation pays a shared-memory round trip and a block
@@ -149,19 +148,12 @@ def site_group_kernels(
     bounds = (threads, min_blocks_per_sm) if min_blocks_per_sm else threads
     options = {"enable_backward": False, "module": "unique", "grid_stride": False, "launch_bounds": bounds}
 
-    def make_splitting(stages: int, record: bool, save: bool, damped: bool = False):
+    def make_splitting(stages: int, record: bool, save: bool, damped: bool = False, observed: bool = False):
+        if observed:
+            raise ValueError("the site-group kernels do not reduce observables (``block_kernels`` do)")
+
         @wp.func
-        def kick(
-            pu: wp.float64,
-            pv: wp.float64,
-            au: wp.float64,
-            av: wp.float64,
-            h: wp.float64,
-            loss: int,
-            damp: wp.array3d(dtype=wp.float64),
-            b: int,
-            i: int,
-        ) -> wp.vec2d:
+        def kick(pu: F64, pv: F64, au: F64, av: F64, h: F64, loss: int, damp: Array3, b: int, i: int) -> wp.vec2d:
             """Kick i of one slot: the plain kick, or compiled ``damped``, ``site_kick``'s damped one."""
             if wp.static(damped):
                 return site_kick(pu, pv, wp.vec2d(au, av), h, loss, damp, b, i)
@@ -170,20 +162,20 @@ def site_group_kernels(
 
         @wp.kernel(**options)
         def splitting(
-            x: wp.array3d(dtype=wp.float64),
-            inv_mass: wp.array(dtype=wp.float64),
-            coupling: wp.array(dtype=wp.float64),
+            x: Array3,
+            inv_mass: Array1,
+            coupling: Array1,
             drifts: coefficients,
             kicks: coefficients,
             boundary_code: int,
             nsteps: int,
             save_every: int,
-            rec_u: wp.array3d(dtype=wp.float64),
-            rec_v: wp.array3d(dtype=wp.float64),
+            rec_u: Array3,
+            rec_v: Array3,
             record_stiffness: int,
-            hist: wp.array3d(dtype=wp.float64),
-            lossy: wp.array(dtype=wp.int32),
-            damp: wp.array3d(dtype=wp.float64),
+            hist: Array3,
+            lossy: Indices,
+            damp: Array3,
         ):
             """``block_kernels``' splitting kernel (same arguments; ``boundary_code`` is compiled in and
             unused) with ``sites`` sites per thread: lattice b, thread t."""

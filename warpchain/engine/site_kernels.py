@@ -26,7 +26,16 @@ stencil); the launch sequence (``evaluations``) and the kick/drift arithmetic st
 import warp as wp
 
 from .block_kernels import site_kick
-from .thread_kernels import contact_stiffness, neighbours_at, site_acceleration, site_tangent_acceleration
+from .thread_kernels import (
+    F64,
+    Array1,
+    Array3,
+    Indices,
+    contact_stiffness,
+    neighbours_at,
+    site_acceleration,
+    site_tangent_acceleration,
+)
 
 #: ``drift`` values of ``evaluate``: drift u by c into dst; copy u into dst unchanged; leave dst alone
 DRIFT, COPY, KEEP = 1, 0, -1
@@ -34,30 +43,30 @@ DRIFT, COPY, KEEP = 1, 0, -1
 
 @wp.kernel
 def evaluate(
-    x: wp.array3d(dtype=wp.float64),
-    src: wp.array3d(dtype=wp.float64),
+    x: Array3,
+    src: Array3,
     src_row: int,
-    dst: wp.array3d(dtype=wp.float64),
+    dst: Array3,
     dst_row: int,
-    column_base: wp.array(dtype=wp.int32),
-    inv_mass: wp.array(dtype=wp.float64),
-    coupling: wp.array(dtype=wp.float64),
+    column_base: Indices,
+    inv_mass: Array1,
+    coupling: Array1,
     boundary: int,
     tangent: int,
     slot: int,
-    hist: wp.array3d(dtype=wp.float64),
+    hist: Array3,
     record: int,
     kick: int,
-    h_kick: wp.float64,
+    h_kick: F64,
     pre: int,
-    h_pre: wp.float64,
+    h_pre: F64,
     drift: int,
-    c: wp.float64,
+    c: F64,
     save_row: int,
-    rec_u: wp.array3d(dtype=wp.float64),
-    rec_v: wp.array3d(dtype=wp.float64),
-    lossy: wp.array(dtype=wp.int32),
-    damp: wp.array3d(dtype=wp.float64),
+    rec_u: Array3,
+    rec_v: Array3,
+    lossy: Indices,
+    damp: Array3,
 ):
     """Force evaluation ``slot`` of lattice (or tangent column) b at site j, and the kicks and drift around it.
 

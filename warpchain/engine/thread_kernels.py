@@ -29,6 +29,13 @@ from __future__ import annotations
 
 import warp as wp
 
+#: the kernels' annotation types: float64 arrays of 1 to 3 axes, int32 indices, float64
+Array1 = wp.array(dtype=wp.float64)
+Array2 = wp.array2d(dtype=wp.float64)
+Array3 = wp.array3d(dtype=wp.float64)
+Indices = wp.array(dtype=wp.int32)
+F64 = wp.float64
+
 ZERO = wp.constant(wp.float64(0.0))
 ONE = wp.constant(wp.float64(1.0))
 TWO = wp.constant(wp.float64(2.0))
@@ -49,7 +56,7 @@ BOUNDARY_PERIODIC = wp.constant(2)
 
 
 @wp.func
-def contact_force(z: wp.float64) -> wp.float64:
+def contact_force(z: F64) -> F64:
     """f(z) = (2/3)([1 + z]_+^{3/2} - 1). Branch-free (a select, not a jump: cheaper on a GPU);
     ``max(0, s)`` keeps a NaN as NaN, as numpy's ``maximum`` does."""
     s = wp.max(ZERO, ONE + z)
@@ -57,20 +64,20 @@ def contact_force(z: wp.float64) -> wp.float64:
 
 
 @wp.func
-def contact_potential(z: wp.float64) -> wp.float64:
+def contact_potential(z: F64) -> F64:
     """(2/3)((2/5)[1+z]_+^{5/2} - z) - 4/15, as ``model.contact_potential``."""
     s = wp.max(ZERO, ONE + z)
     return TWO_THIRDS * (TWO_FIFTHS * s * s * wp.sqrt(s) - z) - FOUR_FIFTEENTHS
 
 
 @wp.func
-def contact_stiffness(z: wp.float64) -> wp.float64:
+def contact_stiffness(z: F64) -> F64:
     """f'(z) = [1 + z]_+^{1/2}."""
     return wp.sqrt(wp.max(ZERO, ONE + z))
 
 
 @wp.func
-def wall_values(first: wp.float64, last: wp.float64, boundary: int) -> wp.vec2d:
+def wall_values(first: F64, last: F64, boundary: int) -> wp.vec2d:
     """(the u left of site 0, the u right of site n - 1) given the u of site 0 (``first``) and of site n - 1
     (``last``): 0 at a fixed wall, the site itself at a free end, the other end on a ring. The one place the
     kernels define a boundary's values (the block kernels through ``block_kernels.neighbour_or_wall``; the
@@ -83,7 +90,7 @@ def wall_values(first: wp.float64, last: wp.float64, boundary: int) -> wp.vec2d:
 
 
 @wp.func
-def neighbours_at(x: wp.array3d(dtype=wp.float64), b: int, comp: int, j: int, n: int, boundary: int) -> wp.vec2d:
+def neighbours_at(x: Array3, b: int, comp: int, j: int, n: int, boundary: int) -> wp.vec2d:
     """(u_{j-1}, u_{j+1}) of component ``comp`` of lattice b, the wall values (``wall_values``) at the ends."""
     wall = wall_values(x[b, comp, 0], x[b, comp, n - 1], boundary)
     left = wall[0]
@@ -96,7 +103,7 @@ def neighbours_at(x: wp.array3d(dtype=wp.float64), b: int, comp: int, j: int, n:
 
 
 @wp.func
-def laplacian_at(x: wp.array3d(dtype=wp.float64), b: int, comp: int, j: int, n: int, boundary: int) -> wp.float64:
+def laplacian_at(x: Array3, b: int, comp: int, j: int, n: int, boundary: int) -> F64:
     """(u_j - u_{j-1}) + (u_j - u_{j+1}) of component ``comp`` of lattice b at site j."""
     u = x[b, comp, j]
     nb = neighbours_at(x, b, comp, j, n, boundary)
@@ -104,9 +111,7 @@ def laplacian_at(x: wp.array3d(dtype=wp.float64), b: int, comp: int, j: int, n: 
 
 
 @wp.func
-def acceleration_at(
-    x: wp.array3d(dtype=wp.float64), b: int, j: int, n: int, boundary: int, inv_mass: wp.float64, coupling: wp.float64
-) -> wp.vec2d:
+def acceleration_at(x: Array3, b: int, j: int, n: int, boundary: int, inv_mass: F64, coupling: F64) -> wp.vec2d:
     """(u_j'', v_j'') of lattice b from the positions in rows 0 and 1 of x."""
     force = contact_force(x[b, 0, j] - x[b, 1, j])
     au = -(coupling * laplacian_at(x, b, 0, j, n, boundary) + force) * inv_mass
@@ -115,14 +120,7 @@ def acceleration_at(
 
 @wp.func
 def tangent_acceleration_at(
-    dx: wp.array3d(dtype=wp.float64),
-    c: int,
-    j: int,
-    n: int,
-    boundary: int,
-    inv_mass: wp.float64,
-    coupling: wp.float64,
-    stiffness: wp.float64,
+    dx: Array3, c: int, j: int, n: int, boundary: int, inv_mass: F64, coupling: F64, stiffness: F64
 ) -> wp.vec2d:
     """Derivative of (u_j'', v_j'') along the tangent column c (positions in rows 0, 1 of dx)."""
     dz = dx[c, 0, j] - dx[c, 1, j]
@@ -132,16 +130,16 @@ def tangent_acceleration_at(
 
 @wp.func
 def compute_accelerations(
-    x: wp.array3d(dtype=wp.float64),
-    acc: wp.array3d(dtype=wp.float64),
+    x: Array3,
+    acc: Array3,
     b: int,
     base: int,
     n: int,
     boundary: int,
-    inv_mass: wp.float64,
-    coupling: wp.float64,
+    inv_mass: F64,
+    coupling: F64,
     tangent: int,
-    hist: wp.array3d(dtype=wp.float64),
+    hist: Array3,
     record: int,
     slot: int,
     row: int,
@@ -160,29 +158,21 @@ def compute_accelerations(
 
 
 @wp.func
-def kick(x: wp.array3d(dtype=wp.float64), acc: wp.array3d(dtype=wp.float64), b: int, n: int, h: wp.float64):
+def kick(x: Array3, acc: Array3, b: int, n: int, h: F64):
     for j in range(n):
         x[b, 2, j] = x[b, 2, j] + h * acc[b, 0, j]
         x[b, 3, j] = x[b, 3, j] + h * acc[b, 1, j]
 
 
 @wp.func
-def drift(x: wp.array3d(dtype=wp.float64), b: int, n: int, h: wp.float64):
+def drift(x: Array3, b: int, n: int, h: F64):
     for j in range(n):
         x[b, 0, j] = x[b, 0, j] + h * x[b, 2, j]
         x[b, 1, j] = x[b, 1, j] + h * x[b, 3, j]
 
 
 @wp.func
-def save_positions(
-    x: wp.array3d(dtype=wp.float64),
-    rec_u: wp.array3d(dtype=wp.float64),
-    rec_v: wp.array3d(dtype=wp.float64),
-    b: int,
-    n: int,
-    step: int,
-    save_every: int,
-):
+def save_positions(x: Array3, rec_u: Array3, rec_v: Array3, b: int, n: int, step: int, save_every: int):
     if save_every > 0:
         if (step + 1) % save_every == 0:
             r = (step + 1) / save_every - 1
@@ -195,16 +185,16 @@ def save_positions(
 
 
 @wp.func_native("return (wp::uint64)(&wp::index(x, i, r, 0));")
-def _row_address(x: wp.array3d(dtype=wp.float64), i: int, r: int) -> wp.uint64: ...
+def _row_address(x: Array3, i: int, r: int) -> wp.uint64: ...
 
 
 @wp.func_native("return x.strides[2] == (int)sizeof(wp::float64) ? 1 : 0;")
-def unit_stride(x: wp.array3d(dtype=wp.float64)) -> int:
+def unit_stride(x: Array3) -> int:
     """1 when the last axis of x is contiguous (what ``row`` needs), else 0."""
 
 
 @wp.func
-def row(x: wp.array3d(dtype=wp.float64), i: int, r: int) -> wp.array(dtype=wp.float64):
+def row(x: Array3, i: int, r: int) -> wp.array(dtype=wp.float64):
     """x[i, r, :] as a 1-D array of unit stride (only where ``unit_stride(x)``). Its stride is a compile-time
     constant, so that the compiler can vectorise a loop over sites; through the 3-D array's runtime
     strides it cannot (on the project's AVX-512 CPU the fused sweep runs 8 sites per instruction)."""
@@ -212,9 +202,7 @@ def row(x: wp.array3d(dtype=wp.float64), i: int, r: int) -> wp.array(dtype=wp.fl
 
 
 @wp.func
-def site_acceleration(
-    u: wp.float64, v: wp.float64, left: wp.float64, right: wp.float64, inv_mass: wp.float64, coupling: wp.float64
-) -> wp.vec2d:
+def site_acceleration(u: F64, v: F64, left: F64, right: F64, inv_mass: F64, coupling: F64) -> wp.vec2d:
     """(u_j'', v_j'') from u_j, v_j and the u of both neighbours (or the wall values): the arithmetic of
     ``acceleration_at`` (and ``laplacian_at``) and of the numpy reference, operation for operation,
     multiplied by 1/M. Shared by the thread kernels' fused sweep and the block kernels."""
@@ -225,13 +213,7 @@ def site_acceleration(
 
 @wp.func
 def site_tangent_acceleration(
-    du: wp.float64,
-    dv: wp.float64,
-    left: wp.float64,
-    right: wp.float64,
-    inv_mass: wp.float64,
-    coupling: wp.float64,
-    stiffness: wp.float64,
+    du: F64, dv: F64, left: F64, right: F64, inv_mass: F64, coupling: F64, stiffness: F64
 ) -> wp.vec2d:
     """The linear accelerations of a tangent (du, dv) at a site whose base has f'(z) = ``stiffness``
     (``tangent_acceleration_at``'s arithmetic)."""
@@ -242,16 +224,7 @@ def site_tangent_acceleration(
 
 @wp.func
 def advance_site(
-    u: wp.array(dtype=wp.float64),
-    v: wp.array(dtype=wp.float64),
-    pu: wp.array(dtype=wp.float64),
-    pv: wp.array(dtype=wp.float64),
-    au: wp.array(dtype=wp.float64),
-    av: wp.array(dtype=wp.float64),
-    j: int,
-    pre: int,
-    h_pre: wp.float64,
-    c: wp.float64,
+    u: Array1, v: Array1, pu: Array1, pv: Array1, au: Array1, av: Array1, j: int, pre: int, h_pre: F64, c: F64
 ) -> wp.vec4d:
     """Site j's kick with the stored accelerations (when ``pre``; as ``kick``) and its drift (as ``drift``):
     returns (u, v, u', v') after them, not yet stored. A select, not a branch: a branch here keeps the
@@ -268,21 +241,21 @@ def _fused_stage(tangent: bool):
 
     @wp.func
     def finish_site(
-        u: wp.array(dtype=wp.float64),
-        v: wp.array(dtype=wp.float64),
-        pu: wp.array(dtype=wp.float64),
-        pv: wp.array(dtype=wp.float64),
-        au: wp.array(dtype=wp.float64),
-        av: wp.array(dtype=wp.float64),
+        u: Array1,
+        v: Array1,
+        pu: Array1,
+        pv: Array1,
+        au: Array1,
+        av: Array1,
         j: int,
-        left: wp.float64,
+        left: F64,
         site: wp.vec4d,
-        right: wp.float64,
-        inv_mass: wp.float64,
-        coupling: wp.float64,
-        h: wp.float64,
+        right: F64,
+        inv_mass: F64,
+        coupling: F64,
+        h: F64,
         record: int,
-        stiffness: wp.array(dtype=wp.float64),
+        stiffness: Array1,
     ):
         """Site j (``site``: from ``advance_site``) between neighbours at u = left and right: its acceleration
         (and f'(z) when ``record``), the kick with it, and the stores."""
@@ -302,22 +275,22 @@ def _fused_stage(tangent: bool):
 
     @wp.func
     def fused_stage(
-        u: wp.array(dtype=wp.float64),
-        v: wp.array(dtype=wp.float64),
-        pu: wp.array(dtype=wp.float64),
-        pv: wp.array(dtype=wp.float64),
-        au: wp.array(dtype=wp.float64),
-        av: wp.array(dtype=wp.float64),
+        u: Array1,
+        v: Array1,
+        pu: Array1,
+        pv: Array1,
+        au: Array1,
+        av: Array1,
         n: int,
         boundary: int,
-        inv_mass: wp.float64,
-        coupling: wp.float64,
+        inv_mass: F64,
+        coupling: F64,
         pre: int,
-        h_pre: wp.float64,
-        c: wp.float64,
-        h: wp.float64,
+        h_pre: F64,
+        c: F64,
+        h: F64,
         record: int,
-        stiffness: wp.array(dtype=wp.float64),
+        stiffness: Array1,
     ):
         """One stage of a splitting step on one lattice's rows (n >= 2) in a single pass over the sites: the
         kick h_pre (when ``pre``: the step's first), the drift c, the accelerations (f'(z) into ``stiffness``
@@ -352,14 +325,7 @@ fused_tangent_stage = _fused_stage(True)
 
 
 @wp.func
-def damped_kick(
-    x: wp.array3d(dtype=wp.float64),
-    acc: wp.array3d(dtype=wp.float64),
-    b: int,
-    n: int,
-    damp: wp.array3d(dtype=wp.float64),
-    i: int,
-):
+def damped_kick(x: Array3, acc: Array3, b: int, n: int, damp: Array3, i: int):
     """The exact damped kick w <- E w + F a of lattice b, kick i (``losses``; the reference's order)."""
     e0 = damp[b, i, 0]
     e1 = damp[b, i, 1]
@@ -379,16 +345,7 @@ def damped_kick(
 
 
 @wp.func
-def any_kick(
-    x: wp.array3d(dtype=wp.float64),
-    acc: wp.array3d(dtype=wp.float64),
-    b: int,
-    n: int,
-    h: wp.float64,
-    lossy: int,
-    damp: wp.array3d(dtype=wp.float64),
-    i: int,
-):
+def any_kick(x: Array3, acc: Array3, b: int, n: int, h: F64, lossy: int, damp: Array3, i: int):
     """Kick i: the plain one (w += h a) for a lattice without losses, else the exact damped one."""
     if lossy != 0:
         damped_kick(x, acc, b, n, damp, i)
@@ -397,16 +354,7 @@ def any_kick(
 
 
 @wp.func
-def kick_loss(
-    pu: wp.float64,
-    pv: wp.float64,
-    au: wp.float64,
-    av: wp.float64,
-    damp: wp.array3d(dtype=wp.float64),
-    b: int,
-    i: int,
-    mass: wp.float64,
-) -> wp.float64:
+def kick_loss(pu: F64, pv: F64, au: F64, av: F64, damp: Array3, b: int, i: int, mass: F64) -> F64:
     """The energy damped kick i dissipates at one site from its velocities before the kick and its
     accelerations, exactly: f . (F w + H a) - (T(w') - T(w)) (``losses.kick_dissipation``)."""
     pu1 = damp[b, i, 0] * pu + damp[b, i, 1] * pv + (damp[b, i, 4] * au + damp[b, i, 5] * av)
@@ -418,79 +366,100 @@ def kick_loss(
     return work - kinetic
 
 
-@wp.kernel
-def splitting_kernel(
-    x: wp.array3d(dtype=wp.float64),
-    acc: wp.array3d(dtype=wp.float64),
-    tangent: int,
-    column_base: wp.array(dtype=wp.int32),
-    inv_mass: wp.array(dtype=wp.float64),
-    coupling: wp.array(dtype=wp.float64),
-    drifts: wp.array(dtype=wp.float64),
-    kicks: wp.array(dtype=wp.float64),
-    boundary: int,
-    dt: wp.float64,
-    nsteps: int,
-    save_every: int,
-    rec_u: wp.array3d(dtype=wp.float64),
-    rec_v: wp.array3d(dtype=wp.float64),
-    record_stiffness: int,
-    hist: wp.array3d(dtype=wp.float64),
-    lossy: wp.array(dtype=wp.int32),
-    damp: wp.array3d(dtype=wp.float64),
-):
-    """``nsteps`` steps of a kick-drift splitting method for lattice b = tid, or with ``tangent`` set for
-    tangent column b along base trajectory column_base[b] (the linearised step, f'(z) read from hist).
+def _splitting_kernel(observed: bool):
+    """``splitting_kernel``, or compiled ``observed`` (``observed_splitting_kernel``): with the hooks of
+    ``warpchain.observe`` (``observe_start``, ``kick_losses``, ``observe_step``) in the per-pass loop."""
 
-    hist slot 0 holds f'(z) at the start, slot step*s + k + 1 after drift k of ``step``. Lattices with
-    ``lossy[b]`` set take the damped kicks of ``damp`` (batch, stages + 1, 12: E, F, then H for the energy
-    dissipated) (``losses``; base runs only).
-    """
-    b = wp.tid()
-    n = x.shape[2]
-    stages = drifts.shape[0]
-    base = b
-    loss = int(0)
-    if tangent != 0:
-        base = column_base[b]
-    else:
-        loss = lossy[b]
-    m = inv_mass[base]
-    k = coupling[base]
-    record = wp.where(record_stiffness != 0 and tangent == 0, 1, 0)
-    compute_accelerations(x, acc, b, base, n, boundary, m, k, tangent, hist, record, 0, 0)
-    rows = unit_stride(x) * unit_stride(acc) * wp.where(record != 0 or tangent != 0, unit_stride(hist), 1)
-    if loss == 0 and n >= 2 and rows != 0:
-        # the fast path: a stage in one pass over contiguous rows (``fused_stage``)
-        u = row(x, b, 0)
-        v = row(x, b, 1)
-        pu = row(x, b, 2)
-        pv = row(x, b, 3)
-        au = row(acc, b, 0)
-        av = row(acc, b, 1)
-        for step in range(nsteps):
-            for s in range(stages):
-                pre = wp.where(s == 0, 1, 0)
-                h0 = kicks[0] * dt
-                c = drifts[s] * dt
-                h = kicks[s + 1] * dt
-                e = step * stages + s + 1
-                if tangent != 0:
-                    stiffness = row(hist, e, base)
-                    fused_tangent_stage(u, v, pu, pv, au, av, n, boundary, m, k, pre, h0, c, h, 0, stiffness)
-                else:
-                    stiffness = row(hist, e * record, b * record)
-                    fused_stage(u, v, pu, pv, au, av, n, boundary, m, k, pre, h0, c, h, record, stiffness)
-            save_positions(x, rec_u, rec_v, b, n, step, save_every)
-    else:
-        for step in range(nsteps):
-            any_kick(x, acc, b, n, kicks[0] * dt, loss, damp, 0)
-            for s in range(stages):
-                drift(x, b, n, drifts[s] * dt)
-                e = step * stages + s + 1
-                compute_accelerations(x, acc, b, base, n, boundary, m, k, tangent, hist, record, e, 0)
-                any_kick(x, acc, b, n, kicks[s + 1] * dt, loss, damp, s + 1)
-            save_positions(x, rec_u, rec_v, b, n, step, save_every)
+    @wp.kernel(enable_backward=False)
+    def splitting(
+        x: Array3,
+        acc: Array3,
+        tangent: int,
+        column_base: Indices,
+        inv_mass: Array1,
+        coupling: Array1,
+        drifts: Array1,
+        kicks: Array1,
+        boundary: int,
+        dt: F64,
+        nsteps: int,
+        save_every: int,
+        rec_u: Array3,
+        rec_v: Array3,
+        record_stiffness: int,
+        hist: Array3,
+        lossy: Indices,
+        damp: Array3,
+        ob: Observer,
+    ):
+        """``nsteps`` steps of a kick-drift splitting method for lattice b = tid, or with ``tangent`` set for
+        tangent column b along base trajectory column_base[b] (the linearised step, f'(z) read from hist).
+
+        hist slot 0 holds f'(z) at the start, slot step*s + k + 1 after drift k of ``step``. Lattices with
+        ``lossy[b]`` set take the damped kicks of ``damp`` (batch, stages + 1, 12: E, F, then H for the energy
+        dissipated) (``losses``; base runs only). Compiled ``observed``: the observables of ``ob`` every step
+        and frame (``warpchain.observe``), on the per-pass path.
+        """
+        b = wp.tid()
+        n = x.shape[2]
+        stages = drifts.shape[0]
+        base = b
+        loss = int(0)
+        if tangent != 0:
+            base = column_base[b]
+        else:
+            loss = lossy[b]
+        m = inv_mass[base]
+        k = coupling[base]
+        record = wp.where(record_stiffness != 0 and tangent == 0, 1, 0)
+        compute_accelerations(x, acc, b, base, n, boundary, m, k, tangent, hist, record, 0, 0)
+        rows = unit_stride(x) * unit_stride(acc) * wp.where(record != 0 or tangent != 0, unit_stride(hist), 1)
+        fast = loss == 0 and n >= 2 and rows != 0
+        dissipated = ZERO
+        if wp.static(observed):
+            fast = False
+            dissipated = observe_start(x, b, n, boundary, k, ob)
+        if fast:
+            # the fast path: a stage in one pass over contiguous rows (``fused_stage``)
+            u = row(x, b, 0)
+            v = row(x, b, 1)
+            pu = row(x, b, 2)
+            pv = row(x, b, 3)
+            au = row(acc, b, 0)
+            av = row(acc, b, 1)
+            for step in range(nsteps):
+                for s in range(stages):
+                    pre = wp.where(s == 0, 1, 0)
+                    h0 = kicks[0] * dt
+                    c = drifts[s] * dt
+                    h = kicks[s + 1] * dt
+                    e = step * stages + s + 1
+                    if tangent != 0:
+                        stiffness = row(hist, e, base)
+                        fused_tangent_stage(u, v, pu, pv, au, av, n, boundary, m, k, pre, h0, c, h, 0, stiffness)
+                    else:
+                        stiffness = row(hist, e * record, b * record)
+                        fused_stage(u, v, pu, pv, au, av, n, boundary, m, k, pre, h0, c, h, record, stiffness)
+                save_positions(x, rec_u, rec_v, b, n, step, save_every)
+        else:
+            for step in range(nsteps):
+                if wp.static(observed):
+                    dissipated = dissipated + kick_losses(x, acc, b, n, loss, damp, 0, ob.mass[b])
+                any_kick(x, acc, b, n, kicks[0] * dt, loss, damp, 0)
+                for s in range(stages):
+                    drift(x, b, n, drifts[s] * dt)
+                    e = step * stages + s + 1
+                    compute_accelerations(x, acc, b, base, n, boundary, m, k, tangent, hist, record, e, 0)
+                    if wp.static(observed):
+                        dissipated = dissipated + kick_losses(x, acc, b, n, loss, damp, s + 1, ob.mass[b])
+                    any_kick(x, acc, b, n, kicks[s + 1] * dt, loss, damp, s + 1)
+                save_positions(x, rec_u, rec_v, b, n, step, save_every)
+                if wp.static(observed):
+                    observe_step(x, b, n, boundary, k, ob, step, dissipated)
+        if wp.static(observed):
+            ob.lost[b, 0] = dissipated
+
+    return splitting
 
 
 # ----------------------------------------------------------------------------- run guard
@@ -498,17 +467,8 @@ def splitting_kernel(
 
 @wp.func
 def site_energy(
-    u: wp.float64,
-    v: wp.float64,
-    pu: wp.float64,
-    pv: wp.float64,
-    right: wp.float64,
-    j: int,
-    n: int,
-    boundary: int,
-    mass: wp.float64,
-    coupling: wp.float64,
-) -> wp.float64:
+    u: F64, v: F64, pu: F64, pv: F64, right: F64, j: int, n: int, boundary: int, mass: F64, coupling: F64
+) -> F64:
     """Site j's share of the Hamiltonian (``model.energy``): kinetic energy, the bond to its right
     neighbour (``right`` is that neighbour's u; at the right end the wall bond (fixed), the bond to
     site 0 (periodic) or none (free)), the left wall bond at j = 0 (fixed), and the contact energy."""
@@ -527,7 +487,7 @@ def site_energy(
 
 
 @wp.func
-def finite_state(u: wp.float64, v: wp.float64, pu: wp.float64, pv: wp.float64) -> wp.float64:
+def finite_state(u: F64, v: F64, pu: F64, pv: F64) -> F64:
     """1 when all four values are finite, else 0."""
     if wp.isfinite(u) and wp.isfinite(v) and wp.isfinite(pu) and wp.isfinite(pv):
         return ONE
@@ -536,15 +496,15 @@ def finite_state(u: wp.float64, v: wp.float64, pu: wp.float64, pv: wp.float64) -
 
 @wp.kernel
 def guard_kernel(
-    x: wp.array3d(dtype=wp.float64),
-    mass: wp.array(dtype=wp.float64),
-    coupling: wp.array(dtype=wp.float64),
+    x: Array3,
+    mass: Array1,
+    coupling: Array1,
     boundary: int,
-    rec_u: wp.array3d(dtype=wp.float64),
-    rec_v: wp.array3d(dtype=wp.float64),
+    rec_u: Array3,
+    rec_v: Array3,
     n_rec: int,
-    contact: wp.array(dtype=wp.float64),
-    out: wp.array2d(dtype=wp.float64),
+    contact: Array1,
+    out: Array2,
 ):
     """Per lattice b = tid, on the device: out[b] = (energy, 1 if finite else 0, min contact), where the
     min contact runs over the state, the first ``n_rec`` recorded frames and ``contact[b]`` (the running
@@ -570,3 +530,151 @@ def guard_kernel(
     out[b, 0] = total
     out[b, 1] = finite
     out[b, 2] = low
+
+
+# ----------------------------------------------------------------------------- observables (``warpchain.observe``)
+
+
+@wp.struct
+class Observer:
+    """What an ``observed`` splitting kernel reduces, and where (``warpchain.observe``; the other kernels
+    take an empty one). Per lattice: ``mass`` (M), ``spot`` (half-width in sites), the running z extremes
+    ``z_low``/``z_high`` (batch, N), the energy dissipated so far ``lost`` (batch, 1; per site in the block
+    layout), the last frame's ``envelope`` (batch, N), and ``values`` (frames, batch, 7): the observables."""
+
+    first_step: int
+    frame_every: int
+    threshold: F64
+    radius: int
+    contrast: F64
+    mass: Array1
+    spot: Array1
+    z_low: Array2
+    z_high: Array2
+    lost: Array2
+    envelope: Array2
+    values: Array3
+
+
+@wp.func
+def store_observables(
+    ob: Observer, r: int, b: int, peaks: F64, total: F64, squares: F64, inside: F64, top: F64, low: F64, dissipated: F64
+):
+    """values[r, b] = (peaks, participation, spot energy, max envelope, min contact, energy, dissipated)."""
+    pr = ZERO
+    if squares > ZERO:
+        pr = total * total / squares
+    ob.values[r, b, 0] = peaks
+    ob.values[r, b, 1] = pr
+    ob.values[r, b, 2] = inside
+    ob.values[r, b, 3] = top
+    ob.values[r, b, 4] = low
+    ob.values[r, b, 5] = total
+    ob.values[r, b, 6] = dissipated
+
+
+@wp.func
+def observe_frame(
+    x: Array3,
+    b: int,
+    n: int,
+    boundary: int,
+    coupling: F64,
+    ob: Observer,
+    r: int,
+    dissipated: F64,
+):
+    """Frame r of lattice b: values[r, b] from the state and the interval's z extremes, which it resets."""
+    centre = n / 2
+    mass = ob.mass[b]
+    for j in range(n):
+        ob.envelope[b, j] = wp.max(ob.z_high[b, j], -ob.z_low[b, j])
+    total = ZERO
+    squares = ZERO
+    inside = ZERO
+    top = ZERO
+    low = NO_CONTACT
+    peaks = ZERO
+    for j in range(n):
+        e = site_energy(
+            x[b, 0, j], x[b, 1, j], x[b, 2, j], x[b, 3, j], x[b, 0, (j + 1) % n], j, n, boundary, mass, coupling
+        )
+        total = total + e
+        squares = squares + e * e
+        if wp.abs(wp.float64(j - centre)) <= ob.spot[b]:
+            inside = inside + e
+        env = ob.envelope[b, j]
+        top = wp.max(top, env)
+        low = wp.min(low, ONE + ob.z_low[b, j])
+        if env > ob.threshold:
+            peak = ONE
+            left_low = env
+            right_low = env
+            for i in range(1, ob.radius + 1):
+                left = ZERO  # past the chain's end
+                right = ZERO
+                if j - i >= 0:
+                    left = ob.envelope[b, j - i]
+                    if left >= env:
+                        peak = ZERO
+                if j + i < n:
+                    right = ob.envelope[b, j + i]
+                    if right > env:
+                        peak = ZERO
+                left_low = wp.min(left_low, left)
+                right_low = wp.min(right_low, right)
+            if left_low > ob.contrast * env or right_low > ob.contrast * env:
+                peak = ZERO
+            peaks = peaks + peak
+    for j in range(n):
+        ob.z_low[b, j] = NO_CONTACT
+        ob.z_high[b, j] = -NO_CONTACT
+    store_observables(ob, r, b, peaks, total, squares, inside, top, low, dissipated)
+
+
+@wp.func
+def observe_start(x: Array3, b: int, n: int, boundary: int, coupling: F64, ob: Observer) -> F64:
+    """At the run's start (``first_step`` 0) frame 0 (envelope |z|); returns the energy dissipated so far."""
+    if ob.first_step != 0:
+        return ob.lost[b, 0]
+    for j in range(n):
+        z = x[b, 0, j] - x[b, 1, j]
+        ob.z_low[b, j] = z
+        ob.z_high[b, j] = z
+    observe_frame(x, b, n, boundary, coupling, ob, 0, ZERO)
+    return ZERO
+
+
+@wp.func
+def kick_losses(x: Array3, acc: Array3, b: int, n: int, loss: int, damp: Array3, i: int, mass: F64) -> F64:
+    """The energy damped kick i is about to dissipate on lattice b (``kick_loss`` summed over the sites)."""
+    spent = ZERO
+    if loss != 0:
+        for j in range(n):
+            spent = spent + kick_loss(x[b, 2, j], x[b, 3, j], acc[b, 0, j], acc[b, 1, j], damp, b, i, mass)
+    return spent
+
+
+@wp.func
+def observe_step(
+    x: Array3,
+    b: int,
+    n: int,
+    boundary: int,
+    coupling: F64,
+    ob: Observer,
+    step: int,
+    dissipated: F64,
+):
+    """After ``step``: the z extremes, and the frame when one is due."""
+    for j in range(n):
+        z = x[b, 0, j] - x[b, 1, j]
+        ob.z_low[b, j] = wp.min(ob.z_low[b, j], z)
+        ob.z_high[b, j] = wp.max(ob.z_high[b, j], z)
+    done = ob.first_step + step + 1
+    if done % ob.frame_every == 0:
+        observe_frame(x, b, n, boundary, coupling, ob, done / ob.frame_every, dissipated)
+
+
+splitting_kernel = _splitting_kernel(False)
+observed_splitting_kernel = _splitting_kernel(True)

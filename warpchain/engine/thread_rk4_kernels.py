@@ -7,6 +7,10 @@ from __future__ import annotations
 import warp as wp
 
 from .thread_kernels import (
+    F64,
+    Array1,
+    Array3,
+    Indices,
     compute_accelerations,
     contact_stiffness,
     row,
@@ -19,17 +23,17 @@ from .thread_kernels import (
 
 @wp.func
 def rk4_stage_derivative(
-    y: wp.array3d(dtype=wp.float64),
-    out: wp.array3d(dtype=wp.float64),
+    y: Array3,
+    out: Array3,
     b: int,
     base: int,
     n: int,
     boundary: int,
-    inv_mass: wp.float64,
-    coupling: wp.float64,
+    inv_mass: F64,
+    coupling: F64,
     tangent: int,
     record: int,
-    hist: wp.array3d(dtype=wp.float64),
+    hist: Array3,
     slot: int,
 ):
     """out[b] = F(y[b]) = (y', a(y)): a base run's (recording f'(z) of the stage when asked), or with
@@ -42,14 +46,14 @@ def rk4_stage_derivative(
 
 @wp.func
 def rk4_advance(
-    x: wp.array3d(dtype=wp.float64),
-    y: wp.array3d(dtype=wp.float64),
-    k: wp.array3d(dtype=wp.float64),
-    total: wp.array3d(dtype=wp.float64),
+    x: Array3,
+    y: Array3,
+    k: Array3,
+    total: Array3,
     b: int,
     n: int,
     stage: int,
-    dt: wp.float64,
+    dt: F64,
     tableau: wp.vec4d,
     weights: wp.vec4d,
 ):
@@ -69,14 +73,7 @@ def rk4_advance(
 
 
 @wp.func
-def rk4_finish(
-    x: wp.array3d(dtype=wp.float64),
-    total: wp.array3d(dtype=wp.float64),
-    b: int,
-    n: int,
-    dt: wp.float64,
-    divisor: wp.float64,
-):
+def rk4_finish(x: Array3, total: Array3, b: int, n: int, dt: F64, divisor: F64):
     for i in range(4):
         for j in range(n):
             x[b, i, j] = x[b, i, j] + (dt / divisor) * total[b, i, j]
@@ -86,14 +83,14 @@ def rk4_finish(
 class Rows:
     """The rows (u, v, u', v') of one lattice of a state array as unit-stride views (``row``)."""
 
-    u: wp.array(dtype=wp.float64)
-    v: wp.array(dtype=wp.float64)
-    pu: wp.array(dtype=wp.float64)
-    pv: wp.array(dtype=wp.float64)
+    u: Array1
+    v: Array1
+    pu: Array1
+    pv: Array1
 
 
 @wp.func
-def rows_of(x: wp.array3d(dtype=wp.float64), b: int) -> Rows:
+def rows_of(x: Array3, b: int) -> Rows:
     r = Rows()
     r.u = row(x, b, 0)
     r.v = row(x, b, 1)
@@ -109,16 +106,16 @@ def rk4_site(
     y: Rows,
     t: Rows,
     j: int,
-    left: wp.float64,
-    u: wp.float64,
-    right: wp.float64,
-    inv_mass: wp.float64,
-    coupling: wp.float64,
+    left: F64,
+    u: F64,
+    right: F64,
+    inv_mass: F64,
+    coupling: F64,
     first: int,
-    weight: wp.float64,
-    ah: wp.float64,
+    weight: F64,
+    ah: F64,
     record: int,
-    stiffness: wp.array(dtype=wp.float64),
+    stiffness: Array1,
 ):
     """Site j of a Runge-Kutta stage at the state s (u: s.u[j], read before y may overwrite it) between
     neighbours at u = left and right: the derivative k = (u', v', a) (``rk4_stage_derivative``), its
@@ -147,13 +144,13 @@ def rk4_fused_stage(
     t: Rows,
     n: int,
     boundary: int,
-    inv_mass: wp.float64,
-    coupling: wp.float64,
+    inv_mass: F64,
+    coupling: F64,
     first: int,
-    weight: wp.float64,
-    ah: wp.float64,
+    weight: F64,
+    ah: F64,
     record: int,
-    stiffness: wp.array(dtype=wp.float64),
+    stiffness: Array1,
 ):
     """One Runge-Kutta stage on one lattice's rows in a single pass over the sites: the derivative at the
     stage state s (x itself for the first stage), its weighted sum into the total t (set by the ``first``
@@ -175,7 +172,7 @@ def rk4_fused_stage(
 
 
 @wp.func
-def rk4_fused_finish(x: Rows, t: Rows, n: int, dt: wp.float64, divisor: wp.float64):
+def rk4_fused_finish(x: Rows, t: Rows, n: int, dt: F64, divisor: F64):
     """``rk4_finish`` on rows."""
     j = wp.int32(0)
     while j < n:
@@ -188,24 +185,24 @@ def rk4_fused_finish(x: Rows, t: Rows, n: int, dt: wp.float64, divisor: wp.float
 
 @wp.kernel
 def rk4_kernel(
-    x: wp.array3d(dtype=wp.float64),
-    y: wp.array3d(dtype=wp.float64),
-    k: wp.array3d(dtype=wp.float64),
-    total: wp.array3d(dtype=wp.float64),
+    x: Array3,
+    y: Array3,
+    k: Array3,
+    total: Array3,
     tangent: int,
-    column_base: wp.array(dtype=wp.int32),
-    inv_mass: wp.array(dtype=wp.float64),
-    coupling: wp.array(dtype=wp.float64),
+    column_base: Indices,
+    inv_mass: Array1,
+    coupling: Array1,
     tableau: wp.vec4d,
     weights: wp.vec4d,
     boundary: int,
-    dt: wp.float64,
+    dt: F64,
     nsteps: int,
     save_every: int,
-    rec_u: wp.array3d(dtype=wp.float64),
-    rec_v: wp.array3d(dtype=wp.float64),
+    rec_u: Array3,
+    rec_v: Array3,
     record_stiffness: int,
-    hist: wp.array3d(dtype=wp.float64),
+    hist: Array3,
 ):
     """``nsteps`` Runge-Kutta steps (tableau: nodes and divisor, weights) for lattice b = tid; hist slot
     4 step + stage. With ``tangent`` set, b is a tangent column along base lattice column_base[b] (the
