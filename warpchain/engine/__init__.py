@@ -13,8 +13,9 @@ Modules:
   thread block per lattice, a thread per site), ``site_group_kernels`` (a thread per run of sites: the GPU
   path for large batches) and ``site_kernels`` (the ``"sites"`` layout: a thread per site and a launch per
   force evaluation, for lattices longer than a block; its one kernel serves base runs and tangent columns)
-  hold the kernels; ``observe_kernels`` the step loops with frame reductions of ``warpchain.observe``;
-  ``warpchain.reference`` is their numpy oracle.
+  hold the kernels; ``warpchain.reference`` is their numpy oracle. The step kernels take what a run records
+  as one ``thread_kernels.Record`` and, compiled ``observed``, the observables of ``warpchain.observe`` as
+  hooks in the same step loop (``thread_kernels.Observer``; thread and block layouts).
 
 How the state moves (measured on an H100, ``benchmarks/results/h100-2026-11-25/engine-split.json``): through pinned
 staging buffers (``hostmem``), in lattice slices overlapped with the first and last chunk for large batches,
@@ -38,7 +39,7 @@ Adding a boundary that changes the wall values (like fixed or free ends), in 3 f
 3. ``warpchain/engine/site_group_kernels.py``: the compiled end cases of ``ends`` and ``neighbour_values``.
 
 A boundary that wraps like the ring also needs the neighbour indices of ``block_kernels.site_neighbours``, and
-``observe.site_energies`` repeats the wall bonds on the host (until observe is folded into the engine).
+``observe.site_energies`` (observe's numpy oracle) repeats the wall bonds of ``model.energy`` site by site.
 The sites layout takes its walls from ``thread_kernels.neighbours_at`` (``wall_values``): nothing to add there.
 The tests over ``BOUNDARIES`` (``tests/test_gpu_engine.py``, ``tests/test_integrators.py``,
 ``tests/test_site_kernels.py``) check every layout against the reference bit for bit.

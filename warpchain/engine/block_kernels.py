@@ -26,6 +26,7 @@ import functools
 import warp as wp
 
 from .thread_kernels import (
+    Record,
     F64,
     Array1,
     Array2,
@@ -363,11 +364,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             kicks: coefficients,
             boundary: int,
             nsteps: int,
-            save_every: int,
-            rec_u: Array3,
-            rec_v: Array3,
-            record_stiffness: int,
-            hist: Array3,
+            out: Record,
             lossy: Indices,
             damp: Array3,
             ob: Observer,
@@ -380,6 +377,10 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             The step's stiffnesses are held in registers and stored after its last stage: a barrier waits for
             the stores issued before it, so a store at every force evaluation put that wait between every two."""
             b, j = wp.tid()
+            save_every = out.every  # the record's parts, as locals
+            rec_u = out.u
+            rec_v = out.v
+            hist = out.hist
             n = x.shape[2]
             nbr = site_neighbours(j, n, boundary)
             active = j < n
@@ -579,15 +580,16 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             boundary: int,
             dt: F64,
             nsteps: int,
-            save_every: int,
-            rec_u: Array3,
-            rec_v: Array3,
-            record_stiffness: int,
-            hist: Array3,
+            out: Record,
         ):
             """``nsteps`` classical RK4 steps; block b = lattice; hist slot 4 step + stage. Compiled ``tangent``:
             block b is a tangent column along base trajectory column_base[b], f'(z) read from hist."""
             b, j = wp.tid()
+            save_every = out.every  # the record's parts, as locals
+            rec_u = out.u
+            rec_v = out.v
+            record_stiffness = out.stiffness
+            hist = out.hist
             n = x.shape[2]
             active = j < n
             base = b

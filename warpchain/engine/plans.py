@@ -95,7 +95,7 @@ class _BlockSplitting(_Plan):
     def step(self, lo, hi, dt, nsteps, save_every, frames, record):
         r = self.r
         inputs = [*_parts(lo, hi, r.x, r.inv_mass, r.coupling), *self.coefficients(dt), r.boundary]
-        inputs += [int(nsteps), int(save_every), *frames, int(record), r.hist, *r.losses(lo, hi)]
+        inputs += [int(nsteps), r.record(save_every, frames, record), *r.losses(lo, hi)]
         from . import block_kernels, site_group_kernels
 
         stages = r.method.stages
@@ -118,7 +118,7 @@ class _BlockSplitting(_Plan):
         from . import block_kernels
 
         inputs = [*_parts(lo, hi, r.x, r.inv_mass, r.coupling), *self.coefficients(dt), r.boundary]
-        inputs += [int(nsteps), 0, r.no_record, r.no_record, 0, r.hist, *r.losses(lo, hi), observer]
+        inputs += [int(nsteps), r.record(), *r.losses(lo, hi), observer]
         kernel = block_kernels.block_kernels(r.block, 0).splitting(r.method.stages, damped=True, observed=True)
         r.launch_kernel(kernel, (hi - lo, r.block), inputs, r.block)
 
@@ -150,13 +150,13 @@ class _BlockRungeKutta(_Plan):
     def step(self, lo, hi, dt, nsteps, save_every, frames, record):
         r = self.r
         inputs = [_part(r.x, lo, hi), r.no_base, *_parts(lo, hi, r.inv_mass, r.coupling), *self.tableau, r.boundary]
-        inputs += [r.wp.float64(dt), int(nsteps), int(save_every), *frames, int(record), r.hist]
+        inputs += [r.wp.float64(dt), int(nsteps), r.record(save_every, frames, record)]
         r.launch_kernel(r.bk.rk4, (hi - lo, r.block), inputs, r.block)
 
     def tangent(self, dx, column_base, lo, hi, dt, nsteps):
         r = self.r
         inputs = [*_parts(lo, hi, dx, column_base), r.inv_mass, r.coupling, *self.tableau, r.boundary]
-        inputs += [r.wp.float64(dt), int(nsteps), 0, r.no_record, r.no_record, 0, r.hist]
+        inputs += [r.wp.float64(dt), int(nsteps), r.record()]
         r.wp.launch(r.bk.rk4_tangent, dim=(hi - lo, r.block), block_dim=r.block, device=r.device, inputs=inputs)
 
 
@@ -173,23 +173,23 @@ class _ThreadSplitting(_Plan):
     def step(self, lo, hi, dt, nsteps, save_every, frames, record):
         r = self.r
         inputs = [*_parts(lo, hi, r.x, self.acc), 0, r.no_base, *_parts(lo, hi, r.inv_mass, r.coupling)]
-        inputs += [self.drifts, self.kicks, r.boundary, r.wp.float64(dt), int(nsteps), int(save_every), *frames]
-        inputs += [int(record), r.hist, *r.losses(lo, hi), r.no_observer]
+        inputs += [self.drifts, self.kicks, r.boundary, r.wp.float64(dt), int(nsteps)]
+        inputs += [r.record(save_every, frames, record), *r.losses(lo, hi), r.no_observer]
         r.launch_kernel(r.k.splitting_kernel, hi - lo, inputs)
 
     def observe(self, lo, hi, dt, nsteps, observer):
         r = self.r
         inputs = [*_parts(lo, hi, r.x, self.acc), 0, r.no_base, *_parts(lo, hi, r.inv_mass, r.coupling)]
-        inputs += [self.drifts, self.kicks, r.boundary, r.wp.float64(dt), int(nsteps), 0, r.no_record, r.no_record]
-        inputs += [0, r.hist, *r.losses(lo, hi), observer]
+        inputs += [self.drifts, self.kicks, r.boundary, r.wp.float64(dt), int(nsteps), r.record()]
+        inputs += [*r.losses(lo, hi), observer]
         r.launch_kernel(r.k.observed_splitting_kernel, hi - lo, inputs)
 
     def tangent(self, dx, column_base, lo, hi, dt, nsteps):
         r, wp = self.r, self.r.wp
         dacc = self.kept("dacc", (dx.shape[0], 2, r.N))  # written before it is read
         inputs = [*_parts(lo, hi, dx, dacc), 1, _part(column_base, lo, hi), r.inv_mass, r.coupling]
-        inputs += [self.drifts, self.kicks, r.boundary, wp.float64(dt), int(nsteps), 0, r.no_record, r.no_record]
-        inputs += [0, r.hist, r.lossy, r.no_damp, r.no_observer]
+        inputs += [self.drifts, self.kicks, r.boundary, wp.float64(dt), int(nsteps), r.record()]
+        inputs += [r.lossy, r.no_damp, r.no_observer]
         wp.launch(r.k.splitting_kernel, dim=hi - lo, device=r.device, inputs=inputs)
 
 
@@ -209,15 +209,14 @@ class _ThreadRungeKutta(_Plan):
     def step(self, lo, hi, dt, nsteps, save_every, frames, record):
         r = self.r
         inputs = [*_parts(lo, hi, r.x, *self.scratch), 0, r.no_base, *_parts(lo, hi, r.inv_mass, r.coupling)]
-        inputs += [*self.tableau, r.boundary, r.wp.float64(dt), int(nsteps), int(save_every), *frames]
-        inputs += [int(record), r.hist]
+        inputs += [*self.tableau, r.boundary, r.wp.float64(dt), int(nsteps), r.record(save_every, frames, record)]
         r.launch_kernel(self.kernels.rk4_kernel, hi - lo, inputs)
 
     def tangent(self, dx, column_base, lo, hi, dt, nsteps):
         r, wp = self.r, self.r.wp
         scratch = [self.kept(f"stage{i}", (dx.shape[0], 4, r.N)) for i in range(3)]
         inputs = [*_parts(lo, hi, dx, *scratch), 1, _part(column_base, lo, hi), r.inv_mass, r.coupling]
-        inputs += [*self.tableau, r.boundary, wp.float64(dt), int(nsteps), 0, r.no_record, r.no_record, 0, r.hist]
+        inputs += [*self.tableau, r.boundary, wp.float64(dt), int(nsteps), r.record()]
         wp.launch(self.kernels.rk4_kernel, dim=hi - lo, device=r.device, inputs=inputs)
 
 

@@ -195,6 +195,14 @@ class _Runner:
     def reset_contact(self) -> None:
         self.contact.fill_(1.0e300)
 
+    def record(self, every: int = 0, frames=None, stiffness: bool = False):
+        """A launch's ``thread_kernels.Record``: u and v into ``frames`` (u, v) every ``every`` steps (None: no
+        frames), f'(z) into this runner's history when ``stiffness`` (tangent runs read the history from it)."""
+        out = self.k.Record()
+        out.every, out.stiffness, out.hist = int(every), int(stiffness), self.hist
+        out.u, out.v = frames if frames is not None else (self.no_record, self.no_record)
+        return out
+
     def history_length(self, nsteps: int) -> int:
         return self.method.history_length(nsteps)
 

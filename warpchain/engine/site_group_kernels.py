@@ -16,6 +16,7 @@ from .block_kernels import (
     site_kick,
 )
 from .thread_kernels import (
+    Record,
     F64,
     Array1,
     Array3,
@@ -169,17 +170,17 @@ def site_group_kernels(threads: int, sites: int, boundary: int, min_blocks_per_s
             kicks: coefficients,
             boundary_code: int,
             nsteps: int,
-            save_every: int,
-            rec_u: Array3,
-            rec_v: Array3,
-            record_stiffness: int,
-            hist: Array3,
+            out: Record,
             lossy: Indices,
             damp: Array3,
         ):
             """``block_kernels``' splitting kernel (same arguments; ``boundary_code`` is compiled in and
             unused) with ``sites`` sites per thread: lattice b, thread t."""
             b, t = wp.tid()
+            save_every = out.every  # the record's parts, as locals
+            rec_u = out.u
+            rec_v = out.v
+            hist = out.hist
             n = x.shape[2]
             first = t * wp.static(sites)
             mb = -inv_mass[b]

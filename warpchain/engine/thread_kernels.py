@@ -52,6 +52,19 @@ BOUNDARY_FREE = wp.constant(1)
 BOUNDARY_PERIODIC = wp.constant(2)
 
 
+@wp.struct
+class Record:
+    """What a run writes besides its state, passed whole to the step kernels: u and v after every ``every``-th
+    step into frames ``u``, ``v`` (frames, batch, N) (``every`` 0: none), and with ``stiffness`` set f'(z) at
+    every force evaluation into ``hist`` (slots, batch, N), which tangent runs read."""
+
+    every: int
+    u: Array3
+    v: Array3
+    stiffness: int
+    hist: Array3
+
+
 # ----------------------------------------------------------------------------- per-site helpers
 
 
@@ -383,11 +396,7 @@ def _splitting_kernel(observed: bool):
         boundary: int,
         dt: F64,
         nsteps: int,
-        save_every: int,
-        rec_u: Array3,
-        rec_v: Array3,
-        record_stiffness: int,
-        hist: Array3,
+        out: Record,
         lossy: Indices,
         damp: Array3,
         ob: Observer,
@@ -403,6 +412,10 @@ def _splitting_kernel(observed: bool):
         b = wp.tid()
         n = x.shape[2]
         stages = drifts.shape[0]
+        save_every = out.every  # the record's parts, as locals
+        rec_u = out.u
+        rec_v = out.v
+        hist = out.hist
         base = b
         loss = int(0)
         if tangent != 0:
@@ -411,7 +424,7 @@ def _splitting_kernel(observed: bool):
             loss = lossy[b]
         m = inv_mass[base]
         k = coupling[base]
-        record = wp.where(record_stiffness != 0 and tangent == 0, 1, 0)
+        record = wp.where(out.stiffness != 0 and tangent == 0, 1, 0)
         compute_accelerations(x, acc, b, base, n, boundary, m, k, tangent, hist, record, 0, 0)
         rows = unit_stride(x) * unit_stride(acc) * wp.where(record != 0 or tangent != 0, unit_stride(hist), 1)
         fast = loss == 0 and n >= 2 and rows != 0

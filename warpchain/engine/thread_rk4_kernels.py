@@ -7,6 +7,7 @@ from __future__ import annotations
 import warp as wp
 
 from .thread_kernels import (
+    Record,
     F64,
     Array1,
     Array3,
@@ -198,11 +199,7 @@ def rk4_kernel(
     boundary: int,
     dt: F64,
     nsteps: int,
-    save_every: int,
-    rec_u: Array3,
-    rec_v: Array3,
-    record_stiffness: int,
-    hist: Array3,
+    out: Record,
 ):
     """``nsteps`` Runge-Kutta steps (tableau: nodes and divisor, weights) for lattice b = tid; hist slot
     4 step + stage. With ``tangent`` set, b is a tangent column along base lattice column_base[b] (the
@@ -214,7 +211,11 @@ def rk4_kernel(
         base = column_base[b]
     m = inv_mass[base]
     cpl = coupling[base]
-    record = wp.where(record_stiffness != 0 and tangent == 0, 1, 0)
+    save_every = out.every  # the record's parts, as locals
+    rec_u = out.u
+    rec_v = out.v
+    hist = out.hist
+    record = wp.where(out.stiffness != 0 and tangent == 0, 1, 0)
     rows = unit_stride(x) * unit_stride(y) * unit_stride(k) * unit_stride(total)
     rows = rows * wp.where(record != 0, unit_stride(hist), 1)
     if rows != 0 and tangent == 0:
