@@ -202,7 +202,7 @@ class ParameterAxis:
     name: str
 
     def value(self, point) -> float:
-        return float(getattr(point, self.name))
+        return float(point.value(self.name))
 
     def of(self, value: float) -> float:
         return float(value)

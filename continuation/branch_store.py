@@ -507,8 +507,7 @@ def load_branch(path, group: str = "branch") -> tuple[ChainParams, list, dict]:
 
         points.append(
             BranchPoint(
-                K=float(a["K"][i]),
-                omega=float(a["omega"][i]),
+                parameters={"K": float(a["K"][i]), "omega": float(a["omega"][i])},
                 state=np.array(a["state"][i]),
                 energy=float(a["energy"][i]),
                 iterations=int(a["iterations"][i]),

@@ -186,7 +186,9 @@ class BranchPoint:
     """One solution on a branch, with its multipliers (all that is needed to restart from it).
 
     Attributes:
-        K, omega: the chain's coupling and the breather's frequency.
+        parameters: the point's parameters by name: ``"K"`` (the chain's coupling) and ``"omega"`` (the
+            breather's frequency), whichever the continuation moves (``branch.ParameterAxis.name``); also
+            ``point.K``, ``point.omega``, ``point.value(name)``.
         state: the orbit's start (4, N) (at rest).
         energy, min_contact: Hamiltonian; min over the orbit of 1 + u - v.
         iterations, residual_history: the corrector's Newton iterations and residual norms.
@@ -198,8 +200,7 @@ class BranchPoint:
         central_weight: per mu, the fraction of its Floquet vector on the central sites (None without Floquet).
     """
 
-    K: float
-    omega: float
+    parameters: dict
     state: np.ndarray
     energy: float
     iterations: int
@@ -217,6 +218,18 @@ class BranchPoint:
     harmonics_in_bands: tuple
     s: float = float("nan")
     central_weight: np.ndarray | None = None
+
+    @property
+    def K(self) -> float:
+        return self.parameters["K"]
+
+    @property
+    def omega(self) -> float:
+        return self.parameters["omega"]
+
+    def value(self, name: str) -> float:
+        """The parameter ``name`` at this point (a ``ParameterAxis.name``)."""
+        return self.parameters[name]
 
     @property
     def pairing_error(self) -> float:  # the reduced path's spectrum is paired by construction
@@ -337,8 +350,7 @@ def analyse(solution: Solution, with_floquet: bool = True, spectra: dict | None 
             instabilities=(),
         )
     point = BranchPoint(
-        K=float(params.K),
-        omega=float(solution.omega),
+        parameters={"K": float(params.K), "omega": float(solution.omega)},
         state=np.array(solution.state),
         energy=float(energy(params, solution.state)[0]),
         iterations=int(solution.iterations),
@@ -748,9 +760,9 @@ class _Walk:
         if done:
             return StopReason.END_REACHED, why
         if settings.max_points is not None and len(points) >= settings.max_points:
-            return StopReason.MAX_POINTS, f"{len(points)} points, at {par} = {getattr(last, par):.8g}"
+            return StopReason.MAX_POINTS, f"{len(points)} points, at {par} = {last.value(par):.8g}"
         if settings.max_seconds is not None and time.perf_counter() - self.start > settings.max_seconds:
-            return StopReason.TIME_BUDGET, f"after {settings.max_seconds:g} s at {par} = {getattr(last, par):.8g}"
+            return StopReason.TIME_BUDGET, f"after {settings.max_seconds:g} s at {par} = {last.value(par):.8g}"
         return None
 
     def step(self, last):
@@ -768,7 +780,7 @@ class _Walk:
             if self.log:
                 self.log(f"step failed ({why}); step halved to {self.h:.3g}")
             if self.h < settings.ds_min:
-                return StopReason.STEP_UNDERFLOW, f"{why} near {par} = {getattr(last, par):.8g}"
+                return StopReason.STEP_UNDERFLOW, f"{why} near {par} = {last.value(par):.8g}"
             return None
         whole = True  # every point of the step accepted (a stated point count may cut it)
         for p in self.refine(last, new, h_try):
@@ -823,7 +835,7 @@ class _Walk:
                     )
                 if bar is not None:
                     bar.n = min(max(problem.progress(self.points[0], last), 0.0), 1.0)
-                    bar.set_postfix_str(f"{par} = {getattr(last, par):.6g}, {len(self.points)} points", refresh=True)
+                    bar.set_postfix_str(f"{par} = {last.value(par):.6g}, {len(self.points)} points", refresh=True)
                 ended = self.stop(last) or self.step(last)
                 if ended is not None:
                     reason, message = ended

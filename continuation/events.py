@@ -302,7 +302,7 @@ def _change_word(a, b) -> str:
 
 
 def stability_change_event(a, b, parameter: str) -> dict:
-    pa, pb = getattr(a, parameter), getattr(b, parameter)
+    pa, pb = a.value(parameter), b.value(parameter)
     unstable = b if not b.stable else a
     lead = unstable.instabilities[0] if unstable.instabilities else None
     return {
@@ -322,7 +322,7 @@ def stability_change_event(a, b, parameter: str) -> dict:
 
 
 def krein_event(a, b, parameter: str, bisected: bool = True) -> dict:
-    pa, pb = getattr(a, parameter), getattr(b, parameter)
+    pa, pb = a.value(parameter), b.value(parameter)
     return {
         "type": "krein_crossing",
         "parameter": parameter,
@@ -339,7 +339,7 @@ def krein_event(a, b, parameter: str, bisected: bool = True) -> dict:
 def bubble_event(a, b, fraction: float, m, parameter: str, predicted=()) -> dict:
     """A solve inside the step (a, b) where ``continuation.bubbles`` predicted an instability bubble:
     what was predicted (strongest member of the group), and what the solve at its centre ``m`` found."""
-    pa, pb, at = getattr(a, parameter), getattr(b, parameter), getattr(m, parameter)
+    pa, pb, at = a.value(parameter), b.value(parameter), m.value(parameter)
     best = max(predicted, key=lambda x: x.modulus) if predicted else None
     confirmed = not m.stable
     return {
@@ -362,7 +362,7 @@ def foam_event(a, b, parameter: str, narrow, step: float) -> dict:
     """The bubbles predicted in the final step (a, b) that are narrower than the chase width
     (``narrow``: ``continuation.bubbles.Bubble``; ``step``: the step's length in the continuation
     coordinate, which their widths are fractions of)."""
-    pa, pb = getattr(a, parameter), getattr(b, parameter)
+    pa, pb = a.value(parameter), b.value(parameter)
     widest = max(narrow, key=lambda x: x.half_width)
     return {
         "type": "bubble_foam",
@@ -407,7 +407,7 @@ def parametric_event(a, b, parameter: str, M: float) -> dict | None:
         mid = 0.5 * (lo + hi)
         om = parametric_orders(M, a.K + mid * (b.K - a.K), a.omega + mid * (b.omega - a.omega))
         lo, hi = (mid, hi) if om == oa else (lo, mid)
-    pa, pb = getattr(a, parameter), getattr(b, parameter)
+    pa, pb = a.value(parameter), b.value(parameter)
     at = pa + 0.5 * (lo + hi) * (pb - pa)
     opened, closed = sorted(ob - oa), sorted(oa - ob)
     words = [f"n = {n} ({bands}) opened" for n, bands in opened] + [f"n = {n} ({bands}) closed" for n, bands in closed]
@@ -449,7 +449,7 @@ def unresolved_bubbles(points, events, parameter: str) -> list:
             resonances.setdefault(tuple(e["bracket"]), []).append(e)
     if not foam or len(points) < 2:
         return []
-    vals = [getattr(p, parameter) for p in points]
+    vals = [p.value(parameter) for p in points]
     n = len(points) - 1
     kind = [foam.get((vals[i], vals[i + 1])) for i in range(n)]
     member = [k is not None for k in kind]
@@ -497,7 +497,7 @@ def unresolved_bubbles(points, events, parameter: str) -> list:
 
 
 def contact_event(prev, point, parameter: str) -> dict:
-    a, b = getattr(prev, parameter), getattr(point, parameter)
+    a, b = prev.value(parameter), point.value(parameter)
     ca, cb = prev.min_contact, point.min_contact
     at = a + (b - a) * ca / (ca - cb) if ca != cb else b
     return {
@@ -513,7 +513,7 @@ def harmonic_event(prev, point, parameter: str) -> dict | None:
     new = sorted(set(point.harmonics_in_bands) - set(prev.harmonics_in_bands))
     if not new:
         return None
-    at = getattr(point, parameter)
+    at = point.value(parameter)
     return {
         "type": "harmonic_in_band",
         "harmonics": new,
@@ -534,12 +534,12 @@ def unstable_intervals(points, parameter: str) -> list:
         first, last = run[0], run[-1]
         i0 = points.index(first)
         start = (
-            getattr(first, parameter)
+            first.value(parameter)
             if i0 == 0
-            else 0.5 * (getattr(points[i0 - 1], parameter) + getattr(first, parameter))
+            else 0.5 * (points[i0 - 1].value(parameter) + first.value(parameter))
         )
         end = (
-            getattr(last, parameter) if after is None else 0.5 * (getattr(last, parameter) + getattr(after, parameter))
+            last.value(parameter) if after is None else 0.5 * (last.value(parameter) + after.value(parameter))
         )
         worst = max(run, key=lambda p: p.max_modulus)
         lead = worst.instabilities[0] if worst.instabilities else None

@@ -283,7 +283,7 @@ def stability_strip(ax, points, parameter: str, log: bool = False, unresolved=()
     from matplotlib import cm, colors
     from matplotlib import pyplot as plt
 
-    x = np.array([getattr(p, parameter) for p in points])
+    x = np.array([p.value(parameter) for p in points])
     shade = None
     fractions = [st.get("unstable_fraction") for st in unresolved]
     known = [f for f in fractions if f is not None and f > 0]

@@ -111,9 +111,16 @@ def test_covered_fraction_is_the_union_of_predicted_extents_clipped_to_the_step(
     assert bubbles.covered_fraction([]) == 0.0
 
 
+def _on_branch(**fields):
+    """A stand-in for a ``BranchPoint``: its fields, and ``value(name)`` for the parameter ``name``."""
+    point = types.SimpleNamespace(**fields)
+    point.value = lambda name: getattr(point, name)
+    return point
+
+
 def _branch_point(K, stable, modulus=1.0, localized=False):
     inst = () if stable else (types.SimpleNamespace(localized=localized, kind="complex_quadruplet", mu=0.5 + 1e-5j),)
-    return types.SimpleNamespace(K=K, stable=stable, max_modulus=modulus, instabilities=inst)
+    return _on_branch(K=K, stable=stable, max_modulus=modulus, instabilities=inst)
 
 
 def test_unresolved_bubble_stretches_join_foam_steps_across_weakly_unstable_points_only():
@@ -152,7 +159,7 @@ def test_parametric_resonance_opens_where_the_acoustic_top_passes_half_the_frequ
     K_star = brentq(lambda K: band_edges(30.0, K)["acoustic_top"] - 0.505, 1.0, 3.0, xtol=1e-14)
     assert (1, "AA") not in ev.parametric_orders(30.0, K_star - 1e-6, 1.01)
     assert (1, "AA") in ev.parametric_orders(30.0, K_star + 1e-6, 1.01)
-    a, b = (types.SimpleNamespace(K=k, omega=1.01) for k in (1.864, 2.018))
+    a, b = (_on_branch(K=k, omega=1.01) for k in (1.864, 2.018))
     e = ev.parametric_event(a, b, "K", 30.0)
     assert e["opened"] == [[1, "AA"]] and e["closed"] == [] and e["at"] == pytest.approx(K_star, abs=1e-12)
     assert ev.parametric_event(a, a, "K", 30.0) is None
