@@ -17,7 +17,7 @@ import warp as wp
 
 from warpchain import ChainParams, lowest_optical_mode
 from warpchain.engine import block_kernels as bk
-from warpchain.engine.thread_kernels import Observer, Record
+from warpchain.engine.thread_kernels import Observer, Recording
 from warpchain.engine.block_kernels import (
     load_site,
     neighbour_or_wall,
@@ -105,7 +105,7 @@ def main():
         hist = wp.zeros((1, 1, 1), dtype=f64, device="cuda")
         lossy = wp.zeros(batch, dtype=wp.int32, device="cuda")  # no losses (the kernels' damping arguments)
         damp = wp.zeros((1, 1, 8), dtype=f64, device="cuda")
-        nothing = Record()  # nothing recorded
+        nothing = Recording()  # nothing recorded
         nothing.u, nothing.v, nothing.hist = rec, rec, hist
 
         def runner(kernel, m):

@@ -533,14 +533,8 @@ def unstable_intervals(points, parameter: str) -> list:
     def close(run, after):
         first, last = run[0], run[-1]
         i0 = points.index(first)
-        start = (
-            first.value(parameter)
-            if i0 == 0
-            else 0.5 * (points[i0 - 1].value(parameter) + first.value(parameter))
-        )
-        end = (
-            last.value(parameter) if after is None else 0.5 * (last.value(parameter) + after.value(parameter))
-        )
+        start = first.value(parameter) if i0 == 0 else 0.5 * (points[i0 - 1].value(parameter) + first.value(parameter))
+        end = last.value(parameter) if after is None else 0.5 * (last.value(parameter) + after.value(parameter))
         worst = max(run, key=lambda p: p.max_modulus)
         lead = worst.instabilities[0] if worst.instabilities else None
         out.append(

@@ -10,7 +10,7 @@ import shlex
 import sys
 from pathlib import Path
 
-from ._common import PAPER_SCENES, SCENES, load_scene, run_scene
+from ._common import PAPER_SCENES, SCENES, load_scene, parse_overrides, run_scene
 from ._parallel import parse_jobs, run_parallel
 
 
@@ -88,12 +88,10 @@ def main(argv=None) -> int:
     names = [args.name] if args.command == "run" else PAPER_SCENES
     if args.command == "run" and args.name not in SCENES:
         parser.error(f"unknown scene {args.name!r}; known scenes: {', '.join(SCENES)}")
-    overrides = {}
-    for item in args.set:
-        key, sep, value = item.partition("=")
-        if not sep or not key.strip():
-            parser.error(f"--set takes KEY=VALUE, got {item!r}")
-        overrides[key.strip()] = value.strip()
+    try:
+        overrides = parse_overrides(args.set)
+    except ValueError as exc:
+        parser.error(str(exc))
     if args.command == "paper" and (overrides or args.resume):
         parser.error("--set and --resume apply to one scene: use 'run NAME'")
     command_line = getattr(args, "provenance_command", None) or " ".join(

@@ -26,7 +26,6 @@ SCENES = {
     "direct-simulation": "scenarios.direct_simulation",
     "work-precision": "scenarios.work_precision",
     "stability-limits": "scenarios.stability_limits",
-    "throughput": "scenarios.throughput",
     "breakup-statistics": "scenarios.breakup_statistics",
     "finite-size": "scenarios.finite_size",
     "stability-atlas": "scenarios.stability_atlas",
@@ -102,6 +101,17 @@ def load_scene(name: str):
     if name not in SCENES:
         raise SystemExit(f"unknown scene {name!r}; known scenes: {', '.join(SCENES)}")
     return importlib.import_module(SCENES[name])
+
+
+def parse_overrides(items) -> dict:
+    """``--set KEY=VALUE`` items as {key: value}; a ValueError names an item without ``=``."""
+    overrides = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise ValueError(f"--set takes KEY=VALUE, got {item!r}")
+        overrides[key.strip()] = value.strip()
+    return overrides
 
 
 def write_summary(out: Path, summary: dict) -> Path:
@@ -254,11 +264,13 @@ def run_scene(
     overrides: dict | None = None,
     resume: bool = False,
     command_line: str = "",
+    module=None,
 ) -> dict:
-    """Run one scene (compute, store, summary) and then its plots (which read the stored data)."""
+    """Run one scene (compute, store, summary) and then its plots (which read the stored data); ``module``:
+    the scene's module when it is not registered (``benchmarks/throughput.py``)."""
     from warpchain import resolve_device
 
-    module = load_scene(name)
+    module = module or load_scene(name)
     params = scene_parameters(module, quick, overrides)
     if resume and not getattr(module, "RESUMABLE", False):
         raise ValueError(f"scene {name!r} cannot be resumed (resumable: continuation-k, continuation-omega)")

@@ -77,7 +77,7 @@ def test_strided_rows_take_the_generic_path(method):
     f64, none = wp.float64, wp.zeros((1, 1, 1), dtype=wp.float64, device="cpu")
     params = [wp.array(inverse_mass(M), dtype=f64), wp.array(K_, dtype=f64)]
     no_base = [0, wp.zeros(1, dtype=wp.int32, device="cpu")]  # a base run (not a tangent column)
-    record = K.Record()  # nothing recorded
+    record = K.Recording()  # nothing recorded
     record.u = record.v = record.hist = none
     if method == "verlet":
         acc = wp.zeros((2, 2, p.N), dtype=f64, device="cpu")

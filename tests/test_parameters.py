@@ -3,17 +3,29 @@ defaults and the --quick variants pass them, and a value that is not allowed, ty
 the API, is one line naming the parameter, the value and what is allowed, before the scene writes anything."""
 
 import dataclasses
+import importlib.util
 import json
 import math
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
 from scenarios._common import SCENES, load_scene, run_scene, scene_parameters
 from scenarios._params import allowed_of, kind_of, show
 
-MODULES = {name: load_scene(name) for name in SCENES}
+
+def _benchmark(name: str):
+    """A benchmark built on the scene machinery (``benchmarks/NAME.py``), loaded from its file."""
+    spec = importlib.util.spec_from_file_location(name, Path(__file__).parents[1] / "benchmarks" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # a dataclass reads its module's namespace
+    spec.loader.exec_module(module)
+    return module
+
+
+MODULES = {name: load_scene(name) for name in SCENES} | {"throughput": _benchmark("throughput")}
 
 
 def _numeric(kind) -> bool:

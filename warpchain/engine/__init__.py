@@ -14,7 +14,7 @@ Modules:
   path for large batches) and ``site_kernels`` (the ``"sites"`` layout: a thread per site and a launch per
   force evaluation, for lattices longer than a block; its one kernel serves base runs and tangent columns)
   hold the kernels; ``warpchain.reference`` is their numpy oracle. The step kernels take what a run records
-  as one ``thread_kernels.Record`` and, compiled ``observed``, the observables of ``warpchain.observe`` as
+  as one ``thread_kernels.Recording`` and, compiled ``observed``, the observables of ``warpchain.observe`` as
   hooks in the same step loop (``thread_kernels.Observer``; thread and block layouts).
 
 How the state moves (measured on an H100, ``benchmarks/results/h100-2026-11-25/engine-split.json``): through pinned

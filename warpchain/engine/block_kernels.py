@@ -26,7 +26,7 @@ import functools
 import warp as wp
 
 from .thread_kernels import (
-    Record,
+    Recording,
     F64,
     Array1,
     Array2,
@@ -364,7 +364,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             kicks: coefficients,
             boundary: int,
             nsteps: int,
-            out: Record,
+            out: Recording,
             lossy: Indices,
             damp: Array3,
             ob: Observer,
@@ -580,7 +580,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             boundary: int,
             dt: F64,
             nsteps: int,
-            out: Record,
+            out: Recording,
         ):
             """``nsteps`` classical RK4 steps; block b = lattice; hist slot 4 step + stage. Compiled ``tangent``:
             block b is a tangent column along base trajectory column_base[b], f'(z) read from hist."""

@@ -196,9 +196,9 @@ class _Runner:
         self.contact.fill_(1.0e300)
 
     def record(self, every: int = 0, frames=None, stiffness: bool = False):
-        """A launch's ``thread_kernels.Record``: u and v into ``frames`` (u, v) every ``every`` steps (None: no
+        """A launch's ``thread_kernels.Recording``: u and v into ``frames`` (u, v) every ``every`` steps (None: no
         frames), f'(z) into this runner's history when ``stiffness`` (tangent runs read the history from it)."""
-        out = self.k.Record()
+        out = self.k.Recording()
         out.every, out.stiffness, out.hist = int(every), int(stiffness), self.hist
         out.u, out.v = frames if frames is not None else (self.no_record, self.no_record)
         return out

@@ -16,7 +16,7 @@ from .block_kernels import (
     site_kick,
 )
 from .thread_kernels import (
-    Record,
+    Recording,
     F64,
     Array1,
     Array3,
@@ -170,7 +170,7 @@ def site_group_kernels(threads: int, sites: int, boundary: int, min_blocks_per_s
             kicks: coefficients,
             boundary_code: int,
             nsteps: int,
-            out: Record,
+            out: Recording,
             lossy: Indices,
             damp: Array3,
         ):

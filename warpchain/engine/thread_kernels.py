@@ -53,7 +53,7 @@ BOUNDARY_PERIODIC = wp.constant(2)
 
 
 @wp.struct
-class Record:
+class Recording:
     """What a run writes besides its state, passed whole to the step kernels: u and v after every ``every``-th
     step into frames ``u``, ``v`` (frames, batch, N) (``every`` 0: none), and with ``stiffness`` set f'(z) at
     every force evaluation into ``hist`` (slots, batch, N), which tangent runs read."""
@@ -396,7 +396,7 @@ def _splitting_kernel(observed: bool):
         boundary: int,
         dt: F64,
         nsteps: int,
-        out: Record,
+        out: Recording,
         lossy: Indices,
         damp: Array3,
         ob: Observer,

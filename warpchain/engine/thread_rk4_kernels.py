@@ -7,7 +7,7 @@ from __future__ import annotations
 import warp as wp
 
 from .thread_kernels import (
-    Record,
+    Recording,
     F64,
     Array1,
     Array3,
@@ -199,7 +199,7 @@ def rk4_kernel(
     boundary: int,
     dt: F64,
     nsteps: int,
-    out: Record,
+    out: Recording,
 ):
     """``nsteps`` Runge-Kutta steps (tableau: nodes and divisor, weights) for lattice b = tid; hist slot
     4 step + stage. With ``tangent`` set, b is a tangent column along base lattice column_base[b] (the

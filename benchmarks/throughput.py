@@ -23,9 +23,9 @@ Three parts:
 Timings are kernel time (device synchronised before and after, transfers excluded; best of 3), with
 the step count sized so that a measurement takes about ``seconds`` s.
 
-Command: ``python -m scenarios run throughput [--device cuda]`` (about 2 minutes on a 2-core CPU,
-about 1 minute on an H200; ``--quick`` ~20 s). Device, CPU/GPU model and package versions are
-recorded in summary.json.
+Command: ``python benchmarks/throughput.py [--device cuda] [--out results]`` (about 2 minutes on a 2-core
+CPU, about 1 minute on an H200; ``--quick`` ~20 s), writing OUT/throughput/ (summary.json, figures) as a scene
+does. Device, CPU/GPU model and package versions are recorded in summary.json.
 Options: ``--set KEY=VALUE`` (fields of ``Parameters``).
 """
 
@@ -53,9 +53,8 @@ from warpchain.ensemble import time_steps
 from warpchain.integrators import SplittingMethod
 from warpchain.store import device_description, provenance, read_group, write_table
 
-from ._baselines import cupy_variant, cupy_verlet_runner, jax_verlet_runner
-from ._common import PAPER_K, PAPER_M, PAPER_N, Context, paper_breather, pyplot, read_summary, save_figure
-from ._params import Rule, number, param, stability_dt
+from scenarios._common import PAPER_K, PAPER_M, PAPER_N, Context, paper_breather, pyplot, read_summary, save_figure
+from scenarios._params import Rule, number, param, stability_dt
 
 #: an H100/H200-class SM: registers, resident threads, resident blocks (for the theoretical occupancy)
 CUDA_SM_REGISTERS, CUDA_SM_THREADS, CUDA_SM_BLOCKS = 65536, 2048, 32
@@ -182,6 +181,8 @@ def _ensemble(ctx, P: Parameters, params, one, gpu):
             1e9 * sec / steps,
             f", {sites} sites per thread" if sites else "",
         )
+
+    from _baselines import cupy_verlet_runner, jax_verlet_runner  # beside this script
 
     jax_run = jax_verlet_runner(PAPER_M, PAPER_K) if gpu else None
     cupy_run = cupy_verlet_runner(PAPER_M, PAPER_K) if gpu else None
@@ -540,7 +541,7 @@ def run(ctx: Context) -> dict:
             "rows": end_to_end,
         },
         "kernel_properties": props,
-        "hand_cuda_variant": cupy_variant() if gpu else None,
+        "hand_cuda_variant": _hand_variant() if gpu else None,
     }
 
 
@@ -623,3 +624,41 @@ def _plot_simulate(cx, out, summary) -> None:
     cx.set_title(title + "\non the device: a DeviceState x0 (keep_on_device)", fontsize=9)
     cx.set_xlim(min(d["batch"]) / 1.6, max(d["batch"]) * 1.6)
     cx.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2)  # below: clear of the curves
+
+
+def _hand_variant():
+    from _baselines import cupy_variant  # beside this script
+
+    return cupy_variant()
+
+
+def main(argv=None) -> int:
+    import argparse
+    import sys
+    from pathlib import Path
+
+    from scenarios._common import parse_overrides, run_scene
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", default="results", type=Path, help="output root (default: results/)")
+    parser.add_argument("--device", default=None, help="cpu or cuda (default: cuda when Warp sees a GPU)")
+    parser.add_argument("--quick", action="store_true", help="reduced variant for smoke tests")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a parameter")
+    args = parser.parse_args(argv)
+    try:
+        overrides = parse_overrides(args.set)
+        line = " ".join(["python benchmarks/throughput.py", *(argv if argv is not None else sys.argv[1:])])
+        run_scene(
+            "throughput", args.out, args.device, args.quick, overrides, command_line=line, module=sys.modules[__name__]
+        )
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    import logging
+
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s", datefmt="%H:%M:%S")
+    raise SystemExit(main())
