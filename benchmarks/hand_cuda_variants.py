@@ -1,4 +1,4 @@
-"""Variants of the hand-written CUDA Verlet kernel (``scenarios/_baselines.py``, CuPy), measured in one
+"""Variants of the hand-written CUDA Verlet kernel (``benchmarks/_baselines.py``, CuPy), measured in one
 run so that the throughput scene's baseline is the strongest of them: lattices per block,
 ``__launch_bounds__`` minimum blocks per SM, threads per lattice and idle threads held at zero, at 1,
 805, 4096 and 32768 lattices (N = 201, float64; kernel time by CUDA events, best of 3, with the
@@ -10,7 +10,7 @@ Command (GPU, CuPy importable): ``python benchmarks/hand_cuda_variants.py``
 import numpy as np
 
 
-from scenarios._baselines import cupy_verlet_runner
+from _baselines import cupy_verlet_runner  # beside this script
 from warpchain import ChainParams, lowest_optical_mode, reference
 
 

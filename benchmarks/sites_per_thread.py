@@ -1,6 +1,6 @@
 """Sites per thread: the block splitting kernels with one site per thread (``block_kernels``) against
 ``site_group_kernels`` with 2, 3, 4 and 7 consecutive sites per thread, and the hand-written CUDA kernel
-in the same two shapes (``scenarios/_baselines.py``: ``verlet`` and ``verlet_sites``), in one process,
+in the same two shapes (``benchmarks/_baselines.py``: ``verlet`` and ``verlet_sites``), in one process,
 velocity Verlet, float64, N = 201, fixed ends, at 1, 64, 805, 4096 and 32768 lattices.
 
 Warp kernels are timed by ``time_steps`` (host clock around one launch, device synchronised, best of 3);
@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 
-from scenarios._baselines import cupy_verlet_runner
+from _baselines import cupy_verlet_runner  # beside this script
 from warpchain import Guard, Placement
 from warpchain import ChainParams, lowest_optical_mode, reference
 from warpchain.engine import tuning

@@ -1,6 +1,6 @@
 """Does the per-step cost move with the state over a long run? One lattice (the throughput scene's state:
 the lowest optical mode at amplitude 0.3), velocity Verlet, dt = 0.1: Warp's kernel (``time_steps``) and
-the hand-written CUDA kernel (``scenarios/_baselines.py``) each timed on consecutive segments of
+the hand-written CUDA kernel (``benchmarks/_baselines.py``) each timed on consecutive segments of
 ``--steps`` steps, from the start and from the states the hand kernel reaches after 1, 2 and 4 segments.
 Why: the throughput scene used to time the hand kernel on its second segment and Warp's best of its first
 three; this shows whether that choice alone moves the ratio.
@@ -13,7 +13,7 @@ import argparse
 import numpy as np
 
 
-from scenarios._baselines import cupy_verlet_runner
+from _baselines import cupy_verlet_runner  # beside this script
 from warpchain import ChainParams, lowest_optical_mode
 from warpchain.ensemble import time_steps
 

@@ -193,8 +193,8 @@ class NaturalParameter(_JacobianMemory):
 
 class ParameterAxis:
     """What a branch is continued in, for both problems (``NaturalParameter`` steps along it, ``PseudoArclength``
-    solves for its coordinate): ``name``, the ``BranchPoint`` field it is (``"K"`` or ``"omega"``, also the
-    events' ``parameter``); ``value(point)``; the coordinate c the steps are taken in (``of(value)``,
+    solves for its coordinate): ``name``, the key of ``BranchPoint.parameters`` it is (``"K"`` or ``"omega"``,
+    also the events' ``parameter``); ``value(point)``; the coordinate c the steps are taken in (``of(value)``,
     ``value_of(c)``, ``coordinate(point)``); the chain and frequency at a value (``at``) or at a coordinate
     (``chain``, which refuses one the corrector should not have reached); dR/dc (``derivative``, for the
     arclength corrector's bordered Jacobian). A new axis (another parameter of the chain) is a subclass."""

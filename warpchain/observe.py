@@ -331,7 +331,7 @@ def observe(
         IntegrationError: non-finite state or energy error above the bound (names method, dt, limit).
     """
     from .engine.devices import _warp
-    from .engine.runner import _Runner
+    from .engine.runner import _pooled_runner, _release_runner
     from .engine.thread_kernels import Observer
 
     wp = _warp()
@@ -359,8 +359,9 @@ def observe(
     limit = check_step(meth, params, dt_used, Mb, Kb, False)
     lag = min(observation.lag_frames, n_frames)
 
-    # the engine's runner (state, parameters, losses, launches); the observables in an ``Observer``
-    runner = _Runner(meth, params, x0, Mb, Kb, device, layout=layout)
+    # the engine's runner (state, parameters, losses, launches; on a GPU one kept from an earlier call of this
+    # shape, its buffers reused); the observables in an ``Observer``
+    runner = _pooled_runner(meth, params, x0, Mb, Kb, device, layout)
     runner.set_damping(damping, dt_used)
     f64 = wp.float64
     shape = (batch, params.N)
@@ -434,16 +435,18 @@ def observe(
                 )
             if bar is not None:
                 bar.update(b - a)
+        envelope, x = kept["envelope"].numpy().copy(), runner.x.numpy().copy()
     finally:
         if bar is not None:
             bar.close()
+        _release_runner(runner)  # back to the pool (a GPU's), its buffers for the next call of this shape
     return ObservedRun(
         t=np.arange(n_frames + 1) * fe * dt_used,
         values=values,
-        envelope=kept["envelope"].numpy().copy(),
+        envelope=envelope,
         envelope_lag=env_lag,
         t_lag=(n_frames - lag) * fe * dt_used,
-        x=runner.x.numpy().copy(),
+        x=x,
         energy_initial=E0,
         method=meth.name,
         dt=dt_used,

@@ -323,12 +323,12 @@ def _launch_key(wp, kernel, dim, block_dim, inputs) -> tuple | None:
             key.append((arg.ptr, arg.shape, arg.strides, arg.dtype))
         elif isinstance(arg, (bool, int, float)):
             key.append((type(arg), arg))
+        elif hasattr(arg, "_ctype"):  # a Warp struct (``Recording``, ``Observer``): its arrays' pointers, values
+            key.append((type(arg), bytes(arg._ctype)))
         elif hasattr(arg, "value"):  # a Warp scalar (wp.float64(dt))
             key.append((type(arg), arg.value))
         elif hasattr(arg, "_length_"):  # a Warp vector (coefficients, tableau)
             key.append((type(arg), bytes(arg)))  # its values' bytes
-        elif hasattr(arg, "_ctype"):  # a Warp struct (``thread_kernels.Observer``): its arrays' pointers, values
-            key.append((type(arg), bytes(arg._ctype)))
         else:
             return None
     return tuple(key)

@@ -174,8 +174,8 @@ def site_group_kernels(threads: int, sites: int, boundary: int, min_blocks_per_s
             lossy: Indices,
             damp: Array3,
         ):
-            """``block_kernels``' splitting kernel (same arguments; ``boundary_code`` is compiled in and
-            unused) with ``sites`` sites per thread: lattice b, thread t."""
+            """``block_kernels``' splitting kernel (same arguments but no ``Observer``; ``boundary_code``
+            is compiled in and unused) with ``sites`` sites per thread: lattice b, thread t."""
             b, t = wp.tid()
             save_every = out.every  # the record's parts, as locals
             rec_u = out.u

@@ -11,7 +11,8 @@ lattice's rows are contiguous (always, as ``ensemble`` allocates them): each sta
 sites (``fused_stage``, ``rk4_fused_stage``) through 1-D row views (``row``), whose compile-time unit
 stride lets the CPU compiler vectorise the pass. Every value is computed by the same operations in the
 same order as the per-pass helpers below, which remain the path for strided arrays and, in the splitting
-kernels, for lattices with losses and N = 1.
+kernels, for lattices with losses, N = 1 and the observed kernel (``observed_splitting_kernel``: the hooks of
+``warpchain.observe`` after each kick and step).
 
 Accelerations multiply by a precomputed 1/M (``inv_mass`` arrays, rounded once on the host, as the numpy
 reference does): no division in any time loop.
@@ -550,10 +551,11 @@ def guard_kernel(
 
 @wp.struct
 class Observer:
-    """What an ``observed`` splitting kernel reduces, and where (``warpchain.observe``; the other kernels
-    take an empty one). Per lattice: ``mass`` (M), ``spot`` (half-width in sites), the running z extremes
-    ``z_low``/``z_high`` (batch, N), the energy dissipated so far ``lost`` (batch, 1; per site in the block
-    layout), the last frame's ``envelope`` (batch, N), and ``values`` (frames, batch, 7): the observables."""
+    """What an ``observed`` splitting kernel reduces, and where (``warpchain.observe``; the unobserved thread
+    and block splitting kernels take an empty one). Per lattice: ``mass`` (M), ``spot`` (half-width in sites),
+    the running z extremes ``z_low``/``z_high`` (batch, N), the energy dissipated so far ``lost`` (batch, 1;
+    per site in the block layout), the last frame's ``envelope`` (batch, N), and ``values`` (frames, batch, 7):
+    the observables."""
 
     first_step: int
     frame_every: int
