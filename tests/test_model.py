@@ -82,3 +82,18 @@ def test_contact_law_and_rest_energy():
     assert contact_force(-1.5) == pytest.approx(-2.0 / 3.0)  # contact lost: only the preload acts
     assert contact_potential(0.0) == pytest.approx(0.0, abs=1e-16)
     assert energy(ChainParams(30, 160, 5), np.zeros((4, 5)))[0] == pytest.approx(0.0, abs=1e-15)
+
+
+@pytest.mark.parametrize("boundary", ["fixed", "free", "periodic"])
+@pytest.mark.parametrize("n", [1, 2, 7])
+def test_site_energies_sum_to_the_energy(boundary, n):
+    """``site_energies`` (observe's oracle) holds the wall bonds of ``energy`` site by site, for every boundary."""
+    from warpchain.model import BOUNDARIES, site_energies
+
+    assert boundary in BOUNDARIES
+    p = ChainParams(3.0, 4.0, n, boundary)
+    x = np.random.default_rng(n).normal(scale=0.3, size=(2, 4, n))
+    M, K = np.array([3.0, 5.0]), np.array([4.0, 0.5])
+    e = site_energies(p, x, M, K)
+    assert e.shape == (2, n)
+    np.testing.assert_allclose(e.sum(axis=-1), energy(p, x, M, K), rtol=1e-13, atol=1e-15)

@@ -45,7 +45,7 @@ from .losses import Damping, as_damping
 from .model import (
     ChainParams,
     as_batch,
-    contact_potential,
+    site_energies,
     per_lattice_parameters,
     real_number,
     whole_number,
@@ -158,25 +158,6 @@ def peak_mask(env: np.ndarray, threshold: float, radius: int, contrast: float = 
         np.minimum(right_min[..., :-i], env[..., i:], out=right_min[..., :-i])
     mask = (env > threshold) & (env > left_max) & (env >= right_max)
     return mask & (left_min <= contrast * env) & (right_min <= contrast * env)
-
-
-def site_energies(params: ChainParams, x, M, K) -> np.ndarray:
-    """e_j of ``kernels.site_energy`` for a batch (batch, 4, N): kinetic energy, the bond to the right
-    (wall bonds at fixed ends), the contact energy. Their sum is ``model.energy``."""
-    x = np.asarray(x, dtype=np.float64)
-    batch, _, n = x.shape
-    M = np.broadcast_to(np.asarray(M, dtype=np.float64), (batch,))[:, None]
-    K = np.broadcast_to(np.asarray(K, dtype=np.float64), (batch,))[:, None]
-    u, v, pu, pv = x[:, 0], x[:, 1], x[:, 2], x[:, 3]
-    bonds = np.zeros_like(u)
-    bonds[:, :-1] = (u[:, 1:] - u[:, :-1]) ** 2
-    if params.boundary == "periodic" and n > 1:
-        bonds[:, -1] = (u[:, 0] - u[:, -1]) ** 2
-    elif params.boundary == "fixed":
-        bonds[:, -1] = u[:, -1] ** 2
-        bonds[:, 0] += u[:, 0] ** 2
-    kinetic = 0.5 * M * (pu * pu) + 0.5 * (pv * pv)
-    return kinetic + 0.5 * K * bonds + contact_potential(u - v)
 
 
 def frame_observables(

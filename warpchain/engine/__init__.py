@@ -33,13 +33,13 @@ Adding a splitting method (a new family of coefficients), in 2 files:
 Adding a boundary that changes the wall values (like fixed or free ends), in 3 files:
 
 1. ``warpchain/model.py``: its name in ``BOUNDARIES``, its walls in ``laplacian`` and its wall bonds in
-   ``energy`` (the numpy reference and everything on the host use these).
+   ``energy`` and ``site_energies`` (the numpy reference, observe's oracle and everything on the host use
+   these).
 2. ``warpchain/engine/thread_kernels.py``: ``wall_values`` (the thread and block kernels' walls) and the wall
    bonds of ``site_energy`` (the guard's and observe's energies).
 3. ``warpchain/engine/site_group_kernels.py``: the compiled end cases of ``ends`` and ``neighbour_values``.
 
-A boundary that wraps like the ring also needs the neighbour indices of ``block_kernels.site_neighbours``, and
-``observe.site_energies`` (observe's numpy oracle) repeats the wall bonds of ``model.energy`` site by site.
+A boundary that wraps like the ring also needs the neighbour indices of ``block_kernels.site_neighbours``.
 The sites layout takes its walls from ``thread_kernels.neighbours_at`` (``wall_values``): nothing to add there.
 The tests over ``BOUNDARIES`` (``tests/test_gpu_engine.py``, ``tests/test_integrators.py``,
 ``tests/test_site_kernels.py``) check every layout against the reference bit for bit.
