@@ -42,6 +42,8 @@ from .thread_kernels import (
     finite_state,
     kick_loss,
     Observer,
+    peak_test,
+    peak_verdict,
     site_acceleration,
     site_energy,
     site_tangent_acceleration,
@@ -321,24 +323,16 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
         wp.tile_assign(buf, wp.tile(env), offset=(offset,))
         peak = ZERO
         if active and env > ob.threshold:
-            peak = ONE
-            left_low = env
-            right_low = env
+            test = wp.vec3d(ONE, env, env)
             for i in range(1, ob.radius + 1):
                 left = ZERO  # past the chain's end
                 right = ZERO
                 if j - i >= 0:
                     left = buf[offset + j - i]
-                    if left >= env:
-                        peak = ZERO
                 if j + i < n:
                     right = buf[offset + j + i]
-                    if right > env:
-                        peak = ZERO
-                left_low = wp.min(left_low, left)
-                right_low = wp.min(right_low, right)
-            if left_low > ob.contrast * env or right_low > ob.contrast * env:
-                peak = ZERO
+                test = peak_test(env, left, right, test)
+            peak = peak_verdict(env, test, ob.contrast)
         lost_total = wp.tile_sum(wp.tile(mine))
         peaks = wp.tile_sum(wp.tile(peak))
         total = wp.tile_sum(wp.tile(e))

@@ -572,6 +572,26 @@ class Observer:
 
 
 @wp.func
+def peak_test(env: F64, left: F64, right: F64, state: wp.vec3d) -> wp.vec3d:
+    """One distance of the localized-peak test (``warpchain.observe``) of a site with envelope ``env`` > threshold
+    >= 0, whose neighbours at that distance have envelopes ``left`` and ``right`` (0 past a chain end, which never
+    beats env): ``state`` (1 while still the largest, the lowest value on the left, on the right) after it."""
+    peak = state[0]
+    if left >= env or right > env:  # the largest within the radius: strictly on the left, at least on the right
+        peak = ZERO
+    return wp.vec3d(peak, wp.min(state[1], left), wp.min(state[2], right))
+
+
+@wp.func
+def peak_verdict(env: F64, state: wp.vec3d, contrast: F64) -> F64:
+    """1 for a localized peak after every distance's ``peak_test`` (started from (1, env, env)): the largest,
+    and the envelope falls to ``contrast`` * env or below on both sides; else 0."""
+    if state[1] > contrast * env or state[2] > contrast * env:
+        return ZERO
+    return state[0]
+
+
+@wp.func
 def store_observables(
     ob: Observer, r: int, b: int, peaks: F64, total: F64, squares: F64, inside: F64, top: F64, low: F64, dissipated: F64
 ):
@@ -622,25 +642,16 @@ def observe_frame(
         top = wp.max(top, env)
         low = wp.min(low, ONE + ob.z_low[b, j])
         if env > ob.threshold:
-            peak = ONE
-            left_low = env
-            right_low = env
+            test = wp.vec3d(ONE, env, env)
             for i in range(1, ob.radius + 1):
                 left = ZERO  # past the chain's end
                 right = ZERO
                 if j - i >= 0:
                     left = ob.envelope[b, j - i]
-                    if left >= env:
-                        peak = ZERO
                 if j + i < n:
                     right = ob.envelope[b, j + i]
-                    if right > env:
-                        peak = ZERO
-                left_low = wp.min(left_low, left)
-                right_low = wp.min(right_low, right)
-            if left_low > ob.contrast * env or right_low > ob.contrast * env:
-                peak = ZERO
-            peaks = peaks + peak
+                test = peak_test(env, left, right, test)
+            peaks = peaks + peak_verdict(env, test, ob.contrast)
     for j in range(n):
         ob.z_low[b, j] = NO_CONTACT
         ob.z_high[b, j] = -NO_CONTACT
