@@ -634,6 +634,7 @@ def _hand_variant():
 
 def main(argv=None) -> int:
     import argparse
+    import shlex
     import sys
     from pathlib import Path
 
@@ -647,7 +648,8 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     try:
         overrides = parse_overrides(args.set)
-        line = " ".join(["python benchmarks/throughput.py", *(argv if argv is not None else sys.argv[1:])])
+        words = argv if argv is not None else sys.argv[1:]
+        line = " ".join(["python benchmarks/throughput.py", *(shlex.quote(w) for w in words)])  # as scenarios does
         run_scene(
             "throughput", args.out, args.device, args.quick, overrides, command_line=line, module=sys.modules[__name__]
         )

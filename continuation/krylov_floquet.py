@@ -352,7 +352,6 @@ def _ends(ops: list, width: float, ks: list, processes: bool) -> list:
         parts = [_solve(op, part, width, k) for op, part, k in tasks]
     else:
         workers = _Workers.shared()
-
         settings = {name: globals()[name] for name in _SETTINGS}  # as set in this process, not as in the file
 
         def call(task):
