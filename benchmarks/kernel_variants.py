@@ -17,7 +17,7 @@ import warp as wp
 
 from warpchain import ChainParams, lowest_optical_mode
 from warpchain.engine import block_kernels as bk
-from warpchain.engine.thread_kernels import Observer, Recording
+from warpchain.engine.thread_kernels import Lattice, Observer, Recording
 from warpchain.engine.block_kernels import (
     load_site,
     neighbour_or_wall,
@@ -103,8 +103,11 @@ def main():
         cpl = wp.array(np.full(batch, 160.0), dtype=f64, device="cuda")
         rec = wp.zeros((1, 1, 1), dtype=f64, device="cuda")
         hist = wp.zeros((1, 1, 1), dtype=f64, device="cuda")
-        lossy = wp.zeros(batch, dtype=wp.int32, device="cuda")  # no losses (the kernels' damping arguments)
-        damp = wp.zeros((1, 1, 8), dtype=f64, device="cuda")
+        lattice = Lattice()  # M = 30, K = 160, fixed ends, no losses
+        lattice.mass = wp.array(np.full(batch, 30.0), dtype=f64, device="cuda")
+        lattice.inv_mass, lattice.coupling, lattice.boundary = mass, cpl, 0
+        lattice.lossy = wp.zeros(batch, dtype=wp.int32, device="cuda")
+        lattice.damp = wp.zeros((1, 1, 8), dtype=f64, device="cuda")
         nothing = Recording()  # nothing recorded
         nothing.u, nothing.v, nothing.hist = rec, rec, hist
 
@@ -116,7 +119,7 @@ def main():
                 dim=(batch, BLOCK),
                 block_dim=BLOCK,
                 device="cuda",
-                inputs=[x, mass, cpl, dr, ki, 0, n, nothing, lossy, damp, Observer()],
+                inputs=[x, lattice, dr, ki, n, nothing, Observer()],
             )
 
         def run_verlet(n):

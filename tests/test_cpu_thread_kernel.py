@@ -75,7 +75,9 @@ def test_strided_rows_take_the_generic_path(method):
     M, K_ = np.array([3.0, 5.0]), np.array([4.0, 1.0])
     owner, x = _strided(x0)
     f64, none = wp.float64, wp.zeros((1, 1, 1), dtype=wp.float64, device="cpu")
-    params = [wp.array(inverse_mass(M), dtype=f64), wp.array(K_, dtype=f64)]
+    lattice = K.Lattice()  # the chains' parameters, no losses
+    lattice.mass, lattice.inv_mass, lattice.coupling = (wp.array(a, dtype=f64) for a in (M, inverse_mass(M), K_))
+    lattice.lossy, lattice.damp, lattice.boundary = wp.zeros(2, dtype=wp.int32), none, K.BOUNDARY_PERIODIC
     no_base = [0, wp.zeros(1, dtype=wp.int32, device="cpu")]  # a base run (not a tangent column)
     record = K.Recording()  # nothing recorded
     record.u = record.v = record.hist = none
@@ -85,16 +87,16 @@ def test_strided_rows_take_the_generic_path(method):
             x,
             acc,
             *no_base,
-            *params,
+            lattice,
             wp.array(np.array([1.0]), dtype=f64),
             wp.array(np.array([0.5, 0.5]), dtype=f64),
         ]
-        inputs += [K.BOUNDARY_PERIODIC, f64(0.05), 40, record, wp.zeros(2, dtype=wp.int32), none, K.Observer()]
+        inputs += [f64(0.05), 40, record, K.Observer()]
         wp.launch(K.splitting_kernel, dim=2, inputs=inputs, device="cpu")
     else:
         scratch = [wp.zeros((2, 4, p.N), dtype=f64, device="cpu") for _ in range(3)]
         tableau = [wp.vec4d(0.5, 0.5, 1.0, 6.0), wp.vec4d(1.0, 2.0, 2.0, 1.0)]
-        inputs = [x, *scratch, *no_base, *params, *tableau, K.BOUNDARY_PERIODIC, f64(0.05), 40, record]
+        inputs = [x, *scratch, *no_base, lattice, *tableau, f64(0.05), 40, record]
         wp.launch(R.rk4_kernel, dim=2, inputs=inputs, device="cpu")
     ref = reference.integrate(method, p, x0, 0.05, 40, M=M, K=K_)["x"]
     assert np.array_equal(owner.numpy()[..., ::2], ref)

@@ -348,7 +348,6 @@ def observe(
     shape = (batch, params.N)
     spot = np.broadcast_to(np.asarray(observation.spot, dtype=np.float64), (batch,))
     kept = {
-        "mass": runner.mass,
         "spot": wp.array(spot, dtype=f64, device=device),
         "z_low": wp.empty(shape, dtype=f64, device=device),  # the tracked z extremes (set at frame 0)
         "z_high": wp.empty(shape, dtype=f64, device=device),

@@ -26,6 +26,7 @@ import functools
 import warp as wp
 
 from .thread_kernels import (
+    Lattice,
     Recording,
     F64,
     Array1,
@@ -297,8 +298,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
         b: int,
         j: int,
         n: int,
-        boundary: int,
-        coupling: F64,
+        lat: Lattice,
         ob: Observer,
         r: int,
         lost_site: F64,
@@ -313,7 +313,9 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
         mine = ZERO  # idle threads run a fake dynamics (never stored): they dissipate nothing real
         if active:
             env = wp.max(z_range[1], -z_range[0])
-            e = site_energy(state[0], state[1], state[2], state[3], right_u, j, n, boundary, ob.mass[b], coupling)
+            e = site_energy(
+                state[0], state[1], state[2], state[3], right_u, j, n, lat.boundary, lat.mass[b], lat.coupling[b]
+            )
             if wp.abs(wp.float64(j - n / 2)) <= ob.spot[b]:
                 inside = e
             low = ONE + z_range[0]
@@ -352,29 +354,23 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
         @wp.kernel(**options)
         def splitting(
             x: Array3,
-            inv_mass: Array1,
-            coupling: Array1,
+            lat: Lattice,
             drifts: coefficients,
             kicks: coefficients,
-            boundary: int,
             nsteps: int,
             out: Recording,
-            lossy: Indices,
-            damp: Array3,
             ob: Observer,
         ):
             """``nsteps`` steps of a kick-drift splitting method; lattice b, thread j = site. hist slot 0
             holds f'(z) at the start, slot step*s + k + 1 after drift k of ``step``. Compiled ``damped``:
-            lattices with ``lossy[b]`` set take the damped kicks of ``damp`` (batch, stages + 1, 12: E, F,
+            lattices with ``lat.lossy[b]`` set take the damped kicks of ``lat.damp`` (batch, stages + 1, 12: E, F,
             and H for the energy dissipated). Compiled ``observed`` (and ``damped``): the observables of ``ob``
             (``warpchain.observe``), each site's z extremes and dissipated energy in registers.
             The step's stiffnesses are held in registers and stored after its last stage: a barrier waits for
             the stores issued before it, so a store at every force evaluation put that wait between every two."""
             b, j = wp.tid()
-            save_every = out.every  # the record's parts, as locals
-            rec_u = out.u
-            rec_v = out.v
-            hist = out.hist
+            boundary = lat.boundary
+            damp = lat.damp
             n = x.shape[2]
             nbr = site_neighbours(j, n, boundary)
             active = j < n
@@ -384,24 +380,24 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             v = start[1]
             pu = start[2]
             pv = start[3]
-            m = inv_mass[b_read]
-            k = coupling[b_read]
+            m = lat.inv_mass[b_read]
+            k = lat.coupling[b_read]
             loss = int(0)
             if wp.static(damped):
-                loss = lossy[b_read]
+                loss = lat.lossy[b_read]
             buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
             parity = int(0)
             nb = exchange(buf, u, parity, nbr, boundary)
             a = site_acceleration(u, v, nb[0], nb[1], m, k)
             if wp.static(record):
                 if active:
-                    hist[0, b, j] = contact_stiffness(u - v)
+                    out.hist[0, b, j] = contact_stiffness(u - v)
             lost_site = ZERO  # observed: the energy this site has dissipated (exact over each damped kick)
             z_range = wp.vec2d(u - v, u - v)  # observed: the site's z extremes since the last frame
             if wp.static(observed):
                 if ob.first_step == 0:  # frame 0: the start (envelope |z|)
                     parity = 1 - parity
-                    observe_frame(buf, parity, start, nb[1], z_range, active, b, j, n, boundary, k, ob, 0, ZERO)
+                    observe_frame(buf, parity, start, nb[1], z_range, active, b, j, n, lat, ob, 0, ZERO)
                     z_range = wp.vec2d(NO_CONTACT, -NO_CONTACT)
                 elif active:
                     z_range = wp.vec2d(ob.z_low[b, j], ob.z_high[b, j])
@@ -412,7 +408,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
                 if wp.static(damped):
                     if wp.static(observed):
                         if loss != 0:
-                            lost_site = lost_site + kick_loss(pu, pv, a[0], a[1], damp, b_read, 0, ob.mass[b])
+                            lost_site = lost_site + kick_loss(pu, pv, a[0], a[1], damp, b_read, 0, lat.mass[b])
                     w = site_kick(pu, pv, a, h, loss, damp, b_read, 0)
                     pu = w[0]
                     pv = w[1]
@@ -432,7 +428,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
                     if wp.static(damped):
                         if wp.static(observed):
                             if loss != 0:
-                                lost_site = lost_site + kick_loss(pu, pv, a[0], a[1], damp, b_read, s + 1, ob.mass[b])
+                                lost_site = lost_site + kick_loss(pu, pv, a[0], a[1], damp, b_read, s + 1, lat.mass[b])
                         w = site_kick(pu, pv, a, h, loss, damp, b_read, s + 1)
                         pu = w[0]
                         pv = w[1]
@@ -442,12 +438,12 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
                 if wp.static(record):
                     if active:
                         for s in range(wp.static(stages)):
-                            hist[step * wp.static(stages) + s + 1, b, j] = held[s]
+                            out.hist[step * wp.static(stages) + s + 1, b, j] = held[s]
                 if wp.static(save):
-                    if active and (step + 1) % save_every == 0:
-                        r = (step + 1) / save_every - 1
-                        rec_u[r, b, j] = u
-                        rec_v[r, b, j] = v
+                    if active and (step + 1) % out.every == 0:
+                        r = (step + 1) / out.every - 1
+                        out.u[r, b, j] = u
+                        out.v[r, b, j] = v
                 if wp.static(observed):
                     z_range = wp.vec2d(wp.min(z_range[0], u - v), wp.max(z_range[1], u - v))
                     done = ob.first_step + step + 1
@@ -456,7 +452,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
                         state = wp.vec4d(u, v, pu, pv)
                         r = done / ob.frame_every
                         lost = lost_site
-                        observe_frame(buf, parity, state, nb[1], z_range, active, b, j, n, boundary, k, ob, r, lost)
+                        observe_frame(buf, parity, state, nb[1], z_range, active, b, j, n, lat, ob, r, lost)
                         z_range = wp.vec2d(NO_CONTACT, -NO_CONTACT)
             store_site(x, b, j, active, wp.vec4d(u, v, pu, pv))
             if wp.static(observed):
@@ -476,11 +472,9 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
         def splitting_tangent(
             dx: Array3,
             column_base: Indices,
-            inv_mass: Array1,
-            coupling: Array1,
+            lat: Lattice,
             drifts: coefficients,
             kicks: coefficients,
-            boundary: int,
             nsteps: int,
             hist: Array3,
         ):
@@ -488,6 +482,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             column_base[c]: block g, thread j = site; a thread carries its site of every column of its block
             (independent chains: more work in flight per barrier and per history entry)."""
             g, j = wp.tid()
+            boundary = lat.boundary
             n = dx.shape[2]
             ncols = dx.shape[0]
             last = hist.shape[0] - 1
@@ -504,8 +499,8 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
                 c = g * wp.static(columns) + q
                 b = column_base[wp.min(c, ncols - 1)]  # a column past the end (odd count) carries zeros
                 base[q] = b
-                m[q] = inv_mass[b]
-                k[q] = coupling[b]
+                m[q] = lat.inv_mass[b]
+                k[q] = lat.coupling[b]
                 start = load_site(dx, c, j, active and c < ncols)
                 du[q] = start[0]
                 dv[q] = start[1]
@@ -567,11 +562,9 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
         def rk4(
             x: Array3,
             column_base: Indices,
-            inv_mass: Array1,
-            coupling: Array1,
+            lat: Lattice,
             tableau: wp.vec4d,
             weights: wp.vec4d,
-            boundary: int,
             dt: F64,
             nsteps: int,
             out: Recording,
@@ -579,11 +572,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             """``nsteps`` classical RK4 steps; block b = lattice; hist slot 4 step + stage. Compiled ``tangent``:
             block b is a tangent column along base trajectory column_base[b], f'(z) read from hist."""
             b, j = wp.tid()
-            save_every = out.every  # the record's parts, as locals
-            rec_u = out.u
-            rec_v = out.v
-            record_stiffness = out.stiffness
-            hist = out.hist
+            boundary = lat.boundary
             n = x.shape[2]
             active = j < n
             base = b
@@ -591,8 +580,8 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
                 base = column_base[b]
             jj = wp.min(j, n - 1)  # idle threads read a valid (unused) history entry
             state = load_site(x, b, j, active)  # (u, v, u', v') of site j
-            m = inv_mass[base]
-            k = coupling[base]
+            m = lat.inv_mass[base]
+            k = lat.coupling[base]
             nbr = site_neighbours(j, n, boundary)
             buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
             parity = int(0)
@@ -603,39 +592,29 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
                     parity = 1 - parity
                     nb = exchange(buf, y[0], parity, nbr, boundary)
                     if wp.static(tangent):
-                        s = hist[4 * step + stage, base, jj]
+                        s = out.hist[4 * step + stage, base, jj]
                         a = site_tangent_acceleration(y[0], y[1], nb[0], nb[1], m, k, s)
                     else:
                         a = site_acceleration(y[0], y[1], nb[0], nb[1], m, k)
-                        if record_stiffness != 0 and active:
-                            hist[4 * step + stage, b, j] = contact_stiffness(y[0] - y[1])
+                        if out.stiffness != 0 and active:
+                            out.hist[4 * step + stage, b, j] = contact_stiffness(y[0] - y[1])
                     slope = wp.vec4d(y[2], y[3], a[0], a[1])
                     total = rk4_accumulate(stage, total, slope, weights)
                     if stage < 3:
                         y = rk4_stage_state(stage, state, slope, dt, tableau)
                 state = state + (dt / tableau[3]) * total
                 if wp.static(not tangent):
-                    if save_every > 0 and active:
-                        if (step + 1) % save_every == 0:
-                            r = (step + 1) / save_every - 1
-                            rec_u[r, b, j] = state[0]
-                            rec_v[r, b, j] = state[1]
+                    if out.every > 0 and active:
+                        if (step + 1) % out.every == 0:
+                            r = (step + 1) / out.every - 1
+                            out.u[r, b, j] = state[0]
+                            out.v[r, b, j] = state[1]
             store_site(x, b, j, active, state)
 
         return rk4
 
     @wp.kernel(**options)
-    def guard(
-        x: Array3,
-        mass: Array1,
-        coupling: Array1,
-        boundary: int,
-        rec_u: Array3,
-        rec_v: Array3,
-        n_rec: int,
-        contact: Array1,
-        out: Array2,
-    ):
+    def guard(x: Array3, lat: Lattice, rec: Recording, n_rec: int, contact: Array1, out: Array2):
         """``kernels.guard_kernel`` with a block per lattice (coalesced reads, block reductions); a lattice
         longer than the block (the ``"sites"`` layout) has each thread take sites j, j + block, ..."""
         b, j = wp.tid()
@@ -647,11 +626,13 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
         while site < n:
             state = load_site(x, b, site, True)
             right = x[b, 0, (site + 1) % n]
-            e = e + site_energy(state[0], state[1], state[2], state[3], right, site, n, boundary, mass[b], coupling[b])
+            e = e + site_energy(
+                state[0], state[1], state[2], state[3], right, site, n, lat.boundary, lat.mass[b], lat.coupling[b]
+            )
             finite = wp.min(finite, finite_state(state[0], state[1], state[2], state[3]))
             low = wp.min(low, (ONE + state[0]) - state[1])
             for r in range(n_rec):
-                low = wp.min(low, (ONE + rec_u[r, b, site]) - rec_v[r, b, site])
+                low = wp.min(low, (ONE + rec.u[r, b, site]) - rec.v[r, b, site])
             site += wp.static(threads)
         total = wp.tile_sum(wp.tile(e))
         all_finite = wp.tile_min(wp.tile(finite))

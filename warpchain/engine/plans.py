@@ -94,8 +94,8 @@ class _BlockSplitting(_Plan):
 
     def step(self, lo, hi, dt, nsteps, save_every, frames, record):
         r = self.r
-        inputs = [*_parts(lo, hi, r.x, r.inv_mass, r.coupling), *self.coefficients(dt), r.boundary]
-        inputs += [int(nsteps), r.record(save_every, frames, record), *r.losses(lo, hi)]
+        inputs = [_part(r.x, lo, hi), r.lattice(lo, hi), *self.coefficients(dt), int(nsteps)]
+        inputs.append(r.record(save_every, frames, record))
         from . import block_kernels, site_group_kernels
 
         stages = r.method.stages
@@ -117,8 +117,7 @@ class _BlockSplitting(_Plan):
         r = self.r
         from . import block_kernels
 
-        inputs = [*_parts(lo, hi, r.x, r.inv_mass, r.coupling), *self.coefficients(dt), r.boundary]
-        inputs += [int(nsteps), r.record(), *r.losses(lo, hi), observer]
+        inputs = [_part(r.x, lo, hi), r.lattice(lo, hi), *self.coefficients(dt), int(nsteps), r.record(), observer]
         kernel = block_kernels.block_kernels(r.block, 0).splitting(r.method.stages, damped=True, observed=True)
         r.launch_kernel(kernel, (hi - lo, r.block), inputs, r.block)
 
@@ -126,8 +125,7 @@ class _BlockSplitting(_Plan):
         r = self.r
         from . import block_kernels
 
-        inputs = [*_parts(lo, hi, dx, column_base), r.inv_mass, r.coupling, *self.coefficients(dt), r.boundary]
-        inputs += [int(nsteps), r.hist]
+        inputs = [*_parts(lo, hi, dx, column_base), r.lattice(), *self.coefficients(dt), int(nsteps), r.hist]
         stages = r.method.stages
         columns = tangent_columns_per_block(hi - lo, stages, r.device)
         kernels = r.bk
@@ -149,14 +147,14 @@ class _BlockRungeKutta(_Plan):
 
     def step(self, lo, hi, dt, nsteps, save_every, frames, record):
         r = self.r
-        inputs = [_part(r.x, lo, hi), r.no_base, *_parts(lo, hi, r.inv_mass, r.coupling), *self.tableau, r.boundary]
-        inputs += [r.wp.float64(dt), int(nsteps), r.record(save_every, frames, record)]
+        inputs = [_part(r.x, lo, hi), r.no_base, r.lattice(lo, hi), *self.tableau, r.wp.float64(dt), int(nsteps)]
+        inputs.append(r.record(save_every, frames, record))
         r.launch_kernel(r.bk.rk4, (hi - lo, r.block), inputs, r.block)
 
     def tangent(self, dx, column_base, lo, hi, dt, nsteps):
         r = self.r
-        inputs = [*_parts(lo, hi, dx, column_base), r.inv_mass, r.coupling, *self.tableau, r.boundary]
-        inputs += [r.wp.float64(dt), int(nsteps), r.record()]
+        inputs = [*_parts(lo, hi, dx, column_base), r.lattice(), *self.tableau, r.wp.float64(dt), int(nsteps)]
+        inputs.append(r.record())
         r.wp.launch(r.bk.rk4_tangent, dim=(hi - lo, r.block), block_dim=r.block, device=r.device, inputs=inputs)
 
 
@@ -172,24 +170,33 @@ class _ThreadSplitting(_Plan):
 
     def step(self, lo, hi, dt, nsteps, save_every, frames, record):
         r = self.r
-        inputs = [*_parts(lo, hi, r.x, self.acc), 0, r.no_base, *_parts(lo, hi, r.inv_mass, r.coupling)]
-        inputs += [self.drifts, self.kicks, r.boundary, r.wp.float64(dt), int(nsteps)]
-        inputs += [r.record(save_every, frames, record), *r.losses(lo, hi), r.no_observer]
+        inputs = [*self.inputs(lo, hi, dt, nsteps), r.record(save_every, frames, record), r.no_observer]
         r.launch_kernel(r.k.splitting_kernel, hi - lo, inputs)
+
+    def inputs(self, lo, hi, dt, nsteps) -> list:
+        """The splitting kernel's arguments for lattices lo..hi up to its ``Recording``."""
+        r = self.r
+        return [
+            *_parts(lo, hi, r.x, self.acc),
+            0,
+            r.no_base,
+            r.lattice(lo, hi),
+            self.drifts,
+            self.kicks,
+            r.wp.float64(dt),
+            int(nsteps),
+        ]
 
     def observe(self, lo, hi, dt, nsteps, observer):
         r = self.r
-        inputs = [*_parts(lo, hi, r.x, self.acc), 0, r.no_base, *_parts(lo, hi, r.inv_mass, r.coupling)]
-        inputs += [self.drifts, self.kicks, r.boundary, r.wp.float64(dt), int(nsteps), r.record()]
-        inputs += [*r.losses(lo, hi), observer]
+        inputs = [*self.inputs(lo, hi, dt, nsteps), r.record(), observer]
         r.launch_kernel(r.k.observed_splitting_kernel, hi - lo, inputs)
 
     def tangent(self, dx, column_base, lo, hi, dt, nsteps):
         r, wp = self.r, self.r.wp
         dacc = self.kept("dacc", (dx.shape[0], 2, r.N))  # written before it is read
-        inputs = [*_parts(lo, hi, dx, dacc), 1, _part(column_base, lo, hi), r.inv_mass, r.coupling]
-        inputs += [self.drifts, self.kicks, r.boundary, wp.float64(dt), int(nsteps), r.record()]
-        inputs += [r.lossy, r.no_damp, r.no_observer]
+        inputs = [*_parts(lo, hi, dx, dacc), 1, _part(column_base, lo, hi), r.lattice(), self.drifts, self.kicks]
+        inputs += [wp.float64(dt), int(nsteps), r.record(), r.no_observer]
         wp.launch(r.k.splitting_kernel, dim=hi - lo, device=r.device, inputs=inputs)
 
 
@@ -208,15 +215,15 @@ class _ThreadRungeKutta(_Plan):
 
     def step(self, lo, hi, dt, nsteps, save_every, frames, record):
         r = self.r
-        inputs = [*_parts(lo, hi, r.x, *self.scratch), 0, r.no_base, *_parts(lo, hi, r.inv_mass, r.coupling)]
-        inputs += [*self.tableau, r.boundary, r.wp.float64(dt), int(nsteps), r.record(save_every, frames, record)]
+        inputs = [*_parts(lo, hi, r.x, *self.scratch), 0, r.no_base, r.lattice(lo, hi), *self.tableau]
+        inputs += [r.wp.float64(dt), int(nsteps), r.record(save_every, frames, record)]
         r.launch_kernel(self.kernels.rk4_kernel, hi - lo, inputs)
 
     def tangent(self, dx, column_base, lo, hi, dt, nsteps):
         r, wp = self.r, self.r.wp
         scratch = [self.kept(f"stage{i}", (dx.shape[0], 4, r.N)) for i in range(3)]
-        inputs = [*_parts(lo, hi, dx, *scratch), 1, _part(column_base, lo, hi), r.inv_mass, r.coupling]
-        inputs += [*self.tableau, r.boundary, wp.float64(dt), int(nsteps), r.record()]
+        inputs = [*_parts(lo, hi, dx, *scratch), 1, _part(column_base, lo, hi), r.lattice(), *self.tableau]
+        inputs += [wp.float64(dt), int(nsteps), r.record()]
         wp.launch(self.kernels.rk4_kernel, dim=hi - lo, device=r.device, inputs=inputs)
 
 
@@ -238,8 +245,9 @@ class _SitesSplitting(_Plan):
             self.sequences = {key: self.kernels.evaluations(m.drifts, m.kicks, dt, nsteps, save_every)}
         return self.sequences[key]
 
-    def run(self, x, lo, hi, dt, nsteps, save_every, frames, tangent, column_base, record, parameters, losses):
+    def run(self, x, lo, hi, dt, nsteps, save_every, frames, tangent, column_base, record, lattice):
         r, sk = self.r, self.kernels
+        out = r.record(0, frames, record)  # the frames' rows are given per evaluation (``save_row``)
         scratch = _parts(lo, hi, self.kept("u", (x.shape[0], 1, r.N)))[0]
         x = _parts(lo, hi, x)[0]
         src, src_row = x, 0
@@ -247,23 +255,17 @@ class _SitesSplitting(_Plan):
             dst, dst_row = (scratch, 0) if src is x else (x, 0)
             drift = (sk.KEEP if src is x else sk.COPY) if e["last"] else sk.DRIFT
             slot = e["slot"] if record or tangent else 0  # unused otherwise: repeated launches share a kept command
-            inputs = [x, src, src_row, dst, dst_row, column_base, *parameters, r.boundary, int(tangent), slot]
-            inputs += [r.hist, int(record), e["kick"], e["h_kick"], e["pre"], e["h_pre"], drift, e["c"]]
-            inputs += [e["save_row"], *frames, *losses]
+            inputs = [x, src, src_row, dst, dst_row, column_base, lattice, int(tangent), slot, out]
+            inputs += [e["kick"], e["h_kick"], e["pre"], e["h_pre"], drift, e["c"], e["save_row"]]
             r.launch_kernel(sk.evaluate, (hi - lo, r.N), inputs)
             src, src_row = dst, dst_row
 
     def step(self, lo, hi, dt, nsteps, save_every, frames, record):
         r = self.r
-        parameters = _parts(lo, hi, r.inv_mass, r.coupling)
-        self.run(r.x, lo, hi, dt, nsteps, save_every, frames, 0, r.no_base, record, parameters, r.losses(lo, hi))
+        self.run(r.x, lo, hi, dt, nsteps, save_every, frames, 0, r.no_base, record, r.lattice(lo, hi))
 
     def tangent(self, dx, column_base, lo, hi, dt, nsteps):
-        r = self.r
-        none = [r.no_record, r.no_record]
-        base = _parts(lo, hi, column_base)[0]
-        losses = [r.lossy, r.no_damp]
-        self.run(dx, lo, hi, dt, nsteps, 0, none, 1, base, False, [r.inv_mass, r.coupling], losses)
+        self.run(dx, lo, hi, dt, nsteps, 0, None, 1, _part(column_base, lo, hi), False, self.r.lattice())
 
 
 _PLANS = {

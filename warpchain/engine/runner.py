@@ -120,6 +120,7 @@ class _Runner:
             if self.damped:
                 self.lossy.zero_()
             self.damped, self.damp = False, self.no_damp
+            self._lattices = {}
             self.lossy_host = np.zeros(self.batch, dtype=bool)
             return
         coefficients = kick_matrices(self.method.kicks, dt, self.mass.numpy(), damping, self.batch)
@@ -129,10 +130,23 @@ class _Runner:
             self.damp = wp.empty(coefficients.shape, dtype=wp.float64, device=self.device)
         self.damp.assign(coefficients)
         self.damped = True
+        self._lattices = {}
 
-    def losses(self, lo: int, hi: int) -> list:
-        """The kernels' loss arguments (flags, coefficients) for lattices lo..hi."""
-        return [_part(self.lossy, lo, hi), _part(self.damp, lo, hi) if self.damped else self.no_damp]
+    def lattice(self, lo: int = 0, hi: int | None = None):
+        """The kernels' ``thread_kernels.Lattice`` of lattices lo..hi (default all: what tangent columns index
+        through their base): views of this runner's parameters and losses, kept per slice (their values change in
+        place; ``set_damping`` starts afresh), so that a repeated launch passes the same argument."""
+        hi = self.batch if hi is None else hi
+        kept = self.__dict__.setdefault("_lattices", {})
+        if (lo, hi) not in kept:
+            lat = self.k.Lattice()
+            lat.mass, lat.inv_mass, lat.coupling, lat.lossy = _parts(
+                lo, hi, self.mass, self.inv_mass, self.coupling, self.lossy
+            )
+            lat.damp = _part(self.damp, lo, hi) if self.damped else self.no_damp
+            lat.boundary = self.boundary
+            kept[lo, hi] = lat
+        return kept[lo, hi]
 
     def _pinned(self, name: str):
         """This runner's own pinned host buffer ``name`` of the state's size (``host_buffer``: made once, the
@@ -251,9 +265,9 @@ class _Runner:
         (batch, 3) of slot ``slot`` (0 and 1 alternate between chunks, 2 holds the start); only it, not
         the state, needs to reach the host. ``lattices``: (lo, hi) to guard only those."""
         lo, hi = lattices if lattices is not None else (0, self.batch)
-        ru, rv = (rec[0][:, lo:hi], rec[1][:, lo:hi]) if rec is not None and n_rec else (self.no_record,) * 2
+        frames = (rec[0][:, lo:hi], rec[1][:, lo:hi]) if rec is not None and n_rec else None
         out = self.guard_out[slot if slot == 2 else slot % 2]
-        inputs = [*_parts(lo, hi, self.x, self.mass, self.coupling), self.boundary, ru, rv, int(n_rec)]
+        inputs = [_part(self.x, lo, hi), self.lattice(lo, hi), self.record(0, frames), int(n_rec)]
         inputs += _parts(lo, hi, self.contact, out)
         if self.layout in ("block", "sites"):
             self.launch_kernel(self.bk.guard, (hi - lo, self.block), inputs, self.block)

@@ -16,11 +16,10 @@ from .block_kernels import (
     site_kick,
 )
 from .thread_kernels import (
+    Lattice,
     Recording,
     F64,
-    Array1,
     Array3,
-    Indices,
     BOUNDARY_FIXED,
     BOUNDARY_FREE,
     BOUNDARY_PERIODIC,
@@ -162,32 +161,18 @@ def site_group_kernels(threads: int, sites: int, boundary: int, min_blocks_per_s
                 return wp.vec2d(pu + h * au, pv + h * av)
 
         @wp.kernel(**options)
-        def splitting(
-            x: Array3,
-            inv_mass: Array1,
-            coupling: Array1,
-            drifts: coefficients,
-            kicks: coefficients,
-            boundary_code: int,
-            nsteps: int,
-            out: Recording,
-            lossy: Indices,
-            damp: Array3,
-        ):
-            """``block_kernels``' splitting kernel (same arguments but no ``Observer``; ``boundary_code``
-            is compiled in and unused) with ``sites`` sites per thread: lattice b, thread t."""
+        def splitting(x: Array3, lat: Lattice, drifts: coefficients, kicks: coefficients, nsteps: int, out: Recording):
+            """``block_kernels``' splitting kernel (same arguments but no ``Observer``; the boundary is compiled in,
+            ``lat.boundary`` unused) with ``sites`` sites per thread: lattice b, thread t."""
             b, t = wp.tid()
-            save_every = out.every  # the record's parts, as locals
-            rec_u = out.u
-            rec_v = out.v
-            hist = out.hist
             n = x.shape[2]
             first = t * wp.static(sites)
-            mb = -inv_mass[b]
-            k = coupling[b]
+            mb = -lat.inv_mass[b]
+            k = lat.coupling[b]
+            damp = lat.damp
             loss = int(0)
             if wp.static(damped):
-                loss = lossy[b]
+                loss = lat.lossy[b]
             u = run()
             v = run()
             pu = run()
@@ -213,7 +198,7 @@ def site_group_kernels(threads: int, sites: int, boundary: int, min_blocks_per_s
                 av[s] = a[1]
                 if wp.static(record):
                     if first + s < n:
-                        hist[0, b, first + s] = contact_stiffness(u[s] - v[s])
+                        out.hist[0, b, first + s] = contact_stiffness(u[s] - v[s])
             # every step's first kick uses the accelerations of the previous step's last kick (carried over)
             for step in range(nsteps):
                 for s in range(wp.static(sites)):
@@ -234,7 +219,7 @@ def site_group_kernels(threads: int, sites: int, boundary: int, min_blocks_per_s
                         av[s] = a[1]
                         if wp.static(record):
                             if first + s < n:
-                                hist[step * wp.static(stages) + stage + 1, b, first + s] = contact_stiffness(
+                                out.hist[step * wp.static(stages) + stage + 1, b, first + s] = contact_stiffness(
                                     u[s] - v[s]
                                 )
                     h = kicks[stage + 1]
@@ -243,12 +228,12 @@ def site_group_kernels(threads: int, sites: int, boundary: int, min_blocks_per_s
                         pu[s] = w[0]
                         pv[s] = w[1]
                 if wp.static(save):
-                    if (step + 1) % save_every == 0:
-                        r = (step + 1) / save_every - 1
+                    if (step + 1) % out.every == 0:
+                        r = (step + 1) / out.every - 1
                         for s in range(wp.static(sites)):
                             if first + s < n:
-                                rec_u[r, b, first + s] = u[s]
-                                rec_v[r, b, first + s] = v[s]
+                                out.u[r, b, first + s] = u[s]
+                                out.v[r, b, first + s] = v[s]
             for s in range(wp.static(sites)):
                 j = first + s
                 if j < n:

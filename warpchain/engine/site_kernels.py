@@ -27,8 +27,9 @@ import warp as wp
 
 from .block_kernels import site_kick
 from .thread_kernels import (
+    Lattice,
+    Recording,
     F64,
-    Array1,
     Array3,
     Indices,
     contact_stiffness,
@@ -49,13 +50,10 @@ def evaluate(
     dst: Array3,
     dst_row: int,
     column_base: Indices,
-    inv_mass: Array1,
-    coupling: Array1,
-    boundary: int,
+    lat: Lattice,
     tangent: int,
     slot: int,
-    hist: Array3,
-    record: int,
+    out: Recording,
     kick: int,
     h_kick: F64,
     pre: int,
@@ -63,52 +61,49 @@ def evaluate(
     drift: int,
     c: F64,
     save_row: int,
-    rec_u: Array3,
-    rec_v: Array3,
-    lossy: Indices,
-    damp: Array3,
 ):
     """Force evaluation ``slot`` of lattice (or tangent column) b at site j, and the kicks and drift around it.
 
     Args (beyond the state ``x``, (lattices, 4, N): v, u', v' updated in place; u in ``src``/``dst``):
         tangent: 1 for tangent columns (accelerations linear in the column, f'(z) read from
             hist[slot, column_base[b]]; the parameters those of lattice column_base[b]), 0 for base runs
-            (f'(z) stored into hist[slot, b] when ``record``).
+            (f'(z) stored into ``out.hist[slot, b]`` when ``out.stiffness`` is set).
         kick, h_kick: index of the kick after this evaluation (-1: none, the run's first evaluation).
         pre, h_pre: 1 when a step begins after it: its kick 0 with the same accelerations.
         drift, c: ``DRIFT`` (u + c u' into dst, v + c v'), ``COPY`` (u into dst: the run's end, u on the
             scratch row) or ``KEEP`` (the run's end, u already in the state's row 0).
-        save_row: frame row for (u, v) after this evaluation's kicks, -1 for none.
+        save_row: frame row of ``out.u``, ``out.v`` for (u, v) after this evaluation's kicks, -1 for none.
     """
     b, j = wp.tid()
     n = x.shape[2]
+    hist = out.hist
     base = b
     if tangent != 0:
         base = column_base[b]
-    m = inv_mass[base]
-    k = coupling[base]
+    m = lat.inv_mass[base]
+    k = lat.coupling[base]
     u = src[b, src_row, j]
     v = x[b, 1, j]
-    nb = neighbours_at(src, b, src_row, j, n, boundary)
+    nb = neighbours_at(src, b, src_row, j, n, lat.boundary)
     loss = int(0)
     if tangent != 0:
         a = site_tangent_acceleration(u, v, nb[0], nb[1], m, k, hist[slot, base, j])
     else:
         a = site_acceleration(u, v, nb[0], nb[1], m, k)
-        loss = lossy[b]
-        if record != 0:
+        loss = lat.lossy[b]
+        if out.stiffness != 0:
             hist[slot, b, j] = contact_stiffness(u - v)
     pu = x[b, 2, j]
     pv = x[b, 3, j]
     if kick >= 0:
-        w = site_kick(pu, pv, a, h_kick, loss, damp, b, kick)
+        w = site_kick(pu, pv, a, h_kick, loss, lat.damp, b, kick)
         pu = w[0]
         pv = w[1]
     if save_row >= 0:
-        rec_u[save_row, b, j] = u
-        rec_v[save_row, b, j] = v
+        out.u[save_row, b, j] = u
+        out.v[save_row, b, j] = v
     if pre != 0:
-        w = site_kick(pu, pv, a, h_pre, loss, damp, b, 0)
+        w = site_kick(pu, pv, a, h_pre, loss, lat.damp, b, 0)
         pu = w[0]
         pv = w[1]
     if drift == DRIFT:

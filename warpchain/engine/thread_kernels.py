@@ -66,6 +66,21 @@ class Recording:
     hist: Array3
 
 
+@wp.struct
+class Lattice:
+    """What the kernels read of a batch of lattices besides the state, passed whole: per lattice the mass M, 1/M
+    (the step kernels multiply by it), the coupling K and the losses (``lossy`` flag, the damped kicks'
+    coefficients ``damp``, ``losses``), and the boundary's code. A lattice of another geometry (a 2-D layer's
+    neighbour table) adds its description here, not to every kernel's arguments. Built by ``Runner.lattice``."""
+
+    mass: Array1
+    inv_mass: Array1
+    coupling: Array1
+    lossy: Indices
+    damp: Array3
+    boundary: int
+
+
 # ----------------------------------------------------------------------------- per-site helpers
 
 
@@ -186,13 +201,14 @@ def drift(x: Array3, b: int, n: int, h: F64):
 
 
 @wp.func
-def save_positions(x: Array3, rec_u: Array3, rec_v: Array3, b: int, n: int, step: int, save_every: int):
-    if save_every > 0:
-        if (step + 1) % save_every == 0:
-            r = (step + 1) / save_every - 1
+def save_positions(x: Array3, out: Recording, b: int, n: int, step: int):
+    """Lattice b's u and v into ``out``'s frames after ``step`` when a frame is due."""
+    if out.every > 0:
+        if (step + 1) % out.every == 0:
+            r = (step + 1) / out.every - 1
             for j in range(n):
-                rec_u[r, b, j] = x[b, 0, j]
-                rec_v[r, b, j] = x[b, 1, j]
+                out.u[r, b, j] = x[b, 0, j]
+                out.v[r, b, j] = x[b, 1, j]
 
 
 # ----------------------------------------------------------------------------- row views (fused sweeps)
@@ -390,41 +406,36 @@ def _splitting_kernel(observed: bool):
         acc: Array3,
         tangent: int,
         column_base: Indices,
-        inv_mass: Array1,
-        coupling: Array1,
+        lat: Lattice,
         drifts: Array1,
         kicks: Array1,
-        boundary: int,
         dt: F64,
         nsteps: int,
         out: Recording,
-        lossy: Indices,
-        damp: Array3,
         ob: Observer,
     ):
         """``nsteps`` steps of a kick-drift splitting method for lattice b = tid, or with ``tangent`` set for
         tangent column b along base trajectory column_base[b] (the linearised step, f'(z) read from hist).
 
         hist slot 0 holds f'(z) at the start, slot step*s + k + 1 after drift k of ``step``. Lattices with
-        ``lossy[b]`` set take the damped kicks of ``damp`` (batch, stages + 1, 12: E, F, then H for the energy
-        dissipated) (``losses``; base runs only). Compiled ``observed``: the observables of ``ob`` every step
+        ``lat.lossy[b]`` set take the damped kicks of ``lat.damp`` (batch, stages + 1, 12: E, F, then H for the
+        energy dissipated) (``losses``; base runs only). Compiled ``observed``: the observables of ``ob`` every step
         and frame (``warpchain.observe``), on the per-pass path.
         """
         b = wp.tid()
         n = x.shape[2]
         stages = drifts.shape[0]
-        save_every = out.every  # the record's parts, as locals
-        rec_u = out.u
-        rec_v = out.v
         hist = out.hist
+        boundary = lat.boundary
+        damp = lat.damp
         base = b
         loss = int(0)
         if tangent != 0:
             base = column_base[b]
         else:
-            loss = lossy[b]
-        m = inv_mass[base]
-        k = coupling[base]
+            loss = lat.lossy[b]
+        m = lat.inv_mass[base]
+        k = lat.coupling[base]
         record = wp.where(out.stiffness != 0 and tangent == 0, 1, 0)
         compute_accelerations(x, acc, b, base, n, boundary, m, k, tangent, hist, record, 0, 0)
         rows = unit_stride(x) * unit_stride(acc) * wp.where(record != 0 or tangent != 0, unit_stride(hist), 1)
@@ -432,7 +443,7 @@ def _splitting_kernel(observed: bool):
         dissipated = ZERO
         if wp.static(observed):
             fast = False
-            dissipated = observe_start(x, b, n, boundary, k, ob)
+            dissipated = observe_start(x, b, n, lat, ob)
         if fast:
             # the fast path: a stage in one pass over contiguous rows (``fused_stage``)
             u = row(x, b, 0)
@@ -454,22 +465,22 @@ def _splitting_kernel(observed: bool):
                     else:
                         stiffness = row(hist, e * record, b * record)
                         fused_stage(u, v, pu, pv, au, av, n, boundary, m, k, pre, h0, c, h, record, stiffness)
-                save_positions(x, rec_u, rec_v, b, n, step, save_every)
+                save_positions(x, out, b, n, step)
         else:
             for step in range(nsteps):
                 if wp.static(observed):
-                    dissipated = dissipated + kick_losses(x, acc, b, n, loss, damp, 0, ob.mass[b])
+                    dissipated = dissipated + kick_losses(x, acc, b, n, loss, damp, 0, lat.mass[b])
                 any_kick(x, acc, b, n, kicks[0] * dt, loss, damp, 0)
                 for s in range(stages):
                     drift(x, b, n, drifts[s] * dt)
                     e = step * stages + s + 1
                     compute_accelerations(x, acc, b, base, n, boundary, m, k, tangent, hist, record, e, 0)
                     if wp.static(observed):
-                        dissipated = dissipated + kick_losses(x, acc, b, n, loss, damp, s + 1, ob.mass[b])
+                        dissipated = dissipated + kick_losses(x, acc, b, n, loss, damp, s + 1, lat.mass[b])
                     any_kick(x, acc, b, n, kicks[s + 1] * dt, loss, damp, s + 1)
-                save_positions(x, rec_u, rec_v, b, n, step, save_every)
+                save_positions(x, out, b, n, step)
                 if wp.static(observed):
-                    observe_step(x, b, n, boundary, k, ob, step, dissipated)
+                    observe_step(x, b, n, lat, ob, step, dissipated)
         if wp.static(observed):
             ob.lost[b, 0] = dissipated
 
@@ -509,24 +520,15 @@ def finite_state(u: F64, v: F64, pu: F64, pv: F64) -> F64:
 
 
 @wp.kernel
-def guard_kernel(
-    x: Array3,
-    mass: Array1,
-    coupling: Array1,
-    boundary: int,
-    rec_u: Array3,
-    rec_v: Array3,
-    n_rec: int,
-    contact: Array1,
-    out: Array2,
-):
+def guard_kernel(x: Array3, lat: Lattice, rec: Recording, n_rec: int, contact: Array1, out: Array2):
     """Per lattice b = tid, on the device: out[b] = (energy, 1 if finite else 0, min contact), where the
-    min contact runs over the state, the first ``n_rec`` recorded frames and ``contact[b]`` (the running
+    min contact runs over the state, the first ``n_rec`` frames of ``rec`` and ``contact[b]`` (the running
     min of earlier chunks), which it also updates. Only these scalars need to reach the host."""
     b = wp.tid()
     n = x.shape[2]
-    m = mass[b]
-    k = coupling[b]
+    boundary = lat.boundary
+    m = lat.mass[b]
+    k = lat.coupling[b]
     total = ZERO
     finite = ONE
     low = contact[b]
@@ -539,7 +541,7 @@ def guard_kernel(
         low = wp.min(low, (ONE + u) - v)
     for r in range(n_rec):
         for j in range(n):
-            low = wp.min(low, (ONE + rec_u[r, b, j]) - rec_v[r, b, j])
+            low = wp.min(low, (ONE + rec.u[r, b, j]) - rec.v[r, b, j])
     contact[b] = low
     out[b, 0] = total
     out[b, 1] = finite
@@ -552,7 +554,7 @@ def guard_kernel(
 @wp.struct
 class Observer:
     """What an ``observed`` splitting kernel reduces, and where (``warpchain.observe``; the unobserved thread
-    and block splitting kernels take an empty one). Per lattice: ``mass`` (M), ``spot`` (half-width in sites),
+    and block splitting kernels take an empty one). Per lattice: ``spot`` (half-width in sites),
     the running z extremes ``z_low``/``z_high`` (batch, N), the energy dissipated so far ``lost`` (batch, 1;
     per site in the block layout), the last frame's ``envelope`` (batch, N), and ``values`` (frames, batch, 7):
     the observables."""
@@ -562,7 +564,6 @@ class Observer:
     threshold: F64
     radius: int
     contrast: F64
-    mass: Array1
     spot: Array1
     z_low: Array2
     z_high: Array2
@@ -609,19 +610,12 @@ def store_observables(
 
 
 @wp.func
-def observe_frame(
-    x: Array3,
-    b: int,
-    n: int,
-    boundary: int,
-    coupling: F64,
-    ob: Observer,
-    r: int,
-    dissipated: F64,
-):
+def observe_frame(x: Array3, b: int, n: int, lat: Lattice, ob: Observer, r: int, dissipated: F64):
     """Frame r of lattice b: values[r, b] from the state and the interval's z extremes, which it resets."""
     centre = n / 2
-    mass = ob.mass[b]
+    boundary = lat.boundary
+    mass = lat.mass[b]
+    coupling = lat.coupling[b]
     for j in range(n):
         ob.envelope[b, j] = wp.max(ob.z_high[b, j], -ob.z_low[b, j])
     total = ZERO
@@ -659,7 +653,7 @@ def observe_frame(
 
 
 @wp.func
-def observe_start(x: Array3, b: int, n: int, boundary: int, coupling: F64, ob: Observer) -> F64:
+def observe_start(x: Array3, b: int, n: int, lat: Lattice, ob: Observer) -> F64:
     """At the run's start (``first_step`` 0) frame 0 (envelope |z|); returns the energy dissipated so far."""
     if ob.first_step != 0:
         return ob.lost[b, 0]
@@ -667,7 +661,7 @@ def observe_start(x: Array3, b: int, n: int, boundary: int, coupling: F64, ob: O
         z = x[b, 0, j] - x[b, 1, j]
         ob.z_low[b, j] = z
         ob.z_high[b, j] = z
-    observe_frame(x, b, n, boundary, coupling, ob, 0, ZERO)
+    observe_frame(x, b, n, lat, ob, 0, ZERO)
     return ZERO
 
 
@@ -682,16 +676,7 @@ def kick_losses(x: Array3, acc: Array3, b: int, n: int, loss: int, damp: Array3,
 
 
 @wp.func
-def observe_step(
-    x: Array3,
-    b: int,
-    n: int,
-    boundary: int,
-    coupling: F64,
-    ob: Observer,
-    step: int,
-    dissipated: F64,
-):
+def observe_step(x: Array3, b: int, n: int, lat: Lattice, ob: Observer, step: int, dissipated: F64):
     """After ``step``: the z extremes, and the frame when one is due."""
     for j in range(n):
         z = x[b, 0, j] - x[b, 1, j]
@@ -699,7 +684,7 @@ def observe_step(
         ob.z_high[b, j] = wp.max(ob.z_high[b, j], z)
     done = ob.first_step + step + 1
     if done % ob.frame_every == 0:
-        observe_frame(x, b, n, boundary, coupling, ob, done / ob.frame_every, dissipated)
+        observe_frame(x, b, n, lat, ob, done / ob.frame_every, dissipated)
 
 
 splitting_kernel = _splitting_kernel(False)

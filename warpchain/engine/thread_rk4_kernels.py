@@ -7,6 +7,7 @@ from __future__ import annotations
 import warp as wp
 
 from .thread_kernels import (
+    Lattice,
     Recording,
     F64,
     Array1,
@@ -23,26 +24,11 @@ from .thread_kernels import (
 
 
 @wp.func
-def rk4_stage_derivative(
-    y: Array3,
-    out: Array3,
-    b: int,
-    base: int,
-    n: int,
-    boundary: int,
-    inv_mass: F64,
-    coupling: F64,
-    tangent: int,
-    record: int,
-    hist: Array3,
-    slot: int,
-):
-    """out[b] = F(y[b]) = (y', a(y)): a base run's (recording f'(z) of the stage when asked), or with
-    ``tangent`` its linearisation along base lattice ``base``'s recorded f'(z) (``compute_accelerations``)."""
+def velocities(y: Array3, out: Array3, b: int, n: int):
+    """Rows 0, 1 of out[b] = y[b]'s velocities (u', v'): the first half of a stage's derivative F(y) = (y', a(y))."""
     for j in range(n):
         out[b, 0, j] = y[b, 2, j]
         out[b, 1, j] = y[b, 3, j]
-    compute_accelerations(y, out, b, base, n, boundary, inv_mass, coupling, tangent, hist, record, slot, 2)
 
 
 @wp.func
@@ -119,7 +105,7 @@ def rk4_site(
     stiffness: Array1,
 ):
     """Site j of a Runge-Kutta stage at the state s (u: s.u[j], read before y may overwrite it) between
-    neighbours at u = left and right: the derivative k = (u', v', a) (``rk4_stage_derivative``), its
+    neighbours at u = left and right: the derivative k = (u', v', a) (as the per-pass path forms it), its
     weighted sum into t and the next stage state y = x + ah k (``rk4_advance``; ah = a dt)."""
     v = s.v[j]
     pu = s.pu[j]
@@ -192,11 +178,9 @@ def rk4_kernel(
     total: Array3,
     tangent: int,
     column_base: Indices,
-    inv_mass: Array1,
-    coupling: Array1,
+    lat: Lattice,
     tableau: wp.vec4d,
     weights: wp.vec4d,
-    boundary: int,
     dt: F64,
     nsteps: int,
     out: Recording,
@@ -206,14 +190,12 @@ def rk4_kernel(
     linearised step, f'(z) read from hist; the per-pass path)."""
     b = wp.tid()
     n = x.shape[2]
+    boundary = lat.boundary
     base = b
     if tangent != 0:
         base = column_base[b]
-    m = inv_mass[base]
-    cpl = coupling[base]
-    save_every = out.every  # the record's parts, as locals
-    rec_u = out.u
-    rec_v = out.v
+    m = lat.inv_mass[base]
+    cpl = lat.coupling[base]
     hist = out.hist
     record = wp.where(out.stiffness != 0 and tangent == 0, 1, 0)
     rows = unit_stride(x) * unit_stride(y) * unit_stride(k) * unit_stride(total)
@@ -237,13 +219,17 @@ def rk4_kernel(
             rk4_fused_stage(xr, kr, yr, tr, n, boundary, m, cpl, 0, weights[2], tableau[2] * dt, record, s2)
             rk4_fused_stage(xr, yr, kr, tr, n, boundary, m, cpl, 0, weights[3], tableau[2] * dt, record, s3)
             rk4_fused_finish(xr, tr, n, dt, tableau[3])
-            save_positions(x, rec_u, rec_v, b, n, step, save_every)
+            save_positions(x, out, b, n, step)
     else:
         for step in range(nsteps):
-            rk4_stage_derivative(x, k, b, base, n, boundary, m, cpl, tangent, record, hist, 4 * step)
+            # each stage's derivative F(y) = (y', a(y)) into k: a base run's (f'(z) recorded when asked), or with
+            # ``tangent`` its linearisation along base lattice ``base``'s recorded f'(z)
+            velocities(x, k, b, n)
+            compute_accelerations(x, k, b, base, n, boundary, m, cpl, tangent, hist, record, 4 * step, 2)
             rk4_advance(x, y, k, total, b, n, 0, dt, tableau, weights)
             for stage in range(1, 4):
-                rk4_stage_derivative(y, k, b, base, n, boundary, m, cpl, tangent, record, hist, 4 * step + stage)
+                velocities(y, k, b, n)
+                compute_accelerations(y, k, b, base, n, boundary, m, cpl, tangent, hist, record, 4 * step + stage, 2)
                 rk4_advance(x, y, k, total, b, n, stage, dt, tableau, weights)
             rk4_finish(x, total, b, n, dt, tableau[3])
-            save_positions(x, rec_u, rec_v, b, n, step, save_every)
+            save_positions(x, out, b, n, step)
