@@ -113,13 +113,13 @@ def main():
 
         def runner(kernel, m):
             step = 0.1 if m.stages == 1 else 0.5
-            dr, ki = bk.pack_coefficients(m.drifts, step), bk.pack_coefficients(m.kicks, step)
+            scheme = bk.pack_scheme(m.drifts, m.kicks, step)
             return lambda n: wp.launch(
                 kernel,
                 dim=(batch, BLOCK),
                 block_dim=BLOCK,
                 device="cuda",
-                inputs=[x, lattice, dr, ki, n, nothing, Observer()],
+                inputs=[x, lattice, scheme, n, nothing, Observer()],
             )
 
         def run_verlet(n):

@@ -95,8 +95,9 @@ def test_strided_rows_take_the_generic_path(method):
         wp.launch(K.splitting_kernel, dim=2, inputs=inputs, device="cpu")
     else:
         scratch = [wp.zeros((2, 4, p.N), dtype=f64, device="cpu") for _ in range(3)]
-        tableau = [wp.vec4d(0.5, 0.5, 1.0, 6.0), wp.vec4d(1.0, 2.0, 2.0, 1.0)]
-        inputs = [x, *scratch, *no_base, lattice, *tableau, f64(0.05), 40, record]
+        tableau = K.Tableau()  # the classical RK4
+        tableau.nodes, tableau.weights = wp.vec4d(0.5, 0.5, 1.0, 6.0), wp.vec4d(1.0, 2.0, 2.0, 1.0)
+        inputs = [x, *scratch, *no_base, lattice, tableau, f64(0.05), 40, record]
         wp.launch(R.rk4_kernel, dim=2, inputs=inputs, device="cpu")
     ref = reference.integrate(method, p, x0, 0.05, 40, M=M, K=K_)["x"]
     assert np.array_equal(owner.numpy()[..., ::2], ref)

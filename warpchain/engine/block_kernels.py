@@ -27,6 +27,7 @@ import warp as wp
 
 from .thread_kernels import (
     Lattice,
+    Tableau,
     Recording,
     F64,
     Array1,
@@ -194,13 +195,25 @@ MAX_STAGES = 15
 coefficients = wp.types.vector(length=MAX_STAGES + 1, dtype=wp.float64)
 
 
-def pack_coefficients(values, dt: float = 1.0) -> "coefficients":
-    """A method's drift or kick coefficients times ``dt`` as the fixed-length kernel argument (zero
-    padded). The kernels use c * dt as given: the product rounds exactly as the reference's c * dt."""
-    values = [float(c) * float(dt) for c in values]
-    if len(values) > MAX_STAGES + 1:
-        raise ValueError(f"at most {MAX_STAGES} stages are supported by the block kernels, got {len(values)}")
-    return coefficients(*(values + [0.0] * (MAX_STAGES + 1 - len(values))))
+@wp.struct
+class Scheme:
+    """A splitting method as the block kernels read it: its drift and kick coefficients times dt, each zero padded
+    to ``MAX_STAGES`` + 1 (``pack_scheme``)."""
+
+    drifts: coefficients
+    kicks: coefficients
+
+
+def pack_scheme(drifts, kicks, dt: float = 1.0) -> Scheme:
+    """The ``Scheme`` of a method's ``drifts`` and ``kicks`` for step ``dt``. The kernels use c * dt as given: the
+    product rounds exactly as the reference's c * dt."""
+    if len(kicks) > MAX_STAGES + 1:
+        raise ValueError(f"at most {MAX_STAGES} stages are supported by the block kernels, got {len(kicks)}")
+    scheme = Scheme()
+    for name, values in (("drifts", drifts), ("kicks", kicks)):
+        values = [float(c) * float(dt) for c in values]
+        setattr(scheme, name, coefficients(*(values + [0.0] * (MAX_STAGES + 1 - len(values)))))
+    return scheme
 
 
 class BlockKernels:
@@ -352,15 +365,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
         held_type = wp.types.vector(length=stages, dtype=wp.float64)
 
         @wp.kernel(**options)
-        def splitting(
-            x: Array3,
-            lat: Lattice,
-            drifts: coefficients,
-            kicks: coefficients,
-            nsteps: int,
-            out: Recording,
-            ob: Observer,
-        ):
+        def splitting(x: Array3, lat: Lattice, scheme: Scheme, nsteps: int, out: Recording, ob: Observer):
             """``nsteps`` steps of a kick-drift splitting method; lattice b, thread j = site. hist slot 0
             holds f'(z) at the start, slot step*s + k + 1 after drift k of ``step``. Compiled ``damped``:
             lattices with ``lat.lossy[b]`` set take the damped kicks of ``lat.damp`` (batch, stages + 1, 12: E, F,
@@ -369,6 +374,8 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             The step's stiffnesses are held in registers and stored after its last stage: a barrier waits for
             the stores issued before it, so a store at every force evaluation put that wait between every two."""
             b, j = wp.tid()
+            drifts = scheme.drifts
+            kicks = scheme.kicks
             boundary = lat.boundary
             damp = lat.damp
             n = x.shape[2]
@@ -470,18 +477,14 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
 
         @wp.kernel(**options)
         def splitting_tangent(
-            dx: Array3,
-            column_base: Indices,
-            lat: Lattice,
-            drifts: coefficients,
-            kicks: coefficients,
-            nsteps: int,
-            hist: Array3,
+            dx: Array3, column_base: Indices, lat: Lattice, scheme: Scheme, nsteps: int, hist: Array3
         ):
             """Tangent columns g * columns + q (q < ``columns``) of the splitting map along base trajectories
             column_base[c]: block g, thread j = site; a thread carries its site of every column of its block
             (independent chains: more work in flight per barrier and per history entry)."""
             g, j = wp.tid()
+            drifts = scheme.drifts
+            kicks = scheme.kicks
             boundary = lat.boundary
             n = dx.shape[2]
             ncols = dx.shape[0]
@@ -559,20 +562,13 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
 
     def make_rk4(tangent: bool):
         @wp.kernel(**options)
-        def rk4(
-            x: Array3,
-            column_base: Indices,
-            lat: Lattice,
-            tableau: wp.vec4d,
-            weights: wp.vec4d,
-            dt: F64,
-            nsteps: int,
-            out: Recording,
-        ):
+        def rk4(x: Array3, column_base: Indices, lat: Lattice, rk: Tableau, dt: F64, nsteps: int, out: Recording):
             """``nsteps`` classical RK4 steps; block b = lattice; hist slot 4 step + stage. Compiled ``tangent``:
             block b is a tangent column along base trajectory column_base[b], f'(z) read from hist."""
             b, j = wp.tid()
             boundary = lat.boundary
+            tableau = rk.nodes
+            weights = rk.weights
             n = x.shape[2]
             active = j < n
             base = b

@@ -82,19 +82,18 @@ class _BlockSplitting(_Plan):
         super().__init__(runner)
         from . import block_kernels
 
-        self.pack = block_kernels.pack_coefficients
+        self.pack = block_kernels.pack_scheme
         self.scaled = {}
 
-    def coefficients(self, dt: float) -> list:
-        """Drift and kick coefficients times dt (the kernels multiply by them as they are)."""
+    def scheme(self, dt: float):
+        """The method's ``block_kernels.Scheme`` for step dt (coefficients times dt, which the kernels use as is)."""
         if dt not in self.scaled:
-            m = self.r.method
-            self.scaled = {dt: [self.pack(m.drifts, dt), self.pack(m.kicks, dt)]}
+            self.scaled = {dt: self.pack(self.r.method.drifts, self.r.method.kicks, dt)}
         return self.scaled[dt]
 
     def step(self, lo, hi, dt, nsteps, save_every, frames, record):
         r = self.r
-        inputs = [_part(r.x, lo, hi), r.lattice(lo, hi), *self.coefficients(dt), int(nsteps)]
+        inputs = [_part(r.x, lo, hi), r.lattice(lo, hi), self.scheme(dt), int(nsteps)]
         inputs.append(r.record(save_every, frames, record))
         from . import block_kernels, site_group_kernels
 
@@ -117,7 +116,7 @@ class _BlockSplitting(_Plan):
         r = self.r
         from . import block_kernels
 
-        inputs = [_part(r.x, lo, hi), r.lattice(lo, hi), *self.coefficients(dt), int(nsteps), r.record(), observer]
+        inputs = [_part(r.x, lo, hi), r.lattice(lo, hi), self.scheme(dt), int(nsteps), r.record(), observer]
         kernel = block_kernels.block_kernels(r.block, 0).splitting(r.method.stages, damped=True, observed=True)
         r.launch_kernel(kernel, (hi - lo, r.block), inputs, r.block)
 
@@ -125,7 +124,7 @@ class _BlockSplitting(_Plan):
         r = self.r
         from . import block_kernels
 
-        inputs = [*_parts(lo, hi, dx, column_base), r.lattice(), *self.coefficients(dt), int(nsteps), r.hist]
+        inputs = [*_parts(lo, hi, dx, column_base), r.lattice(), self.scheme(dt), int(nsteps), r.hist]
         stages = r.method.stages
         columns = tangent_columns_per_block(hi - lo, stages, r.device)
         kernels = r.bk
@@ -137,23 +136,29 @@ class _BlockSplitting(_Plan):
         r.wp.launch(kernel, dim=dim, block_dim=r.block, device=r.device, inputs=inputs)
 
 
+def _tableau(runner):
+    """The runner's Runge-Kutta method as the kernels' ``thread_kernels.Tableau``."""
+    m, rk = runner.method, runner.k.Tableau()
+    rk.nodes, rk.weights = runner.wp.vec4d(*m.nodes, m.divisor), runner.wp.vec4d(*m.weights)
+    return rk
+
+
 class _BlockRungeKutta(_Plan):
     """A thread block per lattice, a four-stage Runge-Kutta method (its tableau as arguments)."""
 
     def __init__(self, runner):
         super().__init__(runner)
-        m, wp = runner.method, runner.wp
-        self.tableau = [wp.vec4d(*m.nodes, m.divisor), wp.vec4d(*m.weights)]
+        self.tableau = _tableau(runner)
 
     def step(self, lo, hi, dt, nsteps, save_every, frames, record):
         r = self.r
-        inputs = [_part(r.x, lo, hi), r.no_base, r.lattice(lo, hi), *self.tableau, r.wp.float64(dt), int(nsteps)]
+        inputs = [_part(r.x, lo, hi), r.no_base, r.lattice(lo, hi), self.tableau, r.wp.float64(dt), int(nsteps)]
         inputs.append(r.record(save_every, frames, record))
         r.launch_kernel(r.bk.rk4, (hi - lo, r.block), inputs, r.block)
 
     def tangent(self, dx, column_base, lo, hi, dt, nsteps):
         r = self.r
-        inputs = [*_parts(lo, hi, dx, column_base), r.lattice(), *self.tableau, r.wp.float64(dt), int(nsteps)]
+        inputs = [*_parts(lo, hi, dx, column_base), r.lattice(), self.tableau, r.wp.float64(dt), int(nsteps)]
         inputs.append(r.record())
         r.wp.launch(r.bk.rk4_tangent, dim=(hi - lo, r.block), block_dim=r.block, device=r.device, inputs=inputs)
 
@@ -205,24 +210,24 @@ class _ThreadRungeKutta(_Plan):
 
     def __init__(self, runner):
         super().__init__(runner)
-        wp, m = runner.wp, runner.method
+        wp = runner.wp
         shape = (runner.batch, 4, runner.N)
         self.scratch = [wp.zeros(shape, dtype=wp.float64, device=runner.device) for _ in range(3)]
-        self.tableau = [wp.vec4d(*m.nodes, m.divisor), wp.vec4d(*m.weights)]
+        self.tableau = _tableau(runner)
         from . import thread_rk4_kernels
 
         self.kernels = thread_rk4_kernels
 
     def step(self, lo, hi, dt, nsteps, save_every, frames, record):
         r = self.r
-        inputs = [*_parts(lo, hi, r.x, *self.scratch), 0, r.no_base, r.lattice(lo, hi), *self.tableau]
+        inputs = [*_parts(lo, hi, r.x, *self.scratch), 0, r.no_base, r.lattice(lo, hi), self.tableau]
         inputs += [r.wp.float64(dt), int(nsteps), r.record(save_every, frames, record)]
         r.launch_kernel(self.kernels.rk4_kernel, hi - lo, inputs)
 
     def tangent(self, dx, column_base, lo, hi, dt, nsteps):
         r, wp = self.r, self.r.wp
         scratch = [self.kept(f"stage{i}", (dx.shape[0], 4, r.N)) for i in range(3)]
-        inputs = [*_parts(lo, hi, dx, *scratch), 1, _part(column_base, lo, hi), r.lattice(), *self.tableau]
+        inputs = [*_parts(lo, hi, dx, *scratch), 1, _part(column_base, lo, hi), r.lattice(), self.tableau]
         inputs += [wp.float64(dt), int(nsteps), r.record()]
         wp.launch(self.kernels.rk4_kernel, dim=hi - lo, device=r.device, inputs=inputs)
 

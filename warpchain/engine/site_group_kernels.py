@@ -11,7 +11,7 @@ from .block_kernels import (
     WARP_LANES,
     BlockKernels,
     block_size,
-    coefficients,
+    Scheme,
     site_acceleration_times,
     site_kick,
 )
@@ -161,12 +161,14 @@ def site_group_kernels(threads: int, sites: int, boundary: int, min_blocks_per_s
                 return wp.vec2d(pu + h * au, pv + h * av)
 
         @wp.kernel(**options)
-        def splitting(x: Array3, lat: Lattice, drifts: coefficients, kicks: coefficients, nsteps: int, out: Recording):
+        def splitting(x: Array3, lat: Lattice, scheme: Scheme, nsteps: int, out: Recording):
             """``block_kernels``' splitting kernel (same arguments but no ``Observer``; the boundary is compiled in,
             ``lat.boundary`` unused) with ``sites`` sites per thread: lattice b, thread t."""
             b, t = wp.tid()
             n = x.shape[2]
             first = t * wp.static(sites)
+            drifts = scheme.drifts
+            kicks = scheme.kicks
             mb = -lat.inv_mass[b]
             k = lat.coupling[b]
             damp = lat.damp

@@ -30,6 +30,7 @@ from .thread_kernels import (
     Lattice,
     Recording,
     F64,
+    base_of,
     Array3,
     Indices,
     contact_stiffness,
@@ -77,9 +78,7 @@ def evaluate(
     b, j = wp.tid()
     n = x.shape[2]
     hist = out.hist
-    base = b
-    if tangent != 0:
-        base = column_base[b]
+    base = base_of(b, tangent, column_base)
     m = lat.inv_mass[base]
     k = lat.coupling[base]
     u = src[b, src_row, j]

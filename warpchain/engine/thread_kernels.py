@@ -81,7 +81,25 @@ class Lattice:
     boundary: int
 
 
+@wp.struct
+class Tableau:
+    """A four-stage Runge-Kutta method as the kernels read it (``integrators.RungeKuttaMethod``): ``nodes``
+    (a_21, a_32, a_43, then the divisor) and ``weights`` (b_i times the divisor)."""
+
+    nodes: wp.vec4d
+    weights: wp.vec4d
+
+
 # ----------------------------------------------------------------------------- per-site helpers
+
+
+@wp.func
+def base_of(b: int, tangent: int, column_base: Indices) -> int:
+    """The lattice whose parameters (and recorded f'(z)) launch index b reads: b itself, or, for a tangent column
+    (``tangent`` set), the base trajectory it follows, column_base[b]."""
+    if tangent != 0:
+        return column_base[b]
+    return b
 
 
 @wp.func
@@ -428,11 +446,9 @@ def _splitting_kernel(observed: bool):
         hist = out.hist
         boundary = lat.boundary
         damp = lat.damp
-        base = b
+        base = base_of(b, tangent, column_base)
         loss = int(0)
-        if tangent != 0:
-            base = column_base[b]
-        else:
+        if tangent == 0:  # a tangent column's index b may lie past the lattices
             loss = lat.lossy[b]
         m = lat.inv_mass[base]
         k = lat.coupling[base]

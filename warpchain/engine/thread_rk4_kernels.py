@@ -8,6 +8,8 @@ import warp as wp
 
 from .thread_kernels import (
     Lattice,
+    Tableau,
+    base_of,
     Recording,
     F64,
     Array1,
@@ -179,21 +181,20 @@ def rk4_kernel(
     tangent: int,
     column_base: Indices,
     lat: Lattice,
-    tableau: wp.vec4d,
-    weights: wp.vec4d,
+    rk: Tableau,
     dt: F64,
     nsteps: int,
     out: Recording,
 ):
-    """``nsteps`` Runge-Kutta steps (tableau: nodes and divisor, weights) for lattice b = tid; hist slot
+    """``nsteps`` steps of the Runge-Kutta method ``rk`` for lattice b = tid; hist slot
     4 step + stage. With ``tangent`` set, b is a tangent column along base lattice column_base[b] (the
     linearised step, f'(z) read from hist; the per-pass path)."""
     b = wp.tid()
     n = x.shape[2]
     boundary = lat.boundary
-    base = b
-    if tangent != 0:
-        base = column_base[b]
+    tableau = rk.nodes
+    weights = rk.weights
+    base = base_of(b, tangent, column_base)
     m = lat.inv_mass[base]
     cpl = lat.coupling[base]
     hist = out.hist
