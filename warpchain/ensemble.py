@@ -575,28 +575,19 @@ def propagate_tangent(
 
 @on_one_thread
 def time_steps(
-    params: ChainParams,
-    x0,
-    nsteps: int,
-    dt: float,
-    *,
-    method: str = "verlet",
-    device: str | None = None,
-    layout: str = "auto",
-    repeats: int = 3,
-    M=None,
-    K=None,
-) -> float:
+    params: ChainParams, x0, nsteps: int, dt: float, *, method="verlet", device=None, layout="auto", repeats=3
+):
     """Best of ``repeats`` timings (seconds) of one launch of ``nsteps`` steps on a batch already on
     the device: kernel time alone (the device is synchronised before and after; compilation, set-up
     and transfers are excluded). This is what the throughput benchmark divides by.
 
     Args:
         x0: state, shape (4, N) or (batch, 4, N); it keeps evolving from one repeat to the next.
+        method, device, layout: as ``simulate`` (``layout``: ``Placement.layout``).
     """
     meth = get_method(method)
     x0 = as_batch(x0, params.N, "x0")
-    Mb, Kb = per_lattice_parameters(params, x0.shape[0], M, K)
+    Mb, Kb = per_lattice_parameters(params, x0.shape[0], None, None)
     check_step(meth, params, dt, Mb, Kb, False)
     if not isinstance(nsteps, (int, np.integer)) or nsteps < 1:
         raise ValueError(f"nsteps must be a positive integer, got {nsteps!r}")

@@ -43,7 +43,9 @@ import numpy as np
 from scipy.optimize import brentq
 
 
-def _positive(**values):
+def _positive(obj=None, *fields, **values):
+    """Raise unless every value is a finite number > 0: the keywords, and the named ``fields`` of ``obj``."""
+    values.update({name: getattr(obj, name) for name in fields})
     for name, value in values.items():
         if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
             raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
@@ -173,14 +175,7 @@ class SurfaceResonatorModel:
     cell_area: float
 
     def __post_init__(self):
-        _positive(
-            c_L=self.c_L,
-            c_T=self.c_T,
-            rho=self.rho,
-            sphere_mass=self.sphere_mass,
-            omega0=self.omega0,
-            cell_area=self.cell_area,
-        )
+        _positive(self, "c_L", "c_T", "rho", "sphere_mass", "omega0", "cell_area")
         if self.c_T >= self.c_L:
             raise ValueError(f"c_T must be below c_L, got c_T = {self.c_T}, c_L = {self.c_L}")
 
@@ -286,14 +281,7 @@ class MaterialSet:
     name: str = ""
 
     def __post_init__(self):
-        _positive(
-            diameter=self.diameter,
-            rho_sphere=self.rho_sphere,
-            E_sphere=self.E_sphere,
-            rho_substrate=self.rho_substrate,
-            E_substrate=self.E_substrate,
-            work_of_adhesion=self.work_of_adhesion,
-        )
+        _positive(self, "diameter", "rho_sphere", "E_sphere", "rho_substrate", "E_substrate", "work_of_adhesion")
         if self.contact_frequency_hz is not None:
             _positive(contact_frequency_hz=self.contact_frequency_hz)
         effective_modulus(self.E_substrate, self.nu_substrate, self.E_sphere, self.nu_sphere)  # validates nu

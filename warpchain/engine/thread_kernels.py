@@ -270,16 +270,37 @@ def site_tangent_acceleration(
     return wp.vec2d(au, stiffness * dz)
 
 
+@wp.struct
+class Sweep:
+    """One fused splitting stage (``fused_stage``) of one lattice: its rows (unit-stride views, ``row``) of the
+    state (u, v, u', v') and of the accelerations (au, av), its 1/M and K, the step's first kick ``h_pre`` (given
+    when ``pre`` is set), the drift ``c``, the kick ``h``, and f'(z) into ``stiffness`` when ``record`` (a tangent
+    column reads its base's f'(z) from it)."""
+
+    u: Array1
+    v: Array1
+    pu: Array1
+    pv: Array1
+    au: Array1
+    av: Array1
+    inv_mass: F64
+    coupling: F64
+    pre: int
+    h_pre: F64
+    c: F64
+    h: F64
+    record: int
+    stiffness: Array1
+
+
 @wp.func
-def advance_site(
-    u: Array1, v: Array1, pu: Array1, pv: Array1, au: Array1, av: Array1, j: int, pre: int, h_pre: F64, c: F64
-) -> wp.vec4d:
+def advance_site(w: Sweep, j: int) -> wp.vec4d:
     """Site j's kick with the stored accelerations (when ``pre``; as ``kick``) and its drift (as ``drift``):
     returns (u, v, u', v') after them, not yet stored. A select, not a branch: a branch here keeps the
     compiler from vectorising the sweep (2.8 against 0.7 ns per site-step)."""
-    qu = wp.where(pre != 0, pu[j] + h_pre * au[j], pu[j])
-    qv = wp.where(pre != 0, pv[j] + h_pre * av[j], pv[j])
-    return wp.vec4d(u[j] + c * qu, v[j] + c * qv, qu, qv)
+    qu = wp.where(w.pre != 0, w.pu[j] + w.h_pre * w.au[j], w.pu[j])
+    qv = wp.where(w.pre != 0, w.pv[j] + w.h_pre * w.av[j], w.pv[j])
+    return wp.vec4d(w.u[j] + w.c * qu, w.v[j] + w.c * qv, qu, qv)
 
 
 def _fused_stage(tangent: bool):
@@ -288,79 +309,46 @@ def _fused_stage(tangent: bool):
     stage in ``stiffness``)."""
 
     @wp.func
-    def finish_site(
-        u: Array1,
-        v: Array1,
-        pu: Array1,
-        pv: Array1,
-        au: Array1,
-        av: Array1,
-        j: int,
-        left: F64,
-        site: wp.vec4d,
-        right: F64,
-        inv_mass: F64,
-        coupling: F64,
-        h: F64,
-        record: int,
-        stiffness: Array1,
-    ):
+    def finish_site(w: Sweep, j: int, left: F64, site: wp.vec4d, right: F64):
         """Site j (``site``: from ``advance_site``) between neighbours at u = left and right: its acceleration
         (and f'(z) when ``record``), the kick with it, and the stores."""
         if wp.static(tangent):
-            a = site_tangent_acceleration(site[0], site[1], left, right, inv_mass, coupling, stiffness[j])
+            a = site_tangent_acceleration(site[0], site[1], left, right, w.inv_mass, w.coupling, w.stiffness[j])
         else:
-            a = site_acceleration(site[0], site[1], left, right, inv_mass, coupling)
-        u[j] = site[0]
-        v[j] = site[1]
-        au[j] = a[0]
-        av[j] = a[1]
-        pu[j] = site[2] + h * a[0]
-        pv[j] = site[3] + h * a[1]
+            a = site_acceleration(site[0], site[1], left, right, w.inv_mass, w.coupling)
+        w.u[j] = site[0]
+        w.v[j] = site[1]
+        w.au[j] = a[0]
+        w.av[j] = a[1]
+        w.pu[j] = site[2] + w.h * a[0]
+        w.pv[j] = site[3] + w.h * a[1]
         if wp.static(not tangent):
-            if record != 0:
-                stiffness[j] = contact_stiffness(site[0] - site[1])
+            if w.record != 0:
+                w.stiffness[j] = contact_stiffness(site[0] - site[1])
 
     @wp.func
-    def fused_stage(
-        u: Array1,
-        v: Array1,
-        pu: Array1,
-        pv: Array1,
-        au: Array1,
-        av: Array1,
-        n: int,
-        boundary: int,
-        inv_mass: F64,
-        coupling: F64,
-        pre: int,
-        h_pre: F64,
-        c: F64,
-        h: F64,
-        record: int,
-        stiffness: Array1,
-    ):
-        """One stage of a splitting step on one lattice's rows (n >= 2) in a single pass over the sites: the
+    def fused_stage(w: Sweep, n: int, boundary: int):
+        """One stage ``w`` of a splitting step on one lattice's rows (n >= 2) in a single pass over the sites: the
         kick h_pre (when ``pre``: the step's first), the drift c, the accelerations (f'(z) into ``stiffness``
         when ``record``) and the kick h. Each value is computed as by ``kick``, ``drift`` and
         ``compute_accelerations`` one after the other (same operations, same order): site j + 1 is drifted
         just before site j's acceleration needs it, the sites at both ends first (a periodic wall needs
         them), so that the loop over the interior has no branch."""
-        first = advance_site(u, v, pu, pv, au, av, 0, pre, h_pre, c)
-        last = advance_site(u, v, pu, pv, au, av, n - 1, pre, h_pre, c)
+        first = advance_site(w, 0)
+        last = advance_site(w, n - 1)
         wall = wall_values(first[0], last[0], boundary)
         left = wall[0]
         right = wall[1]
         here = first
         j = wp.int32(0)
         while j < n - 2:
-            nxt = advance_site(u, v, pu, pv, au, av, j + 1, pre, h_pre, c)
-            finish_site(u, v, pu, pv, au, av, j, left, here, nxt[0], inv_mass, coupling, h, record, stiffness)
+            nxt = advance_site(w, j + 1)
+            finish_site(w, j, left, here, nxt[0])
             left = here[0]
             here = nxt
             j += 1
-        finish_site(u, v, pu, pv, au, av, n - 2, left, here, last[0], inv_mass, coupling, h, record, stiffness)
-        finish_site(u, v, pu, pv, au, av, n - 1, here[0], last, right, inv_mass, coupling, h, record, stiffness)
+        finish_site(w, n - 2, left, here, last[0])
+        finish_site(w, n - 1, here[0], last, right)
 
     return fused_stage
 
@@ -462,25 +450,29 @@ def _splitting_kernel(observed: bool):
             dissipated = observe_start(x, b, n, lat, ob)
         if fast:
             # the fast path: a stage in one pass over contiguous rows (``fused_stage``)
-            u = row(x, b, 0)
-            v = row(x, b, 1)
-            pu = row(x, b, 2)
-            pv = row(x, b, 3)
-            au = row(acc, b, 0)
-            av = row(acc, b, 1)
+            w = Sweep()
+            w.u = row(x, b, 0)
+            w.v = row(x, b, 1)
+            w.pu = row(x, b, 2)
+            w.pv = row(x, b, 3)
+            w.au = row(acc, b, 0)
+            w.av = row(acc, b, 1)
+            w.inv_mass = m
+            w.coupling = k
+            w.h_pre = kicks[0] * dt
+            w.record = record
             for step in range(nsteps):
                 for s in range(stages):
-                    pre = wp.where(s == 0, 1, 0)
-                    h0 = kicks[0] * dt
-                    c = drifts[s] * dt
-                    h = kicks[s + 1] * dt
+                    w.pre = wp.where(s == 0, 1, 0)
+                    w.c = drifts[s] * dt
+                    w.h = kicks[s + 1] * dt
                     e = step * stages + s + 1
                     if tangent != 0:
-                        stiffness = row(hist, e, base)
-                        fused_tangent_stage(u, v, pu, pv, au, av, n, boundary, m, k, pre, h0, c, h, 0, stiffness)
+                        w.stiffness = row(hist, e, base)
+                        fused_tangent_stage(w, n, boundary)
                     else:
-                        stiffness = row(hist, e * record, b * record)
-                        fused_stage(u, v, pu, pv, au, av, n, boundary, m, k, pre, h0, c, h, record, stiffness)
+                        w.stiffness = row(hist, e * record, b * record)
+                        fused_stage(w, n, boundary)
                 save_positions(x, out, b, n, step)
         else:
             for step in range(nsteps):

@@ -88,60 +88,60 @@ def rows_of(x: Array3, b: int) -> Rows:
     return r
 
 
+@wp.struct
+class Stage:
+    """What one fused Runge-Kutta stage applies at every site: the lattice's 1/M and K, ``first`` (set for the
+    stage that starts the weighted total), the stage's weight, ah = a dt, and f'(z) into ``stiffness`` when
+    ``record``."""
+
+    inv_mass: F64
+    coupling: F64
+    first: int
+    weight: F64
+    ah: F64
+    record: int
+    stiffness: Array1
+
+
 @wp.func
-def rk4_site(
-    x: Rows,
-    s: Rows,
-    y: Rows,
-    t: Rows,
-    j: int,
-    left: F64,
-    u: F64,
-    right: F64,
-    inv_mass: F64,
-    coupling: F64,
-    first: int,
-    weight: F64,
-    ah: F64,
-    record: int,
-    stiffness: Array1,
-):
-    """Site j of a Runge-Kutta stage at the state s (u: s.u[j], read before y may overwrite it) between
+def stage_of(inv_mass: F64, coupling: F64, first: int, weight: F64, ah: F64, record: int, stiffness: Array1) -> Stage:
+    c = Stage()
+    c.inv_mass = inv_mass
+    c.coupling = coupling
+    c.first = first
+    c.weight = weight
+    c.ah = ah
+    c.record = record
+    c.stiffness = stiffness
+    return c
+
+
+@wp.func
+def rk4_site(x: Rows, s: Rows, y: Rows, t: Rows, j: int, left: F64, u: F64, right: F64, c: Stage):
+    """Site j of a Runge-Kutta stage ``c`` at the state s (u: s.u[j], read before y may overwrite it) between
     neighbours at u = left and right: the derivative k = (u', v', a) (as the per-pass path forms it), its
     weighted sum into t and the next stage state y = x + ah k (``rk4_advance``; ah = a dt)."""
     v = s.v[j]
     pu = s.pu[j]
     pv = s.pv[j]
-    a = site_acceleration(u, v, left, right, inv_mass, coupling)
+    a = site_acceleration(u, v, left, right, c.inv_mass, c.coupling)
+    weight = c.weight
+    first = c.first
     t.u[j] = wp.where(first != 0, weight * pu, t.u[j] + weight * pu)
     t.v[j] = wp.where(first != 0, weight * pv, t.v[j] + weight * pv)
     t.pu[j] = wp.where(first != 0, weight * a[0], t.pu[j] + weight * a[0])
     t.pv[j] = wp.where(first != 0, weight * a[1], t.pv[j] + weight * a[1])
-    y.u[j] = x.u[j] + ah * pu
-    y.v[j] = x.v[j] + ah * pv
-    y.pu[j] = x.pu[j] + ah * a[0]
-    y.pv[j] = x.pv[j] + ah * a[1]
-    if record != 0:
-        stiffness[j] = contact_stiffness(u - v)
+    y.u[j] = x.u[j] + c.ah * pu
+    y.v[j] = x.v[j] + c.ah * pv
+    y.pu[j] = x.pu[j] + c.ah * a[0]
+    y.pv[j] = x.pv[j] + c.ah * a[1]
+    if c.record != 0:
+        c.stiffness[j] = contact_stiffness(u - v)
 
 
 @wp.func
-def rk4_fused_stage(
-    x: Rows,
-    s: Rows,
-    y: Rows,
-    t: Rows,
-    n: int,
-    boundary: int,
-    inv_mass: F64,
-    coupling: F64,
-    first: int,
-    weight: F64,
-    ah: F64,
-    record: int,
-    stiffness: Array1,
-):
-    """One Runge-Kutta stage on one lattice's rows in a single pass over the sites: the derivative at the
+def rk4_fused_stage(x: Rows, s: Rows, y: Rows, t: Rows, n: int, boundary: int, c: Stage):
+    """One Runge-Kutta stage ``c`` on one lattice's rows in a single pass over the sites: the derivative at the
     stage state s (x itself for the first stage), its weighted sum into the total t (set by the ``first``
     stage) and the next stage state y = x + ah k. Site j's u is carried to site j + 1 in a register and
     the wall values are read first, so that y may be s itself (``rk4_kernel`` keeps them apart, which lets
@@ -153,11 +153,11 @@ def rk4_fused_stage(
     j = wp.int32(0)
     while j < n - 1:
         nxt = s.u[j + 1]
-        rk4_site(x, s, y, t, j, left, here, nxt, inv_mass, coupling, first, weight, ah, record, stiffness)
+        rk4_site(x, s, y, t, j, left, here, nxt, c)
         left = here
         here = nxt
         j += 1
-    rk4_site(x, s, y, t, n - 1, left, here, right, inv_mass, coupling, first, weight, ah, record, stiffness)
+    rk4_site(x, s, y, t, n - 1, left, here, right, c)
 
 
 @wp.func
@@ -215,10 +215,10 @@ def rk4_kernel(
             s1 = row(hist, (slot + 1) * record, b * record)
             s2 = row(hist, (slot + 2) * record, b * record)
             s3 = row(hist, (slot + 3) * record, b * record)
-            rk4_fused_stage(xr, xr, yr, tr, n, boundary, m, cpl, 1, weights[0], tableau[0] * dt, record, s0)
-            rk4_fused_stage(xr, yr, kr, tr, n, boundary, m, cpl, 0, weights[1], tableau[1] * dt, record, s1)
-            rk4_fused_stage(xr, kr, yr, tr, n, boundary, m, cpl, 0, weights[2], tableau[2] * dt, record, s2)
-            rk4_fused_stage(xr, yr, kr, tr, n, boundary, m, cpl, 0, weights[3], tableau[2] * dt, record, s3)
+            rk4_fused_stage(xr, xr, yr, tr, n, boundary, stage_of(m, cpl, 1, weights[0], tableau[0] * dt, record, s0))
+            rk4_fused_stage(xr, yr, kr, tr, n, boundary, stage_of(m, cpl, 0, weights[1], tableau[1] * dt, record, s1))
+            rk4_fused_stage(xr, kr, yr, tr, n, boundary, stage_of(m, cpl, 0, weights[2], tableau[2] * dt, record, s2))
+            rk4_fused_stage(xr, yr, kr, tr, n, boundary, stage_of(m, cpl, 0, weights[3], tableau[2] * dt, record, s3))
             rk4_fused_finish(xr, tr, n, dt, tableau[3])
             save_positions(x, out, b, n, step)
     else:
