@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from warpchain import Placement
+from warpchain import Guard, Placement, Record
 from warpchain import ChainParams, reference, simulate
 from warpchain.losses import Damping, damping_matrix, dissipation, kick_dissipation, kick_matrices, rhs_flat
 from warpchain.observe import Observation, observe, peak_mask, peak_tracks, reference_observe
@@ -158,6 +158,20 @@ def test_zero_damping_observe_is_simulate_bit_for_bit(layout):
     )
     plain = simulate(PARAMS, x0, run.t[-1], run.dt, method="yoshida4", device="cpu", placement=Placement(layout=layout))
     assert plain.nsteps == run.nsteps and np.array_equal(run.x, plain.x)
+
+
+def test_observe_is_an_option_of_simulate():
+    x0 = _spots(4)
+    obs = Observation(frame_every=8, threshold=0.05, lag_frames=2)
+    kept = observe(PARAMS, x0, 4.0, 0.05, observation=obs, damping=DAMPING, device="cpu")
+    run = simulate(PARAMS, x0, 4.0, 0.05, damping=DAMPING, device="cpu", observe=obs, guard=Guard(chunks=3))
+    assert np.array_equal(run.observed.values, kept.values) and np.array_equal(run.x, kept.x)  # any chunks
+    assert np.array_equal(run.observed.envelope_lag, kept.envelope_lag) and run.observed.t_lag == kept.t_lag
+    assert run.nsteps == kept.nsteps and run.dt == kept.dt and run.energy_t.size == 4
+    with pytest.raises(ValueError, match="exclusive"):
+        simulate(PARAMS, x0, 4.0, 0.05, device="cpu", observe=obs, record=Record(every=8))
+    with pytest.raises(ValueError, match="splitting"):
+        simulate(PARAMS, x0, 4.0, 0.05, method="rk4", device="cpu", observe=obs)
 
 
 def test_observe_never_lengthens_the_step_and_checks_the_one_it_uses():

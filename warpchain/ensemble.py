@@ -86,6 +86,7 @@ class SimulationResult:
             chunks), ``frames`` (recorded frames copied into ``u`` and ``v``), ``final`` (the final
             state copied into ``x``), and ``chunks``, ``sites_per_thread`` (block layout),
             ``x0_on_device``, ``kept_on_device``.
+        observed: with ``observe``, the observables (``warpchain.observe.ObservedRun``), else None.
     """
 
     x: np.ndarray | DeviceState
@@ -107,6 +108,7 @@ class SimulationResult:
     wall_seconds: float
     layout: str = "thread"
     stats: dict = dataclasses.field(default_factory=dict)
+    observed: "ObservedRun | None" = None  # noqa: F821  (``warpchain.observe``)
 
 
 def _as_state(x0, N: int) -> np.ndarray:
@@ -157,6 +159,7 @@ def simulate(
     record: Record | None = None,
     guard: Guard = Guard(),
     placement: Placement = Placement(),
+    observe=None,
     progress: bool = False,
     **deprecated,
 ) -> SimulationResult:
@@ -181,6 +184,10 @@ def simulate(
             None records nothing but the energy trace.
         guard: the energy guard after every chunk (``Guard``: the bound, the step-size check, the chunks).
         placement: kernel layout and whether the final state stays on the device (``Placement``).
+        observe: a ``warpchain.Observation``: reduce its observables on the device every ``frame_every`` steps
+            (the step is shortened so that t_final > 0 is a whole number of frames; splitting methods, not with
+            ``record``; a lattice longer than a block runs in the thread layout), returned as ``result.observed``.
+            The guard then also bounds every frame's energy plus what the losses took.
         progress: show a tqdm progress bar.
         **deprecated: the flat keywords of earlier releases (``save_every``, ``frames_out``, ``on_chunk``,
             ``max_energy_error``, ``allow_unstable_step``, ``chunks``, ``layout``, ``keep_on_device``), folded
@@ -224,6 +231,20 @@ def simulate(
     dt = real_number("dt", dt, positive=True)
     device = resolve_device(device)
     nsteps, dt_used = steps_for(t_final, dt)
+    frame_every = 0
+    if observe is not None:
+        require_splitting(meth, "observe reduces its observables in the splitting kernels")
+        if record is not None:
+            raise ValueError("simulate(): observe and record are exclusive (observables replace the fields)")
+        if t_final <= 0:
+            raise ValueError(f"simulate(): observe needs t_final > 0, got {t_final!r}")
+        frame_every = observe.validated(batch).frame_every
+        n_frames = max(1, math.ceil(nsteps / frame_every - 1e-9))  # whole frames, the step no longer than asked
+        nsteps = n_frames * frame_every
+        dt_used = t_final / nsteps
+        lag_step = (n_frames - min(observe.lag_frames, n_frames)) * frame_every  # the envelope is also kept here
+        if resolve_layout(layout, device, params.N, meth) == "sites":
+            layout = "thread"  # the observables are reduced in the block and thread layouts
     if frames_out is not None:
         frames_out = _check_frames_out(frames_out, save_every, nsteps, batch, params.N, None if resident else x0)
     if save_every is not None and save_every > max(nsteps, 1):
@@ -235,7 +256,7 @@ def simulate(
     # chunk length: a whole number of save intervals, at least Tuning.chunk_work force evaluations of the whole
     # batch (launch, guard and transfer costs stay small against the kernel), at most 10 chunks (50 with a
     # progress bar), and, when recording, at most the frames that fit the host staging buffers
-    unit = save_every or 1
+    unit = save_every or frame_every or 1
     units_total = max(1, math.ceil(nsteps / unit))
     work = batch * params.N * max(nsteps, 1) * meth.force_evaluations
     tuning = active()
@@ -254,12 +275,20 @@ def simulate(
     plan = []  # (first step, steps, frames) of each chunk
     for first in range(0, nsteps, units_per_chunk * unit):
         steps = min(units_per_chunk * unit, nsteps - first)
+        if observe is not None and first < lag_step < first + steps:  # a chunk ends where the lag envelope is read
+            plan.append((first, lag_step - first, 0))
+            first, steps = lag_step, first + steps - lag_step
         plan.append((first, steps, steps // save_every if save_every else 0))
 
     gpu = device != "cpu"
     t_runner = time.perf_counter()
     runner = _pooled_runner(meth, params, x0, Mb, Kb, device, layout, upload=False)  # x0: uploaded below
     runner.set_damping(damping, dt_used)
+    frames = None
+    if observe is not None:
+        from .observe import _Frames
+
+        frames = _Frames(runner, observe, nsteps // frame_every)
     t_runner = time.perf_counter() - t_runner
     wp = runner.wp
     final = DeviceState.empty(x0.shape, device) if keep_on_device else None  # filled behind the last chunk
@@ -295,14 +324,15 @@ def simulate(
 
     def enqueue(i):
         """Queue chunk i on the device: kernel, guard, and the copies of its scalars and frames."""
-        _, steps, n_rec = plan[i]
+        first, steps, n_rec = plan[i]
         rec = sink.rec if n_rec else None
+        observer = frames.at(first) if frames is not None else None
         if sliced and (i == 0 or i == len(plan) - 1):
             for s, lattices in enumerate(transfers.slices):
                 if i == 0:
                     transfers.upload(s)
                     runner.guard(slot=2, lattices=lattices)  # the start: energy, finite, contact
-                runner.launch(steps, dt_used, save_every or 0, rec, lattices=lattices)
+                runner.launch(steps, dt_used, save_every or 0, rec, lattices=lattices, observer=observer)
                 if i == len(plan) - 1:
                     transfers.download(s)
             if i == 0:
@@ -310,9 +340,11 @@ def simulate(
         else:
             if i == 0:
                 runner.guard(slot=2)
-            runner.launch(steps, dt_used, save_every or 0, rec)
+            runner.launch(steps, dt_used, save_every or 0, rec, observer=observer)
             if i == 0:
                 guard.enqueue_init(runner.guard_out[2])  # after the kernel's launch: it need not wait for this
+        if frames is not None and first + steps == lag_step:
+            frames.keep_lag()
         guard.enqueue(runner.guard(rec, n_rec, i), i)
         if n_rec:
             sink.enqueue(n_rec, i, 1 + plan[i][0] // save_every)
@@ -419,6 +451,10 @@ def simulate(
         x = runner.download(target.result if target is not None else None)
     stats["final"] += time.perf_counter() - t0
     _release_runner(runner)
+    observed = None
+    if frames is not None:
+        how = dict(method=meth.name, dt=dt_used, nsteps=nsteps, device=device)
+        observed = frames.result(x0, x, limit, max_energy_error, wall_seconds=time.perf_counter() - start, **how)
     E1 = trace_E[-1]
     if save_every:
         t_arr = (np.arange(n_saved) * save_every) * dt_used
@@ -445,6 +481,7 @@ def simulate(
         wall_seconds=time.perf_counter() - start,
         layout=runner.layout,
         stats=stats,
+        observed=observed,
     )
 
 

@@ -110,14 +110,13 @@ def as_damping(damping) -> Damping | None:
     return damping if damping.any() else None
 
 
-def require_splitting(method) -> None:
-    """Raise unless ``method`` is a splitting method: losses enter only those, as an exact sub-flow."""
+def require_splitting(method, why: str = "losses enter the splitting methods as an exact sub-flow") -> None:
+    """Raise unless ``method`` is a splitting method (``why``: what needs one; losses enter only those)."""
     from .integrators import SplittingMethod
 
     if not isinstance(method, SplittingMethod):
         raise ValueError(
-            f"losses enter the splitting methods as an exact sub-flow; {method.name!r} has none: "
-            "choose a splitting method (verlet, yoshida4, kahan6, ...)"
+            f"{why}; {method.name!r} is not one: choose a splitting method (verlet, yoshida4, kahan6, ...)"
         )
 
 

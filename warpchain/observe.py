@@ -1,7 +1,9 @@
 """Observables reduced on the device: large ensembles where only per-lattice scalars reach the host.
 
-``observe`` integrates a batch like ``simulate`` (the same splitting schemes, losses included) but,
-instead of fields, returns per lattice and frame a few numbers computed inside the kernel. Every
+``simulate(..., observe=Observation(...))`` (or ``observe``, which returns just the observables) integrates a
+batch with the same splitting kernels, chunks and guard as any run (losses included) but, instead of fields,
+returns per lattice and frame a few numbers computed inside the kernel (hooks compiled into the engine's
+splitting kernels: ``thread_kernels.observed_splitting_kernel``, ``block_kernels`` ``observed``). Every
 step the kernel tracks, per site, the lowest and highest relative displacement z_j = u_j - v_j
 since the last frame; at each frame (every ``frame_every`` steps) it reduces over the lattice:
 
@@ -24,27 +26,22 @@ since the last frame; at each frame (every ``frame_every`` steps) it reduces ove
   the initial energy to the scheme's accuracy, at its order: that is what the guard checks for lattices
   with losses.
 
-The envelope profile of the last frame is kept on the device; ``observe`` reads it once
-``lag_frames`` frames before the end and once at the end, and ``peak_tracks`` turns the two into
+The envelope profile of the last frame is kept on the device, copied there ``lag_frames`` frames before
+the end (a chunk ends at that frame) and read with the one at the end; ``peak_tracks`` turns the two into
 peak positions, amplitudes and drift velocities on the host. Frame 0 (the initial state, envelope
 |z|) is reduced by the kernels too, at the start of the first launch. ``reference_observe`` is the
 numpy oracle of all of this (the same steps, the same tracking), against which the kernels are tested.
 """
 
 import dataclasses
-import math
-import time
 
 import numpy as np
 
-from .engine.devices import on_one_thread, resolve_device, resolve_layout
+from .engine.devices import on_one_thread
 from .ensemble import IntegrationError, _signed_energy_change
-from .integrators import check_step
-from .integrators import SplittingMethod, get_method, steps_for
-from .losses import Damping, as_damping
+from .losses import Damping
 from .model import (
     ChainParams,
-    as_batch,
     site_energies,
     per_lattice_parameters,
     real_number,
@@ -275,6 +272,94 @@ def peak_tracks(env_lag, env_end, dt_lag: float, observation: Observation, max_s
 # ----------------------------------------------------------------------------- driver
 
 
+class _Frames:
+    """The device side of ``simulate(..., observe=...)``: one run's observables and tracking buffers on the device
+    (kept across its chunks) and the ``thread_kernels.Observer`` a chunk's launch hands the observed kernels."""
+
+    def __init__(self, runner, observation: Observation, n_frames: int):
+        wp, f64 = runner.wp, runner.wp.float64
+        shape = (runner.batch, runner.N)
+        self.wp, self.observation, self.layout = wp, observation, runner.layout
+        spot = np.broadcast_to(np.asarray(observation.spot, dtype=np.float64), (runner.batch,))
+        self.kept = {
+            "spot": wp.array(spot, dtype=f64, device=runner.device),
+            "z_low": wp.empty(shape, dtype=f64, device=runner.device),  # the tracked z extremes (set at frame 0)
+            "z_high": wp.empty(shape, dtype=f64, device=runner.device),
+            # the energy dissipated so far: per site (block layout) or per lattice (thread layout), across launches
+            "lost": wp.zeros(
+                (runner.batch, runner.N if runner.layout == "block" else 1), dtype=f64, device=runner.device
+            ),
+            "envelope": wp.zeros(shape, dtype=f64, device=runner.device),
+        }
+        self.values = wp.zeros((n_frames + 1, runner.batch, N_OBSERVABLES), dtype=f64, device=runner.device)
+        self.lag = None  # the envelope lag_frames before the end (``keep_lag``)
+
+    def at(self, first_step: int):
+        """The observers of a launch that starts at ``first_step``: a function of the lattices (lo, hi)."""
+        from .engine.thread_kernels import Observer
+
+        f64, observation = self.wp.float64, self.observation
+
+        def observer(lo, hi):
+            ob = Observer()
+            ob.first_step, ob.frame_every, ob.radius = int(first_step), observation.frame_every, observation.radius
+            ob.threshold, ob.contrast = f64(observation.threshold), f64(observation.contrast)
+            for name, array in self.kept.items():
+                setattr(ob, name, array[lo:hi])
+            ob.values = self.values[:, lo:hi]
+            return ob
+
+        return observer
+
+    def keep_lag(self) -> None:
+        """Queue a copy of the last frame's envelope (read after the run)."""
+        self.lag = self.wp.clone(self.kept["envelope"])
+
+    def result(self, x0, x, limit: float, max_energy_error: float | None, **how) -> "ObservedRun":
+        """The ``ObservedRun`` once the run is done (``how``: method, dt, nsteps, device, wall_seconds). Every
+        frame's energy plus what the losses took must be the initial energy within ``max_energy_error``."""
+        values = self.values.numpy()
+        n_frames, dt_used, fe = values.shape[0] - 1, how["dt"], self.observation.frame_every
+        t = np.arange(n_frames + 1) * fe * dt_used
+        E0 = values[0, :, _ENERGY].copy()
+        change = np.abs(_signed_energy_change(values[..., _ENERGY] + values[..., _DISSIPATED], E0, x.shape[-1]))
+        bad = ~np.isfinite(values).all(axis=2) | (change > max_energy_error if max_energy_error is not None else False)
+        if bad.any():
+            frame = int(np.argmax(bad.any(axis=1)))
+            failed = np.flatnonzero(bad[frame]).tolist()
+            what = (
+                "non-finite values"
+                if not np.isfinite(values[frame]).all()
+                else f"energy error above {max_energy_error:g}"
+            )
+            raise IntegrationError(
+                f"integration blew up ({what}) at t = {t[frame]:.6g} with method '{how['method']}', dt = {dt_used:.6g} "
+                f"(linear stability limit {limit:.6g}); failing lattices: {failed[:20]}. Reduce dt.",
+                method=how["method"],
+                dt=dt_used,
+                stability_limit=limit,
+                failed=failed,
+                t=float(t[frame]),
+            )
+        if self.lag is None:  # the lag reaches back to frame 0: the envelope |z| of x0
+            x0 = x0.numpy() if hasattr(x0, "numpy") else x0
+            envelope_lag = np.abs(x0[:, 0] - x0[:, 1])
+        else:
+            envelope_lag = self.lag.numpy()
+        lag = min(self.observation.lag_frames, n_frames)
+        return ObservedRun(
+            t=t,
+            values=values,
+            envelope=self.kept["envelope"].numpy(),
+            envelope_lag=envelope_lag,
+            t_lag=(n_frames - lag) * fe * dt_used,
+            x=x.numpy() if hasattr(x, "numpy") else x,
+            energy_initial=E0,
+            layout=self.layout,
+            **how,
+        )
+
+
 @on_one_thread
 def observe(
     params: ChainParams,
@@ -293,16 +378,16 @@ def observe(
     progress: bool = False,
     max_energy_error: float | None = 0.05,
 ) -> ObservedRun:
-    """Integrate a batch and reduce the observables on the device (module docstring).
+    """``simulate(..., observe=observation)``'s observables: integrate a batch and reduce them on the device (module
+    docstring).
 
     Args:
-        params, x0, dt, method, M, K, device, layout: as ``simulate`` (splitting methods only).
+        params, x0, dt, method, damping, M, K, device, progress: as ``simulate`` (splitting methods only).
         t_final: final time, kept; the step is shortened (never lengthened) so that t_final is a whole
             number of frames of ``observation.frame_every`` steps (the result reports the step used).
         observation: what to reduce and how often.
-        damping: losses (``losses.Damping`` or a (contact, substrate) pair; per lattice allowed).
-        chunks: launches the run is split into (progress and guard points; default 20).
-        max_energy_error: relative change of energy + dissipated energy that counts as a blow-up.
+        layout, chunks, max_energy_error: ``Placement.layout``, ``Guard.chunks``, ``Guard.max_energy_error``;
+            the bound also holds for every frame's energy plus what the losses took.
 
     Returns:
         ObservedRun.
@@ -311,127 +396,22 @@ def observe(
         ValueError: bad input. StepSizeError: dt above the stability limit.
         IntegrationError: non-finite state or energy error above the bound (names method, dt, limit).
     """
-    from .engine.devices import _warp
-    from .engine.runner import _pooled_runner, _release_runner
-    from .engine.thread_kernels import Observer
+    from .ensemble import simulate
+    from .options import Guard, Placement
 
-    wp = _warp()
-    start = time.perf_counter()
-    meth = get_method(method)
-    if not isinstance(meth, SplittingMethod):
-        raise ValueError(f"observe runs the splitting methods; {meth.name!r} is not one (choose verlet, yoshida4, ...)")
-    x0 = as_batch(x0, params.N, "x0")
-    batch = x0.shape[0]
-    Mb, Kb = per_lattice_parameters(params, batch, M, K)
-    observation = observation.validated(batch)
-    damping = as_damping(damping)
-    t_final = real_number("t_final", t_final, positive=True)
-    if chunks is not None:
-        chunks = whole_number("chunks", chunks, minimum=1)
-    if max_energy_error is not None:
-        max_energy_error = real_number("max_energy_error", max_energy_error, positive=True)
-    device = resolve_device(device)
-    layout = "block" if resolve_layout(layout, device, params.N) == "block" else "thread"
-    fe = observation.frame_every
-    nsteps, dt_used = steps_for(t_final, real_number("dt", dt, positive=True))
-    n_frames = max(1, math.ceil(nsteps / fe - 1e-9))  # whole frames, the step no longer than asked
-    nsteps = n_frames * fe
-    dt_used = t_final / nsteps
-    limit = check_step(meth, params, dt_used, Mb, Kb, False)
-    lag = min(observation.lag_frames, n_frames)
-
-    # the engine's runner (state, parameters, losses, launches; on a GPU one kept from an earlier call of this
-    # shape, its buffers reused); the observables in an ``Observer``
-    runner = _pooled_runner(meth, params, x0, Mb, Kb, device, layout)
-    runner.set_damping(damping, dt_used)
-    f64 = wp.float64
-    shape = (batch, params.N)
-    spot = np.broadcast_to(np.asarray(observation.spot, dtype=np.float64), (batch,))
-    kept = {
-        "spot": wp.array(spot, dtype=f64, device=device),
-        "z_low": wp.empty(shape, dtype=f64, device=device),  # the tracked z extremes (set at frame 0)
-        "z_high": wp.empty(shape, dtype=f64, device=device),
-        # the energy dissipated so far: per site (block layout) or per lattice (thread layout), across launches
-        "lost": wp.zeros((batch, params.N if layout == "block" else 1), dtype=f64, device=device),
-        "envelope": wp.zeros(shape, dtype=f64, device=device),
-    }
-    obs = wp.zeros((n_frames + 1, batch, N_OBSERVABLES), dtype=f64, device=device)
-
-    def launch(first, steps):
-        def observer(lo, hi):
-            ob = Observer()
-            ob.first_step, ob.frame_every, ob.radius = int(first), fe, int(observation.radius)
-            ob.threshold, ob.contrast = f64(observation.threshold), f64(observation.contrast)
-            for name, array in kept.items():
-                setattr(ob, name, array[lo:hi])
-            ob.values = obs[:, lo:hi]
-            return ob
-
-        runner.launch(int(steps), dt_used, observer=observer)
-
-    # chunks: whole frames; the last `lag` frames form their own chunk so that the envelope is read there
-    n_chunks = chunks or 20
-    main_frames = n_frames - lag
-    bounds = [0]
-    if main_frames > 0:
-        per = max(1, math.ceil(main_frames / max(1, n_chunks - 1)))
-        bounds += list(range(per, main_frames, per)) + [main_frames]
-    bounds.append(n_frames)
-    bounds = sorted(set(bounds))
-    bar = None
-    if progress:
-        from tqdm.auto import tqdm
-
-        bar = tqdm(total=n_frames, desc=f"observe {meth.name} x{batch}", unit="frame", leave=False)
-    env_lag = np.abs(x0[:, 0] - x0[:, 1]) if main_frames == 0 else None  # frame 0's envelope
-    values = np.empty((n_frames + 1, batch, N_OBSERVABLES))
-    E0 = None
-    try:
-        for a, b in zip(bounds[:-1], bounds[1:]):
-            launch(a * fe, (b - a) * fe)  # frames a + 1 .. b (and frame 0 with the first)
-            values[a : b + 1] = obs[a : b + 1].numpy()
-            if E0 is None:
-                E0 = values[0, :, _ENERGY].copy()
-            if b == main_frames:
-                env_lag = kept["envelope"].numpy().copy()
-            E = (
-                values[b, :, _ENERGY] + values[b, :, _DISSIPATED]
-            )  # plus what the losses took: E(0), to the scheme's accuracy
-            finite = np.isfinite(values[a : b + 1]).all(axis=(0, 2))
-            err = np.where(finite, np.abs(_signed_energy_change(E, E0, params.N)), np.inf)
-            bad = ~finite | ((err > max_energy_error) if max_energy_error is not None else False)
-            if np.any(bad):
-                failed = np.flatnonzero(bad).tolist()
-                t_now = b * fe * dt_used
-                what = "non-finite state" if not finite.all() else f"energy error above {max_energy_error:g}"
-                raise IntegrationError(
-                    f"integration blew up ({what}) at t = {t_now:.6g} with method '{meth.name}', dt = {dt_used:.6g} "
-                    f"(linear stability limit {limit:.6g}); failing lattices: {failed[:20]}. Reduce dt.",
-                    method=meth.name,
-                    dt=dt_used,
-                    stability_limit=limit,
-                    failed=failed,
-                    t=t_now,
-                )
-            if bar is not None:
-                bar.update(b - a)
-        envelope, x = kept["envelope"].numpy().copy(), runner.x.numpy().copy()
-    finally:
-        if bar is not None:
-            bar.close()
-        _release_runner(runner)  # back to the pool (a GPU's), its buffers for the next call of this shape
-    return ObservedRun(
-        t=np.arange(n_frames + 1) * fe * dt_used,
-        values=values,
-        envelope=envelope,
-        envelope_lag=env_lag,
-        t_lag=(n_frames - lag) * fe * dt_used,
-        x=x,
-        energy_initial=E0,
-        method=meth.name,
-        dt=dt_used,
-        nsteps=nsteps,
+    run = simulate(
+        params,
+        x0,
+        real_number("t_final", t_final, positive=True),
+        dt,
+        method=method,
         device=device,
-        layout=layout,
-        wall_seconds=time.perf_counter() - start,
+        M=M,
+        K=K,
+        damping=damping,
+        observe=observation,
+        guard=Guard(max_energy_error=max_energy_error, chunks=chunks),
+        placement=Placement(layout=layout),
+        progress=progress,
     )
+    return run.observed
