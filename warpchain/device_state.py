@@ -86,6 +86,19 @@ class DeviceState:
     def device(self) -> str:
         return str(self.array.device)
 
+    def device_for(self, n_sites: int, device: str | None) -> str:
+        """The device a run from this state uses (its own), checked against the chain and the ``device`` asked."""
+        from .engine.devices import resolve_device
+
+        if self.shape[2] != n_sites:
+            raise ValueError(f"x0 (a DeviceState of shape {self.shape}) does not fit a chain of N = {n_sites} cells")
+        if device is not None and resolve_device(device) != self.device:
+            raise ValueError(
+                f"x0 lives on {self.device!r} but device={device!r}: run on {self.device!r} (device=None), or pass "
+                "x0.numpy() to move the state"
+            )
+        return self.device
+
     def __len__(self) -> int:
         return self.shape[0]
 

@@ -42,7 +42,7 @@ from .engine.hostmem import (  # noqa: F401
     slice_bounds,
 )
 from .engine.plans import sites_per_thread  # noqa: F401
-from .engine.runner import _GuardReader, _pooled_runner, _release_runner, _Replay, _Runner  # noqa: F401
+from .engine.runner import _GuardReader, _pooled_runner, _release_runner, _Replay, _Runner, time_steps  # noqa: F401
 
 
 class IntegrationError(RuntimeError):
@@ -120,23 +120,6 @@ def _as_state(x0, N: int) -> np.ndarray:
     if arr.dtype == np.float64 and arr.ndim == 2 and arr.shape == (4, N):
         return np.ascontiguousarray(arr[None])
     return as_batch(x0, N, "x0")  # anything else: the full validation, with its messages
-
-
-def _state_device(x0: DeviceState, n_sites: int, device: str | None) -> str:
-    """The device a ``DeviceState`` x0 runs on (its own), checked against the chain and ``device``."""
-    if x0.shape[2] != n_sites:
-        raise ValueError(f"x0 (a DeviceState of shape {x0.shape}) does not fit a chain of N = {n_sites} cells")
-    own = x0.device
-    if device is not None and resolve_device(device) != own:
-        raise ValueError(
-            f"x0 lives on {own!r} but device={device!r}: run on {own!r} (device=None), or pass x0.numpy() "
-            "to move the state"
-        )
-    return own
-
-
-def _relative_energy_error(E, E0, N):
-    return np.abs(_signed_energy_change(E, E0, N))
 
 
 def _signed_energy_change(E, E0, N):
@@ -217,7 +200,7 @@ def simulate(
     meth = get_method(method)
     resident = isinstance(x0, DeviceState)  # x0 in device memory: no transfer at all
     if resident:
-        device = _state_device(x0, params.N, device)
+        device = x0.device_for(params.N, device)
     else:
         x0 = _as_state(x0, params.N)  # the check for non-finite values runs on the device (the guard)
     batch = x0.shape[0]
@@ -468,7 +451,7 @@ def simulate(
         v=v_arr,
         energy_initial=E0,
         energy_final=E1,
-        energy_error=_relative_energy_error(E1, E0, params.N),
+        energy_error=np.abs(_signed_energy_change(E1, E0, params.N)),
         max_energy_error=max_err,
         min_contact=contact,
         energy_t=np.array(trace_t),
@@ -608,37 +591,3 @@ def propagate_tangent(
         kernel_seconds=kernel_seconds,
         launch_seconds=launch_seconds,
     )
-
-
-@on_one_thread
-def time_steps(
-    params: ChainParams, x0, nsteps: int, dt: float, *, method="verlet", device=None, layout="auto", repeats=3
-):
-    """Best of ``repeats`` timings (seconds) of one launch of ``nsteps`` steps on a batch already on
-    the device: kernel time alone (the device is synchronised before and after; compilation, set-up
-    and transfers are excluded). This is what the throughput benchmark divides by.
-
-    Args:
-        x0: state, shape (4, N) or (batch, 4, N); it keeps evolving from one repeat to the next.
-        method, device, layout: as ``simulate`` (``layout``: ``Placement.layout``).
-    """
-    meth = get_method(method)
-    x0 = as_batch(x0, params.N, "x0")
-    Mb, Kb = per_lattice_parameters(params, x0.shape[0], None, None)
-    check_step(meth, params, dt, Mb, Kb, False)
-    if not isinstance(nsteps, (int, np.integer)) or nsteps < 1:
-        raise ValueError(f"nsteps must be a positive integer, got {nsteps!r}")
-    if not isinstance(repeats, (int, np.integer)) or repeats < 1:
-        raise ValueError(f"repeats must be a positive integer, got {repeats!r}")
-    device = resolve_device(device)
-    runner = _Runner(meth, params, x0, Mb, Kb, device, layout=layout)
-    wp = runner.wp
-    runner.launch(1, float(dt))  # compile and load the kernel
-    best = math.inf
-    for _ in range(repeats):
-        wp.synchronize_device(device)
-        t0 = time.perf_counter()
-        runner.launch(int(nsteps), float(dt))
-        wp.synchronize_device(device)
-        best = min(best, time.perf_counter() - t0)
-    return best

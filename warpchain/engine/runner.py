@@ -4,16 +4,18 @@ scalars on their way to the host (``_GuardReader``)."""
 
 from __future__ import annotations
 
+import math
+import time
 from typing import Callable
 
 import numpy as np
 
-from ..integrators import Method
+from ..integrators import Method, check_step, get_method
 from ..losses import KICK_ENTRIES, Damping, kick_matrices, lossless
-from ..model import BOUNDARY_CODES, ChainParams
+from ..model import BOUNDARY_CODES, ChainParams, as_batch, per_lattice_parameters
 from ..device_state import DeviceState
 from ..reference import inverse_mass
-from .devices import _in_parallel, _part, _parts, _slices, _warp, held, resolve_layout
+from .devices import _in_parallel, _part, _parts, _slices, _warp, held, on_one_thread, resolve_device, resolve_layout
 from .hostmem import _STAGING_LOCK, _copy, _give_buffer, _take_buffer
 from .plans import _plan_for
 from .tuning import active
@@ -450,3 +452,37 @@ class _GuardReader:
         self.enqueue(out, i)
         self.record(i)
         return self.wait(i)
+
+
+@on_one_thread
+def time_steps(
+    params: ChainParams, x0, nsteps: int, dt: float, *, method="verlet", device=None, layout="auto", repeats=3
+):
+    """Best of ``repeats`` timings (seconds) of one launch of ``nsteps`` steps on a batch already on
+    the device: kernel time alone (the device is synchronised before and after; compilation, set-up
+    and transfers are excluded). This is what the throughput benchmark divides by.
+
+    Args:
+        x0: state, shape (4, N) or (batch, 4, N); it keeps evolving from one repeat to the next.
+        method, device, layout: as ``simulate`` (``layout``: ``Placement.layout``).
+    """
+    meth = get_method(method)
+    x0 = as_batch(x0, params.N, "x0")
+    Mb, Kb = per_lattice_parameters(params, x0.shape[0], None, None)
+    check_step(meth, params, dt, Mb, Kb, False)
+    if not isinstance(nsteps, (int, np.integer)) or nsteps < 1:
+        raise ValueError(f"nsteps must be a positive integer, got {nsteps!r}")
+    if not isinstance(repeats, (int, np.integer)) or repeats < 1:
+        raise ValueError(f"repeats must be a positive integer, got {repeats!r}")
+    device = resolve_device(device)
+    runner = _Runner(meth, params, x0, Mb, Kb, device, layout=layout)
+    wp = runner.wp
+    runner.launch(1, float(dt))  # compile and load the kernel
+    best = math.inf
+    for _ in range(repeats):
+        wp.synchronize_device(device)
+        t0 = time.perf_counter()
+        runner.launch(int(nsteps), float(dt))
+        wp.synchronize_device(device)
+        best = min(best, time.perf_counter() - t0)
+    return best
