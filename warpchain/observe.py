@@ -399,19 +399,10 @@ def observe(
     from .ensemble import simulate
     from .options import Guard, Placement
 
+    same = dict(method=method, device=device, M=M, K=K, damping=damping, progress=progress)  # as simulate's
+    guard = Guard(max_energy_error=max_energy_error, chunks=chunks)
+    t_final = real_number("t_final", t_final, positive=True)
     run = simulate(
-        params,
-        x0,
-        real_number("t_final", t_final, positive=True),
-        dt,
-        method=method,
-        device=device,
-        M=M,
-        K=K,
-        damping=damping,
-        observe=observation,
-        guard=Guard(max_energy_error=max_energy_error, chunks=chunks),
-        placement=Placement(layout=layout),
-        progress=progress,
+        params, x0, t_final, dt, observe=observation, guard=guard, placement=Placement(layout=layout), **same
     )
     return run.observed

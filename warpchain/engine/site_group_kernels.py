@@ -160,6 +160,22 @@ def site_group_kernels(threads: int, sites: int, boundary: int, min_blocks_per_s
             else:
                 return wp.vec2d(pu + h * au, pv + h * av)
 
+        @wp.func
+        def accelerations(u: run, v: run, m: run, e: wp.vec4d, t: int, n: int, k: F64, hist: Array3, slot: int, b: int):
+            """The slots' accelerations (u'', v'') between the run's end values ``e``; compiled ``record``, f'(z) of
+            the lattice's sites into hist[slot, b]."""
+            au = run()
+            av = run()
+            for s in range(wp.static(sites)):
+                nb = neighbour_values(u, e, t, n, s)
+                a = site_acceleration_times(u[s], v[s], nb[0], nb[1], m[s], k)
+                au[s] = a[0]
+                av[s] = a[1]
+                if wp.static(record):
+                    if t * wp.static(sites) + s < n:
+                        hist[slot, b, t * wp.static(sites) + s] = contact_stiffness(u[s] - v[s])
+            return au, av
+
         @wp.kernel(**options)
         def splitting(x: Array3, lat: Lattice, scheme: Scheme, nsteps: int, out: Recording):
             """``block_kernels``' splitting kernel (same arguments but no ``Observer``; the boundary is compiled in,
@@ -191,16 +207,7 @@ def site_group_kernels(threads: int, sites: int, boundary: int, min_blocks_per_s
             buf = wp.tile_zeros(shape=(halves,), dtype=entry, storage="shared")
             parity = int(0)
             e = ends(buf, u, t, n, parity)
-            au = run()
-            av = run()
-            for s in range(wp.static(sites)):
-                nb = neighbour_values(u, e, t, n, s)
-                a = site_acceleration_times(u[s], v[s], nb[0], nb[1], m[s], k)
-                au[s] = a[0]
-                av[s] = a[1]
-                if wp.static(record):
-                    if first + s < n:
-                        out.hist[0, b, first + s] = contact_stiffness(u[s] - v[s])
+            au, av = accelerations(u, v, m, e, t, n, k, out.hist, 0, b)
             # every step's first kick uses the accelerations of the previous step's last kick (carried over)
             for step in range(nsteps):
                 for s in range(wp.static(sites)):
@@ -214,16 +221,7 @@ def site_group_kernels(threads: int, sites: int, boundary: int, min_blocks_per_s
                         v[s] = v[s] + h * pv[s]
                     parity = 1 - parity
                     e = ends(buf, u, t, n, parity)
-                    for s in range(wp.static(sites)):
-                        nb = neighbour_values(u, e, t, n, s)
-                        a = site_acceleration_times(u[s], v[s], nb[0], nb[1], m[s], k)
-                        au[s] = a[0]
-                        av[s] = a[1]
-                        if wp.static(record):
-                            if first + s < n:
-                                out.hist[step * wp.static(stages) + stage + 1, b, first + s] = contact_stiffness(
-                                    u[s] - v[s]
-                                )
+                    au, av = accelerations(u, v, m, e, t, n, k, out.hist, step * wp.static(stages) + stage + 1, b)
                     h = kicks[stage + 1]
                     for s in range(wp.static(sites)):
                         w = kick(pu[s], pv[s], au[s], av[s], h, loss, damp, b, stage + 1)
