@@ -13,9 +13,12 @@ Modules:
   thread block per lattice, a thread per site), ``site_group_kernels`` (a thread per run of sites: the GPU
   path for large batches) and ``site_kernels`` (the ``"sites"`` layout: a thread per site and a launch per
   force evaluation, for lattices longer than a block; its one kernel serves base runs and tangent columns)
-  hold the kernels; ``warpchain.reference`` is their numpy oracle. The step kernels take what a run records
-  as one ``thread_kernels.Recording`` and, compiled ``observed``, the observables of ``warpchain.observe`` as
-  hooks in the same step loop (``thread_kernels.Observer``; thread and block layouts).
+  hold the kernels; ``warpchain.reference`` is their numpy oracle. Kernels take their arguments as a few
+  structs passed whole: the lattices (``thread_kernels.Lattice``: M, 1/M, K, losses, boundary), the method
+  (``block_kernels.Scheme``: a splitting method's coefficients times dt; ``thread_kernels.Tableau``: a
+  Runge-Kutta method's), what a run records (``thread_kernels.Recording``) and, compiled ``observed``, the
+  observables of ``warpchain.observe`` (``thread_kernels.Observer``; hooks in the same step loop of the thread
+  and block layouts, launched by ``simulate(..., observe=...)``).
 
 How the state moves (measured on an H100, ``benchmarks/results/h100-2026-11-25/engine-split.json``): through pinned
 staging buffers (``hostmem``), in lattice slices overlapped with the first and last chunk for large batches,
@@ -45,6 +48,7 @@ The tests over ``BOUNDARIES`` (``tests/test_gpu_engine.py``, ``tests/test_integr
 ``tests/test_site_kernels.py``) check every layout against the reference bit for bit.
 
 A 2-D lattice (the monolayer) is a new neighbour rule, not a new engine: ``site_kernels.evaluate`` reads a
-site's neighbours through ``neighbours_at``; a neighbour table (or a stencil) replaces it there, and the launch
-sequence, the kicks and drifts and the tangent lanes stay.
+site's neighbours through ``neighbours_at``; a neighbour table (or a stencil), carried in the ``Lattice`` struct
+every kernel already takes, replaces it there, and the launch sequence, the kicks and drifts and the tangent
+lanes stay.
 """
