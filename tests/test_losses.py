@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from warpchain import Guard, Placement, Record
-from warpchain import ChainParams, reference, simulate
+from warpchain import ChainParams, IntegrationError, reference, simulate, stability_limit
 from warpchain.losses import Damping, damping_matrix, dissipation, kick_dissipation, kick_matrices, rhs_flat
 from warpchain.observe import Observation, observe, peak_mask, peak_tracks, reference_observe
 
@@ -184,6 +184,31 @@ def test_observe_never_lengthens_the_step_and_checks_the_one_it_uses():
         observe(PARAMS, _spots(1), 10.0, 0.5, observation=Observation(frame_every=4), device="cpu")
     with pytest.raises(ValueError, match="chunks"):
         observe(PARAMS, _spots(1), 1.0, 0.05, observation=Observation(frame_every=4), device="cpu", chunks=0)
+    limit = stability_limit("verlet", PARAMS)  # asked above the limit, run below it: ten steps become a frame of 80
+    run = observe(PARAMS, _spots(1), 10 * limit, 1.3 * limit, observation=Observation(frame_every=80), device="cpu")
+    assert run.nsteps == 80 and run.dt < limit
+
+
+def test_observed_guard_bounds_energy_plus_dissipated_at_every_chunk():
+    """A lattice whose energy plus what the losses took drifts past the bound stops the run at the first chunk
+    where it does, with the lossy lattices named (a bound far below the scheme's error at this step)."""
+    x0 = np.zeros((3, 4, 17))
+    x0[:, 2, 6:11] = 0.3
+    chain = ChainParams(30.0, 160.0, 17)
+    damping = Damping(np.array([0.0, 0.05, 0.05]), np.array([0.0, 0.0, 0.02]))
+    with pytest.raises(IntegrationError) as error:
+        observe(
+            chain,
+            x0,
+            40.0,
+            0.2,
+            observation=Observation(frame_every=10),
+            damping=damping,
+            device="cpu",
+            chunks=4,
+            max_energy_error=2e-4,
+        )
+    assert error.value.failed == [0, 1, 2] and error.value.t == pytest.approx(10.0)
 
 
 def test_peaks_and_tracks():

@@ -210,7 +210,9 @@ def simulate(
         damping.per_lattice(batch)  # validated here, at the boundary
         require_splitting(meth)
     t_final = real_number("t_final", t_final, nonnegative=True)
-    limit = check_step(meth, params, dt, M if M is None else Mb, K if K is None else Kb, guard.allow_unstable_step)
+    checked = (M if M is None else Mb, K if K is None else Kb, guard.allow_unstable_step)
+    if observe is None:
+        limit = check_step(meth, params, dt, *checked)
     dt = real_number("dt", dt, positive=True)
     device = resolve_device(device)
     nsteps, dt_used = steps_for(t_final, dt)
@@ -225,6 +227,7 @@ def simulate(
         n_frames = max(1, math.ceil(nsteps / frame_every - 1e-9))  # whole frames, the step no longer than asked
         nsteps = n_frames * frame_every
         dt_used = t_final / nsteps
+        limit = check_step(meth, params, dt_used, *checked)  # the step that runs
         lag_step = (n_frames - min(observe.lag_frames, n_frames)) * frame_every  # the envelope is also kept here
         if resolve_layout(layout, device, params.N, meth) == "sites":
             layout = "thread"  # the observables are reduced in the block and thread layouts
@@ -326,8 +329,10 @@ def simulate(
             runner.launch(steps, dt_used, save_every or 0, rec, observer=observer)
             if i == 0:
                 guard.enqueue_init(runner.guard_out[2])  # after the kernel's launch: it need not wait for this
-        if frames is not None and first + steps == lag_step:
-            frames.keep_lag()
+        if frames is not None:
+            if first + steps == lag_step:
+                frames.keep_lag()
+            frames.enqueue_copy(first // frame_every, (first + steps) // frame_every)
         guard.enqueue(runner.guard(rec, n_rec, i), i)
         if n_rec:
             sink.enqueue(n_rec, i, 1 + plan[i][0] // save_every)
@@ -342,6 +347,9 @@ def simulate(
         t_now = (first + steps) * dt_used
         change = _signed_energy_change(E, E0, params.N)  # lattices with losses: only growth is an error
         err = np.where(runner.lossy_host, np.maximum(change, 0.0), np.abs(change))
+        if frames is not None:  # and the chunk's frames: energy plus what the losses took, both signs
+            balance, frames_finite = frames.balance(first // frame_every, (first + steps) // frame_every)
+            err, finite = np.maximum(err, balance), finite & frames_finite
         err = np.where(finite, err, np.inf)
         max_err = np.maximum(max_err, err)
         trace_t.append(t_now)
@@ -372,6 +380,7 @@ def simulate(
     if runner.layout == "block" and isinstance(meth, SplittingMethod):
         lattices = transfers.slices[0][1] if sliced else batch
         stats["sites_per_thread"] = sites_per_thread(lattices, params.N, meth.stages, device)
+    failed = False
     try:
         if plan:
             if not sliced:
@@ -410,6 +419,9 @@ def simulate(
                 saved += n_rec
             if bar is not None:
                 bar.update(steps)
+    except BaseException:
+        failed = True
+        raise
     finally:
         if bar is not None:
             bar.close()
@@ -422,6 +434,8 @@ def simulate(
             transfers.close()
         if target is not None:
             target.join()
+        if failed:
+            _release_runner(runner)  # the device is idle (synchronised above): its buffers serve the next call
     t0 = time.perf_counter()
     if final is not None:
         if not plan:
@@ -437,7 +451,7 @@ def simulate(
     observed = None
     if frames is not None:
         how = dict(method=meth.name, dt=dt_used, nsteps=nsteps, device=device)
-        observed = frames.result(x0, x, limit, max_energy_error, wall_seconds=time.perf_counter() - start, **how)
+        observed = frames.result(x0, x, wall_seconds=time.perf_counter() - start, **how)
     E1 = trace_E[-1]
     if save_every:
         t_arr = (np.arange(n_saved) * save_every) * dt_used

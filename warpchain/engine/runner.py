@@ -456,7 +456,7 @@ class _GuardReader:
 
 @on_one_thread
 def time_steps(
-    params: ChainParams, x0, nsteps: int, dt: float, *, method="verlet", device=None, layout="auto", repeats=3
+    params, x0, nsteps: int, dt: float, *, method="verlet", device=None, layout="auto", repeats=3, M=None, K=None
 ):
     """Best of ``repeats`` timings (seconds) of one launch of ``nsteps`` steps on a batch already on
     the device: kernel time alone (the device is synchronised before and after; compilation, set-up
@@ -464,11 +464,11 @@ def time_steps(
 
     Args:
         x0: state, shape (4, N) or (batch, 4, N); it keeps evolving from one repeat to the next.
-        method, device, layout: as ``simulate`` (``layout``: ``Placement.layout``).
+        method, device, layout, M, K: as ``simulate`` (``layout``: ``Placement.layout``).
     """
     meth = get_method(method)
     x0 = as_batch(x0, params.N, "x0")
-    Mb, Kb = per_lattice_parameters(params, x0.shape[0], None, None)
+    Mb, Kb = per_lattice_parameters(params, x0.shape[0], M, K)
     check_step(meth, params, dt, Mb, Kb, False)
     if not isinstance(nsteps, (int, np.integer)) or nsteps < 1:
         raise ValueError(f"nsteps must be a positive integer, got {nsteps!r}")
