@@ -130,23 +130,37 @@ def _per_lattice(value, batch: int) -> np.ndarray:
     return arr.reshape(batch, 1)
 
 
+def walls(u: np.ndarray, boundary: str) -> tuple[np.ndarray, np.ndarray]:
+    """(the u left of site 0, the u right of site N - 1) along the last axis: 0 at a fixed wall, the site itself at
+    a free end, the other end on a ring. The one place the host defines a boundary's values (the kernels':
+    ``thread_kernels.wall_values``); the Laplacian's ends and the energy's wall bonds follow from them."""
+    first, last = u[..., 0], u[..., -1]
+    if boundary == "fixed":
+        return np.zeros_like(first), np.zeros_like(last)
+    if boundary == "free":
+        return first, last
+    if boundary == "periodic":
+        return last, first
+    raise ValueError(f"unknown boundary {boundary!r}; expected one of {BOUNDARIES}")
+
+
+def wall_bonds(u: np.ndarray, boundary: str) -> tuple[np.ndarray, np.ndarray]:
+    """The squared bond lengths at the chain's ends, (u_0 - left wall)^2 and (right wall - u_{N-1})^2 (``walls``);
+    on a ring the left one is the right one, counted there (0 here)."""
+    left, right = walls(u, boundary)
+    end = (right - u[..., -1]) ** 2
+    if boundary == "periodic":
+        return np.zeros_like(end), end
+    return (u[..., 0] - left) ** 2, end
+
+
 def laplacian(u: np.ndarray, boundary: str) -> np.ndarray:
-    """Discrete 2 u_j - u_{j-1} - u_{j+1} along the last axis for the given boundary."""
+    """Discrete 2 u_j - u_{j-1} - u_{j+1} along the last axis for the given boundary (its walls: ``walls``)."""
     left = np.empty_like(u)
     right = np.empty_like(u)
     left[..., 1:] = u[..., :-1]
     right[..., :-1] = u[..., 1:]
-    if boundary == "fixed":
-        left[..., 0] = 0.0
-        right[..., -1] = 0.0
-    elif boundary == "free":
-        left[..., 0] = u[..., 0]
-        right[..., -1] = u[..., -1]
-    elif boundary == "periodic":
-        left[..., 0] = u[..., -1]
-        right[..., -1] = u[..., 0]
-    else:
-        raise ValueError(f"unknown boundary {boundary!r}; expected one of {BOUNDARIES}")
+    left[..., 0], right[..., -1] = walls(u, boundary)
     return (u - left) + (u - right)
 
 
@@ -228,13 +242,8 @@ def energy(params: ChainParams, x, M=None, K=None) -> np.ndarray:
     u, v, du, dv = x[:, 0], x[:, 1], x[:, 2], x[:, 3]
     kinetic = 0.5 * Mb * np.sum(du * du, axis=-1) + 0.5 * np.sum(dv * dv, axis=-1)
     bonds = np.diff(u, axis=-1)
-    spring = np.sum(bonds * bonds, axis=-1)
-    if params.boundary == "fixed":
-        spring = spring + u[:, 0] ** 2 + u[:, -1] ** 2
-    elif params.boundary == "periodic" and u.shape[-1] > 1:
-        spring = spring + (u[:, 0] - u[:, -1]) ** 2
-    elif params.boundary == "periodic":
-        spring = spring * 0.0
+    first, last = wall_bonds(u, params.boundary)
+    spring = np.sum(bonds * bonds, axis=-1) + first + last
     contact = np.sum(contact_potential(u - v), axis=-1)
     return kinetic + 0.5 * Kb * spring + contact
 
@@ -248,13 +257,10 @@ def site_energies(params: ChainParams, x, M, K) -> np.ndarray:
     M = np.broadcast_to(np.asarray(M, dtype=np.float64), (batch,))[:, None]
     K = np.broadcast_to(np.asarray(K, dtype=np.float64), (batch,))[:, None]
     u, v, pu, pv = x[:, 0], x[:, 1], x[:, 2], x[:, 3]
-    bonds = np.zeros_like(u)
+    bonds = np.empty_like(u)
     bonds[:, :-1] = (u[:, 1:] - u[:, :-1]) ** 2
-    if params.boundary == "periodic" and n > 1:
-        bonds[:, -1] = (u[:, 0] - u[:, -1]) ** 2
-    elif params.boundary == "fixed":
-        bonds[:, -1] = u[:, -1] ** 2
-        bonds[:, 0] += u[:, 0] ** 2
+    first, bonds[:, -1] = wall_bonds(u, params.boundary)
+    bonds[:, 0] += first
     kinetic = 0.5 * M * (pu * pu) + 0.5 * (pv * pv)
     return kinetic + 0.5 * K * bonds + contact_potential(u - v)
 

@@ -33,19 +33,21 @@ Adding a splitting method (a new family of coefficients), in 2 files:
 2. ``tests/test_integrators.py``: its order against DOP853 and its bits against the reference (the
    parametrised tests over ``METHODS`` pick it up; add the expected order where they list orders).
 
-Adding a boundary that changes the wall values (like fixed or free ends), in 3 files:
+Adding a boundary that changes the wall values (like fixed or free ends), in 3 edit sites of 2 files:
 
-1. ``warpchain/model.py``: its name in ``BOUNDARIES``, its walls in ``laplacian`` and its wall bonds in
-   ``energy`` and ``site_energies`` (the numpy reference, observe's oracle and everything on the host use
-   these).
-2. ``warpchain/engine/thread_kernels.py``: ``wall_values`` (the thread and block kernels' walls) and the wall
-   bonds of ``site_energy`` (the guard's and observe's energies).
-3. ``warpchain/engine/site_group_kernels.py``: the compiled end cases of ``ends`` and ``neighbour_values``.
+1. ``warpchain/model.py``: its name in ``BOUNDARIES`` (its code follows from the order) and its walls in
+   ``walls``; the Laplacian and the energy's wall bonds (``wall_bonds``: ``energy``, ``site_energies``) follow
+   from them on the host (the numpy reference, observe's oracle).
+2. ``warpchain/engine/thread_kernels.py``: its walls in ``wall_values`` (its code: ``BOUNDARY_CODES[name]``,
+   or a ``BOUNDARY_...`` constant made from it as the others are), which every layout reads (thread and sites
+   layouts through ``neighbours_at``, the block kernels through ``block_kernels.neighbour_or_wall``, the
+   site-group kernels in ``neighbour_values``) and from which the kernels' energies take their wall bonds
+   (``site_energy``: the guard, the observables).
 
-A boundary that wraps like the ring also needs the neighbour indices of ``block_kernels.site_neighbours``.
-The sites layout takes its walls from ``thread_kernels.neighbours_at`` (``wall_values``): nothing to add there.
+A boundary that wraps like the ring also needs the neighbour indices of ``block_kernels.site_neighbours``, the
+ends the site-group kernels publish (``ends``) and its bond counted once (``wall_bonds``, ``site_energy``).
 The tests over ``BOUNDARIES`` (``tests/test_gpu_engine.py``, ``tests/test_integrators.py``,
-``tests/test_site_kernels.py``) check every layout against the reference bit for bit.
+``tests/test_site_kernels.py``, ``tests/test_model.py``) check every layout against the reference bit for bit.
 
 A 2-D lattice (the monolayer) is a new neighbour rule, not a new engine: ``site_kernels.evaluate`` reads a
 site's neighbours through ``neighbours_at``; a neighbour table (or a stencil), carried in the ``Lattice`` struct

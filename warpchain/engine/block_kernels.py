@@ -43,6 +43,7 @@ from .thread_kernels import (
     contact_stiffness,
     finite_state,
     kick_loss,
+    neighbours_at,
     Observer,
     peak_test,
     peak_verdict,
@@ -90,12 +91,12 @@ def right_index(j: int, n: int, boundary: int) -> int:
 
 
 @wp.func
-def neighbour_or_wall(value: F64, u: F64, has_neighbour: int, boundary: int) -> F64:
-    """The neighbour's u, or at a chain end the wall value (``thread_kernels.wall_values``: 0 at a fixed
-    wall, u itself at a free end; a ring always has a neighbour)."""
+def neighbour_or_wall(value: F64, u: F64, has_neighbour: int, boundary: int, side: int) -> F64:
+    """The neighbour's u, or at a chain end the wall value on that ``side`` (0 left, 1 right) of the end site u
+    (``thread_kernels.wall_values``: 0 at a fixed wall, u itself at a free end; a ring always has a neighbour)."""
     if has_neighbour != 0:
         return value
-    return wall_values(u, u, boundary)[0]
+    return wall_values(u, u, boundary)[side]
 
 
 @wp.func
@@ -164,8 +165,8 @@ def column_acceleration(
     return site_tangent_acceleration(
         du,
         dv,
-        neighbour_or_wall(left, du, nbr[2], boundary),
-        neighbour_or_wall(right, du, nbr[3], boundary),
+        neighbour_or_wall(left, du, nbr[2], boundary, 0),
+        neighbour_or_wall(right, du, nbr[3], boundary, 1),
         inv_mass,
         coupling,
         stiffness,
@@ -296,8 +297,8 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
         """Publish u in half ``parity`` of the shared tile; return (left, right) neighbour values."""
         offset = parity * threads
         wp.tile_assign(buf, wp.tile(u), offset=(offset,))
-        left = neighbour_or_wall(buf[offset + nbr[0]], u, nbr[2], boundary)
-        right = neighbour_or_wall(buf[offset + nbr[1]], u, nbr[3], boundary)
+        left = neighbour_or_wall(buf[offset + nbr[0]], u, nbr[2], boundary, 0)
+        right = neighbour_or_wall(buf[offset + nbr[1]], u, nbr[3], boundary, 1)
         return wp.vec2d(left, right)
 
     @wp.func
@@ -305,7 +306,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
         buf: wp.tile[wp.float64, halves],
         parity: int,
         state: wp.vec4d,
-        right_u: F64,
+        nb: wp.vec2d,
         z_range: wp.vec2d,
         active: bool,
         b: int,
@@ -316,8 +317,9 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
         r: int,
         lost_site: F64,
     ):
-        """``thread_kernels.observe_frame`` as block reductions: frame r of lattice b from each site's state,
-        z extremes (``z_range``: low, high) and dissipated energy; the envelope is shared through half
+        """``thread_kernels.observe_frame`` as block reductions: frame r of lattice b from each site's state, its
+        neighbours' u (``nb``, walls included), z extremes (``z_range``: low, high) and dissipated energy; the
+        envelope is shared through half
         ``parity`` of the tile (the caller flips parity before, as for an exchange). Idle threads add nothing."""
         env = ZERO
         e = ZERO
@@ -327,7 +329,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
         if active:
             env = wp.max(z_range[1], -z_range[0])
             e = site_energy(
-                state[0], state[1], state[2], state[3], right_u, j, n, lat.boundary, lat.mass[b], lat.coupling[b]
+                state[0], state[1], state[2], state[3], nb[0], nb[1], j, lat.boundary, lat.mass[b], lat.coupling[b]
             )
             if wp.abs(wp.float64(j - n / 2)) <= ob.spot[b]:
                 inside = e
@@ -404,7 +406,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             if wp.static(observed):
                 if ob.first_step == 0:  # frame 0: the start (envelope |z|)
                     parity = 1 - parity
-                    observe_frame(buf, parity, start, nb[1], z_range, active, b, j, n, lat, ob, 0, ZERO)
+                    observe_frame(buf, parity, start, nb, z_range, active, b, j, n, lat, ob, 0, ZERO)
                     z_range = wp.vec2d(NO_CONTACT, -NO_CONTACT)
                 elif active:
                     z_range = wp.vec2d(ob.z_low[b, j], ob.z_high[b, j])
@@ -459,7 +461,7 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
                         state = wp.vec4d(u, v, pu, pv)
                         r = done / ob.frame_every
                         lost = lost_site
-                        observe_frame(buf, parity, state, nb[1], z_range, active, b, j, n, lat, ob, r, lost)
+                        observe_frame(buf, parity, state, nb, z_range, active, b, j, n, lat, ob, r, lost)
                         z_range = wp.vec2d(NO_CONTACT, -NO_CONTACT)
             store_site(x, b, j, active, wp.vec4d(u, v, pu, pv))
             if wp.static(observed):
@@ -621,9 +623,9 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
         site = j
         while site < n:
             state = load_site(x, b, site, True)
-            right = x[b, 0, (site + 1) % n]
+            nb = neighbours_at(x, b, 0, site, n, lat.boundary)
             e = e + site_energy(
-                state[0], state[1], state[2], state[3], right, site, n, lat.boundary, lat.mass[b], lat.coupling[b]
+                state[0], state[1], state[2], state[3], nb[0], nb[1], site, lat.boundary, lat.mass[b], lat.coupling[b]
             )
             finite = wp.min(finite, finite_state(state[0], state[1], state[2], state[3]))
             low = wp.min(low, (ONE + state[0]) - state[1])

@@ -6,6 +6,7 @@ import functools
 
 import warp as wp
 
+from ..model import BOUNDARY_CODES
 from .block_kernels import (
     MAX_BLOCK,
     WARP_LANES,
@@ -21,9 +22,9 @@ from .thread_kernels import (
     F64,
     Array3,
     BOUNDARY_FIXED,
-    BOUNDARY_FREE,
     BOUNDARY_PERIODIC,
     contact_stiffness,
+    wall_values,
 )
 
 
@@ -57,8 +58,8 @@ def site_group_kernels(threads: int, sites: int, boundary: int, min_blocks_per_s
     Layout: thread t owns sites j = t * sites + s, s < sites; the slots past the lattice's end hold
     zeros and stay there, because their 1/M is 0 (so u'' = 0) and f(0 - 0) = 0 (so v'' = 0): no branch
     and no select is spent on them. The shared tile has a zero entry before thread 0's and after the last
-    thread's, so fixed walls cost nothing; free and periodic ends (``boundary``, compiled in) replace the
-    wall values of site 0 and site n - 1 with a select.
+    thread's, so fixed walls cost nothing; other ends (``boundary``, compiled in) replace the wall values of
+    site 0 and site n - 1 with a select of ``thread_kernels.wall_values``.
 
     The arithmetic is that of ``block_kernels`` and the numpy reference (same operations, same order), so
     the results are the same bit for bit on the CPU. The kick that ends one step and the kick that starts
@@ -81,14 +82,13 @@ def site_group_kernels(threads: int, sites: int, boundary: int, min_blocks_per_s
         raise ValueError(f"threads must be a multiple of {WARP_LANES} in [{WARP_LANES}, {MAX_BLOCK}], got {threads}")
     if not 1 <= sites <= MAX_SITES_PER_THREAD:
         raise ValueError(f"sites per thread must be in [1, {MAX_SITES_PER_THREAD}], got {sites}")
-    if boundary not in (int(BOUNDARY_FIXED), int(BOUNDARY_FREE), int(BOUNDARY_PERIODIC)):
+    if boundary not in BOUNDARY_CODES.values():
         raise ValueError(f"unknown boundary code {boundary}")
     run = wp.types.vector(length=sites, dtype=wp.float64)
     entries = threads + 2  # one (first u, last u) per thread and a zero wall entry at each end
     halves = 2 * entries
     last_slot = sites - 1
     fixed = boundary == int(BOUNDARY_FIXED)
-    free = boundary == int(BOUNDARY_FREE)
     periodic = boundary == int(BOUNDARY_PERIODIC)
     scalar_ends = sites == 1
     entry = wp.float64 if scalar_ends else wp.vec2d
@@ -135,14 +135,10 @@ def site_group_kernels(threads: int, sites: int, boundary: int, min_blocks_per_s
         """(left, right) neighbour u of slot s (s is a constant of the unrolled slot loop)."""
         left = wp.where(s == 0, e[0], u[wp.max(s - 1, 0)])
         right = wp.where(s == wp.static(last_slot), e[1], u[wp.min(s + 1, wp.static(last_slot))])
-        if wp.static(not fixed):
+        if wp.static(not fixed):  # a fixed wall is the tile's zero entry; other walls: ``wall_values``
             j = t * wp.static(sites) + s
-            if wp.static(free):
-                left = wp.where(j == 0, u[s], left)
-                right = wp.where(j == n - 1, u[s], right)
-            else:
-                left = wp.where(j == 0, e[2], left)
-                right = wp.where(j == n - 1, e[3], right)
+            left = wp.where(j == 0, wall_values(u[s], e[2], wp.static(boundary))[0], left)
+            right = wp.where(j == n - 1, wall_values(e[3], u[s], wp.static(boundary))[1], right)
         return wp.vec2d(left, right)
 
     bounds = (threads, min_blocks_per_sm) if min_blocks_per_sm else threads

@@ -30,6 +30,8 @@ from __future__ import annotations
 
 import warp as wp
 
+from ..model import BOUNDARY_CODES
+
 #: the kernels' annotation types: float64 arrays of 1 to 3 axes, int32 indices, float64
 Array1 = wp.array(dtype=wp.float64)
 Array2 = wp.array2d(dtype=wp.float64)
@@ -48,9 +50,10 @@ FOUR_FIFTEENTHS = wp.constant(wp.float64(4.0 / 15.0))
 #: the min-contact value of a site that holds nothing (idle block threads): larger than any real one
 NO_CONTACT = wp.constant(wp.float64(1.0e300))
 
-BOUNDARY_FIXED = wp.constant(0)
-BOUNDARY_FREE = wp.constant(1)
-BOUNDARY_PERIODIC = wp.constant(2)
+#: the boundaries' codes (``model.BOUNDARY_CODES``: their order in ``model.BOUNDARIES``)
+BOUNDARY_FIXED = wp.constant(BOUNDARY_CODES["fixed"])
+BOUNDARY_FREE = wp.constant(BOUNDARY_CODES["free"])
+BOUNDARY_PERIODIC = wp.constant(BOUNDARY_CODES["periodic"])
 
 
 @wp.struct
@@ -500,21 +503,15 @@ def _splitting_kernel(observed: bool):
 
 @wp.func
 def site_energy(
-    u: F64, v: F64, pu: F64, pv: F64, right: F64, j: int, n: int, boundary: int, mass: F64, coupling: F64
+    u: F64, v: F64, pu: F64, pv: F64, left: F64, right: F64, j: int, boundary: int, mass: F64, coupling: F64
 ) -> F64:
-    """Site j's share of the Hamiltonian (``model.energy``): kinetic energy, the bond to its right
-    neighbour (``right`` is that neighbour's u; at the right end the wall bond (fixed), the bond to
-    site 0 (periodic) or none (free)), the left wall bond at j = 0 (fixed), and the contact energy."""
-    bonds = ZERO
-    if j < n - 1:
-        bonds = (right - u) * (right - u)
-    elif boundary == BOUNDARY_PERIODIC:
-        if n > 1:
-            bonds = (right - u) * (right - u)
-    elif boundary != BOUNDARY_FREE:
-        bonds = u * u
-    if j == 0 and boundary != BOUNDARY_FREE and boundary != BOUNDARY_PERIODIC:
-        bonds = bonds + u * u
+    """Site j's share of the Hamiltonian (``model.site_energies``): kinetic energy, the bond to its right neighbour
+    and, at j = 0, the bond to its left unless the chain is a ring (whose last site holds that bond), and the
+    contact energy. ``left``, ``right``: the neighbours' u, at the chain's ends the wall values (``wall_values``:
+    a fixed wall's bond is u^2, a free end's 0)."""
+    bonds = (right - u) * (right - u)
+    if j == 0 and boundary != BOUNDARY_PERIODIC:
+        bonds = bonds + (u - left) * (u - left)
     kinetic = HALF * mass * (pu * pu) + HALF * (pv * pv)
     return kinetic + HALF * coupling * bonds + contact_potential(u - v)
 
@@ -543,8 +540,8 @@ def guard_kernel(x: Array3, lat: Lattice, rec: Recording, n_rec: int, contact: A
     for j in range(n):
         u = x[b, 0, j]
         v = x[b, 1, j]
-        right = x[b, 0, (j + 1) % n]
-        total = total + site_energy(u, v, x[b, 2, j], x[b, 3, j], right, j, n, boundary, m, k)
+        nb = neighbours_at(x, b, 0, j, n, boundary)
+        total = total + site_energy(u, v, x[b, 2, j], x[b, 3, j], nb[0], nb[1], j, boundary, m, k)
         finite = wp.min(finite, finite_state(u, v, x[b, 2, j], x[b, 3, j]))
         low = wp.min(low, (ONE + u) - v)
     for r in range(n_rec):
@@ -633,9 +630,8 @@ def observe_frame(x: Array3, b: int, n: int, lat: Lattice, ob: Observer, r: int,
     low = NO_CONTACT
     peaks = ZERO
     for j in range(n):
-        e = site_energy(
-            x[b, 0, j], x[b, 1, j], x[b, 2, j], x[b, 3, j], x[b, 0, (j + 1) % n], j, n, boundary, mass, coupling
-        )
+        nb = neighbours_at(x, b, 0, j, n, boundary)
+        e = site_energy(x[b, 0, j], x[b, 1, j], x[b, 2, j], x[b, 3, j], nb[0], nb[1], j, boundary, mass, coupling)
         total = total + e
         squares = squares + e * e
         if wp.abs(wp.float64(j - centre)) <= ob.spot[b]:
