@@ -11,15 +11,12 @@ import numpy as np
 import pytest
 import zarr
 
+from sweep_demo import _demo_spec, _demo_task, _demo_task_dying, _demo_warm_up
 from warpchain.sweep import (
-    _demo_task_dying,
-    _demo_warm_up,
     COMPLETED,
     SweepMismatchError,
     SweepTaskError,
     Variable,
-    _demo_spec,
-    _demo_task,
     completed,
     open_sweep,
     run_sweep,
@@ -327,7 +324,9 @@ def test_a_killed_worker_or_client_loses_nothing(tmp_path, clean_store):
     path = tmp_path / "client.zarr"
     script = (
         "import functools, sys\n"
-        "from warpchain.sweep import _demo_spec, _demo_task_dying, run_sweep\n"
+        f"sys.path.insert(0, {os.path.dirname(__file__)!r})\n"  # this folder: the demo tasks
+        "from sweep_demo import _demo_spec, _demo_task_dying\n"
+        "from warpchain.sweep import run_sweep\n"
         f"task = functools.partial(_demo_task_dying, marker={str(tmp_path / 'client-died')!r}, at=(2, 0))\n"
         f"run_sweep({str(path)!r}, _demo_spec(), task, progress=False, tasks_per_worker=1)\n"
     )
