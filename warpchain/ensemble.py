@@ -447,11 +447,11 @@ def simulate(
     else:
         x = runner.download(target.result if target is not None else None)
     stats["final"] += time.perf_counter() - t0
-    _release_runner(runner)
     observed = None
-    if frames is not None:
+    if frames is not None:  # read before the runner (and its host buffer) serves another call
         how = dict(method=meth.name, dt=dt_used, nsteps=nsteps, device=device)
         observed = frames.result(x0, x, wall_seconds=time.perf_counter() - start, **how)
+    _release_runner(runner)
     E1 = trace_E[-1]
     if save_every:
         t_arr = (np.arange(n_saved) * save_every) * dt_used
