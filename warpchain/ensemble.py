@@ -20,7 +20,7 @@ from .losses import Damping, as_damping, require_splitting
 from .model import ChainParams, as_batch, per_lattice_parameters, real_number
 from .device_state import DeviceState
 from .engine.tuning import active
-from .integrators import StepSizeError, check_step, stability_limit  # noqa: F401  (re-exported)
+from .integrators import IntegrationError, StepSizeError, check_step, stability_limit  # noqa: F401  (re-exported)
 from .options import Guard, Placement, Record, from_legacy
 
 from .engine.devices import (  # noqa: F401  (re-exported: the public face of the engine)
@@ -43,24 +43,6 @@ from .engine.hostmem import (  # noqa: F401
 )
 from .engine.plans import sites_per_thread  # noqa: F401
 from .engine.runner import _GuardReader, _pooled_runner, _release_runner, _Replay, _Runner, time_steps  # noqa: F401
-
-
-class IntegrationError(RuntimeError):
-    """A run blew up (non-finite state or energy error past its bound).
-
-    Attributes:
-        method, dt, stability_limit: the scheme, its step, and its linear stability limit.
-        failed: indices of the failing lattices.
-        t: time reached when the failure was detected.
-    """
-
-    def __init__(self, message, *, method, dt, stability_limit, failed, t):
-        super().__init__(message)
-        self.method = method
-        self.dt = dt
-        self.stability_limit = stability_limit
-        self.failed = failed
-        self.t = t
 
 
 @dataclasses.dataclass(frozen=True)

@@ -262,6 +262,24 @@ class StepSizeError(ValueError):
     """A step above the method's linear stability limit was refused before the run started."""
 
 
+class IntegrationError(RuntimeError):
+    """A run blew up (non-finite state or energy error past its bound).
+
+    Attributes:
+        method, dt, stability_limit: the scheme, its step, and its linear stability limit.
+        failed: indices of the failing lattices.
+        t: time reached when the failure was detected.
+    """
+
+    def __init__(self, message, *, method, dt, stability_limit, failed, t):
+        super().__init__(message)
+        self.method = method
+        self.dt = dt
+        self.stability_limit = stability_limit
+        self.failed = failed
+        self.t = t
+
+
 def stability_limit(method: Method | str, params: ChainParams, M=None, K=None) -> float:
     """Linear stability limit on dt of ``method`` for these parameters (smallest over a batch),
     from the top of the optical band, w_max: dt < bound / w_max (bound = 2 for Verlet)."""
