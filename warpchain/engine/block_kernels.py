@@ -319,8 +319,8 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
     ):
         """``thread_kernels.observe_frame`` as block reductions: frame r of lattice b from each site's state, its
         neighbours' u (``nb``, walls included), z extremes (``z_range``: low, high) and dissipated energy; the
-        envelope is shared through half
-        ``parity`` of the tile (the caller flips parity before, as for an exchange). Idle threads add nothing."""
+        envelope is shared through half ``parity`` of the tile (the caller flips parity before, as for an
+        exchange). Idle threads add nothing."""
         env = ZERO
         e = ZERO
         inside = ZERO
