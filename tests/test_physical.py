@@ -100,6 +100,15 @@ def test_fit_to_the_example_material_lands_near_the_paper():
     assert math.isclose(fit["K"] / (fit["M"] + 1), (fit["c_R"] / (fit["omega0"] * MAT.diameter)) ** 2, rel_tol=1e-12)
 
 
+@pytest.mark.parametrize("D, E, nu, w, lam", [(1e-6, 73e9, 0.17, 0.02, 10.0), (2e-6, 5e9, 0.3, 0.1, 7.0)])
+def test_appendix_b_estimate_is_the_papers_closed_form_for_one_material(D, E, nu, w, lam):
+    # Appendix B's K = k1 / k2 from the Hertz-DMT contact equals the paper's closed form when sphere and
+    # substrate are of one material (the closed form assumes that)
+    estimate = ph.estimate_stiffness_ratio(D, E, nu, E, nu, w, lam)
+    assert math.isclose(estimate, ph.stiffness_ratio_closed_form(D, E, nu, w, lam), rel_tol=1e-13)
+    assert not math.isclose(estimate, ph.estimate_stiffness_ratio(D, E, nu, 2 * E, nu, w, lam), rel_tol=1e-3)
+
+
 def test_fit_errors_are_clear():
     with pytest.raises(ValueError, match="Brillouin"):
         ph.fit_chain(3000.0, 5e6, 1e9, 1e9, 1e-6)
