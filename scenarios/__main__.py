@@ -20,7 +20,10 @@ def _with_notes(exc: BaseException) -> str:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m scenarios", description=__doc__)
+    called = (
+        "warpchain" if os.path.basename(sys.argv[0]) == "warpchain" else "python -m scenarios"
+    )  # the console command
+    parser = argparse.ArgumentParser(prog=called, description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
     sub.add_parser("list", help="list the scenes")
     params = sub.add_parser("params", help="a scene's parameters: defaults, types, allowed values (for --set)")
@@ -69,16 +72,14 @@ def main(argv=None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s", datefmt="%H:%M:%S")
 
     if args.command == "list":
-        for name in SCENES:
-            print(f"{name:20s} {first_sentence(load_scene(name).__doc__)}")
-        return 0
+        return _print(f"{name:20s} {first_sentence(load_scene(name).__doc__)}" for name in SCENES)
     if args.command == "params":
         unknown = [name for name in args.names if name not in SCENES]
         if unknown:
             parser.error(f"unknown scene {unknown[0]!r}; known scenes: {', '.join(SCENES)}")
-        for k, name in enumerate(args.names or SCENES):
-            print(("\n" if k else "") + "\n".join(scene_listing(name)))
-        return 0
+        return _print(
+            ("\n" if k else "") + "\n".join(scene_listing(name)) for k, name in enumerate(args.names or SCENES)
+        )
     if args.command == "compare":  # the rules: scenarios/compare.py
         from .compare import main as compare_main
 
@@ -95,7 +96,7 @@ def main(argv=None) -> int:
     if args.command == "paper" and (overrides or args.resume):
         parser.error("--set and --resume apply to one scene: use 'run NAME'")
     command_line = getattr(args, "provenance_command", None) or " ".join(
-        ["python -m scenarios", *(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))]
+        [called, *(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))]
     )
     from warpchain import store
 
@@ -197,6 +198,17 @@ def first_sentence(doc: str | None) -> str:
     match = re.search(r"(?<!\bFig)(?<!\bFigs)(?<!\be\.g)(?<!\bi\.e)(?<!\bvs)\.\s+(?=[A-Z(])", text)
     text = text if match is None else text[: match.start() + 1]
     return text.replace("``", "")
+
+
+def _print(lines) -> int:
+    """Print a listing; a reader that stops early (``warpchain list | head``) ends it quietly, as Unix tools do."""
+    try:
+        for line in lines:
+            print(line)
+        sys.stdout.flush()
+    except BrokenPipeError:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # Python's own flush at exit would raise again
+    return 0
 
 
 def check_output_root(out: Path) -> None:

@@ -18,6 +18,28 @@ def test_list_names_scenes():
     assert "dispersion" in out.stdout
 
 
+def test_listing_into_a_closed_pipe_and_the_console_name(monkeypatch, capsys):
+    # `warpchain list | head -1`: the reader stops early; the listing ends quietly, no traceback
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "scenarios", "list"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    assert proc.stdout.readline().startswith("dispersion")
+    proc.stdout.close()
+    assert proc.wait(timeout=120) == 0 and "Traceback" not in proc.stderr.read()
+    proc.stderr.close()
+    # the usage names the command as typed: the console script, or python -m scenarios
+    from scenarios import __main__ as cli
+
+    for argv0, called in (
+        ("/usr/local/bin/warpchain", "warpchain run"),
+        ("scenarios/__main__.py", "python -m scenarios run"),
+    ):
+        monkeypatch.setattr(sys, "argv", [argv0, "run", "--help"])
+        with pytest.raises(SystemExit):
+            cli.main(["run", "--help"])
+        assert f"usage: {called}" in capsys.readouterr().out
+
+
 def test_unknown_scene_and_device_are_clear_errors(tmp_path):
     out = _run("run", "nope", "--out", str(tmp_path))
     assert out.returncode != 0 and "unknown scene" in out.stderr
