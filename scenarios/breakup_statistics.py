@@ -74,6 +74,9 @@ from ._params import Rule, min_steps_per_period, number, param, splitting_method
 from warpchain.sweep import SweepSpec, Variable, run_sweep
 
 GROUP = "observables"
+#: the zero-damping check's bound on |observe(damping=0) - simulate| (states of order 1; the GPU's two kernels
+#: differ by 1e-15 .. 1e-13, benchmarks/results/h200-2026-11-22c.json): rounding, not a different scheme
+ZERO_DAMPING_ROUNDING = 1e-12
 #: named grids: (A values, W values, damping cases (gamma_c, gamma_s), realisations)
 GRIDS = {
     "quick": ((0.3, 0.45, 0.6), (5.0, 40.0), ((0.0, 0.0), (1e-3, 0.0)), 4),
@@ -519,12 +522,15 @@ def _checks(ctx, P: Parameters, params, count, prob, interval) -> dict:
         device=ctx.device,
     )
     plain = simulate(params, high, obs.t[-1], obs.dt, method=b.method, device=ctx.device)
+    # the same arithmetic in two compiled kernels: bit for bit on the CPU (tests/test_losses.py), within rounding on
+    # a GPU (8.7e-15 after 640 kahan8 steps on an H200), so the verdict is the same on every device
+    difference = float(np.max(np.abs(obs.x - plain.x)))
     out["zero_damping_vs_simulate"] = {
         "periods": periods,
         "method": b.method,
         "steps": plain.nsteps,
-        "bitwise_equal": bool(np.array_equal(obs.x, plain.x)),
-        "max_abs_difference": float(np.max(np.abs(obs.x - plain.x))),
+        "within_rounding": difference <= ZERO_DAMPING_ROUNDING,
+        "max_abs_difference": difference,
     }
     ctx.log(
         "zero damping vs simulate (eigenmode-high, %d periods): max difference %.1e",

@@ -32,7 +32,8 @@ def test_quick_scene_end_to_end(quick):
     prob = np.array(s["breakup_probability"])
     assert prob.shape == (3, 2, 2) and prob.max() > 0  # the narrow high spots do break up in 80 periods
     checks = s["checks"]
-    assert checks["zero_damping_vs_simulate"]["bitwise_equal"]  # on the CPU: the direct-simulation engine exactly
+    zero = checks["zero_damping_vs_simulate"]
+    assert zero["within_rounding"] and zero["max_abs_difference"] == 0.0  # on the CPU: simulate's engine, bit for bit
     dop = checks["damped_vs_dop853"]["relative_max_difference"]
     assert dop["kahan8/64"] < 1e-8 and dop["kahan8/64"] < dop["kahan8/32"] / 50  # converges to DOP853 at order 8
     assert {"max_probability_change", "within_interval"} <= set(checks["step_check"])
