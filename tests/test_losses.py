@@ -232,3 +232,23 @@ def test_peaks_and_tracks():
     born[0, 12] = 0.45
     p, _, v = (a[0] for a in peak_tracks(env, born, 4.0, obs, max_speed=1.0, max_peaks=4))
     assert np.isfinite(p).sum() == 3 and np.isnan(v[1])  # the new peak at 12 has no mutual match
+
+
+@pytest.mark.parametrize("layout", ["thread", "block"])
+def test_a_kept_runner_follows_its_losses(layout):
+    # a pooled runner (on a GPU, kept between simulate calls) keeps its Lattice structs while the losses' arrays stay:
+    # losses on, off, other rates and on again must each give the reference's bits
+    from warpchain.engine.runner import _Runner
+    from warpchain.integrators import get_method
+    from warpchain.model import per_lattice_parameters
+
+    x0, dt, n = _spots(4), 0.05, 20
+    M, K = per_lattice_parameters(PARAMS, 4, None, None)
+    runner = _Runner(get_method("kahan6"), PARAMS, x0, M, K, "cpu", layout=layout)
+    other = Damping(np.array([0.03, 0.0, 0.0, 0.01]), np.array([0.0, 0.02, 0.0, 0.0]))
+    for damping in (None, DAMPING, None, other, DAMPING):
+        runner.upload(x0)
+        runner.set_damping(damping, dt)
+        runner.launch(n, dt)
+        ref = reference.integrate("kahan6", PARAMS, x0, dt, n, damping=damping)["x"]
+        assert np.array_equal(runner.download(), ref), damping

@@ -118,26 +118,28 @@ class _Runner:
     def set_damping(self, damping: Damping | None, dt: float) -> None:
         """Upload the damped kicks' coefficients of ``damping`` for step ``dt`` (None: no losses)."""
         wp = self.wp
+        before = (self.damped, self.damp)
         if damping is None:
             if self.damped:
                 self.lossy.zero_()
             self.damped, self.damp = False, self.no_damp
-            self._lattices = {}
             self.lossy_host = np.zeros(self.batch, dtype=bool)
-            return
-        coefficients = kick_matrices(self.method.kicks, dt, self.mass.numpy(), damping, self.batch)
-        self.lossy_host = ~lossless(coefficients)
-        self.lossy.assign(self.lossy_host.astype(np.int32))
-        if self.damp.shape != coefficients.shape:
-            self.damp = wp.empty(coefficients.shape, dtype=wp.float64, device=self.device)
-        self.damp.assign(coefficients)
-        self.damped = True
-        self._lattices = {}
+        else:
+            coefficients = kick_matrices(self.method.kicks, dt, self.mass.numpy(), damping, self.batch)
+            self.lossy_host = ~lossless(coefficients)
+            self.lossy.assign(self.lossy_host.astype(np.int32))
+            if self.damp.shape != coefficients.shape:
+                self.damp = wp.empty(coefficients.shape, dtype=wp.float64, device=self.device)
+            self.damp.assign(coefficients)
+            self.damped = True
+        if before[0] != self.damped or before[1] is not self.damp:  # the kept Lattice structs name the old arrays
+            self._lattices = {}
 
     def lattice(self, lo: int = 0, hi: int | None = None):
         """The kernels' ``thread_kernels.Lattice`` of lattices lo..hi (default all: what tangent columns index
         through their base): views of this runner's parameters and losses, kept per slice (their values change in
-        place; ``set_damping`` starts afresh), so that a repeated launch passes the same argument."""
+        place; ``set_damping`` starts afresh when it swaps the losses' arrays), so that a repeated launch passes the
+        same argument."""
         hi = self.batch if hi is None else hi
         kept = self.__dict__.setdefault("_lattices", {})
         if (lo, hi) not in kept:
@@ -213,7 +215,17 @@ class _Runner:
 
     def record(self, every: int = 0, frames=None, stiffness: bool = False):
         """A launch's ``thread_kernels.Recording``: u and v into ``frames`` (u, v) every ``every`` steps (None: no
-        frames), f'(z) into this runner's history when ``stiffness`` (tangent runs read the history from it)."""
+        frames), f'(z) into this runner's history when ``stiffness`` (tangent runs read the history from it). One
+        without frames is kept per (every, stiffness): building a struct costs ~20 us of host time per launch."""
+        if frames is None or (frames[0] is self.no_record and frames[1] is self.no_record):
+            kept = self.__dict__.setdefault("_recordings", {})
+            key = (int(every), bool(stiffness))
+            if key not in kept:
+                kept[key] = self._recording(every, None, stiffness)
+            return kept[key]
+        return self._recording(every, frames, stiffness)
+
+    def _recording(self, every: int, frames, stiffness: bool):
         out = self.k.Recording()
         out.every, out.stiffness, out.hist = int(every), int(stiffness), self.hist
         out.u, out.v = frames if frames is not None else (self.no_record, self.no_record)
