@@ -233,6 +233,22 @@ def test_rules_on_keys():
     assert [d.path for d in compare_summaries("dispersion", a, other)] == ["errors_smooth[0]", "fit_M", "note"]
 
 
+def test_host_dependent_solver_effort_and_orders_past_a_kink():
+    """An adaptive integrator's force evaluations are effort; an observed order with contact loss is known to 1e-3
+    (CPU against the H100 host, 2026-11-26), the smooth order to 1e-6."""
+    a = {"points": [{"method": "DOP853", "force_evaluations": 1394}], "methods": {"kahan8": {}}}
+    a["methods"]["kahan8"] = {"order_contact_loss": 2.631652927, "order_smooth": 8.01}
+    b = copy.deepcopy(a)
+    b["points"][0]["force_evaluations"] = 1406
+    b["methods"]["kahan8"]["order_contact_loss"] = 2.631646733
+    assert compare_summaries("stability-limits", a, b) == []
+    b["methods"]["kahan8"] = {"order_contact_loss": 2.64, "order_smooth": 8.01 * (1 + 1e-5)}
+    assert sorted(d.path for d in compare_summaries("stability-limits", a, b)) == [
+        "methods.kahan8.order_contact_loss",
+        "methods.kahan8.order_smooth",
+    ]
+
+
 @pytest.mark.slow
 def test_end_to_end_thread_counts_do_not_change_the_science(tmp_path, capsys):
     """Two cheap scenes run twice, one Warp CPU thread and one BLAS thread against two each, into folders of
