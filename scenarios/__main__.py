@@ -20,9 +20,8 @@ def _with_notes(exc: BaseException) -> str:
 
 
 def main(argv=None) -> int:
-    called = (
-        "warpchain" if os.path.basename(sys.argv[0]) == "warpchain" else "python -m scenarios"
-    )  # the console command
+    # the command as typed: the console script or the module (usage lines, the provenance's command line)
+    called = "warpchain" if os.path.basename(sys.argv[0]) == "warpchain" else "python -m scenarios"
     parser = argparse.ArgumentParser(prog=called, description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
     sub.add_parser("list", help="list the scenes")
