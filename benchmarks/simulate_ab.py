@@ -18,21 +18,39 @@ import warnings
 import numpy as np
 
 
-def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def arguments(argv, doc: str, *extra):
+    """The command line shared with ``simulate_calls.py``: LABEL and --device (and ``extra`` (flags, options))."""
+    parser = argparse.ArgumentParser(description=doc.split("\n\n")[0])
     parser.add_argument("label", help="names the tree in the output line")
     parser.add_argument("--device", default="cuda")
-    parser.add_argument("--repeats", type=int, default=5, help="best of, after one untimed call")
-    parser.add_argument("--batches", default="805,8192,32768", help="comma-separated lattices per batch")
-    args = parser.parse_args(argv)
-    warnings.simplefilter("ignore", DeprecationWarning)  # keep_on_device as a flat keyword, on purpose
+    for flags, options in extra:
+        parser.add_argument(*flags, **options)
+    return parser.parse_args(argv)
+
+
+def paper_state():
+    """(warpchain, the paper's chain, one lattice's state: its lowest optical mode at amplitude 0.3), as
+    ``throughput.py`` times ``simulate()``; keep_on_device passes as a flat keyword, on purpose."""
+    warnings.simplefilter("ignore", DeprecationWarning)
     import warpchain as wc
-    from warpchain.ensemble import time_steps
 
     params = wc.ChainParams(30.0, 160.0, 201)
     _, shape = wc.lowest_optical_mode(params)
     one = np.zeros((4, params.N))
     one[:2] = 0.3 * shape / np.max(np.abs(shape))
+    return wc, params, one
+
+
+def main(argv=None) -> None:
+    args = arguments(
+        argv,
+        __doc__,
+        (("--repeats",), {"type": int, "default": 5, "help": "best of, after one untimed call"}),
+        (("--batches",), {"default": "805,8192,32768", "help": "comma-separated lattices per batch"}),
+    )
+    wc, params, one = paper_state()
+    from warpchain.ensemble import time_steps
+
     dt, steps = 0.1, 2000
     rows = []
     for batch in (int(b) for b in args.batches.split(",")):

@@ -9,25 +9,16 @@ Command (GPU): ``PYTHONPATH=TREE python benchmarks/simulate_calls.py LABEL [--de
 
 from __future__ import annotations
 
-import argparse
 import time
-import warnings
 
 import numpy as np
 
+from simulate_ab import arguments, paper_state  # this folder: python puts it first on the path
+
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("label", help="names the tree in the output line")
-    parser.add_argument("--device", default="cuda")
-    args = parser.parse_args(argv)
-    warnings.simplefilter("ignore", DeprecationWarning)  # keep_on_device as a flat keyword, on purpose
-    import warpchain as wc
-
-    params = wc.ChainParams(30.0, 160.0, 201)
-    _, shape = wc.lowest_optical_mode(params)
-    one = np.zeros((4, params.N))
-    one[:2] = 0.3 * shape / np.max(np.abs(shape))
+    args = arguments(argv, __doc__)
+    wc, params, one = paper_state()
     out = []
     for batch, steps in ((805, 2000), (805, 20), (64, 20)):
         x0 = np.repeat(one[None], batch, axis=0)
