@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import os
 import re
@@ -82,7 +83,9 @@ def main(argv=None) -> int:
     if args.command == "compare":  # the rules: scenarios/compare.py
         from .compare import main as compare_main
 
-        return compare_main(args.a, args.b, args.scenes, args.json)
+        with _closed_pipe_ends_quietly():
+            return compare_main(args.a, args.b, args.scenes, args.json)
+        return 1  # the reader stopped before the verdict: differences were being listed
     if args.device is not None and args.device.lower() not in ("cpu", "cuda") and not args.device.startswith("cuda:"):
         parser.error(f"--device must be cpu or cuda, got {args.device!r}")
     names = [args.name] if args.command == "run" else PAPER_SCENES
@@ -199,14 +202,21 @@ def first_sentence(doc: str | None) -> str:
     return text.replace("``", "")
 
 
-def _print(lines) -> int:
-    """Print a listing; a reader that stops early (``warpchain list | head``) ends it quietly, as Unix tools do."""
+@contextlib.contextmanager
+def _closed_pipe_ends_quietly():
+    """A reader of stdout that stops early (``warpchain list | head``) ends the printing quietly, as Unix tools do."""
     try:
-        for line in lines:
-            print(line)
+        yield
         sys.stdout.flush()
     except BrokenPipeError:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # Python's own flush at exit would raise again
+
+
+def _print(lines) -> int:
+    """Print a listing (``_closed_pipe_ends_quietly``)."""
+    with _closed_pipe_ends_quietly():
+        for line in lines:
+            print(line)
     return 0
 
 

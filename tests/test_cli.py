@@ -18,7 +18,7 @@ def test_list_names_scenes():
     assert "dispersion" in out.stdout
 
 
-def test_listing_into_a_closed_pipe_and_the_console_name(monkeypatch, capsys):
+def test_listing_into_a_closed_pipe_and_the_console_name(tmp_path, monkeypatch, capsys):
     # `warpchain list | head -1`: the reader stops early; the listing ends quietly, no traceback
     proc = subprocess.Popen(
         [sys.executable, "-m", "scenarios", "list"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
@@ -26,6 +26,20 @@ def test_listing_into_a_closed_pipe_and_the_console_name(monkeypatch, capsys):
     assert proc.stdout.readline().startswith("dispersion")
     proc.stdout.close()
     assert proc.wait(timeout=120) == 0 and "Traceback" not in proc.stderr.read()
+    proc.stderr.close()
+    # and compare's list of differences (more than a pipe holds), read no further than its first line
+    for side, value in (("a", 1), ("b", 2)):
+        (tmp_path / side / "nls").mkdir(parents=True)
+        (tmp_path / side / "nls" / "summary.json").write_text(json.dumps({f"k{i}": value for i in range(5000)}))
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "scenarios", "compare", str(tmp_path / "a"), str(tmp_path / "b")],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    assert proc.stdout.readline().startswith("nls: k0: 1 vs 2")
+    proc.stdout.close()
+    assert proc.wait(timeout=120) == 1 and "Traceback" not in proc.stderr.read()
     proc.stderr.close()
     # the usage names the command as typed: the console script, or python -m scenarios
     from scenarios import __main__ as cli

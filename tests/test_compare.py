@@ -236,17 +236,24 @@ def test_rules_on_keys():
 def test_host_dependent_solver_effort_and_orders_past_a_kink():
     """An adaptive integrator's force evaluations are effort; an observed order with contact loss is known to 1e-3
     (CPU against the H100 host, 2026-11-26), the smooth order to 1e-6."""
-    a = {"points": [{"method": "DOP853", "force_evaluations": 1394}], "methods": {"kahan8": {}}}
-    a["methods"]["kahan8"] = {"order_contact_loss": 2.631652927, "order_smooth": 8.01}
+    points = [{"method": "DOP853", "rtol": 1e-5, "force_evaluations": 1394}, {"rtol": None, "force_evaluations": 6400}]
+    a = {"points": points, "methods": {"kahan8": {"order_contact_loss": 2.631652927, "order_smooth": 8.01}}}
     b = copy.deepcopy(a)
     b["points"][0]["force_evaluations"] = 1406
     b["methods"]["kahan8"]["order_contact_loss"] = 2.631646733
     assert compare_summaries("stability-limits", a, b) == []
+    b["points"][1]["force_evaluations"] = 12800  # a fixed-step run that took twice the steps: a difference
     b["methods"]["kahan8"] = {"order_contact_loss": 2.64, "order_smooth": 8.01 * (1 + 1e-5)}
     assert sorted(d.path for d in compare_summaries("stability-limits", a, b)) == [
         "methods.kahan8.order_contact_loss",
         "methods.kahan8.order_smooth",
+        "points[1].force_evaluations",
     ]
+    # work-precision's speedup over DOP853 is a ratio of wall times
+    timed = {"speedup_at_1e-9": {"smooth": {"error": 1e-9, "speedup_vs_dop853": 20.0}}}
+    assert (
+        compare_summaries("work-precision", timed, {"speedup_at_1e-9": {"smooth": {"speedup_vs_dop853": 10.0}}}) == []
+    )
 
 
 @pytest.mark.slow
