@@ -147,14 +147,18 @@ def test_flow_min_contact_reduced_on_the_device_matches_the_reference(layout):
     assert la.stats["tangent_columns"] == 5 + 4 * p.N
 
 
-@pytest.mark.parametrize("method,layout", [("kahan8", "block"), ("rk4", "thread"), ("verlet", "block")])
-def test_flow_replayed_as_a_graph_bit_for_bit(method, layout, monkeypatch):
+@pytest.mark.parametrize(
+    "method,layout,threads",
+    [("kahan8", "block", "1"), ("rk4", "thread", "1"), ("verlet", "block", "1"), ("kahan6", "thread", "3")],
+)
+def test_flow_replayed_as_a_graph_bit_for_bit(method, layout, threads, monkeypatch):
     """The Flow's base runs and unit columns are captured into a graph from their second call with the same
     (step count, dt) and replayed (``_Replay``; a CUDA graph on a GPU, Warp's CPU graph here, on one CPU
-    thread as on a GPU's one slice): every replay gives the reference's bits, for new states, new
-    parameters, a new dt and an older linearization's history replayed in between."""
+    thread as on a GPU's one slice, or on three, whose slices are captured in turn on the capturing thread):
+    every replay gives the reference's bits, for new states, new parameters, a new dt and an older
+    linearization's history replayed in between."""
     with tuning.override(graphs_on_cpu=True):
-        monkeypatch.setenv("WARPCHAIN_CPU_THREADS", "1")
+        monkeypatch.setenv("WARPCHAIN_CPU_THREADS", threads)
         p, q = ChainParams(30.0, 160.0, 21), ChainParams(20.0, 100.0, 21)
         x0 = localized_state(p.N, amplitude=0.3, batch=2, seed=4)
         flow, ref = Flow(method, 16, device="cpu", layout=layout), ReferenceFlow(method, 16)

@@ -3,6 +3,7 @@ CPU launches over threads (one slice of lattices per core)."""
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import os
 import threading
@@ -182,10 +183,26 @@ def _parts(lo: int, hi: int, *arrays) -> list:
     return [_part(a, lo, hi) for a in arrays]
 
 
+_LOCAL = threading.local()
+
+
+@contextlib.contextmanager
+def on_this_thread():
+    """Inside, ``_in_parallel`` runs its tasks one after the other on the calling thread: a graph capture (``_Replay``,
+    on the CPU with ``Tuning.graphs_on_cpu``) records the capturing thread's launches only."""
+    before = getattr(_LOCAL, "serial", False)
+    _LOCAL.serial = True
+    try:
+        yield
+    finally:
+        _LOCAL.serial = before
+
+
 def _in_parallel(tasks) -> None:
-    """Run callables concurrently (one thread each); re-raise the first error."""
-    if len(tasks) == 1:
-        tasks[0]()
+    """Run callables concurrently (one thread each; in turn inside ``on_this_thread``); re-raise the first error."""
+    if len(tasks) == 1 or getattr(_LOCAL, "serial", False):
+        for task in tasks:
+            task()
         return
     errors = []
 

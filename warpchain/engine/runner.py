@@ -15,7 +15,18 @@ from ..losses import KICK_ENTRIES, Damping, kick_matrices, lossless
 from ..model import BOUNDARY_CODES, ChainParams, as_batch, per_lattice_parameters
 from ..device_state import DeviceState
 from ..reference import inverse_mass
-from .devices import _in_parallel, _part, _parts, _slices, _warp, held, on_one_thread, resolve_device, resolve_layout
+from .devices import (
+    _in_parallel,
+    _part,
+    _parts,
+    _slices,
+    _warp,
+    held,
+    on_one_thread,
+    on_this_thread,
+    resolve_device,
+    resolve_layout,
+)
 from .hostmem import _STAGING_LOCK, _copy, _give_buffer, _take_buffer
 from .plans import _plan_for
 from .tuning import active
@@ -38,7 +49,7 @@ class _Replay:
         """Capture the graph now if calls are due to replay one (without running it); True if they are."""
         graphs_here = self.device != "cpu" or active().graphs_on_cpu
         if self.graph is None and graphs_here and active().graph_after is not None and self.issued >= self.after:
-            with self.wp.ScopedCapture(device=self.device) as capture:
+            with on_this_thread(), self.wp.ScopedCapture(device=self.device) as capture:
                 self.enqueue()
             self.graph = capture.graph
         return self.graph is not None
