@@ -228,7 +228,7 @@ class _Runner:
         """A launch's ``thread_kernels.Recording``: u and v into ``frames`` (u, v) every ``every`` steps (None: no
         frames), f'(z) into this runner's history when ``stiffness`` (tangent runs read the history from it). One
         without frames is kept per (every, stiffness): building a struct costs ~20 us of host time per launch."""
-        if frames is None or (frames[0] is self.no_record and frames[1] is self.no_record):
+        if frames is None:
             kept = self.__dict__.setdefault("_recordings", {})
             key = (int(every), bool(stiffness))
             if key not in kept:
@@ -276,9 +276,8 @@ class _Runner:
             if observer is not None:
                 self.plan.observe(lo, hi, dt, nsteps, observer(lo, hi))
                 return
-            if rec is None:
-                frames = [self.no_record, self.no_record]
-            else:
+            frames = None  # no frames: the plan's record() passes the runner's placeholders
+            if rec is not None:
                 frames = [rec[0][:, lo:hi], rec[1][:, lo:hi]] if (lo, hi) != (0, self.batch) else list(rec)
             self.plan.step(lo, hi, dt, nsteps, save, frames, bool(record_stiffness))
 
