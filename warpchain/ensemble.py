@@ -28,6 +28,7 @@ from .engine.devices import (  # noqa: F401  (re-exported: the public face of th
     cpu_threads,
     device_lock,
     on_one_thread,
+    record_on,
     resolve_device,
     resolve_layout,
     _warp,
@@ -546,11 +547,11 @@ def propagate_tangent(
 
     def launches():
         if events is not None:
-            wp.record_event(events[0])
+            record_on(wp, device, events[0])
         runner.launch(int(nsteps), float(dt), record_stiffness=True)
         runner.launch_tangent(dx, base_dev, int(nsteps), float(dt))
         if events is not None:
-            wp.record_event(events[1])
+            record_on(wp, device, events[1])
 
     replay = _Replay(wp, device, launches, after=0)
     if nsteps:

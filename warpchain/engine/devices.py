@@ -91,6 +91,17 @@ def resolve_device(device: str | None) -> str:
     return name
 
 
+def record_on(wp, device: str, event=None):
+    """Record ``event`` (an event of ``device``; None: a new one) on ``device``'s current stream and return it.
+
+    Never ``wp.record_event(event)``: that records on the current stream of Warp's *current* device, which is
+    process-wide (``cuda:0`` unless something set another) and not the device the work was queued on. In a process
+    whose threads drive several GPUs (the Dask sweep's workers, one per GPU) an event of ``cuda:1`` went to
+    ``cuda:0``'s stream and Warp refused it (issue #49). Every stream, event, capture and allocation in the engine
+    names its device (``tests/test_devices.py`` checks the sources)."""
+    return wp.get_stream(device).record_event(event)
+
+
 _DEVICE_LOCKS: dict = {}
 
 

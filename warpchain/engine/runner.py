@@ -24,6 +24,7 @@ from .devices import (
     held,
     on_one_thread,
     on_this_thread,
+    record_on,
     resolve_device,
     resolve_layout,
 )
@@ -186,7 +187,7 @@ class _Runner:
         buf = self._pinned("_pinned_up")
         _copy(buf.numpy(), np.ascontiguousarray(x0, dtype=np.float64))
         wp.copy(self.x, buf, count=x0.size)
-        self._pinned_up_done = wp.get_stream(self.device).record_event()
+        self._pinned_up_done = record_on(wp, self.device)
 
     def download(self, out: np.ndarray | None = None) -> np.ndarray:
         """The batch state as a new host array (on a GPU through a pinned buffer, then a few threads
@@ -461,7 +462,7 @@ class _GuardReader:
 
     def record(self, i: int) -> None:
         if self.gpu:
-            self.wp.record_event(self.events[i % 2])
+            record_on(self.wp, self.runner.device, self.events[i % 2])  # not the current device's stream
 
     def wait(self, i: int):
         """(energy, finite, min contact) of chunk i, each (batch,), once the device has finished it."""
