@@ -70,6 +70,7 @@ def _array_spec(N: int, max_newton: int) -> dict:
         {
             "iterations": _int(()),
             "stable": _int(()),
+            "floquet_complete": _int(()),
             "state": _float((4, N)),
             "mu_real": _float((2 * N,)),
             "mu_imag": _float((2 * N,)),
@@ -318,7 +319,8 @@ class BranchStore:
             "min_contact": point.min_contact,
             "s": point.s,
             "iterations": point.iterations,
-            "stable": int(point.stable),
+            "stable": INT_FILL if point.stable is None else int(point.stable),
+            "floquet_complete": int(point.complete),
             "state": point.state,
             "mu_real": np.real(mu),
             "mu_imag": np.imag(mu),
@@ -456,8 +458,12 @@ def load_branch(path, group: str = "branch") -> tuple[ChainParams, list, dict]:
                 _fail(path, group, name, i, f"{a[name][i]} is not positive")
         if not np.isfinite(a["state"][i]).all():
             _fail(path, group, "state", i, "non-finite entries (a missing or damaged chunk)")
-        if a["stable"][i] not in (0, 1):
-            _fail(path, group, "stable", i, f"flag {a['stable'][i]} is not 0 or 1 (a missing or damaged chunk)")
+        complete = a["floquet_complete"][i]
+        if complete not in (0, 1):
+            _fail(path, group, "floquet_complete", i, f"flag {complete} is not 0 or 1 (a missing or damaged chunk)")
+        if a["stable"][i] not in ((0, 1) if complete else (INT_FILL,)):
+            allowed = "0 or 1 at a point with a complete verdict" if complete else f"{INT_FILL} (not decided)"
+            _fail(path, group, "stable", i, f"flag {a['stable'][i]} where it must be {allowed} (a damaged chunk)")
         stored, count = int((a["instability_kind"][i] != INT_FILL).sum()), int(a["instability_count"][i])
         if count < stored or (stored < MAX_INSTABILITIES and count != stored):
             _fail(path, group, "instability_count", i, f"{count} with {stored} instabilities stored")
@@ -520,7 +526,8 @@ def load_branch(path, group: str = "branch") -> tuple[ChainParams, list, dict]:
                 central_weight=a["central_weight"][i][:count] if have_mu else None,
                 max_modulus=float(a["max_modulus"][i]),
                 tolerance=float(a["tolerance"][i]),
-                stable=bool(a["stable"][i]),
+                stable=bool(a["stable"][i]) if a["floquet_complete"][i] else None,
+                complete=bool(a["floquet_complete"][i]),
                 instabilities=tuple(insts),
                 min_contact=float(a["min_contact"][i]),
                 harmonics_in_bands=tuple(frequency_report(pr, float(a["omega"][i]))["harmonics_in_bands"]),

@@ -65,10 +65,17 @@ from warpchain.model import real_number, whole_number
 from . import bubbles
 from . import events as ev
 from .events import StopReason
-from .floquet import SOLVERS, FloquetResult, reduced_analysis
-from .krylov_floquet import FloquetWindow
+from .floquet import FloquetResult, floquet_path, linear_mu, reduced_analysis
 from .hostblas import blas_threads, threads_for
 from .shooting import frequency_report
+
+#: the Floquet paths a walk may take: those that give every point a complete verdict
+COMPLETE_SOLVERS = ("dense", "sliced", "auto")
+
+
+class IncompleteVerdict(RuntimeError):
+    """A point's Floquet analysis could not account for every multiplier (the sliced path's count did not close):
+    the walk stops rather than record a verdict it does not have."""
 
 
 #: ``bisect_krein="auto"`` bisects every opposite-signature pass up to this many sites. Measured on
@@ -115,13 +122,12 @@ class ContinuationSettings:
         chord: start each corrector with chord steps on the neighbouring point's Jacobian (from its
             Floquet analysis), forming true Jacobians only when they converge slowly.
         floquet: compute multipliers at every point (False: energies only, no stability).
-        floquet_solver: ``"dense"`` (every multiplier: the reference), ``"krylov"`` (the window near +1 and -1,
-            ``floquet(solver="krylov")``) or ``"auto"`` (krylov from ``KRYLOV_FLOQUET_MIN_SITES`` sites on). On the
-            window, stability and its changes are those of the multipliers there; the spectral step bound
-            compares the window's elliptic mu of each (signature, parity) class where two points have as many (a
-            class whose count changed between them bounds nothing); Krein passes are counted among them; the
-            bubble predictor, which needs all of Mu, is off (no predicted bubbles).
-        floquet_window: the window (``FloquetWindow``; None: its default).
+        floquet_solver: ``"dense"`` (every multiplier from A's 4N tangent columns: the reference), ``"sliced"``
+            (every multiplier from the probed sparse Mu, counted: ``continuation.slicing``) or ``"auto"`` (sliced
+            from ``SLICED_MIN_SITES`` sites on). Every point's verdict is complete: a sliced analysis whose count
+            does not close fails the walk (``IncompleteVerdict``) rather than record a guess. The window near +-1
+            (``floquet(solver="window")``) gives no verdict and is not offered here. On the sliced path the
+            bubble predictor, which needs Mu's dense eigenvectors, is off (no predicted bubbles).
         max_seconds: opt-in time budget (None: stop only on physics or max_points).
         blas_threads: threads of the host BLAS during the walk: ``"auto"`` (default: one on the CPU
             device, the process's setting on a GPU; ``continuation.hostblas``), a whole number, or None
@@ -143,7 +149,6 @@ class ContinuationSettings:
     chord: bool = True
     floquet: bool = True
     floquet_solver: str = "auto"
-    floquet_window: "FloquetWindow | None" = None
     max_seconds: float | None = None
     blas_threads: int | str | None = "auto"
 
@@ -159,8 +164,13 @@ class ContinuationSettings:
             "resolution",
         ):
             real_number(name, getattr(self, name), positive=True)
-        if self.floquet_solver not in SOLVERS:
-            raise ValueError(f"floquet_solver must be 'dense', 'krylov' or 'auto'; got {self.floquet_solver!r}")
+        if self.floquet_solver not in COMPLETE_SOLVERS:
+            if self.floquet_solver == "krylov":
+                floquet_path("krylov", 1)  # the message that says what it became
+            raise ValueError(
+                f"floquet_solver must be one of {', '.join(map(repr, COMPLETE_SOLVERS))} (a complete verdict at every "
+                f"point); got {self.floquet_solver!r}"
+            )
         if self.bisect_krein not in KREIN_MODES:
             raise ValueError(f"bisect_krein must be one of {', '.join(KREIN_MODES)}; got {self.bisect_krein!r}")
         if self.bubble_width is not None:
@@ -194,7 +204,9 @@ class BranchPoint:
         iterations, residual_history: the corrector's Newton iterations and residual norms.
         multipliers: all 4N Floquet multipliers; mu: (l + 1/l)/2 of each pair (2N), or NaN
             without Floquet; signature, parity: per mu (events module).
-        max_modulus, tolerance, stable, instabilities: the Floquet verdict (``floquet`` module).
+        max_modulus, tolerance, stable, instabilities: the Floquet verdict (``floquet`` module); ``stable`` is
+            None (not decided) without Floquet (``ContinuationSettings.floquet`` False).
+        complete: every multiplier accounted for (True wherever Floquet ran: the walk takes complete paths only).
         harmonics_in_bands: harmonics n of omega inside a phonon band.
         s: the continuation coordinate (log10 K or arclength).
         central_weight: per mu, the fraction of its Floquet vector on the central sites (None without Floquet).
@@ -212,12 +224,13 @@ class BranchPoint:
     participation: np.ndarray | None
     max_modulus: float
     tolerance: float
-    stable: bool
+    stable: bool | None
     instabilities: tuple
     min_contact: float
     harmonics_in_bands: tuple
     s: float = float("nan")
     central_weight: np.ndarray | None = None
+    complete: bool = True
 
     @property
     def K(self) -> float:
@@ -243,6 +256,7 @@ class BranchPoint:
             "energy": self.energy,
             "max_floquet_modulus": self.max_modulus,
             "stable": self.stable,
+            "complete": self.complete,
             "kinds": sorted({i.kind for i in self.instabilities}),
             "leading_localized": None if lead is None else lead.localized,
             "min_contact": self.min_contact,
@@ -312,7 +326,7 @@ class Branch:
 
 
 def analyse(solution: Solution, with_floquet: bool = True, spectra: dict | None = None, settings=None) -> BranchPoint:
-    """Energy, multipliers (reduced Floquet on the solution's own linearization: dense, or the window near +-1 as
+    """Energy, multipliers (reduced Floquet on the solution's own linearization: dense or sliced as
     ``settings.floquet_solver`` says: ``floquet.reduced_analysis``), harmonics.
 
     ``spectra``: where to keep the point's reduced matrix and eigenvectors (``floquet.SpectralData``, dense path
@@ -321,8 +335,17 @@ def analyse(solution: Solution, with_floquet: bool = True, spectra: dict | None 
     settings = settings or ContinuationSettings()
     if with_floquet:
         fl: FloquetResult = reduced_analysis(
-            lin, params.M, solution.state, solver=settings.floquet_solver, window=settings.floquet_window
+            lin, params.M, solution.state, solver=settings.floquet_solver, hint=linear_mu(params, lin)
         )
+        if not fl.complete:
+            counts = "; ".join(
+                f"parity {c['parity']}: inertia {c['inertia']}, found {c['found']}" for c in fl.coverage["counts"]
+            )
+            raise IncompleteVerdict(
+                f"the Floquet count did not close at K = {params.K!r}, omega = {solution.omega!r} (N = {params.N}): "
+                f"{counts}. No verdict is recorded for a point whose multipliers are not all accounted for: walk with "
+                "floquet_solver='dense'"
+            )
         fields = dict(
             multipliers=fl.multipliers,
             mu=fl.mu,
@@ -334,6 +357,7 @@ def analyse(solution: Solution, with_floquet: bool = True, spectra: dict | None 
             tolerance=fl.tolerance,
             stable=fl.stable,
             instabilities=fl.instabilities,
+            complete=fl.complete,
         )
     else:
         n = 2 * params.N
@@ -346,8 +370,9 @@ def analyse(solution: Solution, with_floquet: bool = True, spectra: dict | None 
             central_weight=None,
             max_modulus=float("nan"),
             tolerance=float("nan"),
-            stable=False,
+            stable=None,
             instabilities=(),
+            complete=False,
         )
     point = BranchPoint(
         parameters={"K": float(params.K), "omega": float(solution.omega)},

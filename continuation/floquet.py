@@ -65,8 +65,9 @@ import warnings
 import numpy as np
 
 from warpchain import ChainParams, Flow, get_method, propagate_tangent
-from warpchain.model import real_number
+from warpchain.model import dispersion, real_number
 
+from .slicing import CENTRAL_SITES, central_weight, energy_centre, participation  # noqa: F401 (as before)
 from .parity import (  # noqa: F401 (ParityBlock: importable from here as before)
     SYMMETRIC_RTOL,
     ParityBlock,
@@ -86,11 +87,9 @@ UNRELIABLE_TOLERANCE = 1e-6
 #: site weight M |a_u|^2 + |a_v|^2) is below this fraction of N
 LOCALIZED_FRACTION = 0.1
 
-#: ``floquet(solver="auto")`` takes the krylov path (a window of multipliers near +1 and -1) from this many sites on
-KRYLOV_FLOQUET_MIN_SITES = 1601
-
-#: sites on each side of the orbit's energy centre counted in an instability's ``central_weight``
-CENTRAL_SITES = 2
+#: ``floquet(solver="auto")`` takes the sliced path (every multiplier from the probed sparse Mu, counted:
+#: ``continuation.slicing``) from this many sites on, the dense path (4N tangent columns, dense eig) below
+SLICED_MIN_SITES = 1601
 
 
 @dataclasses.dataclass(frozen=True)
@@ -136,9 +135,12 @@ class FloquetResult:
     Attributes:
         multipliers: all 4N multipliers, complex, shape (4N,).
         trivial: indices (into ``multipliers``) of the trivial pair at +1.
-        max_modulus: largest |l| excluding the trivial pair.
-        tolerance: the verdict's tolerance (in mu on the reduced path, in |l| - 1 on the full path).
-        stable: no nontrivial multiplier off the unit circle by more than the tolerance.
+        max_modulus: largest |l| excluding the trivial pair; NaN when ``complete`` is False (what was found:
+            ``partial_max_modulus``).
+        tolerance: the verdict's tolerance (in mu on the reduced paths, in |l| - 1 on the full path).
+        stable: the verdict, only where every multiplier was accounted for (``complete``): True when no
+            nontrivial multiplier is off the unit circle by more than the tolerance, False otherwise; None (not
+            decided) on a partial analysis, whatever it found (``partial_stable``).
         instabilities: the unstable pairs/quadruplets, largest modulus first.
         mu: (l + 1/l)/2 of each pair, shape (2N,) (reduced path; None on the full path).
         mu_trivial: index of the trivial mu.
@@ -152,11 +154,17 @@ class FloquetResult:
             between two analysed orbits (``continuation.bubbles``).
         accuracy: the measured gauges (``trivial_deviation``, ``symplecticity`` or ``pairing_error``; the
             probe's ``probe_edge`` on the krylov path).
-        path: ``"reduced"``, ``"full"`` or ``"krylov"`` (the reduced problem's multipliers near +1 and -1 only:
-            every array above then holds that subset, and ``stable`` means "no instability in the window").
-        coverage: what the krylov path searched (``continuation.krylov_floquet``): the mu intervals swept
-            (``covered``), the half-height of the strip around the real axis they cover, the shifts; None on the
-            complete paths.
+        path: ``"reduced"`` (dense), ``"full"``, ``"sliced"`` (every multiplier from the probed Mu, counted:
+            ``continuation.slicing``) or ``"window"`` (the multipliers near +1 and -1 only: every array above then
+            holds that subset).
+        coverage: what the sliced and window paths searched: the segments or mu intervals swept, the half-height
+            of the strip around the real axis they cover, the shifts, and on the sliced path the count per
+            parity block (``counts``: P's inertia against what was found) and whether it closed; None on the dense
+            paths.
+        complete: every multiplier accounted for (dense paths; the sliced path when its count closed).
+        partial_stable: on a partial analysis (``complete`` False), whether the multipliers it found hold no
+            instability (a window: "none near +-1"); None on a complete one.
+        partial_max_modulus: on a partial analysis, the largest |l| among those found; NaN on a complete one.
         pairing_error, symplecticity_error: kept for the full path's reports (0 / gauge on the reduced).
         monodromy: V (4N x 4N) when kept (full path).
         wall_seconds: time for the tangent columns and the eigenvalues.
@@ -167,7 +175,7 @@ class FloquetResult:
     trivial: np.ndarray
     max_modulus: float
     tolerance: float
-    stable: bool
+    stable: bool | None
     instabilities: tuple
     mu: np.ndarray | None
     mu_trivial: int | None
@@ -185,11 +193,14 @@ class FloquetResult:
     vectors: np.ndarray | None = dataclasses.field(default=None, repr=False, compare=False)
     spectral: "SpectralData | None" = dataclasses.field(default=None, repr=False, compare=False)
     coverage: dict | None = None
+    complete: bool = True
+    partial_stable: bool | None = None
+    partial_max_modulus: float = float("nan")
 
     @property
-    def complete(self) -> bool:
-        """Whether every multiplier was computed (the dense paths); False for a window (``solver="krylov"``)."""
-        return self.coverage is None
+    def verdict(self) -> str:
+        """``"stable"``, ``"unstable"`` or ``"not decided"`` (a partial analysis), for log lines and summaries."""
+        return "not decided" if self.stable is None else ("stable" if self.stable else "unstable")
 
     @property
     def nontrivial(self) -> np.ndarray:
@@ -344,31 +355,6 @@ def mu_kind(mu: np.ndarray, tol: float) -> np.ndarray:
     return out
 
 
-def participation(vectors: np.ndarray, M: float) -> np.ndarray:
-    """Participation ratio in sites of each column (2N: u then v), site weight M|a_u|^2 + |a_v|^2."""
-    n = vectors.shape[0] // 2
-    w = M * np.abs(vectors[:n]) ** 2 + np.abs(vectors[n:]) ** 2
-    return np.sum(w, axis=0) ** 2 / np.maximum(np.sum(w * w, axis=0), 1e-300)
-
-
-def energy_centre(state) -> float:
-    """Centre of a profile, sum j z_j^2 / sum z_j^2 with z = u - v at t = 0 (0-based sites): the centre
-    site c for a site-centred breather, c + 1/2 for a bond-centred one on (c, c + 1)."""
-    z = np.asarray(state)[0] - np.asarray(state)[1]
-    w = z * z
-    return float(np.sum(np.arange(len(z)) * w) / max(float(np.sum(w)), 1e-300))
-
-
-def central_weight(vectors: np.ndarray, M: float, centre: float, sites: int = CENTRAL_SITES) -> np.ndarray:
-    """Fraction of each column's site weight (M|a_u|^2 + |a_v|^2; columns of length 2N) on the sites
-    within ``sites`` of ``centre``."""
-    vectors = np.asarray(vectors)
-    n = vectors.shape[0] // 2
-    w = M * np.abs(vectors[:n]) ** 2 + np.abs(vectors[n:]) ** 2
-    near = np.abs(np.arange(n) - centre) <= sites + 0.5
-    return np.sum(w[near], axis=0) / np.maximum(np.sum(w, axis=0), 1e-300)
-
-
 # ----------------------------------------------------------------------------- the two paths
 
 
@@ -410,16 +396,18 @@ def reduced_floquet(
     sympl = max(b.symplecticity for b in blocks)
     # a = S y with S real: a^T P a = y^T (S^T P S) y, each block's own P
     act = np.concatenate([np.sum(np.real(b.vectors) * (b.P @ np.real(b.vectors)), axis=0) for b in blocks])
+    weight = central_weight(vec, M, energy_centre(state)) if state is not None else np.full(len(mu), np.nan)
     return assemble(
         mu,
-        vec,
         parity,
         act,
-        M,
-        state,
+        participation(vec, M),
+        weight,
+        N,
         {"symplecticity": sympl},
         tolerance,
         path="reduced",
+        vectors=vec,
         spectral=SpectralData(blocks),
         wall_seconds=wall_seconds + time.perf_counter() - start,
         stats=stats,
@@ -427,12 +415,27 @@ def reduced_floquet(
 
 
 def assemble(
-    mu, vec, parity, act, M, state, accuracy, tolerance, *, path, spectral=None, coverage=None, wall_seconds, stats
+    mu,
+    parity,
+    act,
+    pr,
+    weight,
+    N,
+    accuracy,
+    tolerance,
+    *,
+    path,
+    vectors=None,
+    spectral=None,
+    coverage=None,
+    complete=True,
+    wall_seconds,
+    stats,
 ) -> FloquetResult:
-    """The reduced paths' result from the mu of Mu, their eigenvectors (position parts, columns), parities and
-    Krein forms a^T P a: the trivial mu, the tolerance, kinds, signatures, participation and the instabilities.
-    ``mu`` may be a subset of the 2N (``solver="krylov"``: ``coverage`` says which); N is read off ``vec``."""
-    N = vec.shape[0] // 2
+    """The reduced paths' result from the mu of Mu with their parities, Krein forms a^T P a, participations and
+    central weights (and, where kept, their eigenvectors: position parts, columns): the trivial mu, the tolerance,
+    kinds, signatures and the instabilities, and the verdict where ``complete``. ``mu`` may be a subset of the 2N
+    (a window: ``coverage`` says which)."""
     sympl = accuracy["symplecticity"]
     trivial = int(np.argmin(np.abs(mu - 1.0)))
     accuracy = {"trivial_deviation": float(abs(mu[trivial] - 1.0)), **accuracy}
@@ -443,8 +446,6 @@ def assemble(
     # Krein signature of elliptic mu: -sign((A11 a)^T Mm (A21 a)) = -sign(a^T P a) (real eigenvectors for real mu)
     signature = np.where(kinds == "elliptic", -np.sign(act), 0).astype(int)
     signature[trivial] = 0
-    pr = participation(vec, M)
-    weight = central_weight(vec, M, energy_centre(state)) if state is not None else np.full(len(mu), np.nan)
     modulus = outer_modulus(mu)
     mask = np.ones(len(mu), bool)
     mask[trivial] = False
@@ -465,12 +466,13 @@ def assemble(
         )
     instabilities.sort(key=lambda s: -s.modulus)
     lam = multipliers_from_mu(mu)
+    largest = float(np.max(modulus[mask])) if mask.any() else 1.0
     return FloquetResult(
         multipliers=lam,
         trivial=np.array([trivial, trivial + len(mu)]),
-        max_modulus=float(np.max(modulus[mask])) if mask.any() else 1.0,
+        max_modulus=largest if complete else float("nan"),
         tolerance=tol,
-        stable=not instabilities,
+        stable=not instabilities if complete else None,
         instabilities=tuple(instabilities),
         mu=mu,
         mu_trivial=trivial,
@@ -478,9 +480,12 @@ def assemble(
         parity=parity,
         participation=pr,
         central_weight=weight,
-        vectors=vec,
+        vectors=vectors,
         spectral=spectral,
         coverage=coverage,
+        complete=bool(complete),
+        partial_stable=None if complete else not instabilities,
+        partial_max_modulus=float("nan") if complete else largest,
         accuracy=accuracy,
         path=path,
         pairing_error=0.0,
@@ -491,31 +496,53 @@ def assemble(
     )
 
 
-#: the reduced analysis' paths (``floquet(solver=...)``, ``ContinuationSettings.floquet_solver``)
-SOLVERS = ("dense", "krylov", "auto")
+#: the reduced analysis' paths (``floquet(solver=...)``): three complete ones and the partial window
+SOLVERS = ("dense", "sliced", "auto", "window")
 
 
 def floquet_path(solver: str, N: int) -> str:
-    """``"dense"`` or ``"krylov"``: the path ``solver`` names on N sites (``"auto"``: krylov from
-    ``KRYLOV_FLOQUET_MIN_SITES`` sites on)."""
+    """``"dense"``, ``"sliced"`` or ``"window"``: the path ``solver`` names on N sites (``"auto"``: sliced from
+    ``SLICED_MIN_SITES`` sites on, dense below)."""
+    if solver == "krylov":
+        raise ValueError(
+            "solver='krylov' is now 'window' (the multipliers near +1 and -1 only: no stability verdict); "
+            "'sliced' or 'auto' give every multiplier of a long lattice and a complete verdict"
+        )
     if solver not in SOLVERS:
-        raise ValueError(f"solver must be 'dense', 'krylov' or 'auto', got {solver!r}")
+        raise ValueError(f"solver must be one of {', '.join(map(repr, SOLVERS))}, got {solver!r}")
     if solver == "auto":
-        return "krylov" if N >= KRYLOV_FLOQUET_MIN_SITES else "dense"
+        return "sliced" if N >= SLICED_MIN_SITES else "dense"
     return solver
 
 
-def reduced_analysis(lin, M: float, state=None, tolerance=None, *, solver: str = "auto", window=None) -> FloquetResult:
-    """The reduced Floquet analysis of a reversible orbit from its half-period Linearization, on the path ``solver``
-    names: every multiplier (``reduced_floquet`` on A's 4N columns) or the window near +1 and -1
-    (``krylov_floquet.krylov_floquet``; ``window``: its ``FloquetWindow``). ``floquet`` and the continuation
-    driver both analyse through here."""
-    if floquet_path(solver, lin.x0.shape[1]) == "krylov":
-        from .krylov_floquet import krylov_floquet
+def linear_mu(params: ChainParams, lin) -> np.ndarray:
+    """The mu = cos(w T) of the linear chain's 2N modes (fixed-end Bloch numbers j pi / (N + 1)) over the period T
+    of a half-period Linearization: where a breather's multipliers lie, but for its few core modes (the sliced
+    path cuts its segments by them)."""
+    q = np.arange(1, params.N + 1) * np.pi / (params.N + 1)
+    period = 2.0 * lin.nsteps * lin.dt
+    return np.cos(np.concatenate(dispersion(q, params.M, params.K)) * period)
 
-        return krylov_floquet(lin, M, state, tolerance, window)
+
+def reduced_analysis(
+    lin, M: float, state=None, tolerance=None, *, solver: str = "auto", window=None, hint=None
+) -> FloquetResult:
+    """The reduced Floquet analysis of a reversible orbit from its half-period Linearization, on the path ``solver``
+    names: every multiplier (``reduced_floquet`` on A's 4N columns, or ``slicing.sliced_floquet`` on the probed
+    sparse Mu, counted) or the window near +1 and -1 (``krylov_floquet.window_floquet``; ``window``: its
+    ``FloquetWindow``). ``floquet`` and the continuation driver both analyse through here;
+    ``hint``: ``linear_mu``, for the sliced path's segments."""
+    path = floquet_path(solver, lin.x0.shape[1])
+    if path == "window":
+        from .krylov_floquet import window_floquet
+
+        return window_floquet(lin, M, state, tolerance, window)
     if window is not None:
-        raise ValueError("window= chooses the krylov path's multipliers; the dense path computes all of them")
+        raise ValueError("window= chooses the window path's multipliers; the complete paths compute all of them")
+    if path == "sliced":
+        from .slicing import sliced_floquet
+
+        return sliced_floquet(lin, M, state, tolerance, hint=hint)
     start = time.perf_counter()
     cols = lin.stats["tangent_columns"]
     A = half_period_map(lin)
@@ -644,11 +671,12 @@ def floquet(
         tolerance: override of the measured tolerance (>= 0).
         flow: the Flow to use (default: the breather's own).
         solver: ``"dense"`` (every multiplier: 4N tangent columns and the eig of Mu, the reference),
-            ``"krylov"`` (the multipliers near +1 and -1 only, from a probed sparse Mu by shift-invert Arnoldi,
-            ``continuation.krylov_floquet``; the result's ``coverage`` says what it could not see) or ``"auto"``
-            (krylov from ``KRYLOV_FLOQUET_MIN_SITES`` sites on, on the reduced path). Both reduced paths need a
+            ``"sliced"`` (every multiplier from the probed sparse Mu by shift-invert slices, with a count that
+            proves none was missed: ``continuation.slicing``), ``"auto"`` (sliced from ``SLICED_MIN_SITES`` sites
+            on, dense below) or ``"window"`` (the multipliers near +1 and -1 only, ``continuation.krylov_floquet``:
+            a partial analysis, ``stable`` None, what it saw in ``partial_stable``). The reduced paths need a
             reversible orbit; the full path is always dense.
-        window: the krylov path's ``FloquetWindow`` (default: the 60 mu nearest each end).
+        window: the window path's ``FloquetWindow`` (default: the 60 mu nearest each end).
 
     Raises:
         TypeError: ``breather`` is not a ShootingResult.
@@ -691,14 +719,15 @@ def floquet(
         reduced = breather.formulation == "reversible" and _is_reversible_method(flow.method)
     params = breather.params
     floquet_path(solver, params.N)  # a bad name fails before any work
-    if solver == "krylov" and not reduced:
-        raise ValueError("solver='krylov' works on the reduced problem (reversible orbit, symplectic method)")
+    if solver in ("sliced", "window") and not reduced:
+        raise ValueError(f"solver={solver!r} works on the reduced problem (reversible orbit, symplectic method)")
     if reduced:
+        lin = breather.linearization(flow)
         return reduced_analysis(
-            breather.linearization(flow), params.M, breather.state, tolerance, solver=solver, window=window
+            lin, params.M, breather.state, tolerance, solver=solver, window=window, hint=linear_mu(params, lin)
         )
     if window is not None:
-        raise ValueError("window= chooses the krylov path's multipliers; the dense path computes all of them")
+        raise ValueError("window= chooses the window path's multipliers; the full path computes all of them")
     start = time.perf_counter()
     half = breather.nsteps if breather.formulation == "reversible" else breather.nsteps // 2
     V = monodromy(params, breather.state, 2 * half, breather.dt, method=flow.method, device=flow.device)

@@ -42,9 +42,6 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
-import os
-import queue
-import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 
@@ -336,151 +333,32 @@ def _arnoldi(op, k: int) -> tuple:
 #: 3201 1.8 s against 0.32 s, 12801 23 s against 5.6 s; the first call of a process also starts them (~0.9 s)
 PROCESS_MIN_ROWS = 3000
 
-#: worker processes at most: one per eigensolve (two parity blocks, two ends, ``PARTS``)
-PROCESS_COUNT = 12
-
 #: the module's settings a worker takes from the caller with each task (a script or a test may have changed them)
 _SETTINGS = ("START_OFFSET", "OUTWARD_SHIFT", "OUTWARD_COUNT", "OUTLIER_COUNT", "OUTLIER_RESTARTS", "ARPACK_SEED")
 
 
+def window_part(op, part: str, width: float, k: int, settings: dict):
+    """A worker's task (``continuation.workers``): ``_solve`` with the caller's module settings."""
+    globals().update(settings)
+    return _solve(op, part, width, k)
+
+
 def _ends(ops: list, width: float, ks: list, processes: bool) -> list:
     """``_end`` of each op (CSC) and its k from its three eigensolves (``_solve``), here one after the other, or
-    all twelve (two parity blocks, two ends) in the worker processes at once (``processes``, ``_Workers``): the same
-    code on the same libraries from the same starting vector, so the same bits."""
+    all twelve (two parity blocks, two ends) in the worker processes at once (``processes``,
+    ``continuation.workers``): the same code on the same libraries from the same starting vector, so the same
+    bits, whatever the BLAS threads (one BLAS thread both here and there: ``krylov_floquet`` runs under
+    ``blas_threads(1)``)."""
     tasks = [(op, part, k) for op, k in zip(ops, ks) for part in PARTS]
     if not processes:
         parts = [_solve(op, part, width, k) for op, part, k in tasks]
     else:
-        workers = _Workers.shared()
+        from .workers import Workers
+
         settings = {name: globals()[name] for name in _SETTINGS}  # as set in this process, not as in the file
-
-        def call(task):
-            op, part, k = task
-            return workers.call((op.data, op.indices, op.indptr, op.shape, part, width, k, settings))
-
-        with ThreadPoolExecutor(len(tasks), thread_name_prefix="window-worker") as pool:  # threads that only wait
-            parts = list(pool.map(call, tasks))
+        jobs = [("window_part", (op, part, width, k, settings)) for op, part, k in tasks]
+        parts = Workers.shared().map("continuation.krylov_floquet", jobs, what="window eigensolve")
     return [_end(*parts[i : i + len(PARTS)]) for i in range(0, len(parts), len(PARTS))]
-
-
-class _Workers:
-    """Python processes that run ``_solve`` on pickled ops: this file loaded alone (no package, no Warp) with one BLAS
-    thread, started on first use and kept for the process's life, so a branch pays their start (~0.3 s: python,
-    numpy, scipy) once, and ended at its exit. Each call takes an idle worker and sends, with the task, the module's
-    settings as the caller has them (``_SETTINGS``); a worker's error is raised here with its traceback, and a
-    worker that died, failed or was interrupted mid-task is replaced. Their stderr is the parent's."""
-
-    _shared = None
-    _lock = threading.Lock()
-
-    @classmethod
-    def shared(cls):
-        with cls._lock:
-            if cls._shared is None or cls._shared.pid != os.getpid():  # a forked child starts its own
-                cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-                cls._shared = cls(min(PROCESS_COUNT, cores or 1))
-            return cls._shared
-
-    def __init__(self, count: int):
-        import atexit
-
-        self.pid, self.count, self.idle, self.started = os.getpid(), count, queue.SimpleQueue(), []
-        for _ in range(count):
-            self.idle.put(None)  # started when first taken
-        atexit.register(self.close)
-
-    def close(self) -> None:
-        """End the workers (at exit): close their stdin, so that each leaves its loop, and wait for them."""
-        if self.pid != os.getpid():
-            return
-        for worker in list(self.started):
-            self._forget(worker)
-            try:
-                worker.wait(timeout=5)
-            except Exception:
-                worker.kill()
-                worker.wait()
-
-    @staticmethod
-    def _start():
-        import subprocess
-        import sys
-
-        command = [sys.executable, *(["-P"] if sys.version_info >= (3, 11) else []), "-c", _WORKER, __file__]
-        env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
-        return subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env)
-
-    def call(self, task):
-        import pickle
-
-        worker = self.idle.get()
-        try:
-            if worker is not None and worker.poll() is not None:  # it died while idle
-                self._forget(worker)
-                worker = None
-            if worker is None:
-                worker = self._start()
-                self.started.append(worker)
-            payload = pickle.dumps(task, protocol=pickle.HIGHEST_PROTOCOL)
-            worker.stdin.write(len(payload).to_bytes(8, "little") + payload)
-            worker.stdin.flush()
-            size = int.from_bytes(worker.stdout.read(8) or b"\0" * 8, "little")
-            reply = pickle.loads(worker.stdout.read(size)) if size else ("error", "it exited")
-        except (BrokenPipeError, EOFError, pickle.UnpicklingError) as err:
-            reply = ("error", f"it exited ({err!r})")
-        except BaseException:  # interrupted mid-task (or could not start one): its worker is not reused
-            self._discard(worker)
-            raise
-        if reply[0] == "error":
-            self._discard(worker)
-            raise RuntimeError(f"a window worker process failed (one end of a {task[3][0]}-row Mu): {reply[1]}")
-        self.idle.put(worker)
-        return reply[1]
-
-    def _discard(self, worker) -> None:
-        """End a worker that failed or was interrupted, and free its place for a fresh one."""
-        if worker is not None:
-            worker.kill()
-            worker.wait()
-            self._forget(worker)
-        self.idle.put(None)
-
-    def _forget(self, worker) -> None:
-        """Close a worker's pipes and drop it."""
-        for pipe in (worker.stdin, worker.stdout):
-            try:
-                pipe.close()
-            except OSError:
-                pass
-        if worker in self.started:
-            self.started.remove(worker)
-
-
-#: a worker's command line (``_Workers``): this file loaded as a module of its own, then ``_serve``
-_WORKER = (
-    "import importlib.util as u, sys; s = u.spec_from_file_location('_window_worker', sys.argv[1]); "
-    "m = sys.modules[s.name] = u.module_from_spec(s); s.loader.exec_module(m); m._serve()"
-)
-
-
-def _serve():
-    """A worker's loop: per task an 8-byte length and a pickle in, ("ok", ``_solve``'s result) or
-    ("error", traceback) out the same way; it ends when its stdin closes."""
-    import pickle
-    import sys
-    import traceback
-
-    read, write = sys.stdin.buffer.read, sys.stdout.buffer
-    while head := read(8):
-        data, indices, indptr, shape, part, width, k, settings = pickle.loads(read(int.from_bytes(head, "little")))
-        globals().update(settings)
-        try:
-            reply = ("ok", _solve(sp.csc_matrix((data, indices, indptr), shape=shape), part, width, k))
-        except Exception:
-            reply = ("error", traceback.format_exc())
-        out = pickle.dumps(reply, protocol=pickle.HIGHEST_PROTOCOL)
-        write.write(len(out).to_bytes(8, "little") + out)
-        write.flush()
 
 
 def blocks_window(Mu, blocks, window: FloquetWindow, *, processes: bool | None = None) -> tuple:
@@ -523,17 +401,14 @@ def blocks_window(Mu, blocks, window: FloquetWindow, *, processes: bool | None =
     return mu[keep], vec[:, keep], parity[keep], coverage
 
 
-def krylov_floquet(lin, M: float, state=None, tolerance=None, window: FloquetWindow | None = None):
-    """The reduced Floquet analysis of a reversible orbit from its half-period Linearization, for the multipliers
-    in ``window`` (module docstring): a ``FloquetResult`` with ``path="krylov"`` and its ``coverage``. On a
-    mirror-symmetric orbit the even and the odd block are solved apart (``parity_extensions``), so each vector's
-    parity is exact, as on the dense path."""
-    from .floquet import assemble
-    from .hostblas import blas_threads
+def probed_problem(lin, M: float, state=None) -> dict:
+    """The reduced problem of a reversible orbit from its half-period Linearization, sparse: A probed by colour
+    groups, Mu (entries below ``MU_DROP`` dropped), the Krein form P and the symplecticity gauge (formed beside),
+    and the parity blocks (``(parity, E, keep)``: ``parity_extensions`` when the orbit is mirror-symmetric and Mu
+    commutes with the reflection, else ``(0, None, None)``). ``window_floquet`` and ``slicing.sliced_floquet``
+    start here."""
     from .parity import PARITY_COUPLING_RTOL, SYMMETRIC_RTOL, mirror_symmetric, parity_extensions
 
-    start = time.perf_counter()
-    window = window or FloquetWindow()
     N = lin.x0.shape[1]
     cols = lin.stats["tangent_columns"]
     A, halfwidth = lin.probed_columns("all")
@@ -546,30 +421,60 @@ def krylov_floquet(lin, M: float, state=None, tolerance=None, window: FloquetWin
         asym = abs(Mu - Mu[flip][:, flip])
         if asym.nnz == 0 or asym.max() <= PARITY_COUPLING_RTOL * abs(Mu).max():
             blocks = parity_extensions(N)
-    with ThreadPoolExecutor(1, thread_name_prefix="window-checks") as side, blas_threads(1):
-        checks = side.submit(_checks, X, Y, *blocks_of_A)  # beside the eigensolves: they need Mu alone
-        # one BLAS thread: the products and solves are small, and spinning OpenBLAS threads would contend
-        mu, vec, parity, coverage = blocks_window(Mu, blocks, window)
-        sympl, P = checks.result()
+    side = ThreadPoolExecutor(1, thread_name_prefix="window-checks")
+    checks = side.submit(_checks, X, Y, *blocks_of_A)  # beside the eigensolves: they need Mu alone
+    side.shutdown(wait=False)
+    return {
+        "N": N,
+        "Mu": Mu,
+        "blocks": blocks,
+        "checks": checks,
+        "halfwidth": halfwidth,
+        "tangent_columns": lin.stats["tangent_columns"] - cols,
+    }
+
+
+def real_phase(vec: np.ndarray, mu: np.ndarray) -> np.ndarray:
+    """Unit eigenvectors, each rotated onto its largest component; those of real mu real (real up to a phase)."""
     vec = vec / np.linalg.norm(vec, axis=0)
-    # eigenvectors of real mu are real up to a phase: rotate each onto its largest component, then take the
-    # real part (the Krein form reads real vectors, as on the dense path)
     big = vec[np.argmax(np.abs(vec), axis=0), np.arange(vec.shape[1])]
     vec = vec * (np.abs(big) / big)[None, :]
-    vec = np.where(np.abs(mu.imag)[None, :] > 0, vec, np.real(vec))
+    return np.where(np.abs(mu.imag)[None, :] > 0, vec, np.real(vec))
+
+
+def window_floquet(lin, M: float, state=None, tolerance=None, window: FloquetWindow | None = None):
+    """The multipliers in ``window`` of a reversible orbit from its half-period Linearization (module docstring): a
+    partial ``FloquetResult`` (``path="window"``, ``complete`` False, ``stable`` None: no verdict; what the window
+    decided is ``partial_stable``) with its ``coverage``. On a mirror-symmetric orbit the even and the odd block are
+    solved apart (``parity_extensions``), so each vector's parity is exact, as on the dense path."""
+    from .floquet import assemble
+    from .hostblas import blas_threads
+    from .slicing import central_weight, energy_centre, participation
+
+    start = time.perf_counter()
+    window = window or FloquetWindow()
+    with blas_threads(1):  # the products and solves are small, and spinning OpenBLAS threads would contend
+        problem = probed_problem(lin, M, state)
+        mu, vec, parity, coverage = blocks_window(problem["Mu"], problem["blocks"], window)
+        sympl, P = problem["checks"].result()
+    vec = real_phase(vec, mu)
     act = np.sum(np.real(vec) * (P @ np.real(vec)), axis=0)
-    accuracy = {"symplecticity": sympl, "probe_halfwidth": halfwidth}
+    accuracy = {"symplecticity": sympl, "probe_halfwidth": problem["halfwidth"]}
+    centre = energy_centre(state) if state is not None else np.nan
+    weight = central_weight(vec, M, centre) if state is not None else np.full(len(mu), np.nan)
     return assemble(
         mu,
-        vec,
         parity,
         act,
-        M,
-        state,
+        participation(vec, M),
+        weight,
+        problem["N"],
         accuracy,
         tolerance,
-        path="krylov",
+        path="window",
+        vectors=vec,
         coverage=coverage,
+        complete=False,
         wall_seconds=time.perf_counter() - start,
-        stats={"tangent_columns": lin.stats["tangent_columns"] - cols},
+        stats={"tangent_columns": problem["tangent_columns"]},
     )

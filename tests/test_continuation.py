@@ -363,28 +363,36 @@ def test_a_branch_whose_start_fails_has_the_walked_branch_stats_and_the_scene_sa
     assert out.returncode != 0 and "eigenmode_amplitude" in out.stderr and "KeyError" not in out.stderr
 
 
-def test_a_branch_on_the_krylov_window_is_stored_and_read_back(tmp_path):
-    """``floquet_solver="krylov"``: each point keeps the window's mu (fewer than 2N), the store pads them with NaN
-    and reads them back as they were, and a resume from the store continues the branch."""
-    from continuation.krylov_floquet import FloquetWindow
-
+def test_a_branch_on_the_sliced_path_is_the_dense_one_stored_and_read_back(tmp_path):
+    """``floquet_solver="sliced"``: every point's 2N mu from the probed Mu, counted (complete verdicts), the same
+    points, mu and verdicts as the dense path; the store keeps each point's completeness flag and reads it back; a
+    resume from the store continues the branch; the window, which gives no verdict, is refused."""
     p = ChainParams(30.0, 0.01, 41)
-    settings = K_SETTINGS.replace(floquet_solver="krylov", floquet_window=FloquetWindow(count=8))
+    settings = K_SETTINGS.replace(floquet_solver="sliced")
     store = BranchStore(tmp_path / "w.zarr", "branch", p, {"omega": 1.01})
     seed = ct.anticontinuum_seed(p, 1.01)
     branch = continue_in_coupling(p, 1.01, seed, 20.0, settings=settings, on_point=store.append)
     store.finish(branch)
+    dense = continue_in_coupling(p, 1.01, seed, 20.0, settings=K_SETTINGS.replace(floquet_solver="dense"))
     assert branch.stop_reason is StopReason.END_REACHED
-    assert all(q.mu is not None and 1 <= len(q.mu) < 2 * 41 for q in branch.points)  # (fewest at K ~ 0: degenerate)
+    assert [q.K for q in branch.points] == pytest.approx([q.K for q in dense.points], rel=1e-9)
+    for a, b in zip(branch.points, dense.points):
+        assert a.complete and len(a.mu) == 2 * 41 and a.stable == b.stable
+        assert max(np.min(np.abs(b.mu - m)) for m in a.mu) <= 1e-11
     params, points, _ = load_branch(tmp_path / "w.zarr", "branch")
     assert len(points) == len(branch.points)
     for a, b in zip(points, branch.points):
-        assert len(a.mu) == len(b.mu) and np.allclose(a.mu, b.mu) and np.array_equal(a.signature, b.signature)
-        assert a.stable == b.stable and [i.kind for i in a.instabilities] == [i.kind for i in b.instabilities]
+        assert np.array_equal(a.mu, b.mu) and np.array_equal(a.signature, b.signature)
+        assert a.stable == b.stable and a.complete and [i.kind for i in a.instabilities] == [
+            i.kind for i in b.instabilities
+        ]
     upto = [q for q in points if q.K <= 5.0]
     resumed = continue_in_coupling(
         params.replace(K=upto[-1].K), 1.01, upto[-1].state, 20.0, settings=settings, resume=upto
     )
     assert resumed.points[-1].K == 20.0
+    for solver in ("window", "krylov"):
+        with pytest.raises(ValueError, match="floquet_solver|now 'window'"):
+            ContinuationSettings(floquet_solver=solver)
     with pytest.raises(ValueError, match="floquet_solver"):
         ContinuationSettings(floquet_solver="arnoldi")

@@ -1,8 +1,8 @@
-"""Floquet near +1 and -1 from the probed half-period map (``floquet(solver="krylov")``,
+"""Floquet near +1 and -1 from the probed half-period map (``floquet(solver="window")``,
 ``continuation.krylov_floquet``) against the dense reference on the CPU: the probe gives the 4N unit columns,
 every multiplier the window reports is the dense one to 1e-12 with the same kind, Krein signature and parity,
-the verdict and the instabilities inside the window are the dense ones, and the result says what it could not
-see."""
+the instabilities inside the window are the dense ones, the window gives no verdict (``stable`` None: what it saw
+is ``partial_stable``), and the result says what it could not see."""
 
 import numpy as np
 import pytest
@@ -67,8 +67,9 @@ def test_the_window_agrees_with_dense_at_801():
 
 def _agree(b, width):
     dense = ct.floquet(b, solver="dense")
-    krylov = ct.floquet(b, solver="krylov", window=FloquetWindow(width=width))
-    assert dense.complete and not krylov.complete and krylov.path == "krylov"
+    krylov = ct.floquet(b, solver="window", window=FloquetWindow(width=width))
+    assert dense.complete and not krylov.complete and krylov.path == "window"
+    assert krylov.stable is None and np.isnan(krylov.max_modulus) and krylov.verdict == "not decided"
     cov = krylov.coverage
     (lo_minus, hi_minus), (lo_plus, hi_plus) = cov["covered"]
     assert lo_plus <= 1.0 - width and hi_minus >= -1.0 + width and cov["parity_blocks"]
@@ -95,7 +96,8 @@ def _agree(b, width):
     lam_k = multipliers_from_mu(krylov.mu[nontrivial])
     lam_d = multipliers_from_mu(dense.mu[j][nontrivial])
     assert max(float(np.min(np.abs(lam_d - lam))) for lam in lam_k) <= 1e-9
-    assert krylov.stable == dense.stable is False  # the localized real pair, at mu = 1 + 1e-8, is always seen
+    assert krylov.partial_stable == dense.stable is False  # the localized real pair at mu = 1 + 1e-8: always seen
+    assert krylov.partial_max_modulus <= dense.max_modulus + 1e-9
     assert abs(krylov.accuracy["trivial_deviation"] - dense.accuracy["trivial_deviation"]) <= 1e-13
     assert "solver='dense'" in cov["unseen"]
 
@@ -103,8 +105,8 @@ def _agree(b, width):
 def test_the_paper_quadruplet_needs_the_wider_window():
     p = ChainParams(30.0, 160.0, 201)
     b = ct.require(ct.find_breather(p, 1.01, ct.nls_seed(p, 1.01), device="cpu"))
-    narrow = ct.floquet(b, solver="krylov")
-    wide = ct.floquet(b, solver="krylov", window=FloquetWindow(width=0.1))
+    narrow = ct.floquet(b, solver="window")
+    wide = ct.floquet(b, solver="window", window=FloquetWindow(width=0.1))
     assert narrow.kinds == ("real_pair",)  # mu = 0.9916 lies outside the 60 nearest +1
     assert wide.kinds == ("real_pair", "complex_quadruplet") == ct.floquet(b, solver="dense").kinds
 
@@ -112,11 +114,14 @@ def test_the_paper_quadruplet_needs_the_wider_window():
 def test_solver_choices_are_checked():
     p = ChainParams(30.0, 160.0, 101)
     b = ct.require(ct.find_breather(p, 1.01, ct.nls_seed(p, 1.01), device="cpu"))
-    assert ct.floquet(b).path == "reduced"  # auto: dense below KRYLOV_FLOQUET_MIN_SITES
+    assert ct.floquet(b).path == "reduced"  # auto: dense below SLICED_MIN_SITES
     with pytest.raises(ValueError, match="solver must be"):
         ct.floquet(b, solver="arnoldi")
-    with pytest.raises(ValueError, match="reduced problem"):
-        ct.floquet(b, solver="krylov", reduced=False)
+    with pytest.raises(ValueError, match="now 'window'"):
+        ct.floquet(b, solver="krylov")
+    for solver in ("window", "sliced"):
+        with pytest.raises(ValueError, match="reduced problem"):
+            ct.floquet(b, solver=solver, reduced=False)
     with pytest.raises(ValueError, match="window="):
         ct.floquet(b, solver="dense", window=FloquetWindow())
     with pytest.raises(ValueError, match="count"):
@@ -184,15 +189,19 @@ def test_real_pairs_between_the_end_disc_and_the_arnoldis_reach_are_reported():
 def test_the_window_does_not_depend_on_earlier_calls(paper_breather):
     """ARPACK's own starting vector is drawn afresh on every call: the window passes a fixed one, so the same orbit
     gives the same bits whatever ran before (a resumed branch, a sweep's worker) and in worker processes, as on
-    long chains; and its banded solves are LAPACK's ``dgbtrf``/``dgbtrs`` on the interleaved band."""
+    long chains, where both sides run one BLAS thread (the workers always, ``window_floquet`` under
+    ``blas_threads(1)``: bits are promised only with the same BLAS settings on both sides, so the in-process call
+    here takes them too, whatever OPENBLAS_NUM_THREADS says); and its banded solves are LAPACK's
+    ``dgbtrf``/``dgbtrs`` on the interleaved band."""
     import scipy.sparse as sp
     import scipy.sparse.linalg as spla
 
+    from continuation.hostblas import blas_threads
     from continuation.krylov_floquet import BandedShifts, blocks_window
 
-    first = ct.floquet(paper_breather, solver="krylov")
+    first = ct.floquet(paper_breather, solver="window")
     spla.eigs(sp.diags(np.arange(1.0, 101.0)), k=3)  # advances ARPACK's seed
-    again = ct.floquet(paper_breather, solver="krylov")
+    again = ct.floquet(paper_breather, solver="window")
     assert np.array_equal(first.mu, again.mu) and np.array_equal(first.participation, again.participation)
 
     rng = np.random.default_rng(4)
@@ -200,7 +209,8 @@ def test_the_window_does_not_depend_on_earlier_calls(paper_breather):
     diag[[50, 550]] = 1.003, -1.2
     Mu = sp.diags(diag, format="csc") + sp.diags(1e-3 * rng.standard_normal(599), 1, format="csc")
     halves = [(1, sp.identity(600, format="csc")[:, :300], np.arange(300)), (-1, None, None)]
-    here = blocks_window(Mu, halves[1:], FloquetWindow(count=20), processes=False)
+    with blas_threads(1):  # the workers' setting
+        here = blocks_window(Mu, halves[1:], FloquetWindow(count=20), processes=False)
     there = blocks_window(Mu, halves[1:], FloquetWindow(count=20), processes=True)
     assert not here[3]["processes"] and there[3]["processes"]
     for a, b in zip(here[:3], there[:3]):
@@ -219,34 +229,3 @@ def test_the_window_does_not_depend_on_earlier_calls(paper_breather):
     assert np.allclose((dense - 0.5 * np.eye(n)) @ y, x, rtol=0, atol=1e-12)
     assert np.array_equal(solve @ (x + 2j * x), y + 2j * y)
     assert np.array_equal(solve @ x.astype(np.float32), solve @ x.astype(np.float32).astype(float))
-
-
-def test_a_worker_error_is_raised_with_its_traceback():
-    """An eigensolve that fails in a worker process fails the call with the worker's traceback; a worker that cannot
-    start fails the call; either way the next call gets a fresh worker, and a worker takes the caller's settings
-    with each task."""
-    import scipy.sparse as sp
-
-    from continuation.krylov_floquet import _Workers
-
-    op = sp.diags(np.linspace(-1.0, 1.0, 40), format="csc")
-    task = (op.data, op.indices, op.indptr, op.shape)
-    workers = _Workers(1)
-    try:
-        with pytest.raises(RuntimeError, match="ValueError: part must be one of"):
-            workers.call((*task, "nonsense", 0.0, 6, {}))
-
-        def cannot_start():
-            raise OSError("no more processes")
-
-        workers._start = cannot_start  # this instance's: the shared pool is not touched
-        with pytest.raises(OSError, match="no more processes"):
-            workers.call((*task, "beyond", 0.0, 6, {}))
-        del workers._start
-        vals, _, _, _ = workers.call((*task, "beyond", 0.0, 6, {}))  # its place was freed, not lost
-        assert len(vals) == 4 and np.isclose(np.max(vals.real), 1.0)  # OUTLIER_COUNT of them
-        vals, _, _, _ = workers.call((*task, "beyond", 0.0, 6, {"OUTLIER_COUNT": 2}))
-        assert len(vals) == 2
-    finally:
-        workers.close()
-    assert not workers.started
