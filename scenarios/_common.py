@@ -120,6 +120,15 @@ def write_summary(out: Path, summary: dict) -> Path:
     return path
 
 
+def verdicts(points) -> tuple:
+    """(stable, unstable, undecided): boolean masks of the points' verdicts (``stable`` True, False, or None: not
+    decided, a point without a complete Floquet analysis, which a figure draws as its own kind, never as stable)."""
+    import numpy as np
+
+    flags = [p.stable for p in points]
+    return tuple(np.array([f is value for f in flags], dtype=bool) for value in (True, False, None))
+
+
 def read_summary(out: Path) -> dict:
     return json.loads((Path(out) / "summary.json").read_text())
 

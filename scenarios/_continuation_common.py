@@ -13,7 +13,7 @@ from continuation.floquet import KINDS
 from warpchain import ChainParams, Flow
 
 from continuation.branch_store import BranchStore, StoreError, load_branch
-from ._common import BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD, PAPER_M, PAPER_N, Refused, progress_bars
+from ._common import BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD, PAPER_M, PAPER_N, Refused, progress_bars, verdicts
 from ._params import Rule, min_steps_per_period, number, param, splitting_methods, stability_dt
 
 
@@ -51,9 +51,9 @@ class BranchParameters:
 
     floquet_solver: str = param(
         "auto",
-        "multipliers at each point: dense (every one), krylov (the window near +-1, continuation.krylov_floquet) or "
-        "auto (krylov from 1601 sites)",
-        choices=("auto", "dense", "krylov"),
+        "every multiplier at each point: dense (4N tangent columns), sliced (the probed sparse Mu by shift-invert "
+        "slices, counted: continuation.slicing) or auto (sliced from 1601 sites)",
+        choices=("auto", "dense", "sliced"),
     )
 
     def settings(self) -> ContinuationSettings:
@@ -306,7 +306,7 @@ def stability_strip(ax, points, parameter: str, log: bool = False, unresolved=()
     dev = np.array([p.max_modulus - 1.0 for p in points])
     floor = 1e-9
     ax.plot(x, np.maximum(dev, floor), "-", color="0.75", lw=0.8)
-    stable = np.array([p.stable for p in points])
+    stable = verdicts(points)[0]
     ax.plot(x[stable], np.full(stable.sum(), floor), "|", color="tab:blue", ms=6, label="stable")
     for kind in KINDS:
         sel = np.array([bool(p.instabilities) and p.instabilities[0].kind == kind for p in points])

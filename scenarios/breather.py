@@ -110,7 +110,7 @@ def run(ctx: Context) -> dict:
         fl.tolerance,
         fl.accuracy["trivial_deviation"],
         fl.accuracy["symplecticity"],
-        "stable" if fl.stable else "unstable",
+        fl.verdict if fl.complete else "not decided (a partial analysis)",
         fl.wall_seconds,
         ", ".join(
             f"{i.kind} |l| = {i.modulus:.8f} ({'localized' if i.localized else 'extended'}, "
@@ -272,6 +272,7 @@ def run(ctx: Context) -> dict:
         "floquet_tolerance": fl.tolerance,
         "floquet_accuracy": fl.accuracy,
         "stable": fl.stable,
+        "verdict_complete": fl.complete,
         "symplecticity_error": fl.symplecticity_error,
         "instabilities": [i.as_dict() for i in fl.instabilities],
         "floquet_full": {
@@ -333,7 +334,7 @@ def plot(out) -> None:
     ax.set_aspect("equal")
     ax.set_title(
         f"Floquet multipliers $\\lambda$: max $|\\lambda|$ = {s['max_floquet_modulus']:.6f}"
-        f" ({'stable' if s['stable'] else 'unstable'})",
+        f" ({ {True: 'stable', False: 'unstable'}.get(s['stable'], 'not decided') })",
         fontsize=9,
     )
     ax.set_xlabel(r"Re $\lambda$")

@@ -28,6 +28,7 @@ from warpchain import ChainParams, energy
 
 from continuation.branch_store import load_branch
 from ._common import (
+    verdicts,
     tight_layout_beside_legends,
     PAPER_K,
     PAPER_N,
@@ -146,14 +147,16 @@ def plot(out) -> None:
     s = read_summary(out)
     K = np.array([p.K for p in points])
     E = np.array([p.energy for p in points])
-    stable = np.array([p.stable for p in points])
+    stable, unstable, undecided = verdicts(points)
     plt = pyplot()
     fig = plt.figure(figsize=(9.5, 8.5))
     gs = fig.add_gridspec(3, 2, height_ratios=[2.2, 0.9, 1.8])
     ax = fig.add_subplot(gs[0, :])
     ax.semilogx(K, E, "-", color="0.6", lw=1)
     ax.semilogx(K[stable], E[stable], "o", ms=3, color="tab:blue", label="stable")
-    ax.semilogx(K[~stable], E[~stable], "o", ms=3, mfc="none", color="tab:red", label="unstable")
+    ax.semilogx(K[unstable], E[unstable], "o", ms=3, mfc="none", color="tab:red", label="unstable")
+    if undecided.any():
+        ax.semilogx(K[undecided], E[undecided], "s", ms=3, mfc="none", color="0.5", label="not decided")
     ax.axhline(s["nls_energy_at_K_end"], color="k", ls="--", lw=1, label=f"NLS energy at K = {s['end_K']:g}")
     profile_K = s.get("parameters", {}).get("profile_K", (5.0, 20.0, 160.0))
     for lab, k in zip(("I", "II", "III"), profile_K):

@@ -27,6 +27,7 @@ from warpchain import band_edges
 
 from continuation.branch_store import load_branch
 from ._common import (
+    verdicts,
     PAPER_K,
     PAPER_OMEGA,
     Context,
@@ -149,7 +150,7 @@ def plot(out) -> None:
     s = read_summary(out)
     w = np.array([p.omega for p in points])
     E = np.array([p.energy for p in points])
-    stable = np.array([p.stable for p in points])
+    stable, unstable, _ = verdicts(points)
     labels = _labelled(points)
     names = "bcde"
     plt = pyplot()
@@ -163,7 +164,8 @@ def plot(out) -> None:
     # the stable stretch around it
     ax.plot(w, E, "-", color="0.75", lw=0.8)
     for flag, colour, label in ((False, "tab:red", "unstable"), (True, "tab:blue", "stable")):
-        both = (stable[:-1] == flag) & (stable[1:] == flag)
+        mask = stable if flag else unstable  # a point not decided is neither
+        both = mask[:-1] & mask[1:]
         seg = np.where(both[:, None], np.stack([w[:-1], w[1:]], 1), np.nan)
         segE = np.where(both[:, None], np.stack([E[:-1], E[1:]], 1), np.nan)
         ax.plot(
@@ -228,7 +230,7 @@ def _plot_floquet(out, plt, points, s, w, labels, names, gap) -> None:
     whole, zoom = fig.add_subplot(top[0]), fig.add_subplot(top[1])
     unresolved = s.get("unresolved_bubbles", ())
     # the zoom: from just below the lowest stable point or predicted bubble to the optical band edge
-    lowest = [float(w[i]) for i, p in enumerate(points) if p.stable]
+    lowest = [float(w[i]) for i, p in enumerate(points) if p.stable is True]
     lowest += [min(st["start"], st["end"]) for st in unresolved]
     lo = min(lowest) if lowest else s["band_acoustic_top"]
     hi = max(float(w.max()), s["band_optical_bottom"])

@@ -1,27 +1,29 @@
 """Finite size: do the paper breather and the K = 10 site breather exist in the infinite chain, and which of
-their instabilities are their own? (issue #36; beyond the paper)
+their instabilities are their own? (issues #36 and #48; beyond the paper)
 
 The paper breather (M = 30, K = 160, w_b = 1.01, from the NLS seed) and the site breather at K = 10 (the
 anti-continuum branch continued in K from 0.01 at the smallest N) are solved at N = 201, 401, ..., 12801 sites,
 each size seeded with the previous solution padded with zeros at both ends. Newton is matrix-free from
 ``continuation.shooting.KRYLOV_MIN_SITES`` sites on (``find_breather(solver="auto")``; GMRES with the linear
 lattice's preconditioner), dense below. Per size: the energy, the tail amplitude (max |u - v| further than
-``tail_distance`` sites from the centre, and over the outer quarter of the chain on each side), and every
-instability with its kind, modulus, participation and parity: from the dense Floquet analysis up to
-``floquet_sites`` sites, and beyond from the window of multipliers near +1 and -1 (``floquet(solver="krylov")``,
-``continuation.krylov_floquet``: the half-period map probed in 260 tangent runs, shift-invert Arnoldi). The window
-sees the localized real pair (the symmetry-breaking instability, mu = 1 + 1e-8) at every N; the extended
-quadruplets further from +1 (Re mu ~ 0.9 .. 0.99) only with ``window_width`` (each row's ``floquet_covered``
-says what was searched). ``--set solver=dense|krylov`` puts Newton and Floquet on one path at every size.
+``tail_distance`` sites from the centre, and over the outer quarter of the chain on each side), and the complete
+Floquet verdict with every instability's kind, modulus, participation and parity: dense (4N tangent columns) below
+``continuation.floquet.SLICED_MIN_SITES`` sites, and from there every multiplier of the probed sparse Mu by
+shift-invert slices, certified by a count (``floquet(solver="auto")``, ``continuation.slicing``). Each row says
+whether its verdict is complete (it always is unless a count fails to close, which the log and figure show).
+
+The figure's question: the extended instabilities (Krein quadruplets of the breather with the chain's phonons)
+against N, with a fitted power law |l| - 1 ~ N^p, beside the breather's own (localized) multipliers converging to
+their infinite-chain value.
 
 The K-branch foam: the site family at ``foam_points`` couplings log-spaced over ``foam_K`` (default [2, 4]),
-at each N of ``foam_sizes``, each point solved from the previous one and analysed by dense Floquet: the
-unstable fraction of the grid, its stability changes and moduli against N (a fixed grid, so that no step
-control decides which bubbles are seen).
+at each N of ``foam_sizes``, each point solved from the previous one and analysed by the complete path
+(``floquet(solver="auto")``): the unstable fraction of the grid, its stability changes and moduli against N (a
+fixed grid, so that no step control decides which bubbles are seen).
 
 Command: ``python -m scenarios run finite-size`` (2-core CPU: ~8 min, of which the foam at N = 801 is ~5;
-``--quick`` N = 101 .. 401, foam at 101 and 201 on 24 points, ~15 s). On a GPU ``--set floquet_sites=3201``
-gives every multiplier up to N = 3201. Options: ``--set KEY=VALUE`` (fields of ``Parameters``).
+``--quick`` N = 101 .. 401, foam at 101 and 201 on 24 points, ~15 s). On a GPU the seven sizes to 12801 with
+complete verdicts take a few minutes. Options: ``--set KEY=VALUE`` (fields of ``Parameters``).
 """
 
 from __future__ import annotations
@@ -33,7 +35,6 @@ import numpy as np
 from continuation import anticontinuum_seed, find_breather, floquet, nls_seed, require
 from continuation.branch import NaturalParameter
 from continuation.driver import ContinuationSettings, continuation
-from continuation.krylov_floquet import FloquetWindow
 from warpchain import ChainParams, Flow
 from warpchain.store import read_group, write_table
 
@@ -64,21 +65,19 @@ class Parameters:
     site_K: float = param(
         10.0, "coupling of the site family's breather (reached by continuation from K = 0.01)", gt=0.01
     )
-    floquet_sites: int = param(
-        801, "dense Floquet analysis up to this many sites (its cost grows like N^3); the window beyond", ge=0
-    )
     solver: str = param(
         "auto",
-        "Newton's and Floquet's path at every size: auto (Newton matrix-free from 1025 sites, Floquet dense up to "
-        "floquet_sites and the window beyond), dense or krylov",
+        "Newton's linear solves at every size: auto (matrix-free from 1025 sites), dense or krylov (GMRES)",
         choices=("auto", "dense", "krylov"),
     )
-    window_width: float = param(
-        0.0, "beyond floquet_sites: the krylov window sweeps to mu = 1 - width (0: the 60 mu nearest +-1)", ge=0, le=2
+    floquet_solver: str = param(
+        "auto",
+        "every multiplier at every size: auto (dense below 1601 sites, sliced and counted from there), dense or sliced",
+        choices=("auto", "dense", "sliced"),
     )
     tail_distance: int = param(60, "the tail: sites further than this from the centre", ge=1)
     foam_sizes: tuple[int, ...] = param(
-        (201, 401, 801), "chain lengths of the K-branch foam scan (dense Floquet at every point); () skips it", ge=31
+        (201, 401, 801), "chain lengths of the K-branch foam scan (complete Floquet at every point); () skips it", ge=31
     )
     foam_K: tuple[float, ...] = param(
         (2.0, 4.0), "the stretch of the site family's K-branch scanned", gt=0.01, length=(2, 2)
@@ -103,7 +102,6 @@ class Parameters:
 
 QUICK = {
     "sizes": (101, 201, 401),
-    "floquet_sites": 201,
     "tail_distance": 30,
     "foam_sizes": (101, 201),
     "foam_points": 24,
@@ -150,17 +148,19 @@ def _site_breather(K: float, N: int, device: str, ctx) -> np.ndarray:
 
 def _foam(P: Parameters, N: int, ctx) -> dict:
     """The site family's K-branch over ``foam_K`` on N sites, sampled at ``foam_points`` log-spaced couplings
-    (each solved from the previous one, then dense Floquet): whether each point is stable, its largest modulus
-    and how many of its instabilities are extended (finite-size) or localized. A fixed grid, the same at every
-    N, rather than the continuation driver's adaptive steps: the unstable fraction is then a sample mean that
-    no step control biases (a step can cross a bubble narrower than itself)."""
+    (each solved from the previous one, then the complete Floquet path, ``floquet_solver``): whether each point is
+    stable, its largest modulus and how many of its instabilities are extended (finite-size) or localized. A
+    fixed grid, the same at every N, rather than the continuation driver's adaptive steps: the unstable fraction
+    is then a sample mean that no step control biases (a step can cross a bubble narrower than itself)."""
     grid = np.geomspace(P.foam_K[0], P.foam_K[1], P.foam_points)
     state = _site_breather(float(grid[0]), N, ctx.device, ctx)
     stable, modulus, extended, localized = [], [], [], []
     for K in grid:
         b = _solve(ChainParams(PAPER_M, float(K), N), state, ctx.device)
         state = b.state
-        fl = floquet(b)
+        fl = floquet(b, solver=P.floquet_solver)
+        if not fl.complete:  # never counted as stable or unstable: the scene fails with what the count found
+            raise RuntimeError(f"foam N = {N}, K = {K:.6g}: the Floquet count did not close ({fl.coverage['counts']})")
         stable.append(bool(fl.stable))
         modulus.append(float(fl.max_modulus))
         extended.append(sum(not i.localized for i in fl.instabilities))
@@ -196,7 +196,6 @@ def run(ctx: Context) -> dict:
     P: Parameters = ctx.params
     families = {}
     profiles = {}
-    window = FloquetWindow(width=P.window_width)
     for family in FAMILIES:
         K = PAPER_K if family == "paper" else P.site_K
         rows = []
@@ -224,16 +223,17 @@ def run(ctx: Context) -> dict:
                 "outer_amplitude": outer,
                 "min_contact": b.min_contact,
             }
-            dense = P.solver == "dense" or (P.solver == "auto" and N <= P.floquet_sites)
-            fl = floquet(b, solver="dense") if dense else floquet(b, solver="krylov", window=window)
+            fl = floquet(b, solver=P.floquet_solver)
             row.update(
-                max_modulus=fl.max_modulus,
+                max_modulus=fl.max_modulus if fl.complete else None,
                 stable=fl.stable,
+                complete=fl.complete,
                 instabilities=[i.as_dict() for i in fl.instabilities],
                 floquet_seconds=fl.wall_seconds,
                 floquet_path=fl.path,
-                floquet_covered=None if dense else fl.coverage["covered"],
+                floquet_counts=None if fl.coverage is None else fl.coverage["counts"],
                 localized_max_modulus=max((i.modulus for i in fl.instabilities if i.localized), default=1.0),
+                extended_max_modulus=max((i.modulus for i in fl.instabilities if not i.localized), default=1.0),
             )
             rows.append(row)
             ctx.log(
@@ -246,8 +246,9 @@ def run(ctx: Context) -> dict:
                 b.wall_seconds,
                 tail,
                 outer,
-                f", max |l| {row['max_modulus']:.7f}, {len(row['instabilities'])} instabilities "
-                f"({row['floquet_path']} Floquet, {fl.wall_seconds:.2f} s)",
+                f", {fl.verdict}, max |l| {fl.max_modulus:.9f}, {len(row['instabilities'])} instabilities "
+                f"({row['floquet_path']} Floquet, {'complete' if fl.complete else 'INCOMPLETE'}, "
+                f"{fl.wall_seconds:.2f} s)",
             )
         families[family] = rows
         profiles[family] = state
@@ -268,6 +269,9 @@ def run(ctx: Context) -> dict:
                 "tail_amplitude": [r["tail_amplitude"] for r in rows],
                 "outer_amplitude": [r["outer_amplitude"] for r in rows],
                 "max_modulus": [np.nan if r["max_modulus"] is None else r["max_modulus"] for r in rows],
+                "verdict_complete": np.array([r["complete"] for r in rows], dtype=np.int8),
+                "extended_max_modulus": [r["extended_max_modulus"] for r in rows],
+                "localized_max_modulus": [r["localized_max_modulus"] for r in rows],
                 "newton_seconds": [r["newton_seconds"] for r in rows],
             },
             dim="size",
@@ -282,7 +286,8 @@ def run(ctx: Context) -> dict:
             attrs={"N": len(z), "note": "u - v at t = 0 of the largest chain"},
         )
     summary = {"M": PAPER_M, "omega": PAPER_OMEGA, "sizes": list(P.sizes), "families": families}
-    summary["floquet_sites"] = P.floquet_sites
+    summary["floquet_solver"] = P.floquet_solver
+    summary["incomplete_verdicts"] = sum(not r["complete"] for rows in families.values() for r in rows)
     summary["foam"] = {"K": list(P.foam_K), "points": P.foam_points, "sizes": [row for row, _ in foam]}
     if len(foam) >= 2:  # how the foam thins with N: the unstable fraction's and the largest modulus' slopes
         Ns = np.log([row["N"] for row, _ in foam])
@@ -305,7 +310,26 @@ def run(ctx: Context) -> dict:
             None if decays else float(np.polyfit(np.log(Ns), np.log(np.maximum(tails, 1e-300)), 1)[0])
         )
         summary[f"{family}_tail_at_round_off"] = decays
+        summary[f"{family}_extended_law"] = extended_law(rows)
+        localized = [r["localized_max_modulus"] - 1.0 for r in rows if r["complete"]]
+        summary[f"{family}_localized_modulus_minus_one"] = localized[-1] if localized else None
+        summary[f"{family}_localized_change_last_doubling"] = (
+            abs(localized[-1] - localized[-2]) if len(localized) >= 2 else None
+        )
     return summary
+
+
+def extended_law(rows: list) -> dict | None:
+    """The power law |l| - 1 = C N^p of the largest extended instability against N, fitted (least squares in
+    log-log) over the sizes with a complete verdict that have one; None with fewer than three such sizes."""
+    pts = [(r["N"], r["extended_max_modulus"] - 1.0) for r in rows if r["complete"] and r["extended_max_modulus"] > 1]
+    if len(pts) < 3:
+        return None
+    N, excess = np.log([p[0] for p in pts]), np.log([p[1] for p in pts])
+    slope, intercept = np.polyfit(N, excess, 1)
+    residual = float(np.max(np.abs(excess - (slope * N + intercept))))
+    return {"exponent": float(slope), "prefactor": float(np.exp(intercept)), "sizes": [int(p[0]) for p in pts],
+            "max_log_residual": residual}  # fmt: skip
 
 
 def plot(out) -> None:
@@ -329,18 +353,7 @@ def plot(out) -> None:
         axes[1].loglog(
             N, np.maximum(t["outer_amplitude"], floor), "s--", color=colors[family], label=f"{label}: outer quarters"
         )
-        for row in s["families"][family]:
-            for inst in row["instabilities"] or ():
-                marker = "o" if inst["localized"] else "x"
-                window = row.get("floquet_path") == "krylov"  # drawn open: only the multipliers near +-1
-                axes[2].loglog(
-                    row["N"],
-                    inst["modulus"] - 1.0,
-                    marker,
-                    color=colors[family],
-                    ms=6 if marker == "o" else 4,
-                    mfc="none" if window else colors[family],
-                )
+        _plot_instabilities(axes[2], s, family, colors[family], label)
         prof, _ = read_group(out / "data.zarr", f"{family}_profile")
         z = prof["z"]
         distance = np.abs(np.arange(len(z)) - len(z) // 2)
@@ -356,9 +369,9 @@ def plot(out) -> None:
     axes[2].set(
         xlabel="N",
         ylabel="|l| - 1",
-        title=f"instabilities: o localized, x extended\n(dense Floquet to N = {s.get('floquet_sites', '?')}, open: "
-        "the window near +-1)",
+        title="instabilities, every multiplier counted:\no localized (the breather's own), x extended, with the fit",
     )
+    axes[2].legend(fontsize=6, loc="lower left")
     axes[3].set(xlabel="sites from the centre + 1", ylabel="|u - v| at t = 0", title=f"profiles at N = {sizes[-1]}")
     axes[3].set_ylim(1e-12, 1.0)
     for ax in axes[:3]:
@@ -369,6 +382,28 @@ def plot(out) -> None:
     axes[3].legend(fontsize=7, loc="lower left")
     fig.suptitle(f"finite size: M = {s['M']:g}, w_b = {s['omega']:g}", fontsize=11)
     save_figure(fig, out, "finite_size")
+
+
+def _plot_instabilities(ax, s, family, colour, label) -> None:
+    """Every instability of each size (o localized, x extended), the fitted law of the largest extended one, and
+    rows whose verdict is not complete as grey '?' at the axis' floor (never drawn as stable)."""
+    rows = s["families"][family]
+    for row in rows:
+        if not row.get("complete", True):
+            ax.plot(row["N"], 1e-9, marker="$?$", color="0.5", ms=9)
+            continue
+        for inst in row["instabilities"] or ():
+            marker = "o" if inst["localized"] else "x"
+            ax.loglog(row["N"], inst["modulus"] - 1.0, marker, color=colour, ms=6 if marker == "o" else 4, mfc="none")
+    local = [(r["N"], r["localized_max_modulus"] - 1.0) for r in rows if r.get("complete", True)]
+    local = [(n, v) for n, v in local if v > 0]
+    if local:
+        ax.loglog(*zip(*local), "-", color=colour, lw=0.8, label=f"{label}: localized")
+    law = s.get(f"{family}_extended_law")
+    if law:
+        N = np.array([law["sizes"][0], law["sizes"][-1]], float)
+        ax.loglog(N, law["prefactor"] * N ** law["exponent"], "--", color=colour, lw=1,
+                  label=f"extended: {law['prefactor']:.2g} N^{law['exponent']:.2f}")  # fmt: skip
 
 
 def _plot_foam(out, s, strips, fraction, largest) -> None:

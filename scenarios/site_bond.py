@@ -46,6 +46,7 @@ from warpchain.store import StoreError, open_store, write_table
 
 from continuation.branch_store import load_branch
 from ._common import (
+    verdicts,
     PAPER_K,
     PAPER_N,
     PAPER_OMEGA,
@@ -732,10 +733,10 @@ def plot(out) -> None:
     for family, points in fam.items():
         K = np.array([p.K for p in points])
         E = np.array([p.energy for p in points])
-        st = np.array([p.stable for p in points])
+        st, unst, _ = verdicts(points)
         ax.plot(K, E, "-", color=colours[family], lw=1, label=family)
         ax.plot(K[st], E[st], "o", ms=3, color=colours[family])
-        ax.plot(K[~st], E[~st], "o", ms=3, mfc="none", color=colours[family])
+        ax.plot(K[unst], E[unst], "o", ms=3, mfc="none", color=colours[family])
     for k, family in zip(bif["K"][:], bif_attrs["family"]):
         ax.axvline(k, color=colours[family], ls=":", lw=0.8)
     ax.set_xscale("log")
@@ -757,7 +758,7 @@ def plot(out) -> None:
         asym = fam["asymmetric"]
         Ka = np.array([p.K for p in asym])
         Ea = np.array([p.energy for p in asym]) - np.interp(Ka, Kx, Esx)  # site energy is linear on this scale
-        st = np.array([p.stable for p in asym])
+        st = verdicts(asym)[0]
         az.plot(Ka - K_s, Ea, "o-", ms=4, color=colours["asymmetric"], mfc="none", label="asymmetric")
         if st.any():
             az.plot(Ka[st] - K_s, Ea[st], "o", ms=4, color=colours["asymmetric"])

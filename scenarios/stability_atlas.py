@@ -232,7 +232,8 @@ def branch_arrays(branch, n: int, amplitude: float, seconds: float) -> dict:
         "energy": padded([p.energy for p in points]),
         "max_modulus_minus_1": padded([p.max_modulus - 1.0 for p in points]),
         "tolerance": padded([p.tolerance for p in points]),
-        "stable": padded([int(p.stable) for p in points], -1, "int8"),
+        "stable": padded([-1 if p.stable is None else int(p.stable) for p in points], -1, "int8"),
+        "verdict_complete": padded([int(p.complete) for p in points], -1, "int8"),
         "instabilities": padded(counts, -1, "int16"),
         "leading_kind": padded(lead, -1, "int8"),
         "leading_localized": padded(localized, -1, "int8"),
@@ -262,13 +263,19 @@ def sweep_spec(P: Parameters) -> SweepSpec:
         "energy": "Hamiltonian H",
         "max_modulus_minus_1": "largest nontrivial |Floquet multiplier| - 1",
         "tolerance": "the verdict's tolerance in mu = (l + 1/l) / 2: stable iff every nontrivial mu lies within "
-        "it of [-1, 1]",
+        "it of [-1, 1]; every one of the 2N mu is accounted for where verdict_complete is 1 (dense, or sliced and "
+        "counted: the walk takes no other path)",
         "min_contact": "min over the orbit of 1 + u - v",
         "foam_fraction": "the step from this point to the next lies in a foam stretch (bubbles predicted, too "
         "narrow to chase) with this predicted unstable fraction; NaN: none",
     }
     variables = {name: Variable(per_point, attrs={"description": text}) for name, text in described.items()}
-    variables["stable"] = Variable(per_point, "int8", -1, {"description": "1 stable, 0 unstable, -1 no point"})
+    variables["stable"] = Variable(
+        per_point, "int8", -1, {"description": "1 stable, 0 unstable, -1 no point or no verdict (verdict_complete 0)"}
+    )
+    variables["verdict_complete"] = Variable(
+        per_point, "int8", -1, {"description": "1: every multiplier accounted for (a verdict); 0: not; -1 no point"}
+    )
     variables["instabilities"] = Variable(
         ("K", "point", "kind"), "int16", -1, {"description": "unstable multiplier groups of each kind"}
     )
@@ -527,7 +534,8 @@ def _strips(ax, branches, logK, half, y, colours) -> None:
             unstable = stable[ja] == 0 or stable[jb] == 0
             kind = int(lead[ja] if stable[ja] == 0 else lead[jb])
             polys.append([(x0, lo), (x1, lo), (x1, hi), (x0, hi)])
-            faces.append(colours[kind] if unstable else colours[-1])
+            undecided = stable[ja] == -1 or stable[jb] == -1  # no verdict at an end: never drawn as stable
+            faces.append(colours[kind] if unstable else ("white" if undecided else colours[-1]))
             if jb > ja and np.isfinite(b["foam_fraction"][ja]):
                 foam_polys.append([(xf0, lo), (xf1, lo), (xf1, hi), (xf0, hi)])
                 foam_values.append(b["foam_fraction"][ja])
