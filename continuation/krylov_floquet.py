@@ -220,15 +220,18 @@ def _solve(op, part: str, width: float, k: int):
     return discs
 
 
-def _disc(op, banded, sigma: float, count: int) -> tuple:
-    """The ``count`` eigenvalues of op nearest sigma by shift-invert Arnoldi, their vectors and distances to sigma,
+def _disc(op, banded, sigma: float, count: int, ncv: int | None = None, restarts: int | None = None) -> tuple:
+    """The ``count`` eigenvalues of op nearest sigma by shift-invert Arnoldi (``ncv`` Lanczos vectors; None: ARPACK's
+    2 count + 1; at most ``restarts`` restarts, else ``ArpackNoConvergence``), their vectors and distances to sigma,
     the radius of the disc that surely holds all there, and sigma (moved by 1e-9 if it sat on an eigenvalue)."""
     try:
         inverse = banded.inverse(sigma) if banded is not None else None
     except np.linalg.LinAlgError:
         sigma += 1e-9
         inverse = banded.inverse(sigma)
-    vals, vectors = eigs(op, k=count, sigma=sigma, which="LM", tol=0, OPinv=inverse)
+    extra = {} if ncv is None else {"ncv": int(min(ncv, op.shape[0]))}
+    extra |= {} if restarts is None else {"maxiter": int(restarts)}
+    vals, vectors = eigs(op, k=count, sigma=sigma, which="LM", tol=0, OPinv=inverse, **extra)
     d = np.abs(vals - sigma)
     return vals, vectors, d, float(np.max(d)) * (1 - 1e-9), sigma
 

@@ -29,22 +29,30 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.sparse.linalg import ArpackError, ArpackNoConvergence
 
-from .krylov_floquet import BandedShifts, _arnoldi, _disc
+from .krylov_floquet import OUTWARD_COUNT, OUTWARD_SHIFT, BandedShifts, _arnoldi, _disc
 
-#: the slices cover [-1 - OUTER, 1 + OUTER]; the outlier Arnoldi looks beyond
-OUTER = 0.02
+#: the slices cover [-1 - OUTER, 1 + OUTER]; the outward discs and the outlier Arnoldi look beyond. Small: a first
+#: shift far from the cluster at +1 converges slowly (paper breather, N = 1601: the segment from 1.02 down took 1.0 s
+#: of the block's 2.5 s, its first shift alone 98 ms against 16 ms for a shift at 0.9995)
+OUTER = 1e-4
 
 #: eigenvalues asked of each shift (ARPACK's k): fewer make more shifts, but cheaper ones (paper breather, N = 1601,
 #: one parity block, one process: k = 16 182 shifts in 2.8 s, 24 122 in 2.8 s, 32 94 in 2.1 s; N = 801: 30 in 0.7 s
 #: against 60 in 1.7 s)
 SLICE_COUNT = 32
 
+#: Arnoldi vectors per wanted eigenvalue (ARPACK's ncv / k; its default is 2): in the optical band's cluster,
+#: where the k-th and the next eigenvalue lie close, 3 converges faster (N = 1601, one BLAS thread: 99 ms against
+#: 125 ms per shift at mu = 0.9978; 15 ms either way at mu = 0.9)
+LANCZOS_FACTOR = 3
+
 #: a shift keeps the eigenvalues whose real part lies within KEEP times its disc's radius (strip: sqrt(1 - KEEP^2) r)
 KEEP = 0.8
 
 #: segments per worker process (load balance: the segments' costs differ)
-SEGMENTS_PER_WORKER = 3
+SEGMENTS_PER_WORKER = 4
 
 #: outliers asked of each Arnoldi beyond the slices (strong real pairs, period doubling)
 OUTLIERS = 6
@@ -157,20 +165,55 @@ def _measures(op_vectors, P, E, M: float, centre: float) -> tuple:
     return act, participation(x, M), weight, vec
 
 
+#: a disc whose rim falls inside a dense cluster (the optical band's N modes within 1e-6 of one mu, seen from a shift
+#: 2e-4 away: its eigenvalues lie at nearly one distance) converges slowly, from either side (N = 3201: 2210 to 3404
+#: solves at d_k / d_(k-1) = 1.0001 against ~100-260 elsewhere: 1 s of its segment's 2.5 s). After TIE_RESTARTS
+#: restarts the shift asks for k / 8 instead, whose rim lies among the few eigenvalues of the sparse region around it
+#: (``_shift``; 1.7 s for that segment)
+TIE_RESTARTS = 6
+
+#: an eigenpair kept from a disc has |Mu a - mu a| / |a| below this (ARPACK's own convergence test is relative to
+#: the largest inverse eigenvalue: a shift 8e-9 from the symmetry-breaking pair left 1e-7 errors, residuals 1e-5)
+RESIDUAL_TOL = 1e-11
+
+
+def _shift(op, banded, sigma: float, k: int) -> tuple:
+    """One shift, ``_disc``'s tuple: k eigenvalues, or k / 8 (at least 4) when k does not converge in TIE_RESTARTS
+    restarts, or k with twice the Arnoldi vectors and no limit when neither does (ARPACK's "no shifts could be
+    applied" on a cluster larger than k included). A disc whose eigenpairs' residuals exceed RESIDUAL_TOL (a
+    shift within 1e-8 of an eigenvalue) is solved again a thousandth of its radius lower."""
+    for _ in range(4):
+        attempts = ((k, 3, TIE_RESTARTS), (max(4, k // 8), 3, TIE_RESTARTS), (k, 6, None))
+        for i, (count, factor, restarts) in enumerate(attempts):
+            try:
+                out = _disc(op, banded, sigma, count, factor * count, restarts)
+                break
+            except (ArpackNoConvergence, ArpackError):  # the last, more Arnoldi vectors and no limit: raised
+                if i == len(attempts) - 1:
+                    raise
+        vals, vectors = out[0], out[1]
+        residual = np.linalg.norm(op @ vectors - vectors * vals[None, :], axis=0) / np.linalg.norm(vectors, axis=0)
+        if float(np.max(residual)) <= RESIDUAL_TOL * max(1.0, abs(sigma)):
+            return out
+        sigma -= 1e-3 * out[3]
+    raise np.linalg.LinAlgError(f"no accurate disc near mu = {sigma!r}: residuals up to {np.max(residual):.1e}")
+
+
 def sweep(op, lo: float, hi: float, k: int) -> tuple:
     """Every eigenvalue of ``op`` with real part in (lo, hi] and within the strip (module docstring): the highest
     interval not yet covered gets a shift one guessed radius below its top (the last disc's; its top for the first);
-    the disc covers the real parts within ``KEEP`` of its radius, and what it left of the interval, above or below,
-    goes back on the list. Returns (mu, vectors, strip half-height, shifts)."""
+    the disc (``_shift``) covers the real parts within ``KEEP`` of its radius, and what it left of the interval, above
+    or below, goes back on the list. Returns (mu, vectors, strip half-height, shifts)."""
     banded = BandedShifts.make(op)
     found, strip, shifts, todo, guess = [], np.inf, 0, [(lo, hi)], None
     while todo:
         low, high = todo.pop()  # the highest left
         sigma = high if guess is None else max(high - KEEP * guess, 0.5 * (low + high))
-        vals, vectors, d, radius, at = _disc(op, banded, sigma, k)
+        vals, vectors, d, radius, at = _shift(op, banded, sigma, k)
         shifts += 1
         while radius < 1e-12 and len(vals) < op.shape[0] - 2:  # more than k (nearly) equal eigenvalues: ask more
-            vals, vectors, d, radius, at = _disc(op, banded, sigma, min(2 * len(vals), op.shape[0] - 2))
+            more = min(2 * len(vals), op.shape[0] - 2)
+            vals, vectors, d, radius, at = _disc(op, banded, sigma, more, LANCZOS_FACTOR * more)
             shifts += 1
         bottom, top = max(low, at - KEEP * radius), min(high, at + KEEP * radius)
         inside = (d < radius) & (vals.real > bottom) & (vals.real <= top)
@@ -185,16 +228,29 @@ def sweep(op, lo: float, hi: float, k: int) -> tuple:
 def slice_task(op, P, E, lo: float, hi: float, k: int, M: float, centre: float) -> dict:
     """One segment of one block (a worker's task): the eigenvalues, their Krein forms, participations and central
     weights (the vectors stay in the worker: 2N x 2N of them would not fit a long lattice's memory)."""
+    import time
+
+    start = time.perf_counter()
     mu, vectors, strip, shifts = sweep(op, lo, hi, k)
-    return _report(mu, vectors, P, E, M, centre, strip=strip, shifts=shifts)
+    return _report(mu, vectors, P, E, M, centre, strip=strip, shifts=shifts, seconds=time.perf_counter() - start)
 
 
 def outlier_task(op, P, E, sign: float, k: int, M: float, centre: float) -> dict:
-    """The converged eigenvalues of ``op`` beyond +(1 + OUTER) (``sign`` 1) or -(1 + OUTER) (-1), by an Arnoldi of
-    largest (smallest) real part."""
-    vals, vectors, residual, converged = _arnoldi(sp.csr_matrix(sign * op), k)
-    good = (residual < 1e-10) & (np.real(vals) > 1.0 + OUTER)
-    return _report(sign * vals[good], vectors[:, good], P, E, M, centre, converged=converged)
+    """The eigenvalues of ``op`` beyond +(1 + OUTER) (``sign`` 1) or -(1 + OUTER) (-1): every one in the outward disc
+    at 1 + ``OUTWARD_SHIFT`` (``krylov_floquet``'s, of ``OUTWARD_COUNT`` eigenvalues), and the converged ones of an
+    Arnoldi of largest (smallest) real part beyond it (strong real pairs, period doubling). Any that neither sees is
+    left to the count."""
+    import time
+
+    start = time.perf_counter()
+    op = sp.csc_matrix(sign * op)
+    vals, vectors, d, radius, sigma = _disc(op, BandedShifts.make(op), 1.0 + OUTWARD_SHIFT, min(OUTWARD_COUNT, k))
+    near = (d < radius) & (np.real(vals) > 1.0 + OUTER)
+    far, far_vectors, residual, converged = _arnoldi(sp.csr_matrix(op), k)
+    good = (residual < 1e-10) & (np.real(far) > 1.0 + OUTER) & (np.abs(far - sigma) >= radius)
+    mu = np.concatenate([vals[near], far[good]])
+    vectors = np.hstack([vectors[:, near], far_vectors[:, good]])
+    return _report(sign * mu, vectors, P, E, M, centre, converged=converged, seconds=time.perf_counter() - start)
 
 
 def _report(mu, vectors, P, E, M, centre, **extra) -> dict:
@@ -225,6 +281,7 @@ def sliced_floquet(lin, M: float, state=None, tolerance=None, *, hint=None, proc
         problem = probed_problem(lin, M, state)
         Mu, blocks, N = problem["Mu"], problem["blocks"], problem["N"]
         sympl, P = problem["checks"].result()
+        seconds = {"probe": time.perf_counter() - start}
         P = sp.csc_matrix(0.5 * (P + P.T))
         centre = energy_centre(state) if state is not None else float("nan")
         ops, forms, extensions = [], [], []
@@ -246,11 +303,15 @@ def sliced_floquet(lin, M: float, state=None, tolerance=None, *, hint=None, proc
             for sign in (1.0, -1.0):
                 tasks.append(("outlier_task", (*shared, sign, int(min(OUTLIERS, k)), M, centre)))
                 owner.append(b)
+        mark = time.perf_counter()
         if processes:
             reports = workers.map("continuation.slicing", tasks, what="Floquet slice")
         else:
             reports = [globals()[f](*args) for f, args in tasks]
+        seconds["slices"] = time.perf_counter() - mark
+        mark = time.perf_counter()
         counts = [inertia(form) for form in forms]
+        seconds["count"] = time.perf_counter() - mark
     parts, coverage_blocks = [], []
     for b, (parity, _, _) in enumerate(blocks):
         mine = [r for r, o in zip(reports, owner) if o == b]
@@ -311,5 +372,5 @@ def sliced_floquet(lin, M: float, state=None, tolerance=None, *, hint=None, proc
         coverage=coverage,
         complete=closed,
         wall_seconds=time.perf_counter() - start,
-        stats={"tangent_columns": problem["tangent_columns"], "shifts": coverage["shifts"]},
+        stats={"tangent_columns": problem["tangent_columns"], "shifts": coverage["shifts"], "seconds": seconds},
     )
