@@ -1,15 +1,17 @@
 """Every Floquet multiplier of a long lattice, and a count that proves none was missed (``floquet(solver="sliced")``).
 
-**The slices.** Per parity block of the probed sparse Mu (``krylov_floquet``: the half-period map from colour-group
-tangent runs, no 4N columns), the real segment [-1 - ``OUTER``, 1 + ``OUTER``] is cut into segments, equal in
-arg l (mu = cos arg l: the multipliers' density), and each segment is swept by shift-invert Arnoldi (ARPACK, the
-solves by the banded LU of ``BandedShifts``): at a shift sigma the ``SLICE_COUNT`` eigenvalues nearest sigma fill a
-disc of radius r that holds every eigenvalue nearer, so the shift keeps those whose real part lies within
-``KEEP`` r of sigma, and the next shift sits just below what was kept (retried nearer when the next disc is
-smaller and would leave a gap). Kept intervals tile the segment without overlap, so no eigenvalue is counted
-twice, and each covers a strip of half-height sqrt(1 - KEEP^2) r around the axis. The segments run in worker
-processes at once (``continuation.workers``). Beyond +-(1 + ``OUTER``) an Arnoldi of largest and of smallest real
-part looks for outliers (strong real pairs, period doubling).
+**The slices.** Per parity block of the probed sparse Mu (``krylov_floquet.probed_problem``: the half-period map
+from colour-group tangent runs, no 4N columns), the real segment [-1 - ``OUTER``, 1 + ``OUTER``] is cut into
+segments holding equal numbers of the linear chain's mu (``segments``), and each segment is swept from its top by
+shift-invert Arnoldi (ARPACK, the solves by the banded LU of ``BandedShifts``): at a shift sigma the
+``SLICE_COUNT`` eigenvalues nearest sigma fill a disc of radius r that holds every eigenvalue nearer, so the shift
+keeps those whose real part lies within ``KEEP`` r of sigma, and whatever of the segment it did not cover, above or
+below, gets a shift of its own (``sweep``). Kept intervals tile the segment without overlap, so no eigenvalue is
+counted twice, and each covers a strip of half-height sqrt(1 - KEEP^2) r around the axis. Every kept eigenpair's
+residual is below ``RESIDUAL_TOL``; a shift whose rim falls in a dense cluster, which converges slowly, asks for
+fewer eigenvalues (``_shift``). The segments run in worker processes at once (``continuation.workers``). Beyond
++-(1 + ``OUTER``) an outward disc and an Arnoldi of largest (smallest) real part look for outliers (real pairs,
+period doubling).
 
 **The count.** Slices find what lies near the axis; the count says whether that is all. Mu is self-adjoint in the
 Krein form P = A11^T Mm A21 (P Mu = Mu^T P: ``floquet``'s module docstring; measured symmetric to 1e-14), so in
@@ -18,11 +20,14 @@ signature, opposite) to P's inertia, a complex pair adds one positive and one ne
 
     n+(P) = (real mu with a^T P a > 0) + (complex pairs),    n-(P) = (real mu with a^T P a < 0) + (complex pairs),
 
-and the found eigenvalues are all of them exactly when both hold (with n+ + n- = n, P nonsingular). P's inertia
-comes from a block LDL^T in the interleaved band order (``inertia``: dense diagonal blocks, Haynsworth's inertia
-additivity; a block whose eigenvalues come near zero is merged with the next), O(n b^2). A count that does not
-close makes the verdict incomplete (``stable=None``), never a guess. Checked against the dense eig on the paper
-chain and the K = 3 site breather at N = 201 .. 801 (tests/test_slicing.py): the same mu to 2e-14.
+and the found eigenvalues (genuine: their residuals; distinct: the kept intervals) are all of them exactly when
+both hold (with n+ + n- = n, P nonsingular; a Jordan block at an exact Krein collision, non-generic, would not
+close the count). P's inertia comes from a block LDL^T in the interleaved band order (``inertia``: dense diagonal
+blocks, Haynsworth's inertia additivity; a block whose eigenvalues come near zero is merged with the next),
+O(n b^2). A count that does not close makes the verdict incomplete (``stable=None``), never a guess: a missed
+eigenvalue, wherever it lies in the plane, shows. Checked against the dense eig (``tests/test_slicing.py``: the
+paper breather at N = 201 and 401, the K = 3 site breather, an off-centre one: the same mu to 2e-14) and on an
+H100 machine at N = 1601 .. 3201 (``benchmarks/breather_scaling.py``: to 2.7e-14).
 """
 
 from __future__ import annotations

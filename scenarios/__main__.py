@@ -125,6 +125,9 @@ def main(argv=None) -> int:
     except (ValueError, OSError) as exc:  # bad input, damaged store, unusable --out: one line, exit 2
         print(f"error: {_with_notes(exc)}", file=sys.stderr)
         return 2
+    except _engine_errors() as exc:  # an eigensolver worker that failed or hung, a verdict that could not be had
+        print(f"error: {_with_notes(exc)}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt as exc:
         how = "terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted"
         print(
@@ -133,6 +136,16 @@ def main(argv=None) -> int:
         )
         return 143 if isinstance(exc, Terminated) else 130
     return 0
+
+
+def _engine_errors() -> tuple:
+    """Errors the command line reports in one line (exit 1), not as a traceback: a worker process that failed,
+    stopped or hung (``continuation.workers.WorkerError``: its traceback is its ``detail``) and a Floquet count
+    that did not close on a branch (``continuation.driver.IncompleteVerdict``)."""
+    from continuation.driver import IncompleteVerdict
+    from continuation.workers import WorkerError
+
+    return (WorkerError, IncompleteVerdict)
 
 
 class Terminated(KeyboardInterrupt):

@@ -307,3 +307,24 @@ def test_finite_size_quick(tmp_path):
     ds = xr.open_zarr(tmp_path / "finite-size" / "data.zarr", group="paper")
     assert ds.sizes["size"] == len(s["sizes"]) and "energy" in ds
     assert (tmp_path / "finite-size" / "finite_size.png").exists()
+
+
+def test_a_worker_failure_or_an_incomplete_verdict_is_one_line(tmp_path, monkeypatch, capsys):
+    """An eigensolver worker that failed (its traceback kept as ``detail``) or a branch point whose Floquet count did
+    not close reaches the command line as one line and exit status 1, not a traceback."""
+    import scenarios.__main__ as cli
+    from continuation.driver import IncompleteVerdict
+    from continuation.workers import WorkerError
+
+    for error in (
+        WorkerError("Floquet slice 3 of 68 failed in eigensolver worker 123: ValueError: boom", "Traceback ..."),
+        IncompleteVerdict("the Floquet count did not close at K = 2.0"),
+    ):
+
+        def fail(*args, **kwargs):
+            raise error
+
+        monkeypatch.setattr(cli, "run_scene", fail)
+        assert cli.main(["run", "breather", "--out", str(tmp_path), "--device", "cpu"]) == 1
+        err = capsys.readouterr().err.strip().splitlines()
+        assert err == [f"error: {error}"]
