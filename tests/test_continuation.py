@@ -383,9 +383,11 @@ def test_a_branch_on_the_sliced_path_is_the_dense_one_stored_and_read_back(tmp_p
     assert len(points) == len(branch.points)
     for a, b in zip(points, branch.points):
         assert np.array_equal(a.mu, b.mu) and np.array_equal(a.signature, b.signature)
-        assert a.stable == b.stable and a.complete and [i.kind for i in a.instabilities] == [
-            i.kind for i in b.instabilities
-        ]
+        assert (
+            a.stable == b.stable
+            and a.complete
+            and [i.kind for i in a.instabilities] == [i.kind for i in b.instabilities]
+        )
     upto = [q for q in points if q.K <= 5.0]
     resumed = continue_in_coupling(
         params.replace(K=upto[-1].K), 1.01, upto[-1].state, 20.0, settings=settings, resume=upto
