@@ -299,7 +299,7 @@ class BranchStore:
 
         def padded(a, fill):
             """A point's per-mu array as a row of 2N: all of them (dense Floquet), the window's first with the
-            fill after (``floquet_solver="krylov"``), or the fill alone (no Floquet)."""
+            fill after (a window, as stores before 2026-11-27 could hold), or the fill alone (no Floquet)."""
             out = np.full(N2, fill)  # complex, float or int, as the fill
             if a is not None:
                 out[: len(a)] = a

@@ -153,7 +153,7 @@ class FloquetResult:
         spectral: Mu and its eigenvectors per parity block (reduced path), for predicting what happens
             between two analysed orbits (``continuation.bubbles``).
         accuracy: the measured gauges (``trivial_deviation``, ``symplecticity`` or ``pairing_error``; the
-            probe's ``probe_edge`` on the krylov path).
+            probe's ``probe_halfwidth`` on the sliced and window paths).
         path: ``"reduced"`` (dense), ``"full"``, ``"sliced"`` (every multiplier from the probed Mu, counted:
             ``continuation.slicing``) or ``"window"`` (the multipliers near +1 and -1 only: every array above then
             holds that subset).

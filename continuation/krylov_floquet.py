@@ -1,5 +1,7 @@
 """Floquet multipliers of a long lattice without its 4N tangent columns or its 2N eig: the half-period map
-probed by colour groups, and the multipliers near +1 and -1 by shift-invert Arnoldi (``floquet(solver="krylov")``).
+probed by colour groups (``probed_problem``: what the complete sliced path, ``continuation.slicing``, starts from
+too), and the multipliers near +1 and -1 by shift-invert Arnoldi (``floquet(solver="window")``: a partial
+analysis, no verdict).
 
 **The half-period map is banded.** A tangent perturbation travels a few sites per unit time and beyond that light
 cone its amplitude falls faster than exponentially (an entry of the paper chain's full-period Mu is 1e-14 of the
@@ -29,13 +31,14 @@ when they stand apart (``coverage["beyond_converged"]`` says whether all it was 
 as the cluster at the end does not, and only converged ones are reported). ARPACK starts from a fixed vector
 (``eigs``), so a solve gives the same bits in any process and after any other call. The four solves (two parity
 blocks, two ends) are independent; on long chains (``PROCESS_MIN_ROWS``) they run in worker processes, all at once
-(``_ends``, ``_Workers``): ARPACK holds the GIL, so threads would run them one after the other.
+(``_ends``, ``continuation.workers``): ARPACK holds the GIL, so threads would run them one after the other.
 
 **What a window cannot see**: an instability whose mu lies between the covered intervals (a multiplier further
 from both +1 and -1 than the window reaches: a quadruplet from a collision in the middle of the circle), one further
 off the axis than the strip, or an outlier the last Arnoldi did not converge to. ``FloquetResult.coverage`` says
-what was covered; ``stable`` there means "no instability in the window", and the dense path (``solver="dense"``)
-sees everything.
+what was covered. So a window gives no verdict: ``stable`` is None, ``partial_stable`` says whether it saw an
+instability. The paper breather at N = 1601 and 2401 is unstable through extended quadruplets the default window does
+not reach; ``solver="sliced"`` and ``"dense"`` see every multiplier.
 """
 
 from __future__ import annotations
@@ -110,7 +113,7 @@ START_OFFSET = 1e-4
 
 @dataclasses.dataclass(frozen=True)
 class FloquetWindow:
-    """Which multipliers ``floquet(solver="krylov")`` computes.
+    """Which multipliers ``floquet(solver="window")`` computes.
 
     Attributes:
         count: eigenvalues per shift (ARPACK's k): the first shift at each end returns the ``count`` mu nearest
