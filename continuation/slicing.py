@@ -20,14 +20,16 @@ signature, opposite) to P's inertia, a complex pair adds one positive and one ne
 
     n+(P) = (real mu with a^T P a > 0) + (complex pairs),    n-(P) = (real mu with a^T P a < 0) + (complex pairs),
 
-and the found eigenvalues (genuine: their residuals; distinct: the kept intervals) are all of them exactly when
-both hold (with n+ + n- = n, P nonsingular; a Jordan block at an exact Krein collision, non-generic, would not
-close the count). P's inertia comes from a block LDL^T in the interleaved band order (``inertia``: dense diagonal
-blocks, Haynsworth's inertia additivity; a block whose eigenvalues come near zero is merged with the next),
-O(n b^2). A count that does not close makes the verdict incomplete (``stable=None``), never a guess: a missed
-eigenvalue, wherever it lies in the plane, shows. Checked against the dense eig (``tests/test_slicing.py``: the
-paper breather at N = 201 and 401, the K = 3 site breather, an off-centre one: the same mu to 2e-14) and on an
-H100 machine at N = 1601 .. 3201 (``benchmarks/breather_scaling.py``: to 2.7e-14).
+and n0(P) = (real mu with a^T P a = 0): P's kernel is Mu-invariant (on a periodic ring it holds the uniform
+translation, which moves no velocity). The found eigenvalues (genuine: their residuals; distinct: the kept
+intervals) are all of them exactly when the three hold (n+ + n- + n0 = n; a Jordan block at an exact Krein
+collision, non-generic, would not close the count). P's inertia comes from a block LDL^T in the interleaved band
+order (``inertia``: dense diagonal blocks, Haynsworth's inertia additivity; a block whose eigenvalues come near zero
+is merged with the next), O(n b^2). A count that does not close makes the verdict incomplete (``stable=None``),
+never a guess: a missed eigenvalue, wherever it lies in the plane, shows. Checked against the dense eig
+(``tests/test_slicing.py``: the paper breather at N = 201 and 401, the K = 3 site breather, an off-centre one, a
+periodic ring: the same mu to 2e-14) and on an H100 machine at N = 1601 .. 3201 (``benchmarks/breather_scaling.py``:
+to 2.7e-14).
 """
 
 from __future__ import annotations
@@ -323,19 +325,23 @@ def sliced_floquet(lin, M: float, state=None, tolerance=None, *, hint=None, proc
         part = {key: np.concatenate([r[key] for r in mine]) for key in ("mu", "act", "participation", "central_weight")}
         part["parity"] = np.full(len(part["mu"]), parity, int)
         mu, act = part["mu"], part["act"]
+        # P's kernel (a ring's uniform translation: it moves no velocity, so P a = 0) is Mu-invariant, hence spanned
+        # by eigenvectors of Mu whose Krein form vanishes: each such eigenvalue matches a zero of P's inertia
+        neutral = PIVOT_RTOL * (float(np.max(np.abs(forms[b].data))) if forms[b].nnz else 1.0)
         real = mu.imag == 0
         found = {
-            "real_positive": int(np.sum(real & (act > 0))),
-            "real_negative": int(np.sum(real & (act < 0))),
+            "real_positive": int(np.sum(real & (act > neutral))),
+            "real_negative": int(np.sum(real & (act < -neutral))),
+            "real_neutral": int(np.sum(real & (np.abs(act) <= neutral))),
             "pairs": int(np.sum(mu.imag > 0)),
             "unpaired": int(np.sum(mu.imag > 0)) - int(np.sum(mu.imag < 0)),
         }
         c = counts[b]
         closed = (
-            c["zero"] == 0
-            and found["unpaired"] == 0
+            found["unpaired"] == 0
             and found["real_positive"] + found["pairs"] == c["positive"]
             and found["real_negative"] + found["pairs"] == c["negative"]
+            and found["real_neutral"] == c["zero"]
         )
         coverage_blocks.append(
             {

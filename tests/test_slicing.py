@@ -445,3 +445,16 @@ def test_sweep_finds_a_diagonal_ops_distinct_eigenvalues_once():
     mu, _, _, shifts = slicing.sweep(sp.csc_matrix(sp.diags(values)), -1.02, 1.02, slicing.SLICE_COUNT)
     _assert_found_once(mu, values)
     assert shifts >= len(values) // slicing.SLICE_COUNT
+
+
+def test_a_periodic_ring_closes_its_count_with_the_translation_in_p_kernel():
+    """On a periodic ring the uniform translation moves no velocity, so the Krein form P has a kernel (one zero in
+    each parity block's inertia) holding an eigenvector of Mu whose form vanishes: the count matches it with a
+    neutral real mu and closes; the verdict and the mu are the dense ones."""
+    p = ChainParams(30.0, 160.0, 101, boundary="periodic")
+    b = ct.require(ct.find_breather(p, 1.01, ct.nls_seed(p, 1.01), device="cpu"))
+    dense, sliced = ct.floquet(b, solver="dense"), ct.floquet(b, solver="sliced")
+    assert sliced.complete and sliced.stable is dense.stable is False
+    assert all(c["inertia"]["zero"] == c["found"]["real_neutral"] == 1 for c in sliced.coverage["counts"])
+    assert max(np.min(np.abs(dense.mu - m)) for m in sliced.mu) <= 1e-12 and len(sliced.mu) == len(dense.mu)
+    assert abs(sliced.max_modulus - dense.max_modulus) <= 1e-9
