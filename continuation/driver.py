@@ -73,6 +73,10 @@ from .shooting import frequency_report
 COMPLETE_SOLVERS = ("dense", "sliced", "auto")
 
 
+#: a point's verdict in a log line (None: energies only, no Floquet analysis)
+VERDICT_WORDS = {True: "stable", False: "unstable", None: "no verdict"}
+
+
 class IncompleteVerdict(RuntimeError):
     """A point's Floquet analysis could not account for every multiplier (the sliced path's count did not close):
     the walk stops rather than record a verdict it does not have."""
@@ -855,7 +859,7 @@ class _Walk:
                 last = self.points[-1]
                 if self.log:
                     self.log(
-                        problem.describe(last) + f", {'stable' if last.stable else 'unstable'}, "
+                        problem.describe(last) + f", {VERDICT_WORDS[last.stable]}, "
                         f"newton {last.iterations}, step {self.h:.3g}"
                     )
                 if bar is not None:
