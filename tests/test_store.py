@@ -168,3 +168,26 @@ def test_a_group_of_zero_frames_reads_as_empty(tmp_path):
     FieldWriter(root, path, "case", {"u": (3,)}, ("t", "site"), chunk_t=2).close()
     arrays, attrs = read_group(path, "case")
     assert arrays["u"].shape == (0, 3) and arrays["t"].shape == (0,) and attrs["n_written"] == 0
+
+
+def test_a_group_metadata_commit_is_one_write(tmp_path, monkeypatch):
+    """zarr's ``attrs.update`` rewrites zarr.json once per key, so a kill between the writes left a count without
+    its walk state (issue #49): the stores commit several keys with ``update_attributes``, one atomic write (zarr's
+    local store writes a temporary file and renames it)."""
+    from zarr.storage import LocalStore
+
+    from continuation.branch_store import BranchStore
+    from warpchain import ChainParams
+
+    branch = BranchStore(tmp_path / "b.zarr", "branch", ChainParams(30.0, 160.0, 21), {"omega": 1.01})
+    writes = []
+    plain = LocalStore.set
+
+    async def counted(self, key, value, *args, **kwargs):
+        writes.append(key)
+        return await plain(self, key, value, *args, **kwargs)
+
+    monkeypatch.setattr(LocalStore, "set", counted)
+    branch.interrupted("a test")  # complete, stop_reason and message (three writes before), then consolidated
+    assert [k for k in writes if k == "branch/zarr.json"] == ["branch/zarr.json"]
+    assert dict(branch.group.attrs)["stop_reason"] == "interrupted"

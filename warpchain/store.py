@@ -169,7 +169,7 @@ def open_store(path, *, params: dict | None = None, provenance_info: dict | None
         if provenance_info is not None:
             attrs["provenance"] = jsonable(provenance_info)
         if attrs:
-            root.attrs.update(attrs)
+            root.update_attributes(attrs)
     return root
 
 
@@ -262,7 +262,7 @@ class FieldWriter:
             arr[...] = values
             arr.attrs["crc32"] = crc32(np.asarray(values, dtype=arr.dtype))
         self._chunk_crc: dict[str, list[int]] = {name: [] for name in [*self.arrays, "t"]}
-        self.group.attrs.update(
+        self.group.update_attributes(
             jsonable(
                 {
                     **(attrs or {}),
@@ -318,7 +318,7 @@ class FieldWriter:
         self._chunk_crc["t"] += self._blocks(t_all[:take])
         self._pending_t = [t_all[take:]] if take < n else []
         self.n_written = stop
-        self.group.attrs.update(
+        self.group.update_attributes(
             {"n_written": int(stop), "t_written": float(t_all[take - 1]), "chunk_crc32": self._chunk_crc}
         )
         consolidate(self.path)
@@ -330,7 +330,7 @@ class FieldWriter:
     def close(self, **attrs) -> None:
         """Write what is left (the last, possibly partial, chunk) and mark the group complete."""
         self._flush(whole_only=False)
-        self.group.attrs.update(jsonable({**attrs, "complete": True}))
+        self.group.update_attributes(jsonable({**attrs, "complete": True}))
         consolidate(self.path)
 
 
@@ -385,7 +385,7 @@ def write_table(
         )
         arr[...] = values
         arr.attrs["crc32"] = crc32(values)
-    g.attrs.update(jsonable({**(attrs or {}), "checksums": True, "columns": list(columns)}))
+    g.update_attributes(jsonable({**(attrs or {}), "checksums": True, "columns": list(columns)}))
     consolidate(root.store)
     return g
 

@@ -179,7 +179,7 @@ def open_sweep(store_path, spec: SweepSpec) -> zarr.Group:
             _create_checksum(group, spec)
         for name, var in spec.variables.items():  # descriptive attributes may be refreshed
             if var.attrs:
-                group[name].attrs.update(jsonable(var.attrs))
+                group[name].update_attributes(jsonable(var.attrs))
         return group
     if spec.group in set(root.array_keys()):
         raise SweepMismatchError(f"{where} is an array, not a group; write to a new output folder")
@@ -210,7 +210,7 @@ def open_sweep(store_path, spec: SweepSpec) -> zarr.Group:
             overwrite=True,
         )
         if var.attrs:
-            arr.attrs.update(jsonable(var.attrs))
+            arr.update_attributes(jsonable(var.attrs))
     _create_checksum(group, spec)
     group.create_array(
         COMPLETED,
@@ -221,9 +221,11 @@ def open_sweep(store_path, spec: SweepSpec) -> zarr.Group:
         compressors=None,  # one byte per chunk file
         dimension_names=spec.task_dims,
         overwrite=True,
-    ).attrs.update({"description": "1 once the task's region of every variable is written"})
+    ).update_attributes({"description": "1 once the task's region of every variable is written"})
     # the signature last: a group interrupted while being created is not taken for a sweep
-    group.attrs.update({**jsonable(spec.attrs), "task_dims": list(spec.task_dims), "sweep": jsonable(spec.signature())})
+    group.update_attributes(
+        {**jsonable(spec.attrs), "task_dims": list(spec.task_dims), "sweep": jsonable(spec.signature())}
+    )
     return group
 
 
@@ -245,7 +247,7 @@ def _create_checksum(group: zarr.Group, spec: SweepSpec) -> None:
         fill_value=-1,
         dimension_names=(*spec.task_dims, "sweep_variable"),
         overwrite=True,
-    ).attrs.update({"variables": names, "description": "CRC-32 of each variable's region of the task"})
+    ).update_attributes({"variables": names, "description": "CRC-32 of each variable's region of the task"})
 
 
 def damaged_tasks(store_path, spec: SweepSpec, done: np.ndarray) -> list[tuple[tuple, str]]:
