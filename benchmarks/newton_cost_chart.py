@@ -1,6 +1,7 @@
 """Chart: the cost per breather against N, dense against matrix-free, on each device: Newton (left), from the JSON
 that ``benchmarks/newton_krylov.py --json`` writes, and its multipliers (right: dense Floquet, every multiplier,
-against the window near +1 and -1, ``floquet(solver="krylov")``), from ``benchmarks/breather_scaling.py --json``;
+against the window near +1 and -1, ``floquet(solver="window")``, the default above 1601 sites before 2026-11-27), from
+``benchmarks/breather_scaling.py --json``;
 either may also be a compact result set holding it (``benchmarks/results``).
 
 Command: ``python benchmarks/newton_cost_chart.py --out newton-cost.png LABEL=FILE [LABEL=FILE ...]``, e.g.
