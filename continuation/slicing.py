@@ -34,11 +34,13 @@ to 2.7e-14).
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import ArpackError, ArpackNoConvergence
 
-from .krylov_floquet import OUTWARD_COUNT, OUTWARD_SHIFT, BandedShifts, _arnoldi, _disc
+from .krylov_floquet import OUTWARD_COUNT, OUTWARD_SHIFT, BandedShifts, _arnoldi, _disc, real_phase
 
 #: the slices cover [-1 - OUTER, 1 + OUTER]; the outward discs and the outlier Arnoldi look beyond. Small: a first
 #: shift far from the cluster at +1 converges slowly (paper breather, N = 1601: the segment from 1.02 down took 1.0 s
@@ -159,17 +161,16 @@ def segments(count: int, hint=None) -> list:
     return [(float(edges[i + 1]), float(edges[i])) for i in range(count)]
 
 
-def _measures(op_vectors, P, E, M: float, centre: float) -> tuple:
-    """Krein form a^T P a (real part of real vectors), participation and central weight of eigenvectors in a
-    block's coordinates (E: the block's extension to 2N, None for the whole Mu)."""
-    vec = op_vectors / np.linalg.norm(op_vectors, axis=0)
-    big = vec[np.argmax(np.abs(vec), axis=0), np.arange(vec.shape[1])]
-    vec = vec * (np.abs(big) / big)[None, :]  # a real mu's vector is real up to a phase
+def _measures(mu, vectors, P, E, M: float, centre: float) -> tuple:
+    """Krein form a^T P a (of the real vectors of real mu: ``krylov_floquet.real_phase``, as the window takes it),
+    participation and central weight of eigenvectors in a block's coordinates (E: the block's extension to 2N, None
+    for the whole Mu)."""
+    vec = real_phase(vectors, mu)
     real = np.real(vec)
     act = np.sum(real * (P @ real), axis=0)
     x = vec if E is None else E @ vec
     weight = central_weight(x, M, centre) if np.isfinite(centre) else np.full(vec.shape[1], np.nan)
-    return act, participation(x, M), weight, vec
+    return act, participation(x, M), weight
 
 
 #: a disc whose rim falls inside a dense cluster (the optical band's N modes within 1e-6 of one mu, seen from a shift
@@ -189,11 +190,15 @@ def _shift(op, banded, sigma: float, k: int) -> tuple:
     restarts, or k with twice the Arnoldi vectors and no limit when neither does (ARPACK's "no shifts could be
     applied" on a cluster larger than k included). A disc whose eigenpairs' residuals exceed RESIDUAL_TOL (a
     shift within 1e-8 of an eigenvalue) is solved again a thousandth of its radius lower."""
+    attempts = (  # (eigenvalues, Arnoldi vectors, restarts)
+        (k, LANCZOS_FACTOR * k, TIE_RESTARTS),
+        (max(4, k // 8), LANCZOS_FACTOR * max(4, k // 8), TIE_RESTARTS),
+        (k, 2 * LANCZOS_FACTOR * k, None),
+    )
     for _ in range(4):
-        attempts = ((k, 3, TIE_RESTARTS), (max(4, k // 8), 3, TIE_RESTARTS), (k, 6, None))
-        for i, (count, factor, restarts) in enumerate(attempts):
+        for i, (count, ncv, restarts) in enumerate(attempts):
             try:
-                out = _disc(op, banded, sigma, count, factor * count, restarts)
+                out = _disc(op, banded, sigma, count, ncv, restarts)
                 break
             except (ArpackNoConvergence, ArpackError):  # the last, more Arnoldi vectors and no limit: raised
                 if i == len(attempts) - 1:
@@ -235,8 +240,6 @@ def sweep(op, lo: float, hi: float, k: int) -> tuple:
 def slice_task(op, P, E, lo: float, hi: float, k: int, M: float, centre: float) -> dict:
     """One segment of one block (a worker's task): the eigenvalues, their Krein forms, participations and central
     weights (the vectors stay in the worker: 2N x 2N of them would not fit a long lattice's memory)."""
-    import time
-
     start = time.perf_counter()
     mu, vectors, strip, shifts = sweep(op, lo, hi, k)
     return _report(mu, vectors, P, E, M, centre, strip=strip, shifts=shifts, seconds=time.perf_counter() - start)
@@ -247,8 +250,6 @@ def outlier_task(op, P, E, sign: float, k: int, M: float, centre: float) -> dict
     at 1 + ``OUTWARD_SHIFT`` (``krylov_floquet``'s, of ``OUTWARD_COUNT`` eigenvalues), and the converged ones of an
     Arnoldi of largest (smallest) real part beyond it (strong real pairs, period doubling). Any that neither sees is
     left to the count."""
-    import time
-
     start = time.perf_counter()
     op = sp.csc_matrix(sign * op)
     vals, vectors, d, radius, sigma = _disc(op, BandedShifts.make(op), 1.0 + OUTWARD_SHIFT, min(OUTWARD_COUNT, k))
@@ -261,7 +262,7 @@ def outlier_task(op, P, E, sign: float, k: int, M: float, centre: float) -> dict
 
 
 def _report(mu, vectors, P, E, M, centre, **extra) -> dict:
-    act, pr, weight, _ = _measures(vectors, P, E, M, centre) if len(mu) else (np.zeros(0),) * 3 + (vectors,)
+    act, pr, weight = _measures(mu, vectors, P, E, M, centre) if len(mu) else (np.zeros(0),) * 3
     return {"mu": mu, "act": act, "participation": pr, "central_weight": weight, **extra}
 
 
@@ -276,8 +277,6 @@ def sliced_floquet(lin, M: float, state=None, tolerance=None, *, hint=None, proc
     else ``stable`` None with the counts in ``coverage``; no ``vectors`` (2N x 2N of them). ``hint``: the expected
     mu, to cut segments of equal work (``segments``). ``processes``: the slices in worker processes (default: from
     ``PROCESS_MIN_ROWS`` rows of a block on)."""
-    import time
-
     from .floquet import assemble
     from .hostblas import blas_threads
     from .krylov_floquet import probed_problem

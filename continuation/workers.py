@@ -59,16 +59,14 @@ class WorkerError(RuntimeError):
 
 
 class Shared:
-    """An argument that a worker keeps under ``key`` once sent (``Workers.map``)."""
+    """An argument that a worker keeps under ``key`` once sent (``Workers.map``): it travels as itself the first
+    time, as a ``_Ref`` to its key after."""
 
     _keys = itertools.count()
 
     def __init__(self, value, key=None):
         self.value = value
         self.key = key if key is not None else f"{os.getpid()}-{next(Shared._keys)}"
-
-    def __reduce__(self):  # travels as (key, value); ``_Ref`` when the worker already holds it
-        return (Shared, (self.value, self.key))
 
 
 class _Ref:
