@@ -207,6 +207,21 @@ def test_inertia_of_a_definite_and_an_indefinite_shift():
         assert got["zero"] == 0
 
 
+def _inertia_with_block_sizes(S, monkeypatch) -> tuple:
+    """``slicing.inertia`` of S and the sizes of the diagonal blocks it decomposed (a spy on ``eigh``)."""
+    sizes = []
+    eigh = np.linalg.eigh
+
+    def spy(D):
+        sizes.append(D.shape[0])
+        return eigh(D)
+
+    monkeypatch.setattr(slicing.np.linalg, "eigh", spy)
+    got = slicing.inertia(sp.csr_matrix(S))
+    monkeypatch.undo()
+    return got, sizes
+
+
 def test_inertia_merges_a_nearly_singular_leading_block(monkeypatch):
     """The first diagonal block (32 rows) is made singular (one of its eigenvalues subtracted from it) while the
     whole matrix is not: ``inertia`` must merge it with the next block rather than divide by ~0."""
@@ -218,16 +233,7 @@ def test_inertia_merges_a_nearly_singular_leading_block(monkeypatch):
     assert np.min(np.abs(np.linalg.eigvalsh(B[:32, :32]))) < 1e-12
     assert np.min(np.abs(np.linalg.eigvalsh(B))) > 1e-6  # the whole matrix is well away from singular
     S = _to_u_then_v(B)
-    sizes = []
-    eigh = np.linalg.eigh
-
-    def spy(D):
-        sizes.append(D.shape[0])
-        return eigh(D)
-
-    monkeypatch.setattr(slicing.np.linalg, "eigh", spy)
-    got = slicing.inertia(sp.csr_matrix(S))
-    monkeypatch.undo()
+    got, sizes = _inertia_with_block_sizes(S, monkeypatch)
     assert sizes[:2] == [32, 64], sizes  # tried 32 rows, merged into 64
     assert {k: got[k] for k in ("positive", "negative", "zero")} == _signs(S)
     assert got["worst_condition"] < 1e9  # the singular block was not used
@@ -244,16 +250,7 @@ def test_inertia_merges_a_nearly_singular_block_after_the_first(monkeypatch):
     B[32:64, 32:64] -= (np.linalg.eigvalsh(schur)[3] + 1e-13) * np.eye(32)
     S = _to_u_then_v(B)
     assert np.min(np.abs(np.linalg.eigvalsh(B))) > 1e-6
-    sizes = []
-    eigh = np.linalg.eigh
-
-    def spy(D):
-        sizes.append(D.shape[0])
-        return eigh(D)
-
-    monkeypatch.setattr(slicing.np.linalg, "eigh", spy)
-    got = slicing.inertia(sp.csr_matrix(S))
-    monkeypatch.undo()
+    got, sizes = _inertia_with_block_sizes(S, monkeypatch)
     assert sizes[:3] == [32, 32, 64], sizes  # the second block (after the carry) was merged with the third
     assert {k: got[k] for k in ("positive", "negative", "zero")} == _signs(S)
 
