@@ -204,11 +204,10 @@ class Workers:
         try:
             return [f.result() for f in futures]
         except BaseException:
-            cancelled.set()
-            pool.shutdown(wait=False, cancel_futures=True)
+            cancelled.set()  # the busy workers' waits raise and kill them
             raise
         finally:
-            pool.shutdown(wait=False)
+            pool.shutdown(wait=False, cancel_futures=True)
 
     @staticmethod
     def _start() -> _Worker:
