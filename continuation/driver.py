@@ -65,16 +65,12 @@ from warpchain.model import real_number, whole_number
 from . import bubbles
 from . import events as ev
 from .events import StopReason
-from .floquet import FloquetResult, floquet_path, linear_mu, reduced_analysis
+from .floquet import VERDICTS, FloquetResult, floquet_path, linear_mu, reduced_analysis
 from .hostblas import blas_threads, threads_for
 from .shooting import frequency_report
 
 #: the Floquet paths a walk may take: those that give every point a complete verdict
 COMPLETE_SOLVERS = ("dense", "sliced", "auto")
-
-
-#: a point's verdict in a log line (None: energies only, no Floquet analysis)
-VERDICT_WORDS = {True: "stable", False: "unstable", None: "no verdict"}
 
 
 class IncompleteVerdict(RuntimeError):
@@ -859,7 +855,7 @@ class _Walk:
                 last = self.points[-1]
                 if self.log:
                     self.log(
-                        problem.describe(last) + f", {VERDICT_WORDS[last.stable]}, "
+                        problem.describe(last) + f", {VERDICTS[last.stable]}, "
                         f"newton {last.iterations}, step {self.h:.3g}"
                     )
                 if bar is not None:

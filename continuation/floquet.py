@@ -200,7 +200,7 @@ class FloquetResult:
     @property
     def verdict(self) -> str:
         """``"stable"``, ``"unstable"`` or ``"not decided"`` (a partial analysis), for log lines and summaries."""
-        return "not decided" if self.stable is None else ("stable" if self.stable else "unstable")
+        return VERDICTS[self.stable]
 
     @property
     def nontrivial(self) -> np.ndarray:
@@ -495,6 +495,9 @@ def assemble(
         stats=dict(stats or {}),
     )
 
+
+#: a verdict in words (None: not decided, a partial analysis or none), for log lines, summaries and figures
+VERDICTS = {True: "stable", False: "unstable", None: "not decided"}
 
 #: the reduced analysis' paths (``floquet(solver=...)``): three complete ones and the partial window
 SOLVERS = ("dense", "sliced", "auto", "window")

@@ -18,6 +18,7 @@ import time
 import numpy as np
 
 from continuation import find_breather, floquet, nls_seed, require
+from continuation.floquet import VERDICTS
 from warpchain import Guard, Record
 from warpchain import ChainParams, propagate_tangent, simulate
 from warpchain.reference import solve_ivp_reference
@@ -333,8 +334,7 @@ def plot(out) -> None:
     ax.plot(lam[mult["trivial"]].real, lam[mult["trivial"]].imag, "x", color="k", label="trivial pair")
     ax.set_aspect("equal")
     ax.set_title(
-        f"Floquet multipliers $\\lambda$: max $|\\lambda|$ = {s['max_floquet_modulus']:.6f}"
-        f" ({ {True: 'stable', False: 'unstable'}.get(s['stable'], 'not decided') })",
+        f"Floquet multipliers $\\lambda$: max $|\\lambda|$ = {s['max_floquet_modulus']:.6f} ({VERDICTS[s['stable']]})",
         fontsize=9,
     )
     ax.set_xlabel(r"Re $\lambda$")
