@@ -24,7 +24,15 @@ With q = d1^2 + 4c > 0, Delta is smallest at t* = -d0 d1 / q, where Delta* = 4 c
 
     centre t*,   Im mu at the centre = sqrt(-Delta*) / 2,   width in t = 2 |d0| sqrt(-4c) / q.
 
-A bubble counts when t* lies inside the step and Im mu > the end points' Floquet tolerance.
+A bubble counts when t* lies inside the step and Im mu > max(the end points' Floquet tolerance, FLOOR).
+
+**Why a floor.** The tolerance is measured (10 x the trivial multiplier's deviation, ``continuation.floquet``):
+rounding, which differs from machine to machine by factors of a few. A threshold that moves with it decided
+bubbles by rounding: on the paper's frequency branch one stretch of predicted bubbles (|l| - 1 = 1.2e-11 over
+2e-10 in w_b) was there on one machine and not on another, and two honest runs did not compare equal. FLOOR
+is a fixed 1e-10 in mu, ~7 x the paper breather's tolerance (1.5e-11): below it the prediction is
+indistinguishable from rounding (the first-order model's own error is larger), and such a bubble grows by a
+factor e over > 1e10 periods. A run whose tolerance is above FLOOR (a loose method) keeps its tolerance.
 
 **Measured** on the paper chain's frequency branch (M = 30, K = 160, N = 201, kahan8, 32 steps per
 period): in [1.0124, 1.0138] the model predicts every bubble that the exact eigenvalues of the
@@ -45,6 +53,9 @@ import dataclasses
 import numpy as np
 
 from .floquet import outer_modulus
+
+#: predicted bubbles count only above this Im mu (and above the ends' tolerance): see the module docstring
+FLOOR = 1e-10
 
 
 @dataclasses.dataclass(frozen=True)
@@ -80,7 +91,7 @@ def predict(a, b, sa, sb) -> list:
     """
     if sa is None or sb is None or a.signature is None or sa.parities != sb.parities:
         return []
-    tol = max(float(a.tolerance), float(b.tolerance))
+    tol = max(float(a.tolerance), float(b.tolerance), FLOOR)
     out = []
     offset = 0
     for k, block in enumerate(sa.blocks):

@@ -371,6 +371,7 @@ def foam_event(a, b, parameter: str, narrow, step: float) -> dict:
         "predicted": len(narrow),
         "unstable_fraction": covered_fraction(narrow),
         "max_modulus": float(max(x.modulus for x in narrow)),
+        "max_im": float(max(abs(x.mu.imag) for x in narrow)),
         "widest": float(2.0 * widest.half_width * step),
         "message": None,
     }
@@ -438,7 +439,9 @@ def unresolved_bubbles(points, events, parameter: str) -> list:
     model, over a step that long, does not see the first of them.
 
     Returns a list of ``{start, end, onset, steps, predicted, unstable_fraction, max_predicted_modulus,
-    widest, points, unstable_points, max_modulus}``: ``unstable_fraction`` is the share of the foam
+    max_predicted_im, widest, points, unstable_points, max_modulus}``: ``max_predicted_im`` is the largest
+    predicted Im mu (NaN from events stored before it was recorded), which says how far the stretch's
+    strongest bubble is above ``continuation.bubbles.FLOOR``; ``unstable_fraction`` is the share of the foam
     steps that the predicted bubbles cover (length-weighted), ``widest`` the widest predicted bubble
     (continuation coordinate), ``points``/``unstable_points`` the solved points inside the stretch.
     """
@@ -486,6 +489,7 @@ def unresolved_bubbles(points, events, parameter: str) -> list:
                 "predicted": int(sum(e["predicted"] for e in found)),
                 "unstable_fraction": float(fractions @ lengths / lengths.sum()) if lengths.sum() > 0 else 0.0,
                 "max_predicted_modulus": float(max(e["max_modulus"] for e in found)),
+                "max_predicted_im": _max_im(found),
                 "widest": float(max(e["widest"] for e in found)),
                 "points": len(inside),
                 "unstable_points": int(sum(not p.stable for p in inside)),
@@ -494,6 +498,15 @@ def unresolved_bubbles(points, events, parameter: str) -> list:
         )
         i = j + 1
     return out
+
+
+def _max_im(foam: list) -> float:
+    ims = [e.get("max_im") for e in foam]
+    return float(max(ims)) if all(_is_number(v) for v in ims) else float("nan")
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
 
 
 def contact_event(prev, point, parameter: str) -> dict:

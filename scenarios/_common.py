@@ -223,46 +223,54 @@ class Refused(ValueError):
 
 @contextlib.contextmanager
 def scene_lock(out: Path):
-    """Hold ``out/.lock`` (pid, host, start) while a scene runs in ``out``: a second run or a resume on the same
-    folder meanwhile is refused (``Refused``, one line naming the holder), so two walks never interleave in one
-    store. A lock left by a process that is gone (same host, no such pid) is taken over; one from another host
-    is never judged stale here: its message says to remove it by hand."""
+    """Hold an OS lock on ``out/.lock`` while a scene runs in ``out``: a second run or a resume on the same folder
+    meanwhile is refused (``Refused``, one line naming the holder), so two walks never interleave in one store.
+
+    The lock is ``flock`` on the file, not the file's existence: the kernel releases it when its process dies
+    (killed, crashed, out of memory), so there are no stale locks to judge, and two processes cannot both take it.
+    The file holds the holder's pid, host and start time for the message only; a file that another process
+    unlinked between our open and our lock is a lock on nothing, so the lock is taken again on the file the
+    path now names."""
+    import fcntl
+
     lock, me = out / ".lock", {"pid": os.getpid(), "host": socket.gethostname(), "started": time.time()}
-    for _ in range(2):
+    for _ in range(10):
+        fd = os.open(lock, os.O_CREAT | os.O_RDWR, 0o644)
         try:
-            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
-            break
-        except FileExistsError:
-            try:
-                held = json.loads(lock.read_text())
-                pid, host = int(held["pid"]), str(held["host"])
-            except (OSError, ValueError, KeyError, TypeError):
-                pid, host = None, "?"
-            if pid is not None and host == me["host"] and not _alive(pid):
-                lock.unlink(missing_ok=True)  # stale: its process is gone
-                continue
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            raise Refused(f"{out} is in use by {_holder(lock)} (lock {lock}); wait for that run to end") from None
+        except OSError as e:
+            os.close(fd)
             raise Refused(
-                f"{out} is in use by process {pid} on {host} (lock {lock}); wait for that run to end, or remove "
-                "the lock if it is gone"
+                f"{out}: cannot lock {lock} ({e.strerror or e}); is the folder on a file system without locks?"
             ) from None
+        try:
+            same = os.fstat(fd).st_ino == os.stat(lock).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        os.close(fd)  # the holder removed the file as we opened it: lock the one the path names now
     else:
         raise Refused(f"{out}: could not take the lock {lock}")
-    with os.fdopen(fd, "w") as f:
-        json.dump(me, f)
+    os.ftruncate(fd, 0)
+    os.write(fd, json.dumps(me).encode())
     try:
         yield
     finally:
-        lock.unlink(missing_ok=True)
+        lock.unlink(missing_ok=True)  # before the release, so that a waiter that got the old file retries
+        os.close(fd)
 
 
-def _alive(pid: int) -> bool:
+def _holder(lock: Path) -> str:
+    """Who holds ``lock``, from what it wrote there (for the message; the lock itself is the OS's)."""
     try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
+        held = json.loads(lock.read_text())
+        return f"process {int(held['pid'])} on {held['host']}"
+    except (OSError, ValueError, KeyError, TypeError):  # written as we read, or not ours
+        return "another process"
 
 
 def run_scene(
