@@ -426,7 +426,7 @@ def parametric_event(a, b, parameter: str, M: float) -> dict | None:
 
 def weak_extended(point) -> bool:
     """Unstable only through weak instabilities of extended (phonon) Floquet vectors."""
-    return (not point.stable) and _weak(point) and not any(i.localized for i in point.instabilities)
+    return point.stable is False and _weak(point) and not any(i.localized for i in point.instabilities)
 
 
 def unresolved_bubbles(points, events, parameter: str) -> list:
@@ -492,7 +492,7 @@ def unresolved_bubbles(points, events, parameter: str) -> list:
                 "max_predicted_im": _max_im(found),
                 "widest": float(max(e["widest"] for e in found)),
                 "points": len(inside),
-                "unstable_points": int(sum(not p.stable for p in inside)),
+                "unstable_points": int(sum(p.stable is False for p in inside)),
                 "max_modulus": float(max(p.max_modulus for p in inside)),
             }
         )
@@ -543,9 +543,8 @@ def unstable_intervals(points, parameter: str) -> list:
     kinds that are localized at any point of the interval."""
     out, run = [], []
 
-    def close(run, after):
+    def close(i0, run, after):
         first, last = run[0], run[-1]
-        i0 = points.index(first)
         start = first.value(parameter) if i0 == 0 else 0.5 * (points[i0 - 1].value(parameter) + first.value(parameter))
         end = last.value(parameter) if after is None else 0.5 * (last.value(parameter) + after.value(parameter))
         worst = max(run, key=lambda p: p.max_modulus)
@@ -562,12 +561,14 @@ def unstable_intervals(points, parameter: str) -> list:
             }
         )
 
-    for i, p in enumerate(points):
-        if not p.stable:
+    for i, p in enumerate(points):  # positions, not points.index: points hold arrays, and may repeat
+        if p.stable is False:  # undecided points (stable None) are not unstable
+            if not run:
+                i0 = i
             run.append(p)
         elif run:
-            close(run, p)
+            close(i0, run, p)
             run = []
     if run:
-        close(run, None)
+        close(i0, run, None)
     return out

@@ -11,7 +11,7 @@ import shlex
 import sys
 from pathlib import Path
 
-from ._common import PAPER_SCENES, SCENES, load_scene, parse_overrides, run_scene
+from ._common import PAPER_SCENES, SCENES, SceneFailed, load_scene, parse_overrides, run_scene
 from ._parallel import parse_jobs, run_parallel
 
 
@@ -24,6 +24,7 @@ def main(argv=None) -> int:
     # the command as typed: the console script or the module (usage lines, the provenance's command line)
     called = "warpchain" if os.path.basename(sys.argv[0]) == "warpchain" else "python -m scenarios"
     parser = argparse.ArgumentParser(prog=called, description=__doc__)
+    parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = parser.add_subparsers(dest="command", required=True)
     sub.add_parser("list", help="list the scenes")
     params = sub.add_parser("params", help="a scene's parameters: defaults, types, allowed values (for --set)")
@@ -33,20 +34,24 @@ def main(argv=None) -> int:
     common.add_argument("--device", default=None, help="cpu or cuda (default: cuda when Warp sees a GPU)")
     common.add_argument("--quick", action="store_true", help="reduced variant for smoke tests")
     common.add_argument(
+        "-q", "--quiet", action="store_true", help="warnings and errors only: no log line per point, no progress bars"
+    )
+    one = argparse.ArgumentParser(add_help=False)  # what applies to one scene: run, not paper
+    one.add_argument(
         "--set",
         action="append",
         default=[],
         metavar="KEY=VALUE",
         help="override a scene parameter (repeatable), e.g. --set N=401; 'params NAME' lists them",
     )
-    common.add_argument(
+    one.add_argument(
         "--resume", action="store_true", help="continue a stored branch (continuation-k, continuation-omega)"
     )
     words = list(sys.argv[1:] if argv is None else argv)
     asked = [w for w in words[1:] if w in SCENES] if words[:1] == ["run"] and {"-h", "--help"} & set(words) else []
     run = sub.add_parser(
         "run",
-        parents=[common],
+        parents=[common, one],
         help="run one scene",
         # ``run NAME --help`` ends with that scene's --set keys, defaults and allowed values
         epilog="\n".join(scene_listing(asked[0])) if asked else "'run NAME --help' lists that scene's --set keys",
@@ -69,7 +74,10 @@ def main(argv=None) -> int:
     compare.add_argument("--json", default=None, type=Path, metavar="FILE", help="write the differences as JSON")
     args = parser.parse_args(argv)
     _terminate_like_interrupt()
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s", datefmt="%H:%M:%S")
+    quiet = getattr(args, "quiet", False)
+    logging.basicConfig(
+        level=logging.WARNING if quiet else logging.INFO, format="%(asctime)s %(message)s", datefmt="%H:%M:%S"
+    )
 
     if args.command == "list":
         return _print(f"{name:20s} {first_sentence(load_scene(name).__doc__)}" for name in SCENES)
@@ -92,11 +100,9 @@ def main(argv=None) -> int:
     if args.command == "run" and args.name not in SCENES:
         parser.error(f"unknown scene {args.name!r}; known scenes: {', '.join(SCENES)}")
     try:
-        overrides = parse_overrides(args.set)
+        overrides = parse_overrides(getattr(args, "set", []))
     except ValueError as exc:
         parser.error(str(exc))
-    if args.command == "paper" and (overrides or args.resume):
-        parser.error("--set and --resume apply to one scene: use 'run NAME'")
     command_line = getattr(args, "provenance_command", None) or " ".join(
         [called, *(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))]
     )
@@ -127,6 +133,10 @@ def main(argv=None) -> int:
         return 2
     except _engine_errors() as exc:  # an eigensolver worker that failed or hung, a verdict that could not be had
         print(f"error: {_with_notes(exc)}", file=sys.stderr)
+        return 1
+    except SceneFailed as exc:  # a scene raised: one line, its traceback in failed.json
+        cause = exc.__cause__
+        print(f"error: {_with_notes(cause) if isinstance(cause, _engine_errors()) else exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt as exc:
         how = "terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted"
@@ -175,7 +185,10 @@ def run_in_order(names, out, device, quick: bool, command_line: str) -> int:
     for name in names:
         try:
             run_scene(name, out, device, quick, command_line=command_line)
-        except Exception as exc:
+        except SceneFailed as exc:  # its traceback is in its failed.json
+            log.error("paper: %s", exc)
+            failures.append((name, exc))
+        except Exception as exc:  # failed before it computed (its parameters, its folder)
             log.error("paper: %s FAILED: %s: %s\n%s", name, type(exc).__name__, exc, traceback.format_exc())
             failures.append((name, exc))
     log.info(
@@ -186,7 +199,12 @@ def run_in_order(names, out, device, quick: bool, command_line: str) -> int:
         out,
     )
     for name, exc in failures:
-        print(f"error: scene {name} failed: {type(exc).__name__}: {_with_notes(exc)}", file=sys.stderr)
+        text = (
+            str(exc)
+            if isinstance(exc, SceneFailed)
+            else f"scene {name} failed: {type(exc).__name__}: {_with_notes(exc)}"
+        )
+        print(f"error: {text}", file=sys.stderr)
     return 1 if failures else 0
 
 
@@ -233,6 +251,20 @@ def _print(lines) -> int:
     return 0
 
 
+def _version() -> str:
+    """The installed version, and the commit when run from a git checkout."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        text = version("warpchain")
+    except PackageNotFoundError:
+        text = "(not installed)"
+    from warpchain.store import git_commit
+
+    commit = git_commit()
+    return f"{text} (commit {commit[:10]})" if commit else text
+
+
 def check_output_root(out: Path) -> None:
     """Refuse an --out that is a file or cannot be written, before anything is computed."""
     out = Path(out)
@@ -243,6 +275,10 @@ def check_output_root(out: Path) -> None:
         probe = probe.parent
     if not os.access(probe, os.W_OK | os.X_OK):
         raise ValueError(f"--out {out}: cannot write in {probe}")
+    try:  # what access() cannot tell (a root user, /proc, a read-only mount): make it
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ValueError(f"--out {out}: cannot make the folder ({exc.strerror or exc})") from None
 
 
 if __name__ == "__main__":

@@ -91,10 +91,10 @@ class Context:
 
 def progress_bars() -> bool:
     """Whether the scenes draw progress bars: only when stderr is a terminal (a log file or a pipe gets the
-    log lines alone)."""
+    log lines alone) and the log is not quiet (``-q``)."""
     import sys
 
-    return sys.stderr.isatty()
+    return sys.stderr.isatty() and logging.getLogger().isEnabledFor(logging.INFO)
 
 
 def load_scene(name: str):
@@ -216,6 +216,11 @@ def scene_parameters(module, quick: bool, overrides: dict | None = None):
     return params
 
 
+class SceneFailed(RuntimeError):
+    """A scene raised while it computed (an engine error, a failed solve): the command line prints this one line
+    (exit 1); the scene's ``failed.json`` holds the error and its traceback, and ``__cause__`` is the error."""
+
+
 class Refused(ValueError):
     """A scene's input refused before the scene wrote anything (e.g. a resume with other settings than the
     stored branch's): its folder is left as it was, summary included."""
@@ -293,6 +298,8 @@ def run_scene(
         raise ValueError(f"scene {name!r} cannot be resumed (resumable: continuation-k, continuation-omega)")
     resolved = resolve_device(device)  # before any folder is made: a bad device leaves nothing behind
     out = Path(out_root) / name
+    if resume and not out.is_dir():  # nothing to continue, and nothing (not even a failed.json) to write there
+        raise ValueError(f"--resume: {out} does not exist, so there is no branch to continue; run without --resume")
     created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
     ctx = Context(
@@ -332,8 +339,13 @@ def _run_in(module, ctx: Context) -> dict:
         if hint and hasattr(exc, "add_note"):  # Python >= 3.11
             exc.add_note(hint)  # printed under the traceback
         error = f"{type(exc).__name__}: {exc}" + (f" ({hint})" if hint else "")
-        (out / "failed.json").write_text(json.dumps({"scene": ctx.name, "error": error}))
-        raise
+        import traceback
+
+        record = {"scene": ctx.name, "error": error, "traceback": traceback.format_exc()}
+        (out / "failed.json").write_text(json.dumps(record))
+        if isinstance(exc, (ValueError, OSError)):  # refused input, a damaged store, a full disk: one line already
+            raise
+        raise SceneFailed(f"scene {ctx.name} failed: {error} (traceback in {out / 'failed.json'})") from exc
     summary.setdefault("wall_seconds", time.perf_counter() - start)
     if params is not None:
         summary.setdefault("parameters", dataclasses.asdict(params))
@@ -379,21 +391,23 @@ BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD = "kahan8", 32
 _BREATHER_CACHE: dict = {}
 
 
-def paper_breather(device: str, log=None):
-    """The w_b = 1.01, K = 160 breather, computed from the NLS seed by Newton (cached per process)."""
+def paper_breather(device: str, log=None, *, params=None, omega: float = PAPER_OMEGA):
+    """The w_b = 1.01, K = 160 breather (or that of ``params`` and ``omega``), computed from the NLS seed by
+    Newton (cached per process)."""
     from continuation import find_breather, nls_seed, require
     from warpchain import ChainParams
 
-    if device not in _BREATHER_CACHE:
-        params = ChainParams(PAPER_M, PAPER_K, PAPER_N)
+    params = params or ChainParams(PAPER_M, PAPER_K, PAPER_N)
+    key = (device, params, float(omega))
+    if key not in _BREATHER_CACHE:
         result = find_breather(
             params,
-            PAPER_OMEGA,
-            nls_seed(params, PAPER_OMEGA),
+            omega,
+            nls_seed(params, omega),
             method=BREATHER_METHOD,
             steps_per_period=BREATHER_STEPS_PER_PERIOD,
             device=device,
             log=log,
         )
-        _BREATHER_CACHE[device] = require(result)
-    return _BREATHER_CACHE[device]
+        _BREATHER_CACHE[key] = require(result)
+    return _BREATHER_CACHE[key]

@@ -28,7 +28,7 @@ class BranchParameters:
     ds_max: float = param(0.5, "largest step", gt=0)
     ds_min: float = param(1e-4, "smallest step: a point that fails below it ends the branch", gt=0)
     grow: float = param(1.5, "step growth after an easy Newton solve", ge=1)
-    resolution: float = param(1e-3, "smallest bracket of a stability change", gt=0)
+    resolution: float = param(1e-3, "smallest bracket of a stability change (float64 resolves >= 1e-12)", ge=1e-12)
     max_newton: int = param(8, "Newton iterations per point", ge=1)
     max_points: int | None = param(None, "stop after this many points; none: no limit", ge=1)
     method: str = param(
@@ -140,7 +140,10 @@ def run_branch(
     path = ctx.out / "data.zarr"
     resume, state = None, None
     if ctx.resume:
-        stored_params, resume, stored_attrs = load_branch(path, group)
+        try:
+            stored_params, resume, stored_attrs = load_branch(path, group)
+        except StoreError as exc:  # refused before anything is written: the folder (its summary) stays as it was
+            raise ResumeRefused(str(exc)) from None
         _check_resume(path, group, stored_params, stored_attrs, params, attrs)
         if not resume and not isinstance(stored_attrs.get("walk_state"), dict):  # killed before its first write
             ctx.log("resume: %s holds no points yet (the run was stopped before its first write): starting anew", path)
@@ -154,6 +157,8 @@ def run_branch(
                 stored_attrs.get("stop_reason"),
                 problem.describe(resume[-1]),
             )
+    elif new_store:
+        _warn_if_interrupted(ctx, path, group)
     store = BranchStore(
         path,
         group,
@@ -225,6 +230,24 @@ class ResumeRefused(StoreError, Refused):
 
 #: settings that do not define a branch (where it stops, how long it may take, host threads): a resume may change them
 RESUME_MAY_CHANGE = frozenset({"max_points", "max_seconds", "blas_threads"})
+
+
+def _warn_if_interrupted(ctx, path, group: str) -> None:
+    """A fresh run replaces the store: say so first when it holds a branch that ``--resume`` would continue."""
+    import zarr
+
+    try:
+        attrs = dict(zarr.open_group(str(path), mode="r")[group].attrs)
+    except Exception:  # no store, or one that is not a branch store: nothing a resume could continue
+        return
+    n = attrs.get("n_points")
+    if attrs.get("complete") is False and isinstance(n, int) and n > 0:
+        ctx.log(
+            "replacing %s: it held an unfinished branch of %d points (%s) that --resume would have continued",
+            path,
+            n,
+            attrs.get("stop_reason") or "killed",
+        )
 
 
 def _check_resume(path, group: str, stored_params, stored_attrs: dict, params, attrs: dict) -> None:

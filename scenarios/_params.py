@@ -336,11 +336,21 @@ def splitting_methods() -> tuple:
     return tuple(name for name, m in METHODS.items() if isinstance(m, SplittingMethod))
 
 
+#: a chain this stiff (the optical top ~ sqrt(4K / M)) is refused: more steps than any run here takes
+MAX_STEPS_PER_PERIOD = 1e8
+
+
 def min_steps_per_period(method: str, M: float, K: float, omega: float, multiple_of: int = 1) -> int:
     """The fewest steps per period 2 pi / omega (a multiple of ``multiple_of``) whose step is below the
     method's linear stability limit on the (M, K) chain (``warpchain.stability_limit``)."""
     limit = stability_dt(method, M, K)
-    n = math.floor(2 * math.pi / omega / limit) + 1
+    period = 2 * math.pi / omega
+    if not (limit > 0 and math.isfinite(period / limit) and period / limit < MAX_STEPS_PER_PERIOD):
+        raise ValueError(
+            f"M = {M:g}, K = {K:g}: {method}'s linear stability limit, dt < {limit:.3g}, needs more than "
+            f"{MAX_STEPS_PER_PERIOD:.0e} steps per period 2 pi / {omega:g}; choose a smaller K or a larger M"
+        )
+    n = math.floor(period / limit) + 1
     return -(-n // multiple_of) * multiple_of
 
 

@@ -84,7 +84,7 @@ def run(ctx: Context) -> dict:
         dim="point",
         attrs={"omega0": omega0},
     )
-    write_table(root, "seed", {"u": seed[0], "v": seed[1], "site": np.arange(1, P.N + 1)}, dim="site")
+    write_table(root, "seed", {"u": seed[0], "v": seed[1], "site": np.arange(P.N)}, dim="site")
     return {
         "M": P.M,
         "omega": P.omega,

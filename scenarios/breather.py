@@ -2,7 +2,8 @@
 by direct simulation over 100 periods; tangent vs finite-difference Jacobians charted.
 
 Command: ``python -m scenarios run breather --device cpu`` (about 40 s on a 2-core CPU; ``--quick`` ~15 s).
-Options: ``--set KEY=VALUE`` (fields of ``Parameters``).
+Options: ``--set KEY=VALUE`` (fields of ``Parameters``), e.g. ``--set M=30 --set K=10 --set N=101
+--set omega=1.012`` for another breather of the family (the frequency in the gap below sqrt((M + 1) / M)).
 
 Steps: the NLS seed -> Newton on the time-reversible half-period map (tangent Jacobian, kahan8,
 32 steps per period) -> the full 804 x 804 monodromy and its multipliers -> the general
@@ -32,6 +33,7 @@ from ._common import (
     PAPER_N,
     PAPER_OMEGA,
     Context,
+    Refused,
     paper_breather,
     pyplot,
     read_summary,
@@ -44,6 +46,12 @@ from ._params import param
 class Parameters:
     """The scene's parameters (``--set KEY=VALUE`` overrides any of them)."""
 
+    M: float = param(PAPER_M, "mass ratio m1 / m2", gt=0)
+    K: float = param(PAPER_K, "coupling ratio k1 / k2", gt=0)
+    N: int = param(PAPER_N, "sites of the chain (fixed ends); the breather sits at site N // 2", ge=3)
+    omega: float = param(
+        PAPER_OMEGA, "breather frequency w_b, in the gap below the optical bottom sqrt((M + 1) / M)", gt=0
+    )
     periods: int = param(100, "periods of the direct-simulation check with the breather's own integrator", ge=1)
     dop853_periods: int = param(100, "periods of the independent scipy DOP853 check", ge=1)
     fd_steps: tuple[float, ...] = param(
@@ -99,8 +107,13 @@ def _jacobian_comparison(params, state, n_half, dt, device, label, fd_steps):
 def run(ctx: Context) -> dict:
     P: Parameters = ctx.params
     start = time.perf_counter()
-    params = ChainParams(PAPER_M, PAPER_K, PAPER_N)
-    b = paper_breather(ctx.device, log=ctx.log)
+    params = ChainParams(P.M, P.K, P.N)
+    if not P.omega < params.omega0:
+        raise Refused(
+            f"--set omega={P.omega:g}: a breather of this family lies below the optical bottom "
+            f"sqrt((M + 1) / M) = {params.omega0:.6g} (M = {P.M:g})"
+        )
+    b = paper_breather(ctx.device, log=ctx.log, params=params, omega=P.omega)
     ctx.log(b.message)
     fl = floquet(b, device=ctx.device)
     ctx.log(
@@ -134,11 +147,11 @@ def run(ctx: Context) -> dict:
     if P.general_seed_near_solution:  # a few cheap iterations
         seed = b.state + 1e-4 * np.exp(-(((np.arange(params.N) - params.N // 2) / 3.0) ** 2))
     else:
-        seed = nls_seed(params, PAPER_OMEGA)
+        seed = nls_seed(params, P.omega)
     general = require(
         find_breather(
             params,
-            PAPER_OMEGA,
+            P.omega,
             seed,
             formulation="general",
             method=BREATHER_METHOD,
@@ -208,7 +221,7 @@ def run(ctx: Context) -> dict:
         root,
         "breather",
         {
-            "site": np.arange(1, params.N + 1),
+            "site": np.arange(params.N),
             "u": b.state[0],
             "v": b.state[1],
             "u_general": general.state[0],
@@ -319,7 +332,7 @@ def plot(out) -> None:
     gs = fig.add_gridspec(2, 6)
     axes = [fig.add_subplot(gs[0, :3]), fig.add_subplot(gs[0, 3:])]
     c = len(br["site"]) // 2
-    sl = slice(c - 25, c + 26)
+    sl = slice(max(c - 25, 0), c + 26)
     axes[0].plot(br["site"][sl], br["u"][sl], "o-", ms=3)
     axes[0].set_title(f"$u_j$ at t = 0 ($\\omega_b$ = {s['omega']}, K = {s['K']:g}, M = {s['M']:g})")
     axes[1].plot(br["site"][sl], br["v"][sl], "o-", ms=3, color="tab:orange")

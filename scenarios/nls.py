@@ -109,7 +109,7 @@ def run(ctx: Context) -> dict:
         root,
         "profiles",
         {
-            "site": np.arange(1, params.N + 1),
+            "site": np.arange(params.N),
             "u_numerical": numerical.state[0],
             "v_numerical": numerical.state[1],
             "u_nls": nls_state[0],

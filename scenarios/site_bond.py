@@ -843,7 +843,7 @@ def plot(out) -> None:
             mid = fam["asymmetric"][len(fam["asymmetric"]) // 2]
             z = mid.state[0] - mid.state[1]
             a.plot(sites, z[sites], "s--", ms=3, color=colours["asymmetric"], label=f"asymmetric, K = {mid.K:.10g}")
-        a.set_xlabel("site j (0-based)")
+        a.set_xlabel("site j")
         a.set_title(
             "profiles z = u - v at the first exchange" if name == "state" else "null vectors (signed site amplitude)",
             fontsize=10,

@@ -328,3 +328,78 @@ def test_a_worker_failure_or_an_incomplete_verdict_is_one_line(tmp_path, monkeyp
         assert cli.main(["run", "breather", "--out", str(tmp_path), "--device", "cpu"]) == 1
         err = capsys.readouterr().err.strip().splitlines()
         assert err == [f"error: {error}"]
+
+
+def test_a_scene_that_raises_is_one_line_with_its_traceback_in_failed_json(tmp_path, monkeypatch, capsys):
+    import scenarios.__main__ as cli
+    from continuation.workers import WorkerError
+    from scenarios import nls
+
+    def broken(ctx):
+        raise ZeroDivisionError("float division by zero")
+
+    monkeypatch.setattr(nls, "run", broken)
+    assert cli.main(["run", "nls", "--quick", "--out", str(tmp_path), "--device", "cpu"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    failed = tmp_path / "nls" / "failed.json"
+    assert err == [f"error: scene nls failed: ZeroDivisionError: float division by zero (traceback in {failed})"]
+    record = json.loads(failed.read_text())
+    assert "Traceback" in record["traceback"] and "broken" in record["traceback"]
+
+    def worker_failed(ctx):  # an engine error inside a scene keeps its own one-line message
+        raise WorkerError("Floquet slice 3 of 68 failed in eigensolver worker 123: ValueError: boom", "Traceback ...")
+
+    monkeypatch.setattr(nls, "run", worker_failed)
+    assert cli.main(["run", "nls", "--quick", "--out", str(tmp_path), "--device", "cpu"]) == 1
+    assert capsys.readouterr().err.strip().splitlines() == [
+        "error: Floquet slice 3 of 68 failed in eigensolver worker 123: ValueError: boom"
+    ]
+
+
+def test_command_line_offers_what_works(tmp_path, capsys):
+    """--version; paper takes neither --set nor --resume (its help does not offer them); -q prints nothing on
+    success; --resume on a folder that does not exist writes nothing; extreme values are refused in one line."""
+    import scenarios.__main__ as cli
+
+    with pytest.raises(SystemExit) as stop:
+        cli.main(["--version"])
+    assert stop.value.code == 0 and "0." in capsys.readouterr().out
+    with pytest.raises(SystemExit):
+        cli.main(["paper", "--help"])
+    text = capsys.readouterr().out
+    assert "--set" not in text and "--resume" not in text and "--quiet" in text
+    with pytest.raises(SystemExit) as stop:
+        cli.main(["paper", "--set", "N=3"])
+    assert stop.value.code == 2
+    capsys.readouterr()
+    missing = tmp_path / "nothing"
+    assert cli.main(["run", "continuation-omega", "--resume", "--out", str(missing), "--device", "cpu"]) == 2
+    assert "no branch to continue" in capsys.readouterr().err and not (missing / "continuation-omega").exists()
+    for setting in ("K=1e200", "resolution=1e-300"):
+        assert cli.main(["run", "continuation-omega", "--set", setting, "--out", str(tmp_path), "--device", "cpu"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("error: "), err
+    assert cli.main(["run", "breather", "--set", "omega=1.2", "--out", str(tmp_path), "--device", "cpu"]) == 2
+    assert "below the optical bottom" in capsys.readouterr().err
+
+
+def test_quiet_run_prints_nothing_and_breather_takes_its_parameters(tmp_path):
+    out = _run(
+        "run",
+        "breather",
+        "--quick",
+        "-q",
+        "--set",
+        "N=41",
+        "--set",
+        "K=10",
+        "--set",
+        "omega=1.012",
+        "--out",
+        str(tmp_path),
+        "--device",
+        "cpu",
+    )
+    assert out.returncode == 0 and out.stderr.strip() == "", out.stderr[-2000:]
+    s = json.loads((tmp_path / "breather" / "summary.json").read_text())
+    assert (s["N"], s["K"], s["omega"]) == (41, 10.0, 1.012)
