@@ -36,7 +36,15 @@ from continuation.floquet import KINDS, Instability, multipliers_from_mu, outer_
 from continuation.shooting import frequency_report
 from warpchain import ChainParams
 from warpchain import store
-from warpchain.store import consolidate, jsonable, open_store, provenance, unconsolidate
+from warpchain.store import (
+    check_attributes,
+    consolidate,
+    jsonable,
+    open_store,
+    provenance,
+    unconsolidate,
+    write_attributes,
+)
 
 MAX_INSTABILITIES = 16
 CHECKSUM = "checksum"
@@ -175,7 +183,8 @@ class BranchStore:
                 overwrite=True,
             )
         if not resume:
-            g.update_attributes(
+            write_attributes(
+                g,
                 {
                     "checksum_arrays": names,
                     **jsonable(attrs),
@@ -184,11 +193,11 @@ class BranchStore:
                     "events": [],
                     "stop_reason": None,
                     "kinds": list(KINDS),
-                }
+                },
             )
         else:
             n = self.n_points if keep is None else min(int(keep), self.n_points)
-            g.update_attributes({"complete": False, "stop_reason": None, "n_points": n})
+            write_attributes(g, {"complete": False, "stop_reason": None, "n_points": n})
         # consolidated metadata (what xarray reads first) is written by finish and interrupted; while the
         # arrays grow there is none, so a killed run never leaves a stale one (rewriting it after every point
         # cost 13 ms of a 49 ms append)
@@ -277,7 +286,7 @@ class BranchStore:
         if state.points > self.n_points:
             where = f"{self.path}/{self.group_name}"
             raise StoreError(f"{where}: walk state after {state.points} points, {self.n_points} stored")
-        self.group.update_attributes(self._state_attrs(state))
+        write_attributes(self.group, self._state_attrs(state))
 
     @staticmethod
     def _state_attrs(state: WalkState) -> dict:
@@ -354,26 +363,27 @@ class BranchStore:
         slabs = [(a, np.stack([r[name] for r in rows])) for name, a in self.arrays.items()]
         store.append_rows(slabs, [(self.checksum, crc)], start=n)  # the checksums after the rows
         # the count and the walk state in one write of the group's metadata: never a count without its state
-        self.group.update_attributes(
-            {"n_points": n + len(points), **(self._state_attrs(state) if state is not None else {})}
+        write_attributes(
+            self.group, {"n_points": n + len(points), **(self._state_attrs(state) if state is not None else {})}
         )
 
     def finish(self, branch: Branch) -> None:
         self.flush()
-        self.group.update_attributes(
+        write_attributes(
+            self.group,
             {
                 "complete": True,
                 "stop_reason": branch.stop_reason.value,
                 "message": branch.message,
                 "events": jsonable(list(branch.events)),
                 "stats": jsonable(branch.stats),
-            }
+            },
         )
         consolidate(self.path)
 
     def interrupted(self, why: str) -> None:
         self.flush()
-        self.group.update_attributes({"complete": False, "stop_reason": "interrupted", "message": why})
+        write_attributes(self.group, {"complete": False, "stop_reason": "interrupted", "message": why})
         consolidate(self.path)
 
 
@@ -404,9 +414,12 @@ def load_branch(path, group: str = "branch") -> tuple[ChainParams, list, dict]:
         raise StoreError(f"no branch store at {path}: run the scene first (without --resume)")
     try:
         root = zarr.open_group(str(path), mode="r", zarr_format=3, use_consolidated=False)
+        hint = "recompute the branch (run the scene without --resume)"
+        check_attributes(f"branch store {path} (root)", dict(root.attrs), hint)
         params = ChainParams(**dict(root.attrs)["params"])
         g = root[group]
         attrs = dict(g.attrs)
+        check_attributes(f"branch store {path} (group '{group}')", attrs, hint)
         names = list(g.array_keys())
     except StoreError:
         raise

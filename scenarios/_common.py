@@ -79,14 +79,17 @@ class Context:
 
         from warpchain.store import jsonable, open_store, provenance
 
-        root = open_store(
+        scene = (
+            {"scene_parameters": jsonable(dataclasses.asdict(self.params))}
+            if dataclasses.is_dataclass(self.params)
+            else {}
+        )
+        return open_store(
             self.out / name,
             params=chain.as_dict() if chain is not None else None,
             provenance_info=provenance(self.device),
+            attrs=scene,
         )
-        if dataclasses.is_dataclass(self.params):
-            root.attrs["scene_parameters"] = jsonable(dataclasses.asdict(self.params))
-        return root
 
 
 def progress_bars() -> bool:
@@ -115,9 +118,21 @@ def parse_overrides(items) -> dict:
 
 
 def write_summary(out: Path, summary: dict) -> Path:
+    """``summary.json``, whole or not at all (written beside, then renamed over)."""
     path = Path(out) / "summary.json"
-    path.write_text(json.dumps(jsonable(summary), indent=2) + "\n")
+    _write_whole(path, lambda tmp: tmp.write_text(json.dumps(jsonable(summary), indent=2) + "\n"))
     return path
+
+
+def _write_whole(path: Path, write) -> None:
+    """Run ``write(tmp)`` on a temporary file beside ``path`` and rename it over ``path``: a reader (or a full
+    disk, or a kill) never leaves half a file under the real name."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def verdicts(points) -> tuple:
@@ -134,11 +149,11 @@ def read_summary(out: Path) -> dict:
 
 
 def save_figure(fig, out: Path, stem: str) -> list[Path]:
-    """Save a matplotlib figure as PNG and PDF; returns the paths."""
+    """Save a matplotlib figure as PNG and PDF, each whole or not at all; returns the paths."""
     paths = []
     for ext in ("png", "pdf"):
         path = Path(out) / f"{stem}.{ext}"
-        fig.savefig(path, dpi=150, bbox_inches="tight")
+        _write_whole(path, lambda tmp: fig.savefig(tmp, dpi=150, bbox_inches="tight", format=ext))
         paths.append(path)
     import matplotlib.pyplot as plt
 
@@ -351,8 +366,21 @@ def _run_in(module, ctx: Context) -> dict:
         summary.setdefault("parameters", dataclasses.asdict(params))
     if command_line:
         summary.setdefault("command_line", command_line)
-    write_summary(out, summary)
-    module.plot(out)
+    write_summary(out, summary)  # the figures read it
+    try:
+        module.plot(out)
+    except BaseException as exc:  # no summary stands beside figures that were not all drawn
+        (out / "summary.json").unlink(missing_ok=True)
+        if isinstance(exc, Exception):
+            import traceback
+
+            error = f"drawing the figures failed: {type(exc).__name__}: {exc}"
+            record = {"scene": ctx.name, "error": error, "traceback": traceback.format_exc()}
+            with contextlib.suppress(OSError):  # a full disk may refuse this too: the error still reaches the user
+                (out / "failed.json").write_text(json.dumps(record))
+            if not isinstance(exc, (ValueError, OSError)):
+                raise SceneFailed(f"scene {ctx.name} failed: {error} (traceback in {out / 'failed.json'})") from exc
+        raise
     ctx.log("done in %.1f s", time.perf_counter() - start)
     return summary
 

@@ -108,6 +108,8 @@ def test_a_missing_chunk_is_an_error_not_zeros(k_branch, tmp_path):
         ("swap all 1 2", rf"point {CHUNK}\): .*altered or misplaced"),
         ("edit instability_count 0", r"'instability_count', point 0\): .*altered or misplaced"),
         ("lower n_points 2", r"'checksum'\): \d+ rows but the group says \d+ points"),
+        ("empty events x", r"group 'branch'\): its attributes do not match their checksum"),
+        ("edit params.K x", r"\(root\): its attributes do not match their checksum"),
     ],
 )
 def test_every_array_is_checked_against_its_point(k_branch, tmp_path, damage, match):
@@ -139,9 +141,20 @@ def test_every_array_is_checked_against_its_point(k_branch, tmp_path, damage, ma
                 b.rename(a)
             if tmp.exists():
                 tmp.rename(b)
+    elif what == "empty events":  # the foam's record gone (an audit case): the signature is not
+        meta = json.loads((g / "zarr.json").read_text())
+        meta["attributes"]["events"] = []
+        (g / "zarr.json").write_text(json.dumps(meta))
+    elif what == "edit params.K":  # the chain's parameters at the root, edited to match another --set
+        meta = json.loads((bad / "zarr.json").read_text())
+        meta["attributes"]["params"]["K"] = 100.0
+        (bad / "zarr.json").write_text(json.dumps(meta))
     else:
+        from warpchain.store import SIGNATURE, attributes_checksum
+
         meta = json.loads((g / "zarr.json").read_text())
         meta["attributes"]["n_points"] -= int(args[0])
+        meta["attributes"][SIGNATURE] = attributes_checksum(meta["attributes"])  # signed again: the count is checked
         (g / "zarr.json").write_text(json.dumps(meta))
     with pytest.raises(StoreError, match=match):
         load_branch(bad, "branch")

@@ -8,7 +8,9 @@ from conftest import localized_state
 from warpchain import Guard, Record
 from warpchain import ChainParams, simulate
 from warpchain.store import (
+    SIGNATURE,
     FieldWriter,
+    attributes_checksum,
     StoreError,
     open_store,
     provenance,
@@ -40,7 +42,7 @@ def test_round_trip_and_xarray(tmp_path):
     assert prov["packages"]["numpy"]
     ds = xr.open_zarr(path, group="case")
     assert ds["u"].dims == ("t", "site")
-    assert np.array_equal(ds["site"].values, np.arange(1, p.N + 1))
+    assert np.array_equal(ds["site"].values, np.arange(p.N))
     np.testing.assert_array_equal(ds["v"].values, v)
     json.dumps(root_attrs)  # attributes are plain JSON
 
@@ -113,7 +115,20 @@ def test_a_missing_field_chunk_or_a_half_written_group_is_refused(tmp_path):
 
 
 @pytest.mark.parametrize(
-    "damage", ["lose method", "alter energy", "swap u", "lower n_written", "drop crc", "lose u metadata", "lose column"]
+    "damage",
+    [
+        "lose method",
+        "alter energy",
+        "swap u",
+        "lower n_written",
+        "drop crc",
+        "lose u metadata",
+        "lose column",
+        "edit columns",
+        "drop signature",
+        "drop flag",
+        "swap columns",
+    ],
 )
 def test_tables_and_fields_are_checked_array_by_array(tmp_path, damage):
     """The audit's cases: a lost chunk of an integer table column (read as 0 without a check), an altered
@@ -137,8 +152,27 @@ def test_tables_and_fields_are_checked_array_by_array(tmp_path, damage):
     elif damage == "lower n_written":
         meta = json.loads((path / "case" / "zarr.json").read_text())
         meta["attributes"]["n_written"] -= 1
+        meta["attributes"][SIGNATURE] = attributes_checksum(meta["attributes"])  # signed again: the count is checked
         (path / "case" / "zarr.json").write_text(json.dumps(meta))
         group, match = "case", "but n_written says"
+    elif damage in ("edit columns", "drop signature", "drop flag"):
+        meta = json.loads((path / "points" / "zarr.json").read_text())
+        attrs = meta["attributes"]
+        if damage == "edit columns":
+            attrs["columns"] = attrs["columns"][::-1]
+            match = "attributes do not match their checksum"
+        elif damage == "drop flag":
+            del attrs["checksums"]
+            match = "attributes do not match their checksum"
+        else:
+            del attrs[SIGNATURE]
+            match = "attributes carry no checksum"
+        (path / "points" / "zarr.json").write_text(json.dumps(meta))
+        group = "points"
+    elif damage == "swap columns":  # two columns exchanged with their own checksums
+        a, b, tmp = path / "points" / "energy", path / "points" / "method", path / "points" / "tmp"
+        a.rename(tmp), b.rename(a), tmp.rename(b)
+        group, match = "points", "array '(energy|method)': does not match its checksum"
     elif damage == "lose u metadata":
         (path / "case" / "u" / "zarr.json").unlink()
         group, match = "case", "array 'u': missing"

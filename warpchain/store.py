@@ -7,7 +7,7 @@ Layout of a store::
       <group>/                      attrs: complete, n_written, t_written (+ scene attributes)
         u, v  (t, site) or (t, lattice, site)   float64, chunked along t
         t     (t,)                              single chunk
-        site  (site,)                           single chunk, 1-based site index
+        site  (site,)                           single chunk, 0-based site index
 
 A run that stops half way leaves ``complete = false`` and ``n_written`` / ``t_written`` saying
 how far it got; every chunk present is whole and readable.
@@ -132,6 +132,47 @@ def crc32(values: np.ndarray, seed: int = 0) -> int:
     return zlib.crc32(np.ascontiguousarray(values).reshape(-1).view(np.uint8), int(seed))
 
 
+#: the attribute holding the CRC-32 of a group's other attributes (``write_attributes``)
+SIGNATURE = "attrs_crc32"
+
+
+def attributes_checksum(attrs: dict) -> int:
+    """CRC-32 of a group's attributes (all but ``SIGNATURE``) as canonical JSON: what a writer signed and a
+    reader checks, so that an edited count, event list, column list, parameter or flag is caught."""
+    import json
+    import zlib
+
+    body = {k: v for k, v in jsonable(dict(attrs)).items() if k != SIGNATURE}
+    text = json.dumps(body, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return zlib.crc32(text.encode())
+
+
+def write_attributes(group: zarr.Group, changes: dict) -> None:
+    """Merge ``changes`` into a group's attributes and sign the result, in one write of its metadata (a kill
+    leaves the old attributes or the new ones, each signed). The one way this package writes attributes."""
+    merged = {**dict(group.attrs), **jsonable(changes)}
+    group.update_attributes({**jsonable(changes), SIGNATURE: attributes_checksum(merged)})
+
+
+def check_attributes(where: str, attrs: dict, hint: str = "rerun the scene that wrote it") -> None:
+    """Refuse attributes that are not signed or do not match their signature (``write_attributes``)."""
+    if SIGNATURE not in attrs:
+        raise StoreError(
+            f"{where}: its attributes carry no checksum (written by an earlier warpchain, or the checksum was "
+            f"removed); {hint}"
+        )
+    if attrs[SIGNATURE] != attributes_checksum(attrs):
+        raise StoreError(f"{where}: its attributes do not match their checksum (edited or damaged); {hint}")
+
+
+def column_checksum(name: str, values: np.ndarray) -> int:
+    """CRC-32 of a table column or coordinate, started from its name's: a column stored under another name
+    (two swapped with their checksums) no longer matches."""
+    import zlib
+
+    return crc32(values, zlib.crc32(name.encode()))
+
+
 def consolidate(store) -> None:
     """Write consolidated metadata (path or zarr store) so xarray opens the store without probing
     (zarr warns that consolidation is not yet part of the v3 spec; the store stays valid without it).
@@ -158,18 +199,25 @@ def unconsolidate(path) -> None:
         os.replace(tmp, meta_path)  # atomic: a reader sees the old or the new file, never half of one
 
 
-def open_store(path, *, params: dict | None = None, provenance_info: dict | None = None, mode: str = "w") -> zarr.Group:
-    """Create (``mode="w"``) or open (``"a"``, ``"r"``) a zarr v3 store; sets root attributes."""
+def open_store(
+    path,
+    *,
+    params: dict | None = None,
+    provenance_info: dict | None = None,
+    mode: str = "w",
+    attrs: dict | None = None,
+) -> zarr.Group:
+    """Create (``mode="w"``) or open (``"a"``, ``"r"``) a zarr v3 store; sets (signed) root attributes."""
     # never from consolidated metadata: arrays opened from that snapshot do not persist a resize
     root = zarr.open_group(str(path), mode=mode, zarr_format=3, use_consolidated=False if mode != "w" else None)
     if mode != "r":
-        attrs = {}
+        changes = dict(attrs or {})
         if params is not None:
-            attrs["params"] = jsonable(params)
+            changes["params"] = jsonable(params)
         if provenance_info is not None:
-            attrs["provenance"] = jsonable(provenance_info)
-        if attrs:
-            root.update_attributes(attrs)
+            changes["provenance"] = jsonable(provenance_info)
+        if changes or mode == "w":
+            write_attributes(root, changes)
     return root
 
 
@@ -248,7 +296,7 @@ class FieldWriter:
         first = next(iter(fields.values())) if fields else ()
         if "site" in dims and "site" not in coords:
             n_sites = tuple(first)[dims.index("site") - 1]
-            coords["site"] = (("site",), np.arange(1, n_sites + 1))
+            coords["site"] = (("site",), np.arange(n_sites))
         for name, (cdims, values) in coords.items():
             values = np.asarray(values)
             arr = self.group.create_array(
@@ -260,9 +308,10 @@ class FieldWriter:
                 overwrite=True,
             )
             arr[...] = values
-            arr.attrs["crc32"] = crc32(np.asarray(values, dtype=arr.dtype))
+            arr.attrs["crc32"] = column_checksum(name, np.asarray(values, dtype=arr.dtype))
         self._chunk_crc: dict[str, list[int]] = {name: [] for name in [*self.arrays, "t"]}
-        self.group.update_attributes(
+        write_attributes(
+            self.group,
             jsonable(
                 {
                     **(attrs or {}),
@@ -272,7 +321,7 @@ class FieldWriter:
                     "chunk_crc32": self._chunk_crc,
                     "crc_frames": self.chunk_t,
                 }
-            )
+            ),
         )
         self.n_written = 0
         self._pending_t: list[np.ndarray] = []
@@ -318,8 +367,8 @@ class FieldWriter:
         self._chunk_crc["t"] += self._blocks(t_all[:take])
         self._pending_t = [t_all[take:]] if take < n else []
         self.n_written = stop
-        self.group.update_attributes(
-            {"n_written": int(stop), "t_written": float(t_all[take - 1]), "chunk_crc32": self._chunk_crc}
+        write_attributes(
+            self.group, {"n_written": int(stop), "t_written": float(t_all[take - 1]), "chunk_crc32": self._chunk_crc}
         )
         consolidate(self.path)
 
@@ -330,7 +379,7 @@ class FieldWriter:
     def close(self, **attrs) -> None:
         """Write what is left (the last, possibly partial, chunk) and mark the group complete."""
         self._flush(whole_only=False)
-        self.group.update_attributes(jsonable({**attrs, "complete": True}))
+        write_attributes(self.group, {**attrs, "complete": True})
         consolidate(self.path)
 
 
@@ -384,8 +433,8 @@ def write_table(
             fill_value=np.nan if values.dtype.kind in "fc" else 0,
         )
         arr[...] = values
-        arr.attrs["crc32"] = crc32(values)
-    g.update_attributes(jsonable({**(attrs or {}), "checksums": True, "columns": list(columns)}))
+        arr.attrs["crc32"] = column_checksum(name, values)
+    write_attributes(g, {**(attrs or {}), "checksums": True, "columns": list(columns)})
     consolidate(root.store)
     return g
 
@@ -415,6 +464,7 @@ def read_group(path, group: str, *, require_complete: bool = True) -> tuple[dict
         raise StoreError(f"{where}: not found ({exc}); run the scene that writes it first") from None
     except Exception as exc:  # zarr raises many kinds on damaged metadata or chunks
         raise StoreError(f"{where}: unreadable ({type(exc).__name__}: {exc}); rerun the scene that wrote it") from None
+    check_attributes(where, attrs)
     _check_sums(where, g, attrs, arrays)
     if "n_written" in attrs:  # a field group
         if require_complete and not attrs.get("complete", False):
@@ -448,7 +498,7 @@ def _check_sums(where: str, g, attrs: dict, arrays: dict) -> None:
     for name, values in arrays.items():
         crc = g[name].attrs.get("crc32")
         if crc is not None:
-            if crc32(values) != crc:
+            if column_checksum(name, values) != crc:
                 raise StoreError(
                     f"{where}, array '{name}': does not match its checksum (a lost or altered chunk); {hint}"
                 )
@@ -472,5 +522,12 @@ def _check_sums(where: str, g, attrs: dict, arrays: dict) -> None:
 
 
 def read_attrs(path) -> dict:
-    """Root attributes (params, provenance) of a store."""
-    return dict(zarr.open_group(str(path), mode="r", zarr_format=3, use_consolidated=False).attrs)
+    """Root attributes (params, provenance) of a store, checked against their signature."""
+    try:
+        attrs = dict(zarr.open_group(str(path), mode="r", zarr_format=3, use_consolidated=False).attrs)
+    except Exception as exc:
+        raise StoreError(
+            f"store {path}: unreadable ({type(exc).__name__}: {exc}); rerun the scene that wrote it"
+        ) from None
+    check_attributes(f"store {path} (root)", attrs)
+    return attrs
