@@ -34,6 +34,7 @@ import numpy as np
 from continuation.driver import Branch, BranchPoint, WalkState
 from continuation.floquet import KINDS, Instability, multipliers_from_mu, outer_modulus
 from continuation.shooting import frequency_report
+from warpchain.variables import describe
 from warpchain import ChainParams
 from warpchain import store
 from warpchain.store import (
@@ -168,6 +169,7 @@ class BranchStore:
                     fill_value=fill,
                     dimension_names=dims.get(name, ("point",)),
                     overwrite=True,
+                    attributes=describe(name, group, integer=np.dtype(dtype).kind == "i"),
                 )
         names = list(self.arrays)
         if CHECKSUM in existing:
@@ -181,6 +183,7 @@ class BranchStore:
                 fill_value=-1,
                 dimension_names=("point", "stored_array"),
                 overwrite=True,
+                attributes=describe(CHECKSUM, group),
             )
         if not resume:
             write_attributes(
@@ -214,6 +217,7 @@ class BranchStore:
         point's time on an H200). ``flush``, ``finish`` and ``interrupted`` wait until every queued
         point is written; an error on the thread is raised there (and by the next ``append``)."""
         if self._thread is None:
+            self._drained = threading.Event()
             self._thread = threading.Thread(target=self._drain, name=f"store {self.group_name}", daemon=True)
             self._thread.start()
         return self
@@ -223,6 +227,12 @@ class BranchStore:
         one slab per array), or when they have waited ``LINGER`` seconds, or on ``flush``; a walk state after
         its points. What a SIGKILL loses (at most a chunk's points, or ``LINGER`` seconds of them) a resume
         computes again, the same to the bit."""
+        try:
+            self._drain_queue()
+        finally:
+            self._drained.set()
+
+    def _drain_queue(self) -> None:
         import time as _time
 
         pending, state, since, done = [], None, None, False
@@ -257,8 +267,18 @@ class BranchStore:
         """Wait until every queued point is written (no-op without ``background``)."""
         if self._thread is not None:
             self._queue.put(None)
-            self._thread.join()
+            # Ctrl-C or SIGTERM (KeyboardInterrupt) while the writer drains: let it finish, then raise. Not
+            # Thread.join: an interrupted join marks the thread as ended while it still writes (CPython 3.11,
+            # cpython#90882), and the store was marked interrupted with reported points still in the queue
+            interrupt = None
+            while not self._drained.is_set():
+                try:
+                    self._drained.wait(0.05)
+                except KeyboardInterrupt as exc:
+                    interrupt = exc
             self._thread = None
+            if interrupt is not None:
+                raise interrupt
         self._raise_error()
 
     def _raise_error(self) -> None:

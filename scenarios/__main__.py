@@ -11,8 +11,35 @@ import shlex
 import sys
 from pathlib import Path
 
-from ._common import PAPER_SCENES, SCENES, SceneFailed, load_scene, parse_overrides, run_scene
-from ._parallel import parse_jobs, run_parallel
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, handled as Ctrl-C is: the stores are flushed and marked interrupted, the exit status is 143."""
+
+
+def _terminate_like_interrupt() -> None:
+    """SIGTERM raises ``Terminated`` in the main thread (only there can a handler be installed)."""
+    import signal
+    import threading
+
+    def handler(signum, frame):
+        raise Terminated()
+
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, handler)
+
+
+if __name__ == "__main__":
+    _terminate_like_interrupt()  # before the heavy imports below: a SIGTERM while they run is one line too
+
+try:
+    from ._common import PAPER_SCENES, SCENES, SceneFailed, load_scene, parse_overrides, run_scene
+    from ._parallel import parse_jobs, run_parallel
+except KeyboardInterrupt as _exc:  # Ctrl-C or SIGTERM while starting (importing Warp, numpy, ...)
+    if __name__ != "__main__":
+        raise
+    _how = "terminated (SIGTERM)" if isinstance(_exc, Terminated) else "interrupted"
+    print(f"{_how} while starting: nothing was computed or stored", file=sys.stderr)
+    sys.exit(143 if isinstance(_exc, Terminated) else 130)
 
 
 def _with_notes(exc: BaseException) -> str:
@@ -140,10 +167,13 @@ def main(argv=None) -> int:
         return 1
     except KeyboardInterrupt as exc:
         how = "terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted"
-        print(
-            f"{how}: what was stored so far is complete and marked so; branch scenes continue with --resume",
-            file=sys.stderr,
-        )
+        stores = [Path(args.out) / name / "data.zarr" for name in names]
+        if any(path.exists() for path in stores):
+            resumable = args.command == "run" and getattr(load_scene(args.name), "RESUMABLE", False)
+            then = "; continue with --resume" if resumable else ""
+            print(f"{how}: what was stored so far is complete and marked so{then}", file=sys.stderr)
+        else:
+            print(f"{how} before anything was stored", file=sys.stderr)
         return 143 if isinstance(exc, Terminated) else 130
     return 0
 
@@ -156,22 +186,6 @@ def _engine_errors() -> tuple:
     from continuation.workers import WorkerError
 
     return (WorkerError, IncompleteVerdict)
-
-
-class Terminated(KeyboardInterrupt):
-    """SIGTERM, handled as Ctrl-C is: the stores are flushed and marked interrupted, the exit status is 143."""
-
-
-def _terminate_like_interrupt() -> None:
-    """SIGTERM raises ``Terminated`` in the main thread (only there can a handler be installed)."""
-    import signal
-    import threading
-
-    def handler(signum, frame):
-        raise Terminated()
-
-    if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGTERM, handler)
 
 
 def run_in_order(names, out, device, quick: bool, command_line: str) -> int:

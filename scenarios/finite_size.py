@@ -281,7 +281,7 @@ def run(ctx: Context) -> dict:
         write_table(
             root,
             f"{family}_profile",
-            {"site": np.arange(1, len(z) + 1), "z": z},
+            {"site": np.arange(len(z)), "z": z},
             dim="site",
             attrs={"N": len(z), "note": "u - v at t = 0 of the largest chain"},
         )

@@ -403,3 +403,21 @@ def test_quiet_run_prints_nothing_and_breather_takes_its_parameters(tmp_path):
     assert out.returncode == 0 and out.stderr.strip() == "", out.stderr[-2000:]
     s = json.loads((tmp_path / "breather" / "summary.json").read_text())
     assert (s["N"], s["K"], s["omega"]) == (41, 10.0, 1.012)
+
+
+@pytest.mark.slow
+def test_every_store_of_the_paper_reads_checked_with_units_and_long_names(paper_quick):
+    """``warpchain.read_store`` opens every group of every paper scene's store; every variable and coordinate
+    carries ``long_name`` and ``units`` (issue #49's target), branches are indexed by their parameter."""
+    import warpchain as wc
+
+    stores = sorted(paper_quick.glob("*/data.zarr"))
+    assert len(stores) == 8  # every paper scene keeps a store
+    for path in stores:
+        tree = wc.read_store(path)
+        assert tree.attrs["provenance"]["git_commit"] is None or tree.attrs["provenance"]["git_commit"]
+        for node in tree.subtree:
+            for name, var in node.ds.variables.items():
+                assert var.attrs.get("long_name") and "units" in var.attrs, (path, node.path, name)
+    assert wc.read_store(paper_quick / "continuation-k" / "data.zarr", "branch").energy.dims == ("K",)
+    assert wc.read_store(paper_quick / "continuation-omega" / "data.zarr", "branch").energy.dims == ("omega",)

@@ -411,3 +411,61 @@ def test_a_branch_on_the_sliced_path_is_the_dense_one_stored_and_read_back(tmp_p
             ContinuationSettings(floquet_solver=solver)
     with pytest.raises(ValueError, match="floquet_solver"):
         ContinuationSettings(floquet_solver="arnoldi")
+
+
+def test_read_store_checks_the_branch_and_gives_a_dataset_indexed_by_K(k_branch, tmp_path):
+    """``warpchain.read_store``: the branch as a Dataset along K (s and omega coordinates), a bool ``stable`` that
+    is True only at decided stable points, kinds with their CF flag meanings; a damaged copy is refused."""
+    import warpchain as wc
+
+    path, branch = k_branch
+    ds = wc.read_store(path, "branch")
+    assert ds.energy.dims == ("K",) and np.array_equal(ds.K.values, branch.column("K"))
+    assert {"s", "omega", "point"} <= set(ds.coords) and "checksum" not in ds and "walk_state" not in ds.attrs
+    assert ds.stable.dtype == bool and list(ds.stable.values) == [p.stable is True for p in branch.points]
+    assert ds.instability_kind.attrs["flag_meanings"] == "real_pair period_doubling complex_quadruplet"
+    for name, var in ds.variables.items():
+        assert var.attrs.get("long_name") and "units" in var.attrs, name
+    tree = wc.read_store(path)
+    assert list(tree.children) == ["branch"] and tree.attrs["params"]["N"] == 41
+    import zarr
+
+    bad = _copy(path, tmp_path / "bad.zarr")
+    zarr.open_array(str(bad / "branch" / "energy"), mode="r+")[3] = 1.0
+    with pytest.raises(wc.StoreError, match=r"'energy', point 3"):
+        wc.read_store(bad)
+
+
+def test_ctrl_c_while_the_writer_drains_loses_no_point(k_branch, tmp_path, monkeypatch):
+    """An interrupt that lands in ``flush`` waits for the writer to finish before it is raised (an interrupted
+    Thread.join marked the writer as ended while it still wrote, and reported points were lost: issue #49)."""
+    import os
+    import signal
+    import threading
+    import time
+
+    from continuation.branch_store import BranchStore, load_branch
+
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)  # a CI runner's background job ignores it
+
+    _, branch = k_branch
+    write = BranchStore._write_points
+
+    def slow(self, points, state=None):
+        time.sleep(0.3)
+        write(self, points, state)
+
+    monkeypatch.setattr(BranchStore, "_write_points", slow)
+    path = tmp_path / "b.zarr"
+    store = BranchStore(path, "branch", ChainParams(30.0, 0.01, 41), {"omega": 1.01}).background()
+    for point in branch.points[:3]:
+        store.append(point)
+    threading.Timer(0.05, os.kill, (os.getpid(), signal.SIGINT)).start()  # a real signal: it interrupts a wait
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            store.flush()
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert store.n_points == 3  # raised once every queued point was written, not while the writer still wrote
+    store.interrupted("interrupted in a test")
+    assert store.n_points == 3 and len(load_branch(path, "branch")[1]) == 3

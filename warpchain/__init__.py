@@ -41,6 +41,9 @@ from .model import (
     state_from_positions,
 )
 
+from .reader import read_store
+from .store import StoreError
+
 __version__ = "0.1.0"
 
 __all__ = [
@@ -64,6 +67,7 @@ __all__ = [
     "Method",
     "SimulationResult",
     "StepSizeError",
+    "StoreError",
     "TangentResult",
     "accelerations",
     "available_devices",
@@ -75,6 +79,7 @@ __all__ = [
     "energy",
     "frame_buffers",
     "get_method",
+    "read_store",
     "linear_modes",
     "long_wave_speed",
     "lowest_optical_mode",

@@ -29,6 +29,8 @@ from pathlib import Path
 import numpy as np
 import zarr
 
+from .variables import describe
+
 
 def _version(name: str) -> str | None:
     try:
@@ -287,10 +289,18 @@ class FieldWriter:
                 fill_value=np.nan,
                 dimension_names=self.dims,
                 overwrite=True,
+                attributes=describe(name, group),
             )  # a missing chunk reads as NaN
         t_chunk = max(int(expected_frames or 0), 1 << 16)
         self.t = self.group.create_array(
-            "t", shape=(0,), chunks=(t_chunk,), dtype="f8", dimension_names=("t",), fill_value=np.nan, overwrite=True
+            "t",
+            shape=(0,),
+            chunks=(t_chunk,),
+            dtype="f8",
+            dimension_names=("t",),
+            fill_value=np.nan,
+            overwrite=True,
+            attributes=describe("t", group),
         )
         coords = dict(coords or {})
         first = next(iter(fields.values())) if fields else ()
@@ -308,7 +318,12 @@ class FieldWriter:
                 overwrite=True,
             )
             arr[...] = values
-            arr.attrs["crc32"] = column_checksum(name, np.asarray(values, dtype=arr.dtype))
+            arr.update_attributes(
+                {
+                    **describe(name, group, integer=values.dtype.kind in "iu"),
+                    "crc32": column_checksum(name, np.asarray(values, dtype=arr.dtype)),
+                }
+            )
         self._chunk_crc: dict[str, list[int]] = {name: [] for name in [*self.arrays, "t"]}
         write_attributes(
             self.group,
@@ -433,7 +448,9 @@ def write_table(
             fill_value=np.nan if values.dtype.kind in "fc" else 0,
         )
         arr[...] = values
-        arr.attrs["crc32"] = column_checksum(name, values)
+        arr.update_attributes(
+            {**describe(name, group, integer=values.dtype.kind in "iub"), "crc32": column_checksum(name, values)}
+        )
     write_attributes(g, {**(attrs or {}), "checksums": True, "columns": list(columns)})
     consolidate(root.store)
     return g

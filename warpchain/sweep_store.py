@@ -14,7 +14,8 @@ import warnings
 import numpy as np
 import zarr
 
-from warpchain.store import crc32, jsonable
+from warpchain.variables import describe
+from warpchain.store import check_attributes, crc32, jsonable, write_attributes
 
 COMPLETED = "completed"
 CHECKSUM = "checksum"  # (task dims..., variable): CRC-32 of each variable's region, written before the flag
@@ -175,6 +176,7 @@ def open_sweep(store_path, spec: SweepSpec) -> zarr.Group:
     if spec.group in set(root.group_keys()):
         group = root[spec.group]
         _check_group(group, spec, where)
+        check_attributes(where, dict(group.attrs), "write to a new output folder")
         if CHECKSUM not in set(group.array_keys()):  # a store from before checksums: its tasks are verified as none
             _create_checksum(group, spec)
         for name, var in spec.variables.items():  # descriptive attributes may be refreshed
@@ -194,6 +196,7 @@ def open_sweep(store_path, spec: SweepSpec) -> zarr.Group:
                 dtype=_coord_dtype(values),
                 dimension_names=(dim,),
                 overwrite=True,
+                attributes=describe(dim, spec.group),
             )
             if len(values):
                 arr[...] = values
@@ -209,8 +212,9 @@ def open_sweep(store_path, spec: SweepSpec) -> zarr.Group:
             dimension_names=tuple(var.dims),
             overwrite=True,
         )
-        if var.attrs:
-            arr.update_attributes(jsonable(var.attrs))
+        arr.update_attributes(
+            {**describe(name, spec.group, integer=np.dtype(var.dtype).kind == "i"), **jsonable(var.attrs)}
+        )
     _create_checksum(group, spec)
     group.create_array(
         COMPLETED,
@@ -221,10 +225,15 @@ def open_sweep(store_path, spec: SweepSpec) -> zarr.Group:
         compressors=None,  # one byte per chunk file
         dimension_names=spec.task_dims,
         overwrite=True,
-    ).update_attributes({"description": "1 once the task's region of every variable is written"})
+    ).update_attributes(
+        {
+            **describe(COMPLETED, spec.group, integer=True),
+            "description": "1 once the task's region of every variable is written",
+        }
+    )
     # the signature last: a group interrupted while being created is not taken for a sweep
-    group.update_attributes(
-        {**jsonable(spec.attrs), "task_dims": list(spec.task_dims), "sweep": jsonable(spec.signature())}
+    write_attributes(
+        group, {**jsonable(spec.attrs), "task_dims": list(spec.task_dims), "sweep": jsonable(spec.signature())}
     )
     return group
 
@@ -247,7 +256,13 @@ def _create_checksum(group: zarr.Group, spec: SweepSpec) -> None:
         fill_value=-1,
         dimension_names=(*spec.task_dims, "sweep_variable"),
         overwrite=True,
-    ).update_attributes({"variables": names, "description": "CRC-32 of each variable's region of the task"})
+    ).update_attributes(
+        {
+            **describe(CHECKSUM, spec.group),
+            "variables": names,
+            "description": "CRC-32 of each variable's region of the task",
+        }
+    )
 
 
 def damaged_tasks(store_path, spec: SweepSpec, done: np.ndarray) -> list[tuple[tuple, str]]:
