@@ -198,6 +198,16 @@ VARIABLES = {
     "dt": ("time step, in units of sqrt(m2/k2) (NaN for adaptive DOP853)", "1"),
     "rtol": ("relative tolerance of the adaptive integrator (NaN for fixed-step methods)", "1"),
     "error": ("final-state error max |x - x_ref| / max |x_ref| against DOP853 at rtol 1e-13", "1"),
+    # ------------------------------------------------------------------ benchmarks/throughput.py
+    "batch": ("lattices integrated together in one launch", "1"),
+    "site_steps_per_second": ("lattice sites times time steps per second of kernel time", "s-1"),
+    "force_evals_per_second": ("force evaluations (sites times stages) per second of kernel time", "s-1"),
+    "kernel_rate": ("site-steps per second of the kernel alone (time_steps)", "s-1"),
+    "default_rate": ("site-steps per second of simulate() from a host x0, end to end", "s-1"),
+    "on_device_rate": ("site-steps per second of simulate() continued on the device", "s-1"),
+    "recording_rate": ("site-steps per second of simulate() recording frames", "s-1"),
+    "recording_reused_rate": ("site-steps per second of simulate() recording into reused frame buffers", "s-1"),
+    "recording_pinned_rate": ("site-steps per second of simulate() recording into page-locked buffers", "s-1"),
     "relative_energy_error": ("relative energy error |E(t) - E(0)| / |E(0)| (128 steps per period)", "1"),
 }
 
