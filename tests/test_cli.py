@@ -383,6 +383,7 @@ def test_command_line_offers_what_works(tmp_path, capsys):
     assert "below the optical bottom" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_quiet_run_prints_nothing_and_breather_takes_its_parameters(tmp_path):
     out = _run(
         "run",

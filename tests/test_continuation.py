@@ -376,6 +376,7 @@ def test_a_branch_whose_start_fails_has_the_walked_branch_stats_and_the_scene_sa
     assert out.returncode != 0 and "eigenmode_amplitude" in out.stderr and "KeyError" not in out.stderr
 
 
+@pytest.mark.slow  # 20 s on 2 cores: worker processes for every point
 def test_a_branch_on_the_sliced_path_is_the_dense_one_stored_and_read_back(tmp_path):
     """``floquet_solver="sliced"``: every point's 2N mu from the probed Mu, counted (complete verdicts), the same
     points, mu and verdicts as the dense path; the store keeps each point's completeness flag and reads it back; a

@@ -196,7 +196,7 @@ def open_sweep(store_path, spec: SweepSpec) -> zarr.Group:
                 dtype=_coord_dtype(values),
                 dimension_names=(dim,),
                 overwrite=True,
-                attributes=describe(dim, spec.group),
+                attributes=describe(dim, spec.group, required=False),
             )
             if len(values):
                 arr[...] = values
@@ -213,7 +213,10 @@ def open_sweep(store_path, spec: SweepSpec) -> zarr.Group:
             overwrite=True,
         )
         arr.update_attributes(
-            {**describe(name, spec.group, integer=np.dtype(var.dtype).kind == "i"), **jsonable(var.attrs)}
+            {
+                **describe(name, spec.group, integer=np.dtype(var.dtype).kind == "i", required=False),
+                **jsonable(var.attrs),
+            }
         )
     _create_checksum(group, spec)
     group.create_array(

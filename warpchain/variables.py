@@ -309,15 +309,18 @@ FLAGS = {  # integer codes with meanings (CF flag_values / flag_meanings), name 
 }
 
 
-def describe(name: str, group: str | None = None, *, integer: bool = False) -> dict:
+def describe(name: str, group: str | None = None, *, integer: bool = False, required: bool = True) -> dict:
     """The attributes to store beside array ``name`` of ``group`` (a path; its last component is looked up):
     ``long_name``, ``units`` and, for an integer array with fixed codes, ``flag_values`` / ``flag_meanings``.
 
     Raises:
-        ValueError: the name has no entry (add one to ``VARIABLES`` or ``BY_GROUP``).
+        ValueError: the name has no entry (add one to ``VARIABLES`` or ``BY_GROUP``); with ``required=False``
+            (a user's own sweep variables, ``sweep_store``: their ``Variable.attrs`` describe them) ``{}`` instead.
     """
     leaf = str(group).rstrip("/").rsplit("/", 1)[-1] if group else None
     entry = BY_GROUP.get((leaf, name)) or VARIABLES.get(name)
+    if entry is None and not required:
+        return {}
     if entry is None:
         where = f" (group {group!r})" if group else ""
         raise ValueError(f"array {name!r}{where} has no long_name and units: add it to warpchain.variables")
