@@ -209,7 +209,7 @@ def plot(out) -> None:
     for k, (n, i) in enumerate(zip(names, labels)):
         a = fig.add_subplot(2, 4, 5 + k)
         prof = points[i].state
-        a.plot(np.arange(prof.shape[1]) + 1, prof[1] - prof[0], "-", lw=1)
+        a.plot(np.arange(prof.shape[1]), prof[1] - prof[0], "-", lw=1)
         a.set_title(f"({n}) $\\omega_b$ = {w[i]:.5f}", fontsize=9)
         a.set_xlabel("site j", fontsize=8)
         if k == 0:
@@ -247,7 +247,8 @@ def _plot_floquet(out, plt, points, s, w, labels, names, gap) -> None:
     whole.axvspan(lo, hi, facecolor="none", edgecolor="0.3", ls="--", lw=0.8)
     whole.set_title("(a) the whole branch (dashed: the zoom on the right)", fontsize=9)
     zoom.set_title(
-        f"(a) zoom on the gap's stable end: $\\omega_b$ = {lo:.4f} .. {hi:.4f}, where the stability changes", fontsize=9
+        f"zoom of (a) on the gap's stable end: $\\omega_b$ = {lo:.4f} .. {hi:.4f}, where the stability changes",
+        fontsize=9,
     )
     ticks = {}  # where the panels below sit on the branch (a short branch may put two at one point)
     for n, i in zip(names, labels):

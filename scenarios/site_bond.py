@@ -56,11 +56,27 @@ from ._common import (
     save_figure,
     tight_layout_beside_legends,
 )
-from ._continuation_common import BRANCH_RULES, KIND_COLOURS, BranchParameters, branch_summary, run_branch, step_rule
+from ._continuation_common import (
+    BRANCH_RULES,
+    KIND_COLOURS,
+    KIND_LABELS,
+    BranchParameters,
+    branch_summary,
+    run_branch,
+    step_rule,
+)
 from ._params import Rule, anticontinuum_rule, param
 
 FAMILIES = ("site", "bond-in-phase", "bond-out-of-phase", "asymmetric")
 BIFURCATION_KINDS = ("symmetry_breaking_pitchfork", "branch_point", "period_doubling", "krein_collision")
+
+#: the families as the figures name them (their code names are the store's groups)
+FAMILY_WORDS = {
+    "site": "site-centred",
+    "bond-in-phase": "bond-centred, in phase",
+    "bond-out-of-phase": "bond-centred, out of phase",
+    "asymmetric": "asymmetric",
+}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -734,7 +750,7 @@ def plot(out) -> None:
         K = np.array([p.K for p in points])
         E = np.array([p.energy for p in points])
         st, unst, _ = verdicts(points)
-        ax.plot(K, E, "-", color=colours[family], lw=1, label=family)
+        ax.plot(K, E, "-", color=colours[family], lw=1, label=FAMILY_WORDS.get(family, family))
         ax.plot(K[st], E[st], "o", ms=3, color=colours[family])
         ax.plot(K[unst], E[unst], "o", ms=3, mfc="none", color=colours[family])
     for k, family in zip(bif["K"][:], bif_attrs["family"]):
@@ -813,7 +829,7 @@ def plot(out) -> None:
         x = [p.K for p in site for i in p.instabilities if i.kind == kind]
         y = [i.participation for p in site for i in p.instabilities if i.kind == kind]
         if x:
-            aq.loglog(x, y, "o", ms=3, color=KIND_COLOURS[kind], label=kind)
+            aq.loglog(x, y, "o", ms=3, color=KIND_COLOURS[kind], label=KIND_LABELS[kind])
     aq.axhline(0.1 * s["N"], color="0.5", ls="--", lw=0.8, label="localized below")
     aq.set_xlabel("K")
     aq.set_ylabel("participation (sites)")
@@ -831,7 +847,7 @@ def plot(out) -> None:
         a = fig.add_subplot(gs[2, col])
         data = bif[name][:]
         for k in first:
-            lab = f"{families[k]} at its branch point, K = {bif['K'][k]:.10g}"
+            lab = f"{FAMILY_WORDS.get(families[k], families[k])} at its branch point, K = {bif['K'][k]:.10g}"
             if name == "state":
                 y = data[k, 0] - data[k, 1]
             else:  # signed site amplitude sqrt(M a_u^2 + a_v^2)
@@ -844,6 +860,7 @@ def plot(out) -> None:
             z = mid.state[0] - mid.state[1]
             a.plot(sites, z[sites], "s--", ms=3, color=colours["asymmetric"], label=f"asymmetric, K = {mid.K:.10g}")
         a.set_xlabel("site j")
+        a.xaxis.set_major_locator(plt.MaxNLocator(integer=True))
         a.set_title(
             "profiles z = u - v at the first exchange" if name == "state" else "null vectors (signed site amplitude)",
             fontsize=10,
