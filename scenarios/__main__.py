@@ -42,6 +42,13 @@ except KeyboardInterrupt as _exc:  # Ctrl-C or SIGTERM while starting (importing
     sys.exit(143 if isinstance(_exc, Terminated) else 130)
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with the command line's one error style: ``error: ...`` on one line (no usage block), exit 2."""
+
+    def error(self, message):
+        self.exit(2, f"error: {message} ('{self.prog} --help' lists what it takes)\n")
+
+
 def _with_notes(exc: BaseException) -> str:
     """The error's text and its notes (a failure's hint, ``scenarios._common.failure_hint``) on one line."""
     return str(exc) + "".join(f" ({note})" for note in getattr(exc, "__notes__", ()))
@@ -50,7 +57,7 @@ def _with_notes(exc: BaseException) -> str:
 def main(argv=None) -> int:
     # the command as typed: the console script or the module (usage lines, the provenance's command line)
     called = "warpchain" if os.path.basename(sys.argv[0]) == "warpchain" else "python -m scenarios"
-    parser = argparse.ArgumentParser(prog=called, description=__doc__)
+    parser = _Parser(prog=called, description=__doc__)
     parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = parser.add_subparsers(dest="command", required=True)
     sub.add_parser("list", help="list the scenes")
