@@ -2,6 +2,7 @@ import dataclasses
 import itertools
 
 import numpy as np
+import scipy.linalg
 import pytest
 from scipy.optimize import minimize
 
@@ -83,11 +84,20 @@ def test_chain_linear_waves_are_models(boundary):
         q = np.linspace(-np.pi, np.pi, 41)
         for a, b in zip(lat.dispersion(q, M, K), model.dispersion(q, M, K)):
             assert np.array_equal(a, b)
+        # model's stiffness and modes are the lattice's (ChainParams.lattice): against the chain's own Laplacian
+        eye = np.eye(17)
+        stiff = np.block([[K * model.laplacian(eye, boundary) + eye, -eye], [-eye, eye]])
+        mass = np.diag(np.concatenate([np.full(17, M), np.ones(17)]))
         params = model.ChainParams(M, K, 17, boundary)
-        for a, b in zip(lat.stiffness_and_mass(M, K), model.stiffness_and_mass(params)):
+        for a, b in zip(model.stiffness_and_mass(params), (stiff, mass)):
             assert np.array_equal(a, b)
-        for a, b in zip(lat.linear_modes(M, K), model.linear_modes(params)):
-            np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
+        w2, vecs = scipy.linalg.eigh(stiff, mass)
+        freqs, shapes = model.linear_modes(params)
+        np.testing.assert_allclose(freqs, np.sqrt(np.maximum(w2, 0.0)), rtol=0, atol=1e-12)
+        for m in range(34):  # each mode up to its sign (largest entry positive)
+            v = vecs[:, m] * np.sign(vecs[np.argmax(np.abs(vecs[:, m])), m])
+            if abs(w2[m] - w2[m - 1]) > 1e-9 and (m == 33 or abs(w2[m + 1] - w2[m]) > 1e-9):  # non-degenerate
+                np.testing.assert_allclose(shapes[m].ravel(), v, rtol=0, atol=1e-10)
 
 
 @pytest.mark.parametrize("boundary", BOUNDARIES)

@@ -57,6 +57,13 @@ class ChainParams:
         """Linear resonance of one uncoupled site (optical band bottom), sqrt((M + 1) / M)."""
         return math.sqrt((self.M + 1.0) / self.M)
 
+    @property
+    def lattice(self):
+        """The chain as data (``warpchain.lattice.chain(N, boundary)``): its Laplacian, linear modes, symmetry."""
+        from .lattice import chain
+
+        return chain(self.N, self.boundary)
+
     def replace(self, **changes) -> "ChainParams":
         """A copy with some fields changed (validated again)."""
         return dataclasses.replace(self, **changes)
@@ -329,35 +336,21 @@ def long_wave_speed(M: float, K: float) -> float:
 
 
 def stiffness_and_mass(params: ChainParams) -> tuple[np.ndarray, np.ndarray]:
-    """Linearised stiffness and mass matrices (2N x 2N) in the ordering (u_1..u_N, v_1..v_N)."""
-    N = params.N
-    eye = np.eye(N)
-    lap = laplacian(eye, params.boundary)  # column j is the Laplacian of e_j
-    stiff = np.block([[params.K * lap + eye, -eye], [-eye, eye]])
-    mass = np.diag(np.concatenate([np.full(N, params.M), np.ones(N)]))
-    return stiff, mass
+    """Linearised stiffness and mass matrices (2N x 2N) in the ordering (u_1..u_N, v_1..v_N): the chain's
+    lattice's (``warpchain.lattice.Lattice.stiffness_and_mass``)."""
+    return params.lattice.stiffness_and_mass(params.M, params.K)
 
 
 def linear_modes(params: ChainParams) -> tuple[np.ndarray, np.ndarray]:
-    """Linear modes of the finite chain about rest.
+    """Linear modes of the finite chain about rest (``warpchain.lattice.Lattice.linear_modes``).
 
     Returns:
         (frequencies, shapes): frequencies shape (2N,), ascending; shapes shape (2N, 2, N) with
         shapes[m, 0] the u profile and shapes[m, 1] the v profile of mode m, normalised so that
-        the modes are mass-orthonormal (sum M u_a u_b + v_a v_b = delta_ab).
+        the modes are mass-orthonormal (sum M u_a u_b + v_a v_b = delta_ab), each signed so that its
+        largest-magnitude entry (of u and v together) is positive.
     """
-    from scipy.linalg import eigh
-
-    stiff, mass = stiffness_and_mass(params)
-    w2, vecs = eigh(stiff, mass)
-    freqs = np.sqrt(np.maximum(w2, 0.0))
-    shapes = vecs.T.reshape(2 * params.N, 2, params.N)
-    # a sign convention so that mode shapes are reproducible: largest |u| entry positive
-    for m in range(shapes.shape[0]):
-        flat = shapes[m].ravel()
-        if flat[np.argmax(np.abs(flat))] < 0:
-            shapes[m] *= -1.0
-    return freqs, shapes
+    return params.lattice.linear_modes(params.M, params.K)
 
 
 def lowest_optical_mode(params: ChainParams) -> tuple[float, np.ndarray]:
