@@ -411,3 +411,46 @@ def test_small_periodic_axes_are_period_images():
     assert chain(1, "periodic").laplacian_matrix().nnz == 0
     lat = triangular(2, 1, "periodic")
     assert set(itertools.chain.from_iterable(lat.neighbours.tolist())) == {0, 1}
+
+
+# ----------------------------------------------------------------------------- the numpy reference on a lattice
+
+
+@pytest.mark.parametrize("boundary", BOUNDARIES)
+def test_the_reference_on_a_lattice_is_the_chain_bit_for_bit(boundary):
+    """``LatticeParams`` through the numpy reference (the kernels' oracle): the chain as a lattice, a 1 x N strip
+    and a square lattice without cross bonds (independent chains) give the chain's steps bit for bit."""
+    from warpchain import ChainParams, reference
+    from warpchain.lattice import LatticeParams
+
+    rng = np.random.default_rng(7)
+    N, ny = 17, 3
+    cp = ChainParams(30.0, 10.0, N, boundary)
+    x0 = 0.05 * rng.standard_normal((2, 4, N))
+    want = reference.integrate("kahan8", cp, x0, 0.05, 40)["x"]
+    for lat in (chain(N, boundary), square(N, 1, boundary, weights=(1.0, 0.0))):
+        got = reference.integrate("kahan8", LatticeParams(30.0, 10.0, lat), x0, 0.05, 40)["x"]
+        assert np.array_equal(got, want), lat
+    rows = 0.05 * rng.standard_normal((2, 4, ny, N))
+    plane = LatticeParams(30.0, 10.0, square(N, ny, boundary, weights=(1.0, 0.0)))
+    got = reference.integrate("kahan8", plane, rows.reshape(2, 4, ny * N), 0.05, 40)["x"].reshape(2, 4, ny, N)
+    one_by_one = reference.integrate("kahan8", cp, rows.transpose(0, 2, 1, 3).reshape(2 * ny, 4, N), 0.05, 40)["x"]
+    assert np.array_equal(got, one_by_one.reshape(2, ny, 4, N).transpose(0, 2, 1, 3))
+
+
+@pytest.mark.parametrize("build", [square, triangular])
+def test_a_monolayer_on_the_reference_keeps_its_energy_and_its_symmetry(build):
+    """A resonator kicked at the centre of an 11 x 11 patch: kahan8 keeps the energy to rounding, and the motion
+    keeps every point symmetry of the patch (each maps the state onto itself)."""
+    from warpchain import model, reference
+    from warpchain.lattice import LatticeParams
+
+    params = LatticeParams(30.0, 10.0, build(11, 11, "fixed"))
+    x0 = np.zeros((1, 4, params.N))
+    x0[0, 1, params.lattice.centre] = -0.3
+    x = reference.integrate("kahan8", params, x0, 0.05, 400)["x"]
+    e0, e1 = model.energy(params, x0)[0], model.energy(params, x)[0]
+    assert abs(e1 - e0) <= 1e-12 * e0 and np.abs(x[0, 0]).max() > 1e-3  # it spread to the neighbours
+    for name, p in params.lattice.symmetries().items():
+        if p[params.lattice.centre] == params.lattice.centre:
+            np.testing.assert_allclose(x[0][:, p], x[0], rtol=0, atol=1e-14, err_msg=name)

@@ -454,3 +454,47 @@ def _triangular_lam_max(w: tuple[float, float, float]) -> float:
         if a < b + c and b < a + c and c < a + b:
             candidates.append(-0.5 * (w1 * w2 / w3 + w2 * w3 / w1 + w3 * w1 / w2))
     return 2.0 * (w1 + w2 + w3 - min(candidates))
+
+
+@dataclasses.dataclass(frozen=True)
+class LatticeParams:
+    """M and K on any lattice: what ``model.ChainParams`` is for the chain. ``model`` (accelerations, energy),
+    the numpy reference and ``ReferenceFlow`` take either; the chain keeps its own fast path there
+    (``model.lattice_laplacian``). ``N`` is the number of sites (the state is (4, N) with a site index).
+
+    Args:
+        M: mass ratio m1 / m2 (> 0).
+        K: coupling ratio k1 / k2 (>= 0), times each bond's weight.
+        lattice: the geometry (``chain``, ``square``, ``triangular``).
+    """
+
+    M: float
+    K: float
+    lattice: Lattice
+
+    def __post_init__(self):
+        object.__setattr__(self, "M", real_number("LatticeParams.M", self.M, positive=True))
+        object.__setattr__(self, "K", real_number("LatticeParams.K", self.K, nonnegative=True))
+        if not isinstance(self.lattice, Lattice):
+            raise ValueError(
+                f"LatticeParams.lattice must be a Lattice (chain, square, triangular), got {self.lattice!r}"
+            )
+
+    @property
+    def N(self) -> int:
+        return self.lattice.n_sites
+
+    @property
+    def boundary(self) -> str:
+        return self.lattice.boundary
+
+    @property
+    def omega0(self) -> float:
+        """Linear resonance of one uncoupled site (the optical band's bottom on every lattice)."""
+        return math.sqrt((self.M + 1.0) / self.M)
+
+    def replace(self, **changes) -> "LatticeParams":
+        return dataclasses.replace(self, **changes)
+
+    def as_dict(self) -> dict:
+        return {"M": self.M, "K": self.K, "lattice": self.lattice.describe()}

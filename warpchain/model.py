@@ -171,6 +171,15 @@ def laplacian(u: np.ndarray, boundary: str) -> np.ndarray:
     return (u - left) + (u - right)
 
 
+def lattice_laplacian(params, u: np.ndarray) -> np.ndarray:
+    """The Laplacian of ``params``' lattice along the last axis: the chain's slices (``laplacian``: fast, any float
+    dtype) for ``ChainParams``, the neighbour table (``warpchain.lattice.Lattice.laplacian``) for
+    ``LatticeParams``. Both are the same arithmetic on the chain, bit for bit (tests/test_lattice.py)."""
+    if isinstance(params, ChainParams):
+        return laplacian(u, params.boundary)
+    return params.lattice.laplacian(u)
+
+
 def as_batch(x, N: int | None = None, name: str = "x") -> np.ndarray:
     """Validate a state and return it as a float64 array of shape (batch, 4, N).
 
@@ -218,7 +227,7 @@ def accelerations(params: ChainParams, x, M=None, K=None) -> np.ndarray:
     u, v = x[:, 0], x[:, 1]
     force = contact_force(u - v)
     acc = np.empty((batch, 2, x.shape[-1]), dtype=x.dtype)
-    acc[:, 0] = -(Kb * laplacian(u, params.boundary) + force) / Mb
+    acc[:, 0] = -(Kb * lattice_laplacian(params, u) + force) / Mb
     acc[:, 1] = force
     return acc
 
@@ -248,9 +257,12 @@ def energy(params: ChainParams, x, M=None, K=None) -> np.ndarray:
     Kb = _per_lattice(params.K if K is None else K, batch)[:, 0]
     u, v, du, dv = x[:, 0], x[:, 1], x[:, 2], x[:, 3]
     kinetic = 0.5 * Mb * np.sum(du * du, axis=-1) + 0.5 * np.sum(dv * dv, axis=-1)
-    bonds = np.diff(u, axis=-1)
-    first, last = wall_bonds(u, params.boundary)
-    spring = np.sum(bonds * bonds, axis=-1) + first + last
+    if isinstance(params, ChainParams):
+        bonds = np.diff(u, axis=-1)
+        first, last = wall_bonds(u, params.boundary)
+        spring = np.sum(bonds * bonds, axis=-1) + first + last
+    else:  # sum over bonds of w (u_s - u_t)^2, wall bonds included
+        spring = 2.0 * params.lattice.bond_energy(u)
     contact = np.sum(contact_potential(u - v), axis=-1)
     return kinetic + 0.5 * Kb * spring + contact
 

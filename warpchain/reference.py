@@ -15,7 +15,7 @@ import numpy as np
 
 from . import losses, model
 from .integrators import Method, SplittingMethod, get_method
-from .model import ChainParams, contact_force, contact_stiffness, laplacian
+from .model import ChainParams, contact_force, contact_stiffness, lattice_laplacian
 
 
 def inverse_mass(M, dtype=np.float64):
@@ -31,7 +31,7 @@ def accelerations(params: ChainParams, x, inv_M, K):
     u, v = x[:, 0], x[:, 1]
     force = contact_force(u - v)
     acc = np.empty((x.shape[0], 2, x.shape[-1]), dtype=x.dtype)
-    acc[:, 0] = -(K[:, None] * laplacian(u, params.boundary) + force) * inv_M[:, None]
+    acc[:, 0] = -(K[:, None] * lattice_laplacian(params, u) + force) * inv_M[:, None]
     acc[:, 1] = force
     return acc
 
@@ -41,7 +41,7 @@ def _linear_accelerations(params: ChainParams, q, dq, inv_M, K):
     stiff = contact_stiffness(q[:, 0] - q[:, 1])[:, None, :]  # (batch, 1, N)
     dz = dq[:, :, 0] - dq[:, :, 1]
     out = np.empty_like(dq)
-    lap = laplacian(dq[:, :, 0], params.boundary)
+    lap = lattice_laplacian(params, dq[:, :, 0])
     out[:, :, 0] = -(K[:, None, None] * lap + stiff * dz) * inv_M[:, None, None]
     out[:, :, 1] = stiff * dz
     return out
