@@ -1,0 +1,48 @@
+"""Breathers of the monolayer on the numpy reference (issue #50's 2D pilot, reference side; issue #51's first
+step): Newton shooting and the complete reduced Floquet verdict on square and triangular patches, checked
+against the dense monodromy of the same discrete map, computed column by column here."""
+
+import numpy as np
+import pytest
+from scipy.optimize import linear_sum_assignment
+
+import continuation as ct
+import warpchain as wc
+from warpchain import reference
+from warpchain.lattice import LatticeParams, square, triangular
+
+
+def _dense_multipliers(params, b) -> np.ndarray:
+    """Every multiplier of the breather's period map, from 4N tangent columns of the reference."""
+    n = params.N
+    eye = np.eye(4 * n).reshape(4 * n, 4, n)
+    out = reference.integrate(b.flow.method, params, b.state[None], b.dt, 2 * b.nsteps, dx0=eye[None])
+    assert np.abs(out["x"][0] - b.state).max() < 1e-9  # the orbit closes
+    return np.linalg.eigvals(out["dx"][0].reshape(4 * n, 4 * n).T)
+
+
+@pytest.mark.parametrize(
+    "build, centred, verdict",
+    [(square, "site", True), (triangular, "site", True), (square, "bond", False), (triangular, "bond", False)],
+)
+def test_a_monolayer_breather_and_its_complete_verdict_equal_the_dense_monodromy(build, centred, verdict):
+    """Site-centred breathers (the single-site orbit at the patch's centre) are stable at K = 1, w_b = 1.005;
+    bond-centred ones (two neighbouring sites in phase) have a real pair. The reduced path (even and odd
+    blocks under the 180-degree rotation, which the site numbering's reversal is on a patch) gives every
+    multiplier of the dense 4N x 4N monodromy."""
+    params = LatticeParams(30.0, 1.0, build(7, 7, "fixed"))
+    seed = ct.anticontinuum_seed(params, 1.005)
+    assert np.argmax(np.abs(seed[1])) == params.lattice.centre
+    if centred == "bond":
+        seed = seed + np.roll(seed, 1, axis=1)
+    b = ct.require(ct.find_breather(params, 1.005, seed, flow=wc.ReferenceFlow("kahan8", 32), solver="dense"))
+    assert b.residual < 1e-10 and b.energy > 0
+    fl = ct.floquet(b, solver="dense")
+    assert fl.complete and fl.stable is verdict and fl.path == "reduced"
+    dense = _dense_multipliers(params, b)
+    assert abs(fl.max_modulus - np.abs(dense).max()) < 1e-7 or verdict  # stable: both 1 up to the trivial pair
+    if not verdict:
+        assert fl.instabilities[0].kind == "real_pair" and abs(fl.max_modulus - np.abs(dense).max()) < 1e-9
+    cost = np.abs(fl.multipliers[:, None] - dense[None, :])
+    rows, cols = linear_sum_assignment(cost)
+    assert cost[rows, cols].max() < 1e-6  # the trivial pair splits like the square root of rounding in dense
