@@ -225,3 +225,16 @@ def test_a_group_metadata_commit_is_one_write(tmp_path, monkeypatch):
     branch.interrupted("a test")  # complete, stop_reason and message (three writes before), then consolidated
     assert [k for k in writes if k == "branch/zarr.json"] == ["branch/zarr.json"]
     assert dict(branch.group.attrs)["stop_reason"] == "interrupted"
+
+
+def test_a_column_of_negative_nans_reads_back(tmp_path):
+    """A chunk equal to the fill value is not written, and reads back as the canonical NaN: a column whose NaNs
+    carry the sign bit (inf - inf) must still match its checksum (the fuzzing of issue #49 found dispersion and
+    work-precision refusing their own stores at extreme parameters)."""
+    path = tmp_path / "s.zarr"
+    root = open_store(path, params={"N": 1})
+    with np.errstate(invalid="ignore"):
+        negative_nan = np.full(3, np.inf) - np.full(3, np.inf)
+    assert np.signbit(negative_nan).all()
+    write_table(root, "curves", {"q": np.arange(3.0), "optical": negative_nan}, dim="q")
+    assert np.isnan(read_group(path, "curves")[0]["optical"]).all()
