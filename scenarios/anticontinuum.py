@@ -33,8 +33,9 @@ class Parameters:
     amplitude_min: float = param(
         1e-3,
         "frequency-amplitude curve: the smallest upper turning point z_max, log-spaced to amplitude_max; below "
-        "0.05, where the Lindstedt expansion is checked",
-        gt=0,
+        "0.05, where the Lindstedt expansion is checked (>= 1e-5: the frequency shift z_max^2 / 24 must stay above "
+        "float64's resolution)",
+        ge=1e-5,
         lt=0.05,
     )
     amplitude_max: float = param(
