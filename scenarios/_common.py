@@ -29,6 +29,7 @@ SCENES = {
     "breakup-statistics": "scenarios.breakup_statistics",
     "finite-size": "scenarios.finite_size",
     "stability-atlas": "scenarios.stability_atlas",
+    "monolayer": "scenarios.monolayer",
 }
 #: scenes that reproduce the paper (``python -m scenarios paper``); the rest chart speed and accuracy
 PAPER_SCENES = [

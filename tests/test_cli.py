@@ -3,6 +3,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 
@@ -307,6 +308,27 @@ def test_finite_size_quick(tmp_path):
     ds = xr.open_zarr(tmp_path / "finite-size" / "data.zarr", group="paper")
     assert ds.sizes["size"] == len(s["sizes"]) and "energy" in ds
     assert (tmp_path / "finite-size" / "finite_size.png").exists()
+
+
+@pytest.mark.slow
+def test_monolayer_quick_has_an_energy_threshold_where_the_stability_changes(tmp_path):
+    """The monolayer scene (9 x 9 patches): on both lattices E(w_b) has an interior minimum, every verdict is
+    complete, and the stability changes at the minimum within the refined spacing (Vakhitov-Kolokolov); the
+    store reads checked, with positions for the profile."""
+    import warpchain as wc
+
+    out = _run("run", "monolayer", "--quick", "--out", str(tmp_path), "--device", "cpu")
+    assert out.returncode == 0, out.stderr[-3000:]
+    s = json.loads((tmp_path / "monolayer" / "summary.json").read_text())
+    for name in ("square", "triangular"):
+        t, change = s[name]["threshold"], s[name]["stability_change"]
+        assert t and change and change["from_stable"], name
+        assert abs(t["omega"] - np.mean(change["bracket"])) < t["spacing"], name
+        assert t["energy"] > 0.01  # positive: a threshold, not zero as on the chain
+        ds = wc.read_store(tmp_path / "monolayer" / "data.zarr", name)
+        assert bool(ds.floquet_complete.all()) and float(ds.energy.min()) >= t["energy"] - 1e-6
+    assert s["square"]["threshold"]["energy"] < s["triangular"]["threshold"]["energy"]  # six neighbours cost more
+    assert (tmp_path / "monolayer" / "monolayer.png").exists()
 
 
 def test_a_worker_failure_or_an_incomplete_verdict_is_one_line(tmp_path, monkeypatch, capsys):

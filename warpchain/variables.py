@@ -198,6 +198,11 @@ VARIABLES = {
     "dt": ("time step, in units of sqrt(m2/k2) (NaN for adaptive DOP853)", "1"),
     "rtol": ("relative tolerance of the adaptive integrator (NaN for fixed-step methods)", "1"),
     "error": ("final-state error max |x - x_ref| / max |x_ref| against DOP853 at rtol 1e-13", "1"),
+    # ------------------------------------------------------------------ monolayer
+    "breather_participation": ("participation ratio of the breather's z = u - v at t = 0, in sites", "1"),
+    "centre_amplitude": ("max |u - v| at t = 0 (the centre site's)", "1"),
+    "x": ("site position along the first lattice vector's direction, in lattice spacings", "1"),
+    "y": ("site position perpendicular to it, in lattice spacings", "1"),
     # ------------------------------------------------------------------ benchmarks/throughput.py
     "batch": ("lattices integrated together in one launch", "1"),
     "site_steps_per_second": ("lattice sites times time steps per second of kernel time", "s-1"),

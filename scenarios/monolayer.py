@@ -1,0 +1,249 @@
+"""The monolayer's breathers: site-centred breathers on square and triangular patches, their energy against the
+frequency up to the optical band edge, the energy threshold and the stability change (issue #51, first step;
+beyond the paper).
+
+Command: ``python -m scenarios run monolayer --device cpu`` (about 5 min on a 2-core CPU; ``--quick`` about 30 s).
+Options: ``--set KEY=VALUE`` (fields of ``Parameters``).
+
+The chain's breathers reach zero energy at the band edge; in two dimensions the envelope obeys a focusing cubic
+NLS with critical collapse, so breathers have an energy threshold (Flach, Kladko and MacKay, PRL 78, 1207,
+1997): E(w_b) has a positive minimum, and the stability changes where dE/dw_b = 0 (Vakhitov-Kolokolov). The
+scene walks w_b from ``omega_start`` towards the optical band's bottom w0 = sqrt((M + 1) / M) in steps of
+``omega_step`` (Newton from the previous breather), takes every point's complete Floquet verdict, and stops
+``points_after_minimum`` points past the lowest energy (or where Newton loses the breather, or at the edge). The
+threshold is the vertex of the parabola through the lowest point and its two neighbours; the stability change is
+bisected to ``resolution`` in w_b. Both are stated with their brackets and compared.
+
+How: Newton shooting on the time-reversible half-period map and the reduced Floquet analysis (every multiplier,
+even and odd blocks under the patch's 180-degree rotation) run on the numpy reference (``warpchain.lattice.
+LatticeParams`` with ``ReferenceFlow``): the Warp kernels do not take a lattice yet (issue #50), so the patches
+are small (15 x 15 by default). The walls are fixed; a breather of participation ratio ~20 sites or less does not
+feel them at 15 x 15 (checked against 21 x 21 when the scene was written: the same energies to 1e-6).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+
+import numpy as np
+
+import continuation as ct
+import warpchain as wc
+from warpchain.lattice import LatticeParams, square, triangular
+from continuation.floquet import KINDS
+from warpchain.store import read_group, write_table
+
+from ._common import BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD, PAPER_M, Context, pyplot, read_summary, save_figure
+from ._params import Rule, param
+
+BUILDERS = {"square": square, "triangular": triangular}
+#: solves across the two steps around the lowest energy of the walk, to place the threshold
+REFINE = 8
+
+
+@dataclasses.dataclass(frozen=True)
+class Parameters:
+    """The scene's parameters (``--set KEY=VALUE`` overrides any of them)."""
+
+    M: float = param(PAPER_M, "mass ratio m1 / m2", gt=0)
+    K: float = param(1.0, "coupling ratio k1 / k2 (every bond)", gt=0, le=10)
+    size: int = param(15, "the patches are size x size sites, fixed walls (odd: a centre site)", ge=5, le=41)
+    lattices: str = param("both", "the patches: square, triangular or both", choices=("both", "square", "triangular"))
+    omega_start: float = param(1.013, "first frequency w_b of the walk, in the gap", gt=0)
+    omega_step: float = param(1e-4, "step of w_b towards the band edge", gt=1e-7, lt=1e-2)
+    points_after_minimum: int = param(4, "points walked past the lowest energy before the walk stops", ge=2)
+    resolution: float = param(1e-7, "bracket of w_b the stability change is bisected to", ge=1e-10)
+
+
+QUICK = {"size": 9, "omega_start": 1.0130, "omega_step": 3e-4, "resolution": 1e-6}
+RULES = (
+    Rule(
+        ("omega_start", "M"),
+        "omega_start below the optical band's bottom sqrt((M + 1) / M)",
+        lambda P: P.omega_start < math.sqrt((P.M + 1.0) / P.M),
+    ),
+)
+
+
+def _solve(params, omega, seed, flow):
+    r = ct.find_breather(params, omega, seed, flow=flow, solver="dense")
+    if r.residual > 1e-8 or r.energy <= 0:
+        return None, None
+    return r, ct.floquet(r, solver="dense")
+
+
+def _row(omega, r, fl) -> dict:
+    z = r.state[0] - r.state[1]
+    return {
+        "omega": float(omega),
+        "energy": float(r.energy),
+        "stable": int(bool(fl.stable)),
+        "floquet_complete": int(fl.complete),
+        "max_modulus": float(fl.max_modulus),
+        "breather_participation": float(np.sum(z * z) ** 2 / np.sum(z**4)),
+        "centre_amplitude": float(np.abs(z).max()),
+        "leading_kind": KINDS.index(fl.instabilities[0].kind) if fl.instabilities else -1,
+    }
+
+
+def _walk(ctx, name: str, P: Parameters) -> dict:
+    params = LatticeParams(P.M, P.K, BUILDERS[name](P.size, P.size, "fixed"))
+    flow = wc.ReferenceFlow(BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD)
+    edge = params.omega0
+    seed = ct.anticontinuum_seed(params, P.omega_start)
+    rows, states, reason, start = [], [], "edge", time.perf_counter()
+    omega = P.omega_start
+    while omega < edge:
+        r, fl = _solve(params, omega, seed, flow)
+        if r is None:
+            reason = "newton_failed"
+            break
+        if not fl.complete:
+            raise RuntimeError(f"{name}: the Floquet count did not close at w_b = {omega:.6f}")
+        rows.append(_row(omega, r, fl))
+        states.append(r.state)
+        seed = r.state
+        low = int(np.argmin([x["energy"] for x in rows]))
+        ctx.log(
+            "%s %dx%d: w_b = %.5f, E = %.6f, %s (max |l| - 1 = %.2e), participation %.1f sites",
+            name, P.size, P.size, omega, r.energy, fl.verdict, fl.max_modulus - 1, rows[-1]["breather_participation"],
+        )  # fmt: skip
+        if len(rows) - 1 - low >= P.points_after_minimum:
+            reason = "past_minimum"
+            break
+        omega = P.omega_start + len(rows) * P.omega_step
+    if not rows:
+        raise RuntimeError(
+            f"{name}: no breather at w_b = {P.omega_start:g} from the single-site seed (Newton collapsed onto rest): "
+            "start lower in the gap (--set omega_start=...)"
+        )
+    energies = np.array([x["energy"] for x in rows])
+    w = np.array([x["omega"] for x in rows])
+    low = int(np.argmin(energies))
+    threshold = None
+    if 0 < low < len(rows) - 1:  # refined: REFINE solves across the two steps around the lowest point, then the
+        # vertex of the parabola through the lowest of them and its neighbours
+        fine = np.linspace(w[low - 1], w[low + 1], REFINE + 2)
+        e_fine = []
+        for omega in fine:
+            r, _ = _solve(params, omega, states[low], flow)
+            e_fine.append(np.inf if r is None else r.energy)
+        k = int(np.clip(np.argmin(e_fine), 1, len(fine) - 2))
+        c2, c1, c0 = np.polyfit(fine[k - 1 : k + 2] - fine[k], e_fine[k - 1 : k + 2], 2)
+        threshold = {
+            "omega": float(fine[k] - c1 / (2 * c2)),
+            "energy": float(c0 - c1 * c1 / (4 * c2)),
+            "bracket": [float(fine[k - 1]), float(fine[k + 1])],
+            "spacing": float(fine[1] - fine[0]),
+        }
+    changes = []  # every change of the verdict along the walk, bisected
+    for i in [i for i in range(1, len(rows)) if rows[i]["stable"] != rows[i - 1]["stable"]]:
+        lo, hi, s_lo, seed = w[i - 1], w[i], rows[i - 1]["stable"], states[i - 1]
+        solves = 0
+        while hi - lo > P.resolution:
+            mid = 0.5 * (lo + hi)
+            r, fl = _solve(params, mid, seed, flow)
+            solves += 1
+            if r is None:
+                break
+            if int(bool(fl.stable)) == s_lo:
+                lo, seed = mid, r.state
+            else:
+                hi = mid
+        changes.append({"bracket": [float(lo), float(hi)], "from_stable": bool(s_lo), "bisection_solves": solves})
+    # the change at the threshold: the one nearest it (others are the patch's finite-size bubbles)
+    change = (
+        min(changes, key=lambda c: abs(np.mean(c["bracket"]) - threshold["omega"])) if threshold and changes else None
+    )
+    profile = states[low]
+    if threshold and change:
+        ctx.log(
+            "%s: energy threshold E* = %.6f at w_b = %.6f; stability changes in [%.7f, %.7f] (%s)",
+            name, threshold["energy"], threshold["omega"], *change["bracket"],
+            "at the minimum, within its spacing" if abs(threshold["omega"] - change["bracket"][0])
+            < threshold["spacing"] else "away from it",
+        )  # fmt: skip
+    return {
+        "lattice": params.lattice.describe(),
+        "band_edges": params.lattice.band_edges(P.M, P.K),
+        "rows": rows,
+        "stop_reason": reason,
+        "threshold": threshold,
+        "stability_change": change,
+        "stability_changes": changes,
+        "threshold_minus_change": (threshold["omega"] - 0.5 * sum(change["bracket"]) if threshold and change else None),
+        "profile": profile,
+        "positions": params.lattice.positions,
+        "seconds": time.perf_counter() - start,
+    }
+
+
+def run(ctx: Context) -> dict:
+    P: Parameters = ctx.params
+    names = list(BUILDERS) if P.lattices == "both" else [P.lattices]
+    walks = {name: _walk(ctx, name, P) for name in names}
+    root = ctx.store(None)
+    for name, walk in walks.items():
+        write_table(root, name, {k: [r[k] for r in walk["rows"]] for k in walk["rows"][0]}, dim="point")
+        z = walk["profile"][0] - walk["profile"][1]
+        x, y = walk["positions"].T
+        write_table(
+            root,
+            f"{name}_profile",
+            {"site": np.arange(len(z)), "x": x, "y": y, "z": z},
+            dim="site",
+            attrs={"omega": walk["rows"][int(np.argmin([r["energy"] for r in walk["rows"]]))]["omega"]},
+        )
+    summary = {"M": P.M, "K": P.K, "size": P.size, "optical_bottom": math.sqrt((P.M + 1.0) / P.M)}
+    for name, walk in walks.items():
+        summary[name] = {k: v for k, v in walk.items() if k not in ("rows", "profile", "positions")}
+        summary[name]["points"] = len(walk["rows"])
+    return summary
+
+
+def plot(out) -> None:
+    s = read_summary(out)
+    names = [n for n in BUILDERS if n in s]
+    plt = pyplot()
+    fig, axes = plt.subplots(1, 2 + len(names), figsize=(5 * (2 + len(names)), 4.4), layout="constrained")
+    colours = {"square": "tab:blue", "triangular": "tab:green"}
+    for name in names:
+        d, _ = read_group(out / "data.zarr", name)
+        st = d["stable"] == 1
+        for ax, y in ((axes[0], d["energy"]), (axes[1], np.maximum(d["max_modulus"] - 1, 1e-16))):
+            ax.plot(d["omega"], y, "-", color=colours[name], lw=0.8)
+            ax.plot(d["omega"][st], y[st], "o", ms=4, color=colours[name], label=f"{name}: stable")
+            ax.plot(d["omega"][~st], y[~st], "o", ms=4, mfc="none", color=colours[name], label=f"{name}: unstable")
+            change = s[name]["stability_change"]
+            if change:
+                ax.axvline(np.mean(change["bracket"]), color=colours[name], ls=":", lw=0.8)
+        t = s[name]["threshold"]
+        if t:
+            axes[0].plot(
+                [t["omega"]], [t["energy"]], "*", ms=12, color=colours[name], label=f"{name}: E* = {t['energy']:.5f}"
+            )
+    for ax in axes[:2]:
+        ax.axvline(s["optical_bottom"], color="0.4", ls="--", lw=0.8)
+        ax.set_xlabel(r"$\omega_b$")
+        ax.ticklabel_format(axis="x", useOffset=False)
+    axes[0].set(
+        ylabel="energy H",
+        title="energy threshold (star); dotted: stability change\n"
+        f"M = {s['M']:g}, K = {s['K']:g}, {s['size']} x {s['size']} fixed",
+    )
+    axes[1].set(
+        yscale="log", ylabel=r"max $|\lambda|$ - 1", title="complete Floquet verdicts (dashed: optical band bottom)"
+    )
+    axes[0].legend(fontsize=7)
+    for ax, name in zip(axes[2:], names):
+        p, attrs = read_group(out / "data.zarr", f"{name}_profile")
+        scale = np.abs(p["z"]).max()
+        im = ax.scatter(p["x"], p["y"], c=p["z"], s=40, cmap="RdBu_r", vmin=-scale, vmax=scale)
+        ax.set_aspect("equal")
+        ax.set_title(f"{name}: z = u - v at t = 0, lowest energy\n($\\omega_b$ = {attrs['omega']:.5f})")
+        ax.set_xticks([])
+        ax.set_yticks([])
+        fig.colorbar(im, ax=ax, shrink=0.8)
+    save_figure(fig, out, "monolayer")
