@@ -293,7 +293,7 @@ class FieldWriter:
                 fill_value=np.nan,
                 dimension_names=self.dims,
                 overwrite=True,
-                attributes=describe(name, group),
+                attributes=describe(name, group, required=False),
             )  # a missing chunk reads as NaN
         t_chunk = max(int(expected_frames or 0), 1 << 16)
         self.t = self.group.create_array(
@@ -304,7 +304,7 @@ class FieldWriter:
             dimension_names=("t",),
             fill_value=np.nan,
             overwrite=True,
-            attributes=describe("t", group),
+            attributes=describe("t", group, required=False),
         )
         coords = dict(coords or {})
         first = next(iter(fields.values())) if fields else ()
@@ -324,7 +324,7 @@ class FieldWriter:
             arr[...] = values
             arr.update_attributes(
                 {
-                    **describe(name, group, integer=values.dtype.kind in "iu"),
+                    **describe(name, group, integer=values.dtype.kind in "iu", required=False),
                     "crc32": column_checksum(name, np.asarray(values, dtype=arr.dtype)),
                 }
             )
@@ -453,7 +453,10 @@ def write_table(
         )
         arr[...] = values
         arr.update_attributes(
-            {**describe(name, group, integer=values.dtype.kind in "iub"), "crc32": column_checksum(name, values)}
+            {
+                **describe(name, group, integer=values.dtype.kind in "iub", required=False),
+                "crc32": column_checksum(name, values),
+            }
         )
     write_attributes(g, {**(attrs or {}), "checksums": True, "columns": list(columns)})
     consolidate(root.store)

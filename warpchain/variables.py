@@ -8,7 +8,10 @@ indices have units "1" (CF's dimensionless); wall-clock times "s"; the dispersio
 SI ("m-1", "rad s-1"). Sites are numbered from 0 everywhere (the centre of N sites is N // 2).
 
 A name means one thing (``VARIABLES``) unless a group gives it another (``BY_GROUP``, keyed by the group's last
-path component). A writer that stores a name found in neither raises: a new array needs its line here.
+path component). The branch store's fixed arrays must be here (``describe`` raises); tables, fields and sweeps
+written through the public writers (``store.write_table``, ``store.FieldWriter``, ``sweep``) may hold a user's own
+names, which get no entry; every array of every scene's store has one (``tests/test_cli.py`` reads the paper's
+stores and checks every variable).
 """
 
 from __future__ import annotations
