@@ -25,6 +25,7 @@ def _arrays(path):
     return {name: group[name][...] for name in sorted(group.array_keys())}
 
 
+@pytest.mark.slow  # a whole scene, a resume or the docs build: the README's slow cases
 def test_quick_scene_end_to_end(quick):
     xr = pytest.importorskip("xarray")
     s = json.loads((quick / "summary.json").read_text())
@@ -65,6 +66,7 @@ def test_statistics_helpers():
     assert hi[2] == pytest.approx(1.0) and 0.96 < lo[2] < 0.97
 
 
+@pytest.mark.slow  # a whole scene, a resume or the docs build: the README's slow cases
 def test_reproducible_from_the_recorded_seeds(quick):
     from scenarios.breakup_statistics import Parameters, _task
 
@@ -90,6 +92,7 @@ def test_dask_two_workers_give_the_in_process_store(tmp_path):
     assert s["sweep"]["mode"] == "dask" and s["sweep"]["workers"] == 2
 
 
+@pytest.mark.slow  # a whole scene, a resume or the docs build: the README's slow cases
 def test_an_interrupted_sweep_resumes(tmp_path):
     run_scene("breakup-statistics", tmp_path, "cpu", quick=True, overrides=TINY)
     out = tmp_path / "breakup-statistics"

@@ -62,6 +62,7 @@ def test_unknown_scene_and_device_are_clear_errors(tmp_path):
     assert out.returncode != 0 and "device" in out.stderr
 
 
+@pytest.mark.slow  # a whole scene, a resume or the docs build: the README's slow cases
 def test_dispersion_scene(tmp_path):
     out = _run("run", "dispersion", "--quick", "--out", str(tmp_path), "--device", "cpu")
     assert out.returncode == 0, out.stderr
@@ -95,6 +96,7 @@ def paper_quick(tmp_path_factory):
     return out_dir
 
 
+@pytest.mark.slow  # a whole scene, a resume or the docs build: the README's slow cases
 def test_paper_jobs_are_checked_and_a_failing_scene_is_reported(tmp_path):
     from scenarios._parallel import auto_jobs, child_environment, parse_jobs, run_parallel
 

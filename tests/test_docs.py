@@ -69,6 +69,7 @@ def test_example_runs_as_written(code, tmp_path):
     )
 
 
+@pytest.mark.slow  # a whole scene, a resume or the docs build: the README's slow cases
 def test_mkdocs_build_strict(tmp_path):
     missing = [
         name for name in ("mkdocs", "material", "mkdocstrings", "mkdocstrings_handlers.python") if not _importable(name)

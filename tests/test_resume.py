@@ -13,6 +13,7 @@ def _summary(out):
     return json.loads((out / "continuation-omega" / "summary.json").read_text())
 
 
+@pytest.mark.slow  # a whole scene, a resume or the docs build: the README's slow cases
 def test_resume_keeps_the_events_and_refuses_other_settings(tmp_path, capsys):
     args = ["run", "continuation-omega", "--quick", "--device", "cpu", "--out", str(tmp_path)]
     assert main(args) == 0
@@ -83,6 +84,7 @@ def test_two_processes_never_both_take_the_scene_lock(tmp_path):
     assert sum(int(out) for out, _ in results) > 0
 
 
+@pytest.mark.slow  # a whole scene, a resume or the docs build: the README's slow cases
 def test_sigterm_marks_the_store_interrupted_like_ctrl_c(tmp_path):
     import signal
 
