@@ -354,14 +354,7 @@ def _run_in(module, ctx: Context) -> dict:
         hint = failure_hint(exc)
         if hint and hasattr(exc, "add_note"):  # Python >= 3.11
             exc.add_note(hint)  # printed under the traceback
-        error = f"{type(exc).__name__}: {exc}" + (f" ({hint})" if hint else "")
-        import traceback
-
-        record = {"scene": ctx.name, "error": error, "traceback": traceback.format_exc()}
-        (out / "failed.json").write_text(json.dumps(record))
-        if isinstance(exc, (ValueError, OSError)):  # refused input, a damaged store, a full disk: one line already
-            raise
-        raise SceneFailed(f"scene {ctx.name} failed: {error} (traceback in {out / 'failed.json'})") from exc
+        _failed(ctx, exc, f"{type(exc).__name__}: {exc}" + (f" ({hint})" if hint else ""))
     summary.setdefault("wall_seconds", time.perf_counter() - start)
     if params is not None:
         summary.setdefault("parameters", dataclasses.asdict(params))
@@ -373,17 +366,25 @@ def _run_in(module, ctx: Context) -> dict:
     except BaseException as exc:  # no summary stands beside figures that were not all drawn
         (out / "summary.json").unlink(missing_ok=True)
         if isinstance(exc, Exception):
-            import traceback
-
-            error = f"drawing the figures failed: {type(exc).__name__}: {exc}"
-            record = {"scene": ctx.name, "error": error, "traceback": traceback.format_exc()}
-            with contextlib.suppress(OSError):  # a full disk may refuse this too: the error still reaches the user
-                (out / "failed.json").write_text(json.dumps(record))
-            if not isinstance(exc, (ValueError, OSError)):
-                raise SceneFailed(f"scene {ctx.name} failed: {error} (traceback in {out / 'failed.json'})") from exc
+            _failed(ctx, exc, f"drawing the figures failed: {type(exc).__name__}: {exc}")
         raise
     ctx.log("done in %.1f s", time.perf_counter() - start)
     return summary
+
+
+def _failed(ctx: Context, exc: Exception, error: str):
+    """Record a scene's failure in ``failed.json`` (the error and its traceback) and raise it: as it is when it is
+    one line already (refused input, a damaged store, a full disk), else as ``SceneFailed``. Called in the
+    ``except`` block that caught ``exc``."""
+    import traceback
+
+    failed = ctx.out / "failed.json"
+    record = {"scene": ctx.name, "error": error, "traceback": traceback.format_exc()}
+    with contextlib.suppress(OSError):  # a full disk may refuse this too: the error still reaches the user
+        failed.write_text(json.dumps(record))
+    if isinstance(exc, (ValueError, OSError)):
+        raise exc
+    raise SceneFailed(f"scene {ctx.name} failed: {error} (traceback in {failed})") from exc
 
 
 def failure_hint(exc: BaseException) -> str:
