@@ -58,6 +58,7 @@ class Context:
             ``--set`` overrides applied), or None for a scene without one.
         resume: continue a stored result (scenes that support it).
         command_line: the command as typed.
+        overrides: the parameters given (``--set``), as given: a failure names them.
     """
 
     name: str
@@ -67,6 +68,7 @@ class Context:
     params: object = None
     resume: bool = False
     command_line: str = ""
+    overrides: dict = dataclasses.field(default_factory=dict)
 
     def log(self, message: str, *args) -> None:
         log.info(f"[{self.name}] " + message, *args)
@@ -309,7 +311,8 @@ def run_scene(
     from warpchain import resolve_device
 
     module = module or load_scene(name)
-    params = scene_parameters(module, quick, overrides)
+    with _warnings_as_log_lines(name):  # a rule that solves for an orbit may warn on the way
+        params = scene_parameters(module, quick, overrides)
     if resume and not getattr(module, "RESUMABLE", False):
         raise ValueError(f"scene {name!r} cannot be resumed (resumable: continuation-k, continuation-omega)")
     resolved = resolve_device(device)  # before any folder is made: a bad device leaves nothing behind
@@ -319,7 +322,14 @@ def run_scene(
     created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
     ctx = Context(
-        name=name, out=out, device=resolved, quick=quick, params=params, resume=resume, command_line=command_line
+        name=name,
+        out=out,
+        device=resolved,
+        quick=quick,
+        params=params,
+        resume=resume,
+        command_line=command_line,
+        overrides=dict(overrides or {}),
     )
     from continuation.hostblas import blas_threads, threads_for
 
@@ -345,7 +355,8 @@ def _run_in(module, ctx: Context) -> dict:
     for name in before:
         (out / name).unlink()
     try:
-        summary = module.run(ctx)
+        with _warnings_as_log_lines(ctx.name):
+            summary = module.run(ctx)
     except Refused:  # refused before anything was written: the folder stays as it was
         for name, content in before.items():
             (out / name).write_bytes(content)
@@ -362,7 +373,8 @@ def _run_in(module, ctx: Context) -> dict:
         summary.setdefault("command_line", command_line)
     write_summary(out, summary)  # the figures read it
     try:
-        module.plot(out)
+        with _warnings_as_log_lines(ctx.name):
+            module.plot(out)
     except BaseException as exc:  # no summary stands beside figures that were not all drawn
         (out / "summary.json").unlink(missing_ok=True)
         if isinstance(exc, Exception):
@@ -370,6 +382,21 @@ def _run_in(module, ctx: Context) -> dict:
         raise
     ctx.log("done in %.1f s", time.perf_counter() - start)
     return summary
+
+
+@contextlib.contextmanager
+def _warnings_as_log_lines(name: str):
+    """A library's warning (numpy's "invalid value encountered", matplotlib's) while a scene runs is one log line
+    naming the scene, not Python's two-line form with the source line: ``... [name] warning: RuntimeWarning: ...
+    (model.py:321)``. Which warnings show (once per place) is Python's filter's choice, as before."""
+    import warnings
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        log.warning("[%s] warning: %s: %s (%s:%s)", name, category.__name__, message, Path(filename).name, lineno)
+
+    with warnings.catch_warnings():
+        warnings.showwarning = show
+        yield
 
 
 def _failed(ctx: Context, exc: Exception, error: str):
@@ -382,9 +409,25 @@ def _failed(ctx: Context, exc: Exception, error: str):
     record = {"scene": ctx.name, "error": error, "traceback": traceback.format_exc()}
     with contextlib.suppress(OSError):  # a full disk may refuse this too: the error still reaches the user
         failed.write_text(json.dumps(record))
-    if isinstance(exc, (ValueError, OSError)):
+    if isinstance(exc, OSError) or (isinstance(exc, ValueError) and _raised_by_us(exc)):
         raise exc
-    raise SceneFailed(f"scene {ctx.name} failed: {error} (traceback in {failed})") from exc
+    given = ", ".join(f"{key}={value}" for key, value in ctx.overrides.items())
+    # a library's error (numpy's, scipy's, matplotlib's) does not know the scene's parameters: name those given
+    raise SceneFailed(
+        f"scene {ctx.name} failed: {error} (" + (f"with --set {given}; " if given else "") + f"traceback in {failed})"
+    ) from exc
+
+
+def _raised_by_us(exc: BaseException) -> bool:
+    """Was ``exc`` raised in warpchain's own packages (a refusal worded for the user), not in a library?"""
+    import traceback
+
+    frames = traceback.extract_tb(exc.__traceback__)
+    if not frames:
+        return True
+    ours = Path(__file__).resolve().parents[1]
+    where = Path(frames[-1].filename).resolve()
+    return any(where.is_relative_to(ours / package) for package in ("warpchain", "continuation", "scenarios"))
 
 
 def failure_hint(exc: BaseException) -> str:

@@ -14,7 +14,7 @@ from warpchain import ChainParams, Flow
 
 from continuation.branch_store import BranchStore, StoreError, load_branch
 from ._common import BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD, PAPER_M, PAPER_N, Refused, progress_bars, verdicts
-from ._params import Rule, min_steps_per_period, number, param, splitting_methods, stability_dt
+from ._params import MAX_SITES, Rule, min_steps_per_period, number, param, splitting_methods, stability_dt
 
 
 @dataclasses.dataclass(frozen=True)
@@ -22,15 +22,17 @@ class BranchParameters:
     """What both branch scenes share; each scene's ``Parameters`` adds its own fields, defaults and ``RULES``.
     Steps and the resolution are in the scene's continuation coordinate."""
 
-    N: int = param(PAPER_N, "sites of the chain; N = 1 has no odd mode for the multipliers' parity split", ge=2)
+    N: int = param(
+        PAPER_N, "sites of the chain; N = 1 has no odd mode for the multipliers' parity split", ge=2, le=MAX_SITES
+    )
     M: float = param(PAPER_M, "mass ratio m1 / m2", gt=0)
     ds: float = param(0.05, "first step", gt=0)
     ds_max: float = param(0.5, "largest step", gt=0)
     ds_min: float = param(1e-4, "smallest step: a point that fails below it ends the branch", gt=0)
     grow: float = param(1.5, "step growth after an easy Newton solve", ge=1)
     resolution: float = param(1e-3, "smallest bracket of a stability change (float64 resolves >= 1e-12)", ge=1e-12)
-    max_newton: int = param(8, "Newton iterations per point", ge=1)
-    max_points: int | None = param(None, "stop after this many points; none: no limit", ge=1)
+    max_newton: int = param(8, "Newton iterations per point", ge=1, le=100)
+    max_points: int | None = param(None, "stop after this many points; none: no limit", ge=1, le=1_000_000)
     method: str = param(
         BREATHER_METHOD,
         "integrator: a palindromic splitting method, as the reduced Floquet analysis needs a time-reversible map",
@@ -41,6 +43,7 @@ class BranchParameters:
         "integrator steps per period, even so that the half period is whole steps",
         ge=2,
         multiple_of=2,
+        le=65536,
     )
     max_seconds: float | None = param(None, "opt-in time budget in seconds; none: no limit", gt=0)
     bisect_krein: str = param(

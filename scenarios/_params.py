@@ -22,6 +22,10 @@ from typing import Any, Callable
 
 import numpy as np
 
+#: the longest chain (and the largest size of a scan) a scene accepts: four times the longest measured (finite-size's
+#: 12801 sites); every count has such a ceiling, so that no value the ranges allow runs out of memory or for ever
+MAX_SITES = 51201
+
 #: how a value reached the parameters (for the messages): typed after --set, or given through the API
 SET, API = "set", "api"
 

@@ -19,7 +19,7 @@ from warpchain import ChainParams
 from warpchain.store import read_group, write_table
 
 from ._common import PAPER_M, PAPER_N, PAPER_OMEGA, Context, pyplot, read_summary, save_figure
-from ._params import Rule, anticontinuum_rule, param
+from ._params import MAX_SITES, Rule, anticontinuum_rule, param
 
 
 @dataclasses.dataclass(frozen=True)
@@ -27,7 +27,7 @@ class Parameters:
     """The scene's parameters (``--set KEY=VALUE`` overrides any of them)."""
 
     M: float = param(PAPER_M, "mass ratio m1 / m2", gt=0)
-    N: int = param(PAPER_N, "sites of the chain the seed is stored on", ge=1)
+    N: int = param(PAPER_N, "sites of the chain the seed is stored on", ge=1, le=MAX_SITES)
     omega: float = param(PAPER_OMEGA, "frequency w_b of the single-site orbit", gt=0)
     K_seed: float = param(0.01, "coupling stored with the seed; the K = 0 orbit does not depend on it", ge=0)
     amplitude_min: float = param(
@@ -41,8 +41,8 @@ class Parameters:
     amplitude_max: float = param(
         3.0, "the largest z_max; the period solver follows a half period up to t = 100 / w0, z_max ~ 35.9", gt=0, le=35
     )
-    amplitude_points: int = param(60, "points of that grid", ge=2)
-    amplitude_stride: int = param(1, "use every n-th point of that grid", ge=1)
+    amplitude_points: int = param(60, "points of that grid", ge=2, le=100_000)
+    amplitude_stride: int = param(1, "use every n-th point of that grid", ge=1, le=100_000)
 
     RULES = (
         anticontinuum_rule("omega"),

@@ -110,9 +110,9 @@ class Parameters:
         "16 = 2 560 lattices; full, for GPUs, 100 320",
         choices=GRIDS,
     )
-    realisations: int = param(0, "realisations per cell; 0: the grid's own count", ge=0)
-    periods: int = param(200, "periods of T = 2 pi / 1.01 simulated, as Fig. 9", ge=1)
-    steps_per_period: int = param(32, "integrator steps per period", ge=1)
+    realisations: int = param(0, "realisations per cell; 0: the grid's own count", ge=0, le=10_000_000)
+    periods: int = param(200, "periods of T = 2 pi / 1.01 simulated, as Fig. 9", ge=1, le=100_000)
+    steps_per_period: int = param(32, "integrator steps per period", ge=1, le=65536)
     method: str = param(
         "kahan6",
         "integrator, a splitting method as observe runs: kahan6 is Kahan-Li order 6, 9 force evaluations per step",
@@ -124,29 +124,35 @@ class Parameters:
         choices=("velocity", "displacement"),
     )
     noise: float = param(0.02, "relative per-site perturbation of the impulse", ge=0, le=1)
-    seed: int = param(20261122, "seed of the noise: realisation r draws from numpy's default_rng of [seed, r]", ge=0)
+    seed: int = param(
+        20261122, "seed of the noise: realisation r draws from numpy's default_rng of [seed, r]", ge=0, le=2**63 - 1
+    )
     threshold: float = param(0.1, "envelope |z| above which a peak counts as a breather", gt=0)
     radius: int = param(
         10, "a peak is the largest envelope within this many sites, and localized within them", ge=1, lt=PAPER_N
     )
     contrast: float = param(0.5, "localized: the envelope falls to this fraction of the peak on both sides", gt=0, le=1)
-    final_frames: int = param(10, "periods over which the final count is a median", ge=1)
-    persist_frames: int = param(3, "time to breakup: the first of this many periods in a row with >= 2 peaks", ge=1)
-    velocity_lag: int = param(4, "periods between the envelope profiles that give the drift velocities", ge=1)
+    final_frames: int = param(10, "periods over which the final count is a median", ge=1, le=10_000)
+    persist_frames: int = param(
+        3, "time to breakup: the first of this many periods in a row with >= 2 peaks", ge=1, le=10_000
+    )
+    velocity_lag: int = param(
+        4, "periods between the envelope profiles that give the drift velocities", ge=1, le=10_000
+    )
     max_speed: float = param(0.25, "sites per unit time: the farthest a peak is matched over the lag", gt=0)
-    max_peaks: int = param(24, "peaks stored per lattice at the end", ge=1)
+    max_peaks: int = param(24, "peaks stored per lattice at the end", ge=1, le=10_000)
     check_method: str = param(
         "kahan8", "integrator of the accuracy re-run of one lossless W column", choices=splitting_methods
     )
-    check_steps_per_period: int = param(64, "steps per period of that re-run", ge=1)
+    check_steps_per_period: int = param(64, "steps per period of that re-run", ge=1, le=65536)
     fields: bool = param(True, "store the full fields of two representative lattices")
     checks: bool = param(True, "run the accuracy checks: zero damping, DOP853, the step")
     mi_min_width: float = param(
         20.0, "spots at least this wide, in sites, are compared with the MI rate of a wide packet", ge=0
     )
-    workers: int = param(0, "a local Dask cluster of this many workers; 0: none", ge=0)
+    workers: int = param(0, "a local Dask cluster of this many workers; 0: none", ge=0, le=1024)
     scheduler: str = param("", "address of a running Dask scheduler, e.g. tcp://HOST:8786; empty: none")
-    gpus: int = param(0, "GPUs the workers share, cuda:k for worker k mod gpus; 0 with a CUDA device: 1", ge=0)
+    gpus: int = param(0, "GPUs the workers share, cuda:k for worker k mod gpus; 0 with a CUDA device: 1", ge=0, le=64)
     fresh: bool = param(False, "start the sweep over instead of resuming it")
 
     RULES = (

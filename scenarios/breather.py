@@ -39,7 +39,7 @@ from ._common import (
     read_summary,
     save_figure,
 )
-from ._params import param
+from ._params import MAX_SITES, Rule, param
 
 
 @dataclasses.dataclass(frozen=True)
@@ -48,12 +48,14 @@ class Parameters:
 
     M: float = param(PAPER_M, "mass ratio m1 / m2", gt=0)
     K: float = param(PAPER_K, "coupling ratio k1 / k2", gt=0)
-    N: int = param(PAPER_N, "sites of the chain (fixed ends); the breather sits at site N // 2", ge=3)
+    N: int = param(PAPER_N, "sites of the chain (fixed ends); the breather sits at site N // 2", ge=3, le=MAX_SITES)
     omega: float = param(
         PAPER_OMEGA, "breather frequency w_b, in the gap below the optical bottom sqrt((M + 1) / M)", gt=0
     )
-    periods: int = param(100, "periods of the direct-simulation check with the breather's own integrator", ge=1)
-    dop853_periods: int = param(100, "periods of the independent scipy DOP853 check", ge=1)
+    periods: int = param(
+        100, "periods of the direct-simulation check with the breather's own integrator", ge=1, le=100_000
+    )
+    dop853_periods: int = param(100, "periods of the independent scipy DOP853 check", ge=1, le=10_000)
     fd_steps: tuple[float, ...] = param(
         (1e-3, 1e-5, 1e-7, 1e-9),
         "finite-difference steps h of the Jacobian comparison; contact is lost at a displacement of 1",
@@ -64,6 +66,14 @@ class Parameters:
     contact_loss_scale: float = param(3.0, "the breather profile scaled up until resonators lose contact", gt=1)
     general_seed_near_solution: bool = param(
         False, "seed the general formulation next to the solution, not from the NLS profile"
+    )
+
+    RULES = (
+        Rule(
+            ("periods", "N"),
+            "periods x N <= 1e8: the direct-simulation check keeps one frame of N sites per period in memory",
+            lambda P: P.periods * P.N <= 10**8,
+        ),
     )
 
 

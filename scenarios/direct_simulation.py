@@ -41,7 +41,7 @@ from ._common import (
     read_summary,
     save_figure,
 )
-from ._params import param
+from ._params import Rule, param
 
 CASES = ("eigenmode-low", "breather-low", "eigenmode-high", "breather-high")  # Fig. 9 (a)-(d)
 
@@ -50,12 +50,20 @@ CASES = ("eigenmode-low", "breather-low", "eigenmode-high", "breather-high")  # 
 class Parameters:
     """The scene's parameters (``--set KEY=VALUE`` overrides any of them)."""
 
-    periods: int = param(200, "breather periods T = 2 pi / w_b simulated", ge=1)
+    periods: int = param(200, "breather periods T = 2 pi / w_b simulated", ge=1, le=100_000)
     frames_per_period: int = param(
         16,
         f"stored frames per period: a divisor of the breather's {BREATHER_STEPS_PER_PERIOD} steps per period, "
         "enough for the per-period envelope of the maps",
         choices=tuple(n for n in range(1, BREATHER_STEPS_PER_PERIOD + 1) if BREATHER_STEPS_PER_PERIOD % n == 0),
+    )
+
+    RULES = (
+        Rule(
+            ("periods", "frames_per_period"),
+            "periods x frames_per_period <= 1e6 stored frames",
+            lambda P: P.periods * P.frames_per_period <= 10**6,
+        ),
     )
 
 

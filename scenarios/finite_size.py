@@ -49,7 +49,7 @@ from ._common import (
     read_summary,
     save_figure,
 )
-from ._params import Rule, param
+from ._params import MAX_SITES, Rule, param
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,6 +61,7 @@ class Parameters:
         "chain lengths N, increasing, odd (a site at the centre)",
         ge=31,
         length=(2, None),
+        le=MAX_SITES,
     )
     site_K: float = param(
         10.0, "coupling of the site family's breather (reached by continuation from K = 0.01)", gt=0.01
@@ -75,14 +76,19 @@ class Parameters:
         "every multiplier at every size: auto (dense below 1601 sites, sliced and counted from there), dense or sliced",
         choices=("auto", "dense", "sliced"),
     )
-    tail_distance: int = param(60, "the tail: sites further than this from the centre", ge=1)
+    tail_distance: int = param(60, "the tail: sites further than this from the centre", ge=1, le=MAX_SITES)
     foam_sizes: tuple[int, ...] = param(
-        (201, 401, 801), "chain lengths of the K-branch foam scan (complete Floquet at every point); () skips it", ge=31
+        (201, 401, 801),
+        "chain lengths of the K-branch foam scan (complete Floquet at every point); () skips it",
+        ge=31,
+        le=MAX_SITES,
     )
     foam_K: tuple[float, ...] = param(
         (2.0, 4.0), "the stretch of the site family's K-branch scanned", gt=0.01, length=(2, 2)
     )
-    foam_points: int = param(200, "couplings of the scan, log-spaced over foam_K (the same at every N)", ge=2)
+    foam_points: int = param(
+        200, "couplings of the scan, log-spaced over foam_K (the same at every N)", ge=2, le=100_000
+    )
 
     RULES = (
         Rule(

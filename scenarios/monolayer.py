@@ -55,7 +55,7 @@ class Parameters:
     lattices: str = param("both", "the patches: square, triangular or both", choices=("both", "square", "triangular"))
     omega_start: float = param(1.013, "first frequency w_b of the walk, in the gap", gt=0)
     omega_step: float = param(1e-4, "step of w_b towards the band edge", gt=1e-7, lt=1e-2)
-    points_after_minimum: int = param(4, "points walked past the lowest energy before the walk stops", ge=2)
+    points_after_minimum: int = param(4, "points walked past the lowest energy before the walk stops", ge=2, le=1000)
     resolution: float = param(1e-7, "bracket of w_b the stability change is bisected to", ge=1e-10)
 
 

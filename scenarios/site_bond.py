@@ -65,7 +65,7 @@ from ._continuation_common import (
     run_branch,
     step_rule,
 )
-from ._params import Rule, anticontinuum_rule, param
+from ._params import MAX_SITES, Rule, anticontinuum_rule, param
 
 FAMILIES = ("site", "bond-in-phase", "bond-out-of-phase", "asymmetric")
 BIFURCATION_KINDS = ("symmetry_breaking_pitchfork", "branch_point", "period_doubling", "krein_collision")
@@ -83,7 +83,9 @@ FAMILY_WORDS = {
 class Parameters(BranchParameters):
     """The scene's parameters (``--set KEY=VALUE``); steps and resolution in log10 K."""
 
-    N: int = param(PAPER_N, "sites of the chain; the figure draws sites c - 8 .. c + 9 around the centre c", ge=19)
+    N: int = param(
+        PAPER_N, "sites of the chain; the figure draws sites c - 8 .. c + 9 around the centre c", ge=19, le=MAX_SITES
+    )
     omega: float = param(PAPER_OMEGA, "breather frequency w_b", gt=0)
     K_start: float = param(0.01, "coupling of the anti-continuum seeds, where the families start", gt=0)
     K_end: float = param(PAPER_K, "coupling where the families end", gt=0)
@@ -95,7 +97,9 @@ class Parameters(BranchParameters):
         0.05, "largest step in the fine window, in log10 K: the site/bond exchanges come every ~0.07-0.12", gt=0
     )
     resolution: float = param(
-        0.3, "smallest bracket of a stability change, in log10 K: no bisection, Brent's method locates instead", gt=0
+        0.3,
+        "smallest bracket of a stability change, in log10 K: no bisection, Brent's method locates instead",
+        ge=1e-12,
     )
     bisect_krein: str = param(
         "none",
@@ -130,15 +134,15 @@ class Parameters(BranchParameters):
         length=(2, None),
     )
     asymmetric_ds: float = param(
-        0.02, "arclength steps of the asymmetric family: at most 4 x this, at least its ds_min 1e-6", ge=1e-6
+        0.02, "arclength steps of the asymmetric family: at most 4 x this, at least its ds_min 1e-6", ge=1e-6, le=1.0
     )
-    asymmetric_max_points: int = param(60, "points of the asymmetric family at most", ge=1)
+    asymmetric_max_points: int = param(60, "points of the asymmetric family at most", ge=1, le=1_000_000)
     finite_size_K: tuple[float, ...] = param(
         (10.0, PAPER_K), "couplings of the finite-size check: the site orbit re-solved on 2N - 1 sites", gt=0
     )
-    dop853_rtol: float = param(1e-11, "relative tolerance of the DOP853 check of the asymmetric family", gt=0, lt=1)
+    dop853_rtol: float = param(1e-11, "relative tolerance of the DOP853 check of the asymmetric family", ge=1e-13, lt=1)
     workers: int = param(
-        0, "host threads for the branch-point and finite-size solves; 0: one per 2 cores, at most 4", ge=0
+        0, "host threads for the branch-point and finite-size solves; 0: one per 2 cores, at most 4", ge=0, le=1024
     )
 
     RULES = (

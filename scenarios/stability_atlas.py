@@ -77,7 +77,7 @@ class Parameters(BranchParameters):
 
     K_min: float = param(1.0, "smallest coupling K of the grid", gt=0)
     K_max: float = param(160.0, "largest coupling K of the grid", gt=0)
-    n_K: int = param(41, "couplings K, log-spaced from K_min to K_max: one branch (one task) each", ge=1)
+    n_K: int = param(41, "couplings K, log-spaced from K_min to K_max: one branch (one task) each", ge=1, le=10_000)
     omega_min: float = param(_OMEGA.omega_min, "a floor on w_b; the branches are expected to lose contact first", gt=0)
     eigenmode_amplitude: float = param(
         0.03, "mode amplitude of the first point at K >= 160; below, scaled by sqrt(K / 160)", gt=0
@@ -86,19 +86,26 @@ class Parameters(BranchParameters):
     ds_max: float = param(_OMEGA.ds_max, "largest step, arclength", gt=0)
     grow: float = param(_OMEGA.grow, "step growth after an easy Newton solve", ge=1)
     max_points: int = param(
-        2000, "points stored per branch (the store's point dimension): a branch stops there (end: max_points)", ge=2
+        2000,
+        "points stored per branch (the store's point dimension): a branch stops there (end: max_points)",
+        ge=2,
+        le=1_000_000,
     )
     workers: int = param(
-        0, "processes of a local Dask cluster; 0: automatic (CPU: one per usable core; GPUs: see cuda_workers)", ge=0
+        0,
+        "processes of a local Dask cluster; 0: automatic (CPU: one per usable core; GPUs: see cuda_workers)",
+        ge=0,
+        le=1024,
     )
     cuda_workers: int = param(
         0,
         "processes with --device cuda, spread over the GPUs (at least one per GPU); 0: half the usable cores",
         ge=0,
+        le=1024,
     )
     scheduler: str = param("", "address of a running Dask scheduler, e.g. tcp://HOST:8786; empty: none")
     gpus: int = param(
-        0, "GPUs the workers use, cuda:k for worker k mod gpus; 0: every GPU Warp sees (CUDA device)", ge=0
+        0, "GPUs the workers use, cuda:k for worker k mod gpus; 0: every GPU Warp sees (CUDA device)", ge=0, le=64
     )
     in_process: bool = param(False, "run the tasks one after another in this process, without Dask")
     fresh: bool = param(False, "start the sweep over instead of resuming it")

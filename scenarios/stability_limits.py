@@ -58,14 +58,16 @@ ORDER_STEPS_PER_PERIOD = {
 class Parameters:
     """The scene's parameters (``--set KEY=VALUE`` overrides any of them)."""
 
-    limit_steps: int = param(3000, "steps a run must survive at a measured stability limit", ge=1)
-    bisections: int = param(12, "bisection steps of each measured limit", ge=1)
-    smooth_periods: int = param(5, "periods of the exact breather for the observed orders and float32", ge=1)
-    rough_periods: int = param(2, "periods of the large eigenmode for the observed orders with contact loss", ge=1)
+    limit_steps: int = param(3000, "steps a run must survive at a measured stability limit", ge=1, le=1_000_000)
+    bisections: int = param(12, "bisection steps of each measured limit", ge=1, le=60)
+    smooth_periods: int = param(5, "periods of the exact breather for the observed orders and float32", ge=1, le=10_000)
+    rough_periods: int = param(
+        2, "periods of the large eigenmode for the observed orders with contact loss", ge=1, le=10_000
+    )
     rough_scale: float = param(2.5, "that eigenmode's amplitude, in units of the exact breather's v_101", gt=0)
     newton_step: float = param(0.002, "fixed-frequency Newton: decrement of w_b from the breather's 1.01", gt=0)
     newton_floor: float = param(0.95, "fixed-frequency Newton: the lowest w_b tried", gt=0)
-    float32_newton_iterations: int = param(6, "Newton iterations in float32", ge=1)
+    float32_newton_iterations: int = param(6, "Newton iterations in float32", ge=1, le=100)
 
     RULES = (
         Rule(
@@ -73,6 +75,11 @@ class Parameters:
             f"newton_floor <= {number(PAPER_OMEGA)} - newton_step: Newton goes down from the breather's w_b and "
             "tries one frequency at least",
             lambda P: P.newton_floor <= PAPER_OMEGA - P.newton_step,
+        ),
+        Rule(
+            ("newton_step", "newton_floor"),
+            "(1.01 - newton_floor) / newton_step <= 10000 frequencies tried",
+            lambda P: (PAPER_OMEGA - P.newton_floor) / P.newton_step <= 10_000,
         ),
     )
 

@@ -37,8 +37,8 @@ def _numpy_steps() -> int:
 class Parameters:
     """The scene's parameters (``--set KEY=VALUE`` overrides any of them)."""
 
-    smooth_periods: int = param(20, "periods of the exact breather, the smooth case", ge=1)
-    contact_loss_periods: int = param(5, "periods of the contact-loss case", ge=1)
+    smooth_periods: int = param(20, "periods of the exact breather, the smooth case", ge=1, le=10_000)
+    contact_loss_periods: int = param(5, "periods of the contact-loss case", ge=1, le=10_000)
     contact_loss_scale: float = param(
         2.5, "that case's eigenmode amplitude, in units of the exact breather's v_101", gt=0
     )
@@ -47,9 +47,10 @@ class Parameters:
         "steps per period of the Warp methods; steps above a method's stability limit are skipped",
         ge=1,
         length=(1, None),
+        le=65536,
     )
     numpy_steps_per_period: tuple[int, ...] = param(
-        (64, 256), "steps per period of the numpy reference, every method at each", ge=1
+        (64, 256), "steps per period of the numpy reference, every method at each", ge=1, le=65536
     )
     dop853_rtol: tuple[float, ...] = param(
         (1e-5, 1e-7, 1e-9, 1e-11), "relative tolerances of scipy's DOP853 (float64 takes >= 1e-13)", ge=1e-13, lt=1
@@ -57,7 +58,7 @@ class Parameters:
     targets: tuple[float, ...] = param(
         (1e-4, 1e-6, 1e-8, 1e-9, 1e-10), "relative errors at which the cheapest implementation is reported", gt=0
     )
-    repeats: int = param(2, "best of, for the timings", ge=1)
+    repeats: int = param(2, "best of, for the timings", ge=1, le=100)
 
     RULES = (
         Rule(

@@ -380,6 +380,66 @@ def test_a_scene_that_raises_is_one_line_with_its_traceback_in_failed_json(tmp_p
     ]
 
 
+def test_a_library_error_names_the_values_given_and_warnings_are_log_lines(tmp_path, monkeypatch, capsys, caplog):
+    """A ValueError raised inside a library (scipy's "function value is NaN") is the scene's failure (exit 1, its
+    traceback in failed.json) naming the --set values, not a refusal worded by us (exit 2); a library's warning
+    while a scene runs is one log line, not Python's two lines."""
+    import warnings
+
+    import scenarios.__main__ as cli
+    from scenarios import nls
+
+    def broken(ctx):
+        warnings.warn("invalid value encountered in sqrt", RuntimeWarning)
+        import scipy.optimize
+
+        scipy.optimize.brentq(lambda x: float("nan"), 0.0, 1.0)
+
+    monkeypatch.setattr(nls, "run", broken)
+    argv = ["run", "nls", "--quick", "--out", str(tmp_path), "--device", "cpu", "--set", "sweep=1.01"]
+    with caplog.at_level("WARNING"):
+        assert cli.main(argv) == 1
+    captured = capsys.readouterr()
+    failed = tmp_path / "nls" / "failed.json"
+    assert captured.err.strip().splitlines() == [
+        "error: scene nls failed: ValueError: The function value at x=0.0 is NaN; solver cannot continue. "
+        f"(with --set sweep=1.01; traceback in {failed})"
+    ]
+    assert "brentq" in json.loads(failed.read_text())["traceback"]
+    lines = [r.getMessage() for r in caplog.records if "warning:" in r.getMessage()]
+    assert lines == [
+        "[nls] warning: RuntimeWarning: invalid value encountered in sqrt (test_cli.py:%d)"
+        % (broken.__code__.co_firstlineno + 1)
+    ]
+
+    def refuses(ctx):  # a refusal worded by warpchain keeps its exit 2 and its own words
+        from warpchain import ChainParams
+
+        ChainParams(M=-1.0, K=1.0, N=11)
+
+    monkeypatch.setattr(nls, "run", refuses)
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and "M" in err[0]
+
+
+def test_every_count_has_a_ceiling():
+    """No integer parameter of any scene is unbounded above: 10**12 periods, sites or iterations is refused in one
+    line before anything runs (it ran out of memory or for ever)."""
+    import dataclasses
+
+    from scenarios._common import SCENES, load_scene
+    from scenarios._params import allowed_of, kind_of
+
+    for name in SCENES:
+        cls = getattr(load_scene(name), "Parameters", None)
+        for field in dataclasses.fields(cls) if cls else ():
+            allowed, kind = allowed_of(field), kind_of(field.type)
+            if allowed is None or int not in (kind.base, kind.item) or allowed.options() is not None:
+                continue
+            assert allowed.le is not None or allowed.lt is not None, f"{name}: {field.name} has no upper bound"
+
+
 def test_command_line_offers_what_works(tmp_path, capsys):
     """--version; paper takes neither --set nor --resume (its help does not offer them); -q prints nothing on
     success; --resume on a folder that does not exist writes nothing; extreme values are refused in one line."""
