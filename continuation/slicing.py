@@ -150,13 +150,22 @@ def inertia(S) -> dict:
 
 def segments(count: int, hint=None) -> list:
     """``count`` segments (lo, hi] of [-1 - OUTER, 1 + OUTER], highest first: equal in arg l (mu = cos arg l), or,
-    given the expected mu (``hint``: the linear lattice's, ``floquet.linear_mu``), with equal numbers of them (the
-    optical band's N multipliers sit within 3e-3 of one mu on the paper chain: that segment would take as long as
-    all others)."""
-    if hint is not None and len(hint) >= count:
-        edges = np.quantile(np.clip(np.real(hint), -1.0, 1.0), np.linspace(1.0, 0.0, count + 1))
-    else:
+    given the expected mu (``hint``: the linear lattice's, ``floquet.linear_mu``), with nearly equal numbers of them
+    (the acoustic band's flat top puts a quarter of the paper chain's multipliers within 1e-4 of one mu: that
+    segment would take as long as all others), each cut in the widest gap between expected mu within a quarter of a
+    segment of the equal-count cut (a cut inside a tight cluster sets a disc's rim among nearly equal eigenvalues,
+    which converges slowly: ``TIE_RESTARTS``)."""
+    if hint is None or len(hint) < 4 * count:
         edges = np.cos(np.linspace(0.0, np.pi, count + 1))
+    else:
+        h = np.sort(np.clip(np.real(hint), -1.0, 1.0))[::-1]
+        n, reach = len(h), max(1, len(h) // (4 * count))
+        edges = np.empty(count + 1)
+        for i in range(1, count):
+            at = int(round(i * n / count))
+            window = np.arange(max(0, at - reach), min(n - 1, at + reach))
+            j = window[np.argmax(h[window] - h[window + 1])]
+            edges[i] = 0.5 * (h[j] + h[j + 1])
     edges[0], edges[-1] = 1.0 + OUTER, -1.0 - OUTER
     return [(float(edges[i + 1]), float(edges[i])) for i in range(count)]
 
