@@ -223,6 +223,80 @@ def nls_breather(M: float, K: float, omega: float) -> NLSBreather:
     )
 
 
+#: the 2D cubic NLS's Townes soliton norm, the integral of R^2 over the plane for R'' + R' / r - R + R^3 = 0
+TOWNES_NORM = 11.700896
+
+
+def dnls_threshold(lattice, M: float, K: float) -> dict:
+    """The small-amplitude prediction of a lattice breather's energy threshold: the discrete NLS of the optical band
+    bottom (module docstring, the X derivative replaced by the lattice's Laplacian L, ``Lattice.laplacian_matrix``)
+    for the amplitude a_j of z_j ~ a_j cos(w_b t),
+
+        -D K (L a)_j - 2 w0 Delta a_j + (G / 4) a_j^3 = 0,   Delta = w0 - w_b,
+
+    is, with a = sqrt(4 C / G) phi and C = D K, the C = 1 DNLS -L phi - r phi + phi^3 = 0 at r = 2 w0 Delta / C. The
+    energy of a small-amplitude breather is (1/2) sum a_j^2 (checked on the chain: the continuum soliton's a0^2 /
+    kappa is the Newton breather's energy within 0.6 % at K = 4 near the edge), so E = (2 D K / G) p(r) with
+    p = sum phi^2. In two dimensions p(r) has a positive minimum (Weinstein's excitation threshold; Flach, Kladko
+    and MacKay 1997) and tends to the Townes norm times the area per site and L's curvature as r -> 0 (the continuum
+    limit). Found here by Newton continuation of the site-centred solution from the single-site limit and Brent's
+    minimisation in r, on the lattice as given (its walls included).
+
+    Returns:
+        {"norm": p at the minimum, "ratio": r there, "energy": (2 D K / G) p, "omega": w0 - r D K / (2 w0),
+        "townes_energy": the continuum limit's (2 D K / G) p, the norm p of the Townes soliton on the lattice}.
+    """
+    import scipy.sparse as sp
+    from scipy.optimize import minimize_scalar
+    from scipy.sparse.linalg import spsolve
+
+    L = sp.csr_matrix(lattice.laplacian_matrix())
+    n, centre = L.shape[0], lattice.centre
+    identity = sp.identity(n, format="csr")
+
+    def newton(r, phi):
+        for _ in range(60):
+            F = -(L @ phi) - r * phi + phi**3
+            step = spsolve((-L - r * identity + sp.diags(3.0 * phi * phi)).tocsc(), F)
+            phi = phi - step
+            if float(np.max(np.abs(step))) < 1e-13 * max(1.0, float(np.max(np.abs(phi)))):
+                return phi
+        raise RuntimeError(f"dnls_threshold: Newton did not converge at r = {r:g}")
+
+    degree = float(L.diagonal().max())
+    phi = np.zeros(n)
+    phi[centre] = math.sqrt(4.0 * degree + degree)  # the single-site solution at r = 4 degree: phi^2 = r + degree
+    path = []
+    for r in np.geomspace(4.0 * degree, 0.05 * degree, 80):
+        phi = newton(r, phi)
+        path.append((r, float(phi @ phi), phi))
+    norms = np.array([norm for _, norm, _ in path])
+    low = int(np.argmin(norms))
+    if not 0 < low < len(path) - 1:
+        raise RuntimeError("dnls_threshold: the norm has no minimum along the branch (a one-dimensional lattice?)")
+
+    def norm(r):
+        nearest = min(path, key=lambda item: abs(math.log(item[0] / r)))
+        phi = newton(r, nearest[2])
+        return float(phi @ phi)
+
+    best = minimize_scalar(norm, bounds=(path[low + 1][0], path[low - 1][0]), method="bounded", options={"xatol": 1e-7})
+    D, G = nls_coefficients(M)
+    w0 = math.sqrt((M + 1.0) / M)
+    # the continuum limit: L ~ -div(T grad) with T = sum_k w_k b_k b_k^T (b_k: direction k in the plane), so
+    # sum_j phi_j^2 -> (sites per area) sqrt(det T) TOWNES_NORM
+    bonds = np.asarray(lattice.directions, float) @ np.asarray(lattice.basis, float)
+    T = sum(w * np.outer(b, b) for b, w in zip(bonds, lattice.direction_weights))
+    townes = TOWNES_NORM * math.sqrt(abs(np.linalg.det(T))) / abs(np.linalg.det(lattice.basis))
+    return {
+        "norm": float(best.fun),
+        "ratio": float(best.x),
+        "energy": 2.0 * D * K / G * float(best.fun),
+        "omega": w0 - float(best.x) * D * K / (2.0 * w0),
+        "townes_energy": float(2.0 * D * K / G * townes),
+    }
+
+
 def nls_seed(params: ChainParams, omega: float, order: int = 2, centre: int | None = None) -> np.ndarray:
     """NLS seed state (4, N) at t = 0 for the chain's M, K.
 

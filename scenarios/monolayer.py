@@ -167,8 +167,17 @@ def _walk(ctx, name: str, P: Parameters) -> dict:
             "at the minimum, within its spacing" if abs(threshold["omega"] - change["bracket"][0])
             < threshold["spacing"] else "away from it",
         )  # fmt: skip
+    dnls = ct.dnls_threshold(params.lattice, P.M, P.K)  # the small-amplitude prediction (continuation.seeds)
+    if threshold:
+        ctx.log(
+            "%s: the discrete NLS predicts E* = %.6f at w_b = %.6f (Townes, the continuum: %.6f); measured / "
+            "predicted %.4f",
+            name, dnls["energy"], dnls["omega"], dnls["townes_energy"], threshold["energy"] / dnls["energy"],
+        )  # fmt: skip
     return {
         "lattice": params.lattice.describe(),
+        "dnls_threshold": dnls,
+        "threshold_over_dnls": threshold["energy"] / dnls["energy"] if threshold else None,
         "band_edges": params.lattice.band_edges(P.M, P.K),
         "rows": rows,
         "stop_reason": reason,
@@ -226,13 +235,18 @@ def plot(out) -> None:
             axes[0].plot(
                 [t["omega"]], [t["energy"]], "*", ms=12, color=colours[name], label=f"{name}: E* = {t['energy']:.5f}"
             )
+        d = s[name]["dnls_threshold"]
+        axes[0].plot(
+            [d["omega"]], [d["energy"]], "X", ms=8, mfc="none", color=colours[name],
+            label=f"{name}: discrete NLS, {d['energy']:.5f}",
+        )  # fmt: skip
     for ax in axes[:2]:
         ax.axvline(s["optical_bottom"], color="0.4", ls="--", lw=0.8)
         ax.set_xlabel(r"$\omega_b$")
         ax.ticklabel_format(axis="x", useOffset=False)
     axes[0].set(
         ylabel="energy H",
-        title="energy threshold (star); dotted: stability change\n"
+        title="energy threshold (star; X: the discrete NLS's); dotted: stability change\n"
         f"M = {s['M']:g}, K = {s['K']:g}, {s['size']} x {s['size']} fixed",
     )
     axes[1].set(

@@ -316,7 +316,7 @@ def test_finite_size_quick(tmp_path):
 def test_monolayer_quick_has_an_energy_threshold_where_the_stability_changes(tmp_path):
     """The monolayer scene (9 x 9 patches): on both lattices E(w_b) has an interior minimum, every verdict is
     complete, and the stability changes at the minimum within the refined spacing (Vakhitov-Kolokolov); the
-    store reads checked, with positions for the profile."""
+    threshold lies above the discrete NLS's prediction; the store reads checked, with positions for the profile."""
     import warpchain as wc
 
     out = _run("run", "monolayer", "--quick", "--out", str(tmp_path), "--device", "cpu")
@@ -327,6 +327,7 @@ def test_monolayer_quick_has_an_energy_threshold_where_the_stability_changes(tmp
         assert t and change and change["from_stable"], name
         assert abs(t["omega"] - np.mean(change["bracket"])) < t["spacing"], name
         assert t["energy"] > 0.01  # positive: a threshold, not zero as on the chain
+        assert 1.1 < s[name]["threshold_over_dnls"] < 1.3  # above the discrete NLS's (measured: 1.158, 1.263)
         ds = wc.read_store(tmp_path / "monolayer" / "data.zarr", name)
         assert bool(ds.floquet_complete.all()) and float(ds.energy.min()) >= t["energy"] - 1e-6
     assert s["square"]["threshold"]["energy"] < s["triangular"]["threshold"]["energy"]  # six neighbours cost more

@@ -46,3 +46,30 @@ def test_a_monolayer_breather_and_its_complete_verdict_equal_the_dense_monodromy
     cost = np.abs(fl.multipliers[:, None] - dense[None, :])
     rows, cols = linear_sum_assignment(cost)
     assert cost[rows, cols].max() < 1e-6  # the trivial pair splits like the square root of rounding in dense
+
+
+def test_the_discrete_nls_threshold():
+    """``dnls_threshold``: the norm's minimum hardly depends on the patch once the breather fits (15 x 15 against
+    21 x 21: 1.3e-5 on the triangular rhombus, whose walls come nearer the centre), the energy scales with K and the frequency offset too (the DNLS has one coupling scale), and the
+    continuum limit is the Townes norm times sites per area and the symbol's curvature (sqrt(3) more on the
+    triangular lattice than on the square one)."""
+    import math
+
+    from continuation import dnls_threshold, nls_coefficients
+    from continuation.seeds import TOWNES_NORM
+    from warpchain.lattice import square, triangular
+
+    M = 30.0
+    w0 = math.sqrt((M + 1.0) / M)
+    D, G = nls_coefficients(M)
+    for build in (square, triangular):
+        small, large = dnls_threshold(build(15, 15), M, 1.0), dnls_threshold(build(21, 21), M, 1.0)
+        assert abs(small["norm"] / large["norm"] - 1.0) < 3e-5 and abs(small["ratio"] - large["ratio"]) < 1e-3
+        double = dnls_threshold(build(15, 15), M, 2.0)
+        assert double["energy"] == pytest.approx(2.0 * small["energy"], rel=1e-12)
+        assert w0 - double["omega"] == pytest.approx(2.0 * (w0 - small["omega"]), rel=1e-9)
+        assert small["norm"] < 0.5 * small["townes_energy"] * G / (2.0 * D)  # far below the continuum's
+    sq, tri = dnls_threshold(square(15, 15), M, 1.0), dnls_threshold(triangular(15, 15), M, 1.0)
+    assert sq["townes_energy"] == pytest.approx(2.0 * D / G * TOWNES_NORM, rel=1e-12)
+    assert tri["townes_energy"] == pytest.approx(math.sqrt(3.0) * sq["townes_energy"], rel=1e-12)
+    assert sq["norm"] == pytest.approx(5.70125, abs=2e-4) and tri["norm"] == pytest.approx(8.77593, abs=2e-4)
