@@ -12,7 +12,10 @@ scene walks w_b from ``omega_start`` towards the optical band's bottom w0 = sqrt
 ``omega_step`` (Newton from the previous breather), takes every point's complete Floquet verdict, and stops
 ``points_after_minimum`` points past the lowest energy (or where Newton loses the breather, or at the edge). The
 threshold is the vertex of the parabola through the lowest point and its two neighbours; the stability change is
-bisected to ``resolution`` in w_b. Both are stated with their brackets and compared.
+bisected to ``resolution`` in w_b. Both are stated with their brackets and compared, and set beside the
+discrete NLS's threshold on the same patch (``continuation.dnls_threshold``: the small-amplitude limit, which the
+measured threshold approaches as K -> 0) and the chain's breathers at the same frequencies (``CHAIN_SITES`` sites),
+whose energy has no minimum.
 
 How: Newton shooting on the time-reversible half-period map and the reduced Floquet analysis (every multiplier,
 even and odd blocks under the patch's 180-degree rotation) run on the numpy reference (``warpchain.lattice.
@@ -191,11 +194,40 @@ def _walk(ctx, name: str, P: Parameters) -> dict:
     }
 
 
+#: sites of the chain whose breathers are drawn beside the patches' (fixed ends; 15 times the NLS width at the
+#: walk's last w_b for K <= 1)
+CHAIN_SITES = 101
+
+
+def _chain(ctx, P: Parameters, omegas) -> dict:
+    """The chain's site breather at the patches' frequencies (same M and K, ``CHAIN_SITES`` sites, the NLS seed and
+    the same reference flow): its energy falls to zero at the band edge, where the patches' have a minimum."""
+    params = wc.ChainParams(P.M, P.K, CHAIN_SITES)
+    flow = wc.ReferenceFlow(BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD)
+    rows = {"omega": [], "energy": [], "breather_participation": []}
+    for omega in omegas:
+        r = ct.find_breather(params, float(omega), ct.nls_seed(params, float(omega)), flow=flow, solver="dense")
+        if r.residual > 1e-8 or r.energy <= 0:
+            continue
+        z = r.state[0] - r.state[1]
+        rows["omega"].append(float(omega))
+        rows["energy"].append(float(r.energy))
+        rows["breather_participation"].append(float(np.sum(z * z) ** 2 / np.sum(z**4)))
+    if rows["omega"]:
+        ctx.log(
+            "chain (%d sites): E = %.6f at w_b = %.5f down to %.6f at %.5f",
+            CHAIN_SITES, rows["energy"][0], rows["omega"][0], rows["energy"][-1], rows["omega"][-1],
+        )  # fmt: skip
+    return rows
+
+
 def run(ctx: Context) -> dict:
     P: Parameters = ctx.params
     names = list(BUILDERS) if P.lattices == "both" else [P.lattices]
     walks = {name: _walk(ctx, name, P) for name in names}
+    chain = _chain(ctx, P, sorted({row["omega"] for walk in walks.values() for row in walk["rows"]}))
     root = ctx.store(None)
+    write_table(root, "chain", chain, dim="point", attrs={"sites": CHAIN_SITES})
     for name, walk in walks.items():
         write_table(root, name, {k: [r[k] for r in walk["rows"]] for k in walk["rows"][0]}, dim="point")
         z = walk["profile"][0] - walk["profile"][1]
@@ -240,6 +272,8 @@ def plot(out) -> None:
             [d["omega"]], [d["energy"]], "X", ms=8, mfc="none", color=colours[name],
             label=f"{name}: discrete NLS, {d['energy']:.5f}",
         )  # fmt: skip
+    c, _ = read_group(out / "data.zarr", "chain")
+    axes[0].plot(c["omega"], c["energy"], "-", color="0.35", lw=1.0, label="chain: no threshold")
     for ax in axes[:2]:
         ax.axvline(s["optical_bottom"], color="0.4", ls="--", lw=0.8)
         ax.set_xlabel(r"$\omega_b$")
@@ -252,7 +286,8 @@ def plot(out) -> None:
     axes[1].set(
         yscale="log", ylabel=r"max $|\lambda|$ - 1", title="complete Floquet verdicts (dashed: optical band bottom)"
     )
-    axes[0].legend(fontsize=7)
+    axes[0].set_ylim(bottom=0.0)
+    axes[0].legend(fontsize=6, ncols=2, loc="lower left")
     for ax, name in zip(axes[2:], names):
         p, attrs = read_group(out / "data.zarr", f"{name}_profile")
         scale = np.abs(p["z"]).max()
