@@ -409,9 +409,11 @@ def _failed(ctx: Context, exc: Exception, error: str):
     record = {"scene": ctx.name, "error": error, "traceback": traceback.format_exc()}
     with contextlib.suppress(OSError):  # a full disk may refuse this too: the error still reaches the user
         failed.write_text(json.dumps(record))
-    if isinstance(exc, OSError) or (isinstance(exc, ValueError) and _raised_by_us(exc)):
-        raise exc
     given = ", ".join(f"{key}={value}" for key, value in ctx.overrides.items())
+    if isinstance(exc, OSError) or (isinstance(exc, ValueError) and _raised_by_us(exc)):
+        if given and "--set" not in str(exc) and hasattr(exc, "add_note"):  # which of the values given it was
+            exc.add_note(f"with --set {given}")
+        raise exc
     # a library's error (numpy's, scipy's, matplotlib's) does not know the scene's parameters: name those given
     raise SceneFailed(
         f"scene {ctx.name} failed: {error} (" + (f"with --set {given}; " if given else "") + f"traceback in {failed})"

@@ -14,7 +14,7 @@ from warpchain import ChainParams, Flow
 
 from continuation.branch_store import BranchStore, StoreError, load_branch
 from ._common import BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD, PAPER_M, PAPER_N, Refused, progress_bars, verdicts
-from ._params import MAX_SITES, Rule, min_steps_per_period, number, param, splitting_methods, stability_dt
+from ._params import DENSE_MAX_SITES, Rule, min_steps_per_period, number, param, splitting_methods, stability_dt
 
 
 @dataclasses.dataclass(frozen=True)
@@ -23,7 +23,7 @@ class BranchParameters:
     Steps and the resolution are in the scene's continuation coordinate."""
 
     N: int = param(
-        PAPER_N, "sites of the chain; N = 1 has no odd mode for the multipliers' parity split", ge=2, le=MAX_SITES
+        PAPER_N, "sites of the chain; N = 1 has no odd mode for the multipliers' parity split", ge=2, le=DENSE_MAX_SITES
     )
     M: float = param(PAPER_M, "mass ratio m1 / m2", gt=0)
     ds: float = param(0.05, "first step", gt=0)

@@ -22,9 +22,12 @@ from typing import Any, Callable
 
 import numpy as np
 
-#: the longest chain (and the largest size of a scan) a scene accepts: four times the longest measured (finite-size's
-#: 12801 sites); every count has such a ceiling, so that no value the ranges allow runs out of memory or for ever
-MAX_SITES = 51201
+#: the longest chain a scene accepts: the longest measured (finite-size's 12801 sites, on the sliced path); every count
+#: has such a ceiling, so that no value the ranges allow runs out of memory or for ever
+MAX_SITES = 12801
+#: the longest chain of a branch walk, a dispersion table or a scan of them: their dense Newton Jacobians (4N x 2N),
+#: linear modes (N x N) and Floquet blocks are held in memory (0.7 GB at 3201 sites; 156 GB at 51201)
+DENSE_MAX_SITES = 3201
 
 #: how a value reached the parameters (for the messages): typed after --set, or given through the API
 SET, API = "set", "api"
@@ -292,9 +295,12 @@ def check(P, given: dict, quick: bool = False, raw: dict | None = None) -> None:
         if not allowed.accepts(value, kind):
             raise refused(_source(f.name, value, given, raw, quick), allowed, kind)
     for rule in getattr(type(P), "RULES", ()):
-        if rule.test(P):
-            continue
         name = next((n for n in rule.names if n in given), rule.names[0])
+        try:
+            if rule.test(P):
+                continue
+        except ValueError as exc:  # the rule cannot be weighed at these values (a chain too stiff to step)
+            raise ValueError(f"{_source(name, getattr(P, name), given, raw, quick)}: {exc}") from None
         others = ", ".join(f"{n} = {show(getattr(P, n))}" for n in rule.names if n != name)
         raise ValueError(
             f"{_source(name, getattr(P, name), given, raw, quick)}: needs {rule.wording(P)}"
@@ -350,8 +356,9 @@ def min_steps_per_period(method: str, M: float, K: float, omega: float, multiple
     limit = stability_dt(method, M, K)
     period = 2 * math.pi / omega
     if not (limit > 0 and math.isfinite(period / limit) and period / limit < MAX_STEPS_PER_PERIOD):
+        bound = f"dt < {limit:.3g}" if limit > 0 and math.isfinite(limit) else "no stable dt (the stiffness overflows)"
         raise ValueError(
-            f"M = {M:g}, K = {K:g}: {method}'s linear stability limit, dt < {limit:.3g}, needs more than "
+            f"M = {M:g}, K = {K:g}: {method}'s linear stability limit, {bound}, needs more than "
             f"{MAX_STEPS_PER_PERIOD:.0e} steps per period 2 pi / {omega:g}; choose a smaller K or a larger M"
         )
     n = math.floor(period / limit) + 1

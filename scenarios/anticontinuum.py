@@ -41,8 +41,8 @@ class Parameters:
     amplitude_max: float = param(
         3.0, "the largest z_max; the period solver follows a half period up to t = 100 / w0, z_max ~ 35.9", gt=0, le=35
     )
-    amplitude_points: int = param(60, "points of that grid", ge=2, le=100_000)
-    amplitude_stride: int = param(1, "use every n-th point of that grid", ge=1, le=100_000)
+    amplitude_points: int = param(60, "points of that grid", ge=2, le=2000)
+    amplitude_stride: int = param(1, "use every n-th point of that grid", ge=1, le=2000)
 
     RULES = (
         anticontinuum_rule("omega"),

@@ -39,7 +39,7 @@ from ._common import (
     save_figure,
 )
 from ._continuation_common import BRANCH_RULES, BranchParameters, branch_summary, run_branch, stability_strip, step_rule
-from ._params import MAX_SITES, Rule, anticontinuum_rule, param
+from ._params import DENSE_MAX_SITES, Rule, anticontinuum_rule, param
 
 RESUMABLE = True
 
@@ -48,7 +48,7 @@ RESUMABLE = True
 class Parameters(BranchParameters):
     """The scene's parameters (``--set KEY=VALUE`` overrides any of them); steps in log10 K."""
 
-    N: int = param(PAPER_N, "sites of the chain; the figure draws the 31 central ones", ge=31, le=MAX_SITES)
+    N: int = param(PAPER_N, "sites of the chain; the figure draws the 31 central ones", ge=31, le=DENSE_MAX_SITES)
     omega: float = param(PAPER_OMEGA, "breather frequency w_b", gt=0)
     K_start: float = param(0.01, "coupling of the anti-continuum seed, where the branch starts", gt=0)
     K_end: float = param(PAPER_K, "coupling where the branch ends", gt=0)

@@ -27,7 +27,7 @@ from warpchain import physical
 from warpchain.store import write_table
 
 from ._common import PAPER_K, PAPER_M, PAPER_N, Context, pyplot, read_summary, save_figure
-from ._params import MAX_SITES, param
+from ._params import DENSE_MAX_SITES, param
 
 MATERIALS = physical.SILICA_SPHERES_ON_GLASS
 SENSITIVITY_PARAMETERS = (
@@ -46,7 +46,7 @@ class Parameters:
 
     M: float = param(PAPER_M, "mass ratio m1 / m2", gt=0)
     K: float = param(PAPER_K, "coupling k1 / k2", gt=0)
-    N: int = param(PAPER_N, "sites of the fixed-end chain whose mode frequencies are listed", ge=1, le=MAX_SITES)
+    N: int = param(PAPER_N, "sites of the fixed-end chain whose mode frequencies are listed", ge=1, le=DENSE_MAX_SITES)
     bloch_points: int = param(801, "Bloch numbers q over [0, pi]", ge=2, le=1_000_000)
     sensitivity_step: float = param(0.05, "relative change of each assumed value, up and down", gt=0, lt=1)
     k_max_over_k_T: float = param(2.0, "Fig. 2 wavenumber range, in units of the c_T crossing", gt=0)

@@ -65,7 +65,7 @@ from ._continuation_common import (
     run_branch,
     step_rule,
 )
-from ._params import MAX_SITES, Rule, anticontinuum_rule, param
+from ._params import DENSE_MAX_SITES, Rule, anticontinuum_rule, param
 
 FAMILIES = ("site", "bond-in-phase", "bond-out-of-phase", "asymmetric")
 BIFURCATION_KINDS = ("symmetry_breaking_pitchfork", "branch_point", "period_doubling", "krein_collision")
@@ -84,7 +84,10 @@ class Parameters(BranchParameters):
     """The scene's parameters (``--set KEY=VALUE``); steps and resolution in log10 K."""
 
     N: int = param(
-        PAPER_N, "sites of the chain; the figure draws sites c - 8 .. c + 9 around the centre c", ge=19, le=MAX_SITES
+        PAPER_N,
+        "sites of the chain; the figure draws sites c - 8 .. c + 9 around the centre c",
+        ge=19,
+        le=DENSE_MAX_SITES,
     )
     omega: float = param(PAPER_OMEGA, "breather frequency w_b", gt=0)
     K_start: float = param(0.01, "coupling of the anti-continuum seeds, where the families start", gt=0)

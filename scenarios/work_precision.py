@@ -40,7 +40,7 @@ class Parameters:
     smooth_periods: int = param(20, "periods of the exact breather, the smooth case", ge=1, le=10_000)
     contact_loss_periods: int = param(5, "periods of the contact-loss case", ge=1, le=10_000)
     contact_loss_scale: float = param(
-        2.5, "that case's eigenmode amplitude, in units of the exact breather's v_101", gt=0
+        2.5, "that case's eigenmode amplitude, in units of the exact breather's v_101", ge=1, le=100
     )
     steps_per_period: tuple[int, ...] = param(
         (24, 32, 48, 64, 96, 128, 192, 256, 384, 512, 768, 1024),
@@ -211,17 +211,15 @@ def run(ctx: Context) -> dict:
             cheapest[case][f"{target:g}"] = best
         warp_best = cheapest[case].get("1e-09")
         dop = time_to_reach([p for p in points if p["case"] == case and p["implementation"] == "scipy"], 1e-9)
-        if warp_best and dop:
-            warp_only = min(
-                (
-                    time_to_reach(
-                        [p for p in points if p["case"] == case and p["implementation"] == "warp" and p["method"] == m],
-                        1e-9,
-                    )
-                    or np.inf
-                )
-                for m in METHODS
+        warp_times = [
+            time_to_reach(
+                [p for p in points if p["case"] == case and p["implementation"] == "warp" and p["method"] == m], 1e-9
             )
+            for m in METHODS
+        ]
+        warp_times = [t for t in warp_times if t is not None]  # no Warp method reaching 1e-9: no speedup stated
+        if warp_best and dop and warp_times:
+            warp_only = min(warp_times)
             speedups[case] = {
                 "error": 1e-9,
                 "best_warp_seconds": warp_only,

@@ -84,18 +84,23 @@ def test_defaults_and_quick_pass_their_own_ranges(name, quick):
 
 
 AUDIT = [
-    ("breakup-statistics", "final_frames", "0", "must be an integer >= 1 (periods over which the final count"),
+    ("breakup-statistics", "final_frames", "0", "must be an integer in [1, 10000] (periods over which the final count"),
     ("breakup-statistics", "impulse", "foo", "must be one of velocity, displacement"),
-    ("breakup-statistics", "realisations", "-1", "must be an integer >= 0"),
-    ("breakup-statistics", "periods", "0", "must be an integer >= 1"),
+    ("breakup-statistics", "realisations", "-1", "must be an integer in [0, 10000000]"),
+    ("breakup-statistics", "periods", "0", "must be an integer in [1, 100000]"),
     ("breakup-statistics", "threshold", "-1", "must be a finite number > 0"),
     ("breakup-statistics", "method", "rk4", "must be one of verlet, yoshida4, yoshida6, kahan6, kahan8"),
     ("continuation-omega", "omega_min", "nan", "must be a finite number > 0"),
-    ("continuation-k", "N", "1", "must be an integer >= 31"),
-    ("continuation-omega", "N", "1", "must be an integer >= 2"),
-    ("site-bond", "N", "1", "must be an integer >= 19"),
+    ("continuation-k", "N", "1", "must be an integer in [31, 3201]"),
+    ("continuation-omega", "N", "1", "must be an integer in [2, 3201]"),
+    ("site-bond", "N", "1", "must be an integer in [19, 3201]"),
     ("continuation-k", "K_start", "0", "must be a finite number > 0"),
     ("site-bond", "K_start", "0", "must be a finite number > 0"),
+    # a rule that cannot be weighed (the stability limit of a chain too stiff to step) names the key given
+    ("continuation-k", "K_end", "1e308", "no stable dt (the stiffness overflows)"),
+    ("breather", "N", "1602", "must be an integer in [3, 1601]"),
+    ("direct-simulation", "periods", "10000", "needs periods x frames_per_period <= 1e5 frames"),
+    ("work-precision", "contact_loss_scale", "1e-300", "must be a finite number in [1, 100]"),
 ]
 
 
@@ -210,7 +215,7 @@ def test_set_values_read_as_the_fields_types():
 
 
 def test_an_api_override_is_refused_before_the_scene_makes_its_folder(tmp_path):
-    with pytest.raises(ValueError, match=r"^parameter final_frames=0: must be an integer >= 1"):
+    with pytest.raises(ValueError, match=r"^parameter final_frames=0: must be an integer in \[1, 10000\]"):
         run_scene("breakup-statistics", tmp_path, "cpu", True, overrides={"final_frames": 0})
     assert not any(tmp_path.iterdir())
 
@@ -225,7 +230,7 @@ def test_cli_prints_one_line_and_writes_nothing(tmp_path):
     )
     assert out.returncode == 2
     assert out.stderr.strip() == (
-        "error: --set final_frames=0: must be an integer >= 1 (periods over which the final count is a median)"
+        "error: --set final_frames=0: must be an integer in [1, 10000] (periods over which the final count is a median)"
     )
     assert not list(tmp_path.rglob("summary.json")) and not any(tmp_path.iterdir())
 
@@ -236,7 +241,7 @@ def test_params_lists_defaults_types_and_ranges(capsys):
     assert main(["params", "breakup-statistics"]) == 0
     text = capsys.readouterr().out
     assert text.startswith("breakup-statistics: Breakup statistics:")
-    assert "  final_frames (int) = 10  [--quick: 5]\n      allowed: an integer >= 1\n" in text
+    assert "  final_frames (int) = 10  [--quick: 5]\n      allowed: an integer in [1, 10000]\n" in text
     assert "      periods over which the final count is a median\n" in text
     assert "    final_frames, periods: final_frames <= periods" in text
     assert main(["params"]) == 0
