@@ -6,7 +6,7 @@ reference of every scheme (``reference``), losses (``losses``), observables redu
 (``observe``), and zarr output (``store``). The engine behind them lives in ``warpchain.engine``.
 """
 
-from .device_state import DeviceState
+from .engine.devices import DeviceState
 from .ensemble import (
     IntegrationError,
     SimulationResult,

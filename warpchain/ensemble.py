@@ -17,13 +17,13 @@ import numpy as np
 
 from .integrators import SplittingMethod, get_method, steps_for
 from .losses import Damping, as_damping, require_splitting
-from .model import ChainParams, as_batch, per_lattice_parameters, real_number
-from .device_state import DeviceState
+from .model import ChainParams, _signed_energy_change, as_batch, per_lattice_parameters, real_number
 from .engine.tuning import active
 from .integrators import IntegrationError, StepSizeError, check_step, stability_limit  # noqa: F401  (re-exported)
 from .options import Guard, Placement, Record, from_legacy
 
 from .engine.devices import (  # noqa: F401  (re-exported: the public face of the engine)
+    DeviceState,
     available_devices,
     cpu_threads,
     device_lock,
@@ -103,11 +103,6 @@ def _as_state(x0, N: int) -> np.ndarray:
     if arr.dtype == np.float64 and arr.ndim == 2 and arr.shape == (4, N):
         return np.ascontiguousarray(arr[None])
     return as_batch(x0, N, "x0")  # anything else: the full validation, with its messages
-
-
-def _signed_energy_change(E, E0, N):
-    scale = np.maximum(np.abs(E0), 1e-14 * N)
-    return (E - E0) / scale
 
 
 @on_one_thread
@@ -254,10 +249,8 @@ def simulate(
     runner = _pooled_runner(meth, params, x0, Mb, Kb, device, layout, upload=False)  # x0: uploaded below
     runner.set_damping(damping, dt_used)
     frames = None
-    if observe is not None:
-        from .observe import _Frames
-
-        frames = _Frames(runner, observe, nsteps // frame_every)
+    if observe is not None:  # the observation makes its device side (``observe._Frames``): no import of it here
+        frames = observe.frames(runner, nsteps // frame_every)
     t_runner = time.perf_counter() - t_runner
     wp = runner.wp
     final = DeviceState.empty(x0.shape, device) if keep_on_device else None  # filled behind the last chunk

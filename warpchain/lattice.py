@@ -23,7 +23,7 @@ of each bond, u_s w (u_s - u_t) + u_t w (u_t - u_s) = w (u_s - u_t)^2, so it equ
 infinite lattice has L u = lam(q) u, lam(q) = sum_k w_k (2 - e^{i q.e_k} - e^{-i q.e_k})
 = sum_k 2 w_k (1 - cos q.e_k): 2(1 - cos q) chain, 2[2 - cos q1 - cos q2] square,
 2[3 - cos q1 - cos q2 - cos(q1 - q2)] triangular. With u, v ~ e^{i w t} the model gives
-M w^4 - [K lam + M + 1] w^2 + K lam = 0 (``model._two_branches`` with s = K lam). The acoustic top comes
+M w^4 - [K lam + M + 1] w^2 + K lam = 0 (``_two_branches`` with s = K lam). The acoustic top comes
 from lam_max: 4 w (chain) and 4 (w1 + w2) (square: directions independent, q = (pi, pi)). Triangular:
 lam = 2 (sum w - F), F = sum_k w_k cos phi_k with phi = (q1, -q2, q2 - q1), sum phi = 0. Minimum of F: at a
 critical point w_k sin phi_k = lam' for all k; lam' = 0 gives phi_k in {0, pi} (an even number of pi),
@@ -50,7 +50,7 @@ import math
 
 import numpy as np
 
-from .model import _two_branches, real_number, whole_number
+from .checks import real_number, whole_number
 
 #: slot code: a fixed wall, read as u = 0; the bond counts (Laplacian and energy).
 WALL = -1
@@ -63,6 +63,16 @@ BOUNDARIES = tuple(_EDGES)  # the same names, in the same order, as model.BOUNDA
 
 _SQUARE = np.eye(2)
 _TRIANGULAR = np.array([[1.0, 0.0], [0.5, math.sqrt(3.0) / 2.0]])
+
+
+def _two_branches(s, M):
+    """(acoustic, optical) frequencies of the two-mass cell at the stiffness s = K lam(q)."""
+    a = s + M + 1.0
+    disc = np.sqrt(np.maximum(a * a - 4.0 * M * s, 0.0))
+    # the lower root in the cancellation-free form 2c / (b + sqrt(b^2 - 4ac))
+    lower = np.sqrt(2.0 * s / (a + disc))
+    upper = np.sqrt((a + disc) / (2.0 * M))
+    return lower, upper
 
 
 @dataclasses.dataclass(frozen=True, eq=False, repr=False)
@@ -227,7 +237,7 @@ class Lattice:
         return out
 
     def dispersion(self, q, M: float, K: float) -> tuple[np.ndarray, np.ndarray]:
-        """(acoustic, optical) frequencies at Bloch numbers q (``lam``'s q): ``model._two_branches`` at K lam(q)."""
+        """(acoustic, optical) frequencies at Bloch numbers q (``lam``'s q): ``_two_branches`` at K lam(q)."""
         M, K = real_number("M", M, positive=True), real_number("K", K, nonnegative=True)
         return _two_branches(K * self.lam(q), M)
 

@@ -19,6 +19,9 @@ from typing import Sequence
 
 import numpy as np
 
+from .checks import real_number, whole_number  # noqa: F401  (imported from here across the package)
+from .lattice import _two_branches, chain
+
 BOUNDARIES = ("fixed", "free", "periodic")
 #: Integer codes used by the Warp kernels for each boundary condition.
 BOUNDARY_CODES = {name: code for code, name in enumerate(BOUNDARIES)}
@@ -60,8 +63,6 @@ class ChainParams:
     @property
     def lattice(self):
         """The chain as data (``warpchain.lattice.chain(N, boundary)``): its Laplacian, linear modes, symmetry."""
-        from .lattice import chain
-
         return chain(self.N, self.boundary)
 
     def replace(self, **changes) -> "ChainParams":
@@ -99,36 +100,6 @@ def contact_potential(z):
     z = np.asarray(z, dtype=np.float64)
     s = np.maximum(1.0 + z, 0.0)
     return (2.0 / 3.0) * (0.4 * s * s * np.sqrt(s) - z) - 4.0 / 15.0
-
-
-def real_number(name: str, value, *, positive: bool = False, nonnegative: bool = False) -> float:
-    """Validate a real scalar at the public boundary: Python and numpy numbers and 0-d arrays are
-    accepted; bools, complex numbers, strings, arrays with more than one value and non-finite values
-    are refused with a message naming the argument."""
-    if isinstance(value, (bool, np.bool_)) or isinstance(value, (str, bytes)):
-        raise ValueError(f"{name} must be a real number, got {value!r}")
-    arr = np.asarray(value)
-    if arr.ndim != 0 or not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)):
-        raise ValueError(f"{name} must be a real number, got {value!r}")
-    out = float(arr)
-    if not np.isfinite(out):
-        raise ValueError(f"{name} must be finite, got {value!r}")
-    if positive and out <= 0:
-        raise ValueError(f"{name} must be > 0, got {value!r}")
-    if nonnegative and out < 0:
-        raise ValueError(f"{name} must be >= 0, got {value!r}")
-    return out
-
-
-def whole_number(name: str, value, *, minimum: int | None = None) -> int:
-    """Validate an integer (Python or numpy integer, or a 0-d integer array) at least ``minimum``."""
-    arr = np.asarray(value) if not isinstance(value, (bool, np.bool_)) else np.asarray(1.5)
-    if arr.ndim != 0 or not np.issubdtype(arr.dtype, np.integer):
-        raise ValueError(f"{name} must be an integer, got {value!r}")
-    out = int(arr)
-    if minimum is not None and out < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
-    return out
 
 
 def _per_lattice(value, batch: int) -> np.ndarray:
@@ -313,13 +284,10 @@ def dispersion_long_wave(q, M: float, K: float) -> tuple[np.ndarray, np.ndarray]
     return _two_branches(s, M)
 
 
-def _two_branches(s, M):
-    a = s + M + 1.0
-    disc = np.sqrt(np.maximum(a * a - 4.0 * M * s, 0.0))
-    # the lower root in the cancellation-free form 2c / (b + sqrt(b^2 - 4ac))
-    lower = np.sqrt(2.0 * s / (a + disc))
-    upper = np.sqrt((a + disc) / (2.0 * M))
-    return lower, upper
+def _signed_energy_change(E, E0, N):
+    """(E - E0) / |E0|, the denominator floored at 1e-14 N (a lattice at rest): the guard's energy error."""
+    scale = np.maximum(np.abs(E0), 1e-14 * N)
+    return (E - E0) / scale
 
 
 def band_edges(M: float, K: float) -> dict:

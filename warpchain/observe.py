@@ -38,10 +38,10 @@ import dataclasses
 import numpy as np
 
 from .engine.devices import on_one_thread
-from .ensemble import _signed_energy_change
 from .losses import Damping
 from .model import (
     ChainParams,
+    _signed_energy_change,
     site_energies,
     per_lattice_parameters,
     real_number,
@@ -87,6 +87,11 @@ class Observation:
         if not np.all(np.isfinite(spot)) or np.any(spot < 0):
             raise ValueError(f"spot must be finite and >= 0, got {self.spot!r}")
         return self
+
+    def frames(self, runner, n_frames: int) -> "_Frames":
+        """The device side of one run that ``simulate`` drives (``_Frames``): asked of the observation, so that
+        the engine's driver needs no import of this module (which calls ``simulate``)."""
+        return _Frames(runner, self, n_frames)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -13,7 +13,7 @@ import numpy as np
 from ..integrators import Method, check_step, get_method
 from ..losses import KICK_ENTRIES, Damping, kick_matrices, lossless
 from ..model import BOUNDARY_CODES, ChainParams, as_batch, per_lattice_parameters
-from ..device_state import DeviceState
+from .devices import DeviceState
 from ..reference import inverse_mass
 from .devices import (
     _in_parallel,
