@@ -453,9 +453,9 @@ def window_floquet(lin, M: float, state=None, tolerance=None, window: FloquetWin
     partial ``FloquetResult`` (``path="window"``, ``complete`` False, ``stable`` None: no verdict; what the window
     decided is ``partial_stable``) with its ``coverage``. On a mirror-symmetric orbit the even and the odd block are
     solved apart (``parity_extensions``), so each vector's parity is exact, as on the dense path."""
-    from .floquet import assemble
+    from .spectrum import assemble
     from .hostblas import blas_threads
-    from .slicing import central_weight, energy_centre, participation
+    from .spectrum import central_weight, energy_centre, participation
 
     start = time.perf_counter()
     window = window or FloquetWindow()

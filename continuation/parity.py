@@ -149,7 +149,7 @@ def parity_blocks(A: np.ndarray, M: float) -> "tuple[ParityBlock, ParityBlock] |
     )
     if coupling > PARITY_COUPLING_RTOL * scale:
         return None
-    from .floquet import _masses, _products
+    from .spectrum import _masses, _products
 
     m = _masses(M, N)
 

@@ -41,6 +41,7 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import ArpackError, ArpackNoConvergence
 
 from .krylov_floquet import OUTWARD_COUNT, OUTWARD_SHIFT, BandedShifts, _arnoldi, _disc, real_phase
+from .spectrum import CENTRAL_SITES, central_weight, energy_centre, participation  # noqa: F401
 
 #: the slices cover [-1 - OUTER, 1 + OUTER]; the outward discs and the outlier Arnoldi look beyond. Small: a first
 #: shift far from the cluster at +1 converges slowly (paper breather, N = 1601: the segment from 1.02 down took 1.0 s
@@ -65,34 +66,6 @@ SEGMENTS_PER_WORKER = 4
 
 #: outliers asked of each Arnoldi beyond the slices (strong real pairs, period doubling)
 OUTLIERS = 6
-
-#: sites on each side of the orbit's energy centre counted in an instability's ``central_weight``
-CENTRAL_SITES = 2
-
-
-def participation(vectors: np.ndarray, M: float) -> np.ndarray:
-    """Participation ratio in sites of each column (2N: u then v), site weight M|a_u|^2 + |a_v|^2."""
-    n = vectors.shape[0] // 2
-    w = M * np.abs(vectors[:n]) ** 2 + np.abs(vectors[n:]) ** 2
-    return np.sum(w, axis=0) ** 2 / np.maximum(np.sum(w * w, axis=0), 1e-300)
-
-
-def central_weight(vectors: np.ndarray, M: float, centre: float, sites: int = CENTRAL_SITES) -> np.ndarray:
-    """Fraction of each column's site weight (M|a_u|^2 + |a_v|^2; columns of length 2N) on the sites
-    within ``sites`` of ``centre``."""
-    vectors = np.asarray(vectors)
-    n = vectors.shape[0] // 2
-    w = M * np.abs(vectors[:n]) ** 2 + np.abs(vectors[n:]) ** 2
-    near = np.abs(np.arange(n) - centre) <= sites + 0.5
-    return np.sum(w[near], axis=0) / np.maximum(np.sum(w, axis=0), 1e-300)
-
-
-def energy_centre(state) -> float:
-    """Centre of a profile, sum j z_j^2 / sum z_j^2 with z = u - v at t = 0 (0-based sites): the centre
-    site c for a site-centred breather, c + 1/2 for a bond-centred one on (c, c + 1)."""
-    z = np.asarray(state)[0] - np.asarray(state)[1]
-    w = z * z
-    return float(np.sum(np.arange(len(z)) * w) / max(float(np.sum(w)), 1e-300))
 
 
 def _interleaved(n: int) -> np.ndarray:
@@ -287,7 +260,7 @@ def sliced_floquet(lin, M: float, state=None, tolerance=None, *, hint=None, proc
     else ``stable`` None with the counts in ``coverage``; no ``vectors`` (2N x 2N of them). ``hint``: the expected
     mu, to cut segments of equal work (``segments``). ``processes``: the slices in worker processes (default: from
     ``PROCESS_MIN_ROWS`` rows of a block on)."""
-    from .floquet import assemble
+    from .spectrum import assemble
     from .hostblas import blas_threads
     from .krylov_floquet import probed_problem
     from .workers import Shared, Workers
