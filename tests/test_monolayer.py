@@ -51,8 +51,8 @@ def test_a_monolayer_breather_and_its_complete_verdict_equal_the_dense_monodromy
 def test_the_discrete_nls_threshold():
     """``dnls_threshold``: the norm's minimum hardly depends on the patch once the breather fits (15 x 15 against
     21 x 21: 1.3e-5 on the triangular rhombus, whose walls come nearer the centre), the energy scales with K and
-    the frequency offset too (the DNLS has one coupling scale), and the continuum limit is the Townes norm times sites per area and the symbol's curvature (sqrt(3) more on the
-    triangular lattice than on the square one)."""
+    the frequency offset too (the DNLS has one coupling scale), and the continuum limit is the Townes norm times
+    sites per area and the symbol's curvature (sqrt(3) more on the triangular lattice than on the square one)."""
     import math
 
     from continuation import dnls_threshold, nls_coefficients
