@@ -177,7 +177,17 @@ def _walk(ctx, name: str, P: Parameters) -> dict:
             "predicted %.4f",
             name, dnls["energy"], dnls["omega"], dnls["townes_energy"], threshold["energy"] / dnls["energy"],
         )  # fmt: skip
+    advice = None
+    if threshold is None:  # the walk did not pass a minimum: where the small-amplitude theory puts it
+        gap = max(math.sqrt((P.M + 1.0) / P.M) - dnls["omega"], 1e-7)
+        start, step = dnls["omega"] - 3.0 * gap, max(gap / 10.0, 2e-7)
+        advice = (
+            f"no energy minimum on the walk ({reason} at w_b = {w[-1]:.6f}); the discrete NLS puts it at w_b = "
+            f"{dnls['omega']:.6f}: try --set omega_start={start:.6f} --set omega_step={step:.2g}"
+        )
+        ctx.log("%s: %s", name, advice)
     return {
+        "advice": advice,
         "lattice": params.lattice.describe(),
         "dnls_threshold": dnls,
         "threshold_over_dnls": threshold["energy"] / dnls["energy"] if threshold else None,

@@ -334,6 +334,22 @@ def test_monolayer_quick_has_an_energy_threshold_where_the_stability_changes(tmp
     assert (tmp_path / "monolayer" / "monolayer.png").exists()
 
 
+@pytest.mark.slow
+def test_monolayer_says_where_to_walk_when_the_walk_misses_the_minimum(tmp_path):
+    """At K = 0.25 the threshold lies closer to the edge than the default walk resolves: no threshold is claimed,
+    and the advice (from the discrete NLS's prediction) leads to it."""
+    base = ["run", "monolayer", "--quick", "--device", "cpu", "--set", "K=0.25", "--set", "lattices=square"]
+    out = _run(*base, "--out", str(tmp_path / "a"))
+    assert out.returncode == 0, out.stderr[-3000:]
+    s = json.loads((tmp_path / "a" / "monolayer" / "summary.json").read_text())["square"]
+    assert s["threshold"] is None and "--set omega_start=" in s["advice"]
+    advice = s["advice"].split("try ")[1].split()
+    out = _run(*base, *advice, "--out", str(tmp_path / "b"))
+    assert out.returncode == 0, out.stderr[-3000:]
+    s = json.loads((tmp_path / "b" / "monolayer" / "summary.json").read_text())["square"]
+    assert s["advice"] is None and 1.0 < s["threshold_over_dnls"] < 1.06
+
+
 def test_a_worker_failure_or_an_incomplete_verdict_is_one_line(tmp_path, monkeypatch, capsys):
     """An eigensolver worker that failed (its traceback kept as ``detail``) or a branch point whose Floquet count did
     not close reaches the command line as one line and exit status 1, not a traceback."""
