@@ -26,7 +26,8 @@ import numpy as np
 #: has such a ceiling, so that no value the ranges allow runs out of memory or for ever
 MAX_SITES = 12801
 #: the longest chain of a branch walk, a dispersion table or a scan of them: their dense Newton Jacobians (4N x 2N),
-#: linear modes (N x N) and Floquet blocks are held in memory (0.7 GB at 3201 sites; 156 GB at 51201)
+#: linear modes (N x N) and Floquet blocks are held in memory (a K branch at 3201 sites: 6 GB resident, a log
+#: line every 45 s or sooner; at 51201 one Jacobian alone would take 156 GB)
 DENSE_MAX_SITES = 3201
 
 #: how a value reached the parameters (for the messages): typed after --set, or given through the API
