@@ -105,6 +105,18 @@ def test_an_unknown_function_is_a_worker_error(pool):
     _works(pool)
 
 
+def test_a_long_map_says_how_far_it_is(pool, monkeypatch, caplog):
+    """A map that takes longer than PROGRESS_SECONDS logs a line per period (a 12801-site verdict on 2 cores was
+    silent for minutes); the results are as without."""
+    monkeypatch.setattr(workers, "PROGRESS_SECONDS", 0.2)
+    tasks = [("_state", (_Sleep(0.7),)), ("_interleaved", (4,))]
+    with caplog.at_level("INFO", logger="continuation"):
+        out = pool.map(MODULE, tasks[:1], what="trial") + pool.map("continuation.slicing", tasks[1:], what="trial")
+    lines = [r.getMessage() for r in caplog.records if "[workers]" in r.getMessage()]
+    assert lines and all(line.startswith("[workers] trial: 0 of 1 done (") for line in lines), lines
+    assert out[0] == "" and np.array_equal(out[1], slicing._interleaved(4))
+
+
 def test_map_raises_the_first_error_and_stops_the_other_tasks(pool):
     start = time.monotonic()
     with pytest.raises(WorkerError, match="ValueError"):
