@@ -70,6 +70,7 @@ def test_chase_plan_keeps_wide_bubbles_and_a_point_between_neighbours():
     assert lo2 == pytest.approx(0.3225)  # not past the middle between the two centres
 
 
+@pytest.mark.slow  # a few seconds: the fast set stays under 90 s on 2 cores
 def test_predicted_bubbles_match_bisecting_every_pass_at_a_fraction_of_the_solves():
     # the paper chain at N = 41, where bisecting every opposite-signature pass ("all") is affordable
     # and finds every bubble wider than the resolution: the frequency branch from the optical band edge

@@ -60,6 +60,7 @@ def test_the_window_agrees_with_dense(paper_breather, width):
     _agree(paper_breather, width)
 
 
+@pytest.mark.slow  # a few seconds: the fast set stays under 90 s on 2 cores
 def test_the_window_agrees_with_dense_at_801():
     p = ChainParams(30.0, 160.0, 801)
     _agree(ct.require(ct.find_breather(p, 1.01, ct.nls_seed(p, 1.01), device="cpu")), 0.0)

@@ -40,6 +40,7 @@ def _scan_changes(params, flow, branch, hi, lo, step):
     [(200.0, 17, 0.9999, 0.9993, 5e-6), (60.0, 27, 0.99880, 0.99856, 5e-7)],
     ids=["closes-and-reopens", "one-leaves-one-arrives"],
 )
+@pytest.mark.slow  # a few seconds: the fast set stays under 90 s on 2 cores
 @pytest.mark.parametrize("settings", [SCENE, ContinuationSettings()], ids=["scene", "default"])
 def test_the_branch_finds_every_window_of_a_dense_scan(K, N, hi, lo, step, settings):
     params, flow = ChainParams(30.0, K, N), Flow("kahan8", 32, device="cpu")
