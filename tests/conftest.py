@@ -1,3 +1,5 @@
+import os
+
 import numpy as np
 import pytest
 
@@ -23,3 +25,15 @@ def localized_state(N, amplitude=0.6, width=2.0, batch=1, centre=None, seed=None
 @pytest.fixture
 def small_chain():
     return ChainParams(M=3.0, K=4.0, N=31)
+
+
+@pytest.fixture(autouse=True)
+def _environment_restored():
+    """No test leaves os.environ changed for the next (a Dask LocalCluster started in a test wrote its workers'
+    MALLOC_TRIM_THRESHOLD_ and one-thread BLAS settings here, and the scenes later tests start as subprocesses ran
+    15 times slower)."""
+    kept = dict(os.environ)
+    yield
+    if dict(os.environ) != kept:
+        os.environ.clear()
+        os.environ.update(kept)

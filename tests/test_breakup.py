@@ -3,6 +3,7 @@ two-worker Dask cluster, and resumable."""
 
 import dataclasses
 import json
+import os
 
 import numpy as np
 import pytest
@@ -82,7 +83,10 @@ def test_reproducible_from_the_recorded_seeds(quick):
 def test_dask_two_workers_give_the_in_process_store(tmp_path):
     pytest.importorskip("distributed")
     run_scene("breakup-statistics", tmp_path / "local", "cpu", quick=True, overrides=TINY)
+    environment = dict(os.environ)
     run_scene("breakup-statistics", tmp_path / "dask", "cpu", quick=True, overrides={**TINY, "workers": 2})
+    # the local cluster's nanny wrote its workers' settings (MALLOC_TRIM_THRESHOLD_, one BLAS thread) here too
+    assert dict(os.environ) == environment
     local = _arrays(tmp_path / "local" / "breakup-statistics")
     dask = _arrays(tmp_path / "dask" / "breakup-statistics")
     assert local.keys() == dask.keys()

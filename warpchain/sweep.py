@@ -492,6 +492,21 @@ class _Pipeline:
                 thread.join()
 
 
+@contextlib.contextmanager
+def _environment_kept():
+    """This process's environment as it was before a ``LocalCluster`` started: distributed's nanny writes its workers'
+    variables (OMP/MKL/OPENBLAS_NUM_THREADS=1, PYTHONHASHSEED, MALLOC_TRIM_THRESHOLD_=65536) into ``os.environ`` of
+    the process that starts it, and every process started later inherited them: a scene run afterwards as a
+    subprocess took 135 s instead of 9 s (the malloc trim threshold; found in the test suite)."""
+    kept = dict(os.environ)
+    try:
+        yield
+    finally:
+        if dict(os.environ) != kept:
+            os.environ.clear()
+            os.environ.update(kept)
+
+
 def _dask_outcomes(
     stack: contextlib.ExitStack,
     store_path,
@@ -514,18 +529,19 @@ def _dask_outcomes(
         client = stack.enter_context(distributed.Client(scheduler, set_as_default=False))
         where = f"scheduler {scheduler}"
     else:
-        cluster = stack.enter_context(
-            distributed.LocalCluster(
-                n_workers=int(workers),
-                threads_per_worker=int(tasks_per_worker),
-                processes=bool(processes),
-                dashboard_address=None,
-                silence_logs=logging.ERROR,
+        with _environment_kept():
+            cluster = stack.enter_context(
+                distributed.LocalCluster(
+                    n_workers=int(workers),
+                    threads_per_worker=int(tasks_per_worker),
+                    processes=bool(processes),
+                    dashboard_address=None,
+                    silence_logs=logging.ERROR,
+                )
             )
-        )
-        client = stack.enter_context(distributed.Client(cluster, set_as_default=False))
-        where = "local cluster"
-        client.wait_for_workers(int(workers), timeout=120)
+            client = stack.enter_context(distributed.Client(cluster, set_as_default=False))
+            where = "local cluster"
+            client.wait_for_workers(int(workers), timeout=120)
     if not client.scheduler_info().get("workers"):
         client.wait_for_workers(1, timeout=120)
     info = client.scheduler_info().get("workers", {})
