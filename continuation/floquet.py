@@ -74,8 +74,6 @@ from .spectrum import (  # noqa: F401 (the results and their measures: importabl
     FloquetResult,
     Instability,
     SpectralData,
-    _masses,
-    _products,
     assemble,
     central_weight,
     energy_centre,

@@ -53,6 +53,8 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.linalg.lapack import dgbtrf, dgbtrs
 
+from .spectrum import assemble, central_weight, energy_centre, participation
+
 
 def _blocks(A, M: float) -> tuple:
     """The four blocks of A (CSC) and the diagonal mass matrix Mm."""
@@ -453,9 +455,7 @@ def window_floquet(lin, M: float, state=None, tolerance=None, window: FloquetWin
     partial ``FloquetResult`` (``path="window"``, ``complete`` False, ``stable`` None: no verdict; what the window
     decided is ``partial_stable``) with its ``coverage``. On a mirror-symmetric orbit the even and the odd block are
     solved apart (``parity_extensions``), so each vector's parity is exact, as on the dense path."""
-    from .spectrum import assemble
     from .hostblas import blas_threads
-    from .spectrum import central_weight, energy_centre, participation
 
     start = time.perf_counter()
     window = window or FloquetWindow()

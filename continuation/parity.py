@@ -13,6 +13,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .hostblas import blas_threads
+from .spectrum import _masses, _products
 
 
 def mirror_symmetric(state: np.ndarray, rtol: float = 1e-6) -> bool:
@@ -149,8 +150,6 @@ def parity_blocks(A: np.ndarray, M: float) -> "tuple[ParityBlock, ParityBlock] |
     )
     if coupling > PARITY_COUPLING_RTOL * scale:
         return None
-    from .spectrum import _masses, _products
-
     m = _masses(M, N)
 
     def block(sign, basis, k):

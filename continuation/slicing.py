@@ -41,7 +41,7 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import ArpackError, ArpackNoConvergence
 
 from .krylov_floquet import OUTWARD_COUNT, OUTWARD_SHIFT, BandedShifts, _arnoldi, _disc, real_phase
-from .spectrum import CENTRAL_SITES, central_weight, energy_centre, participation  # noqa: F401
+from .spectrum import assemble, central_weight, energy_centre, participation
 
 #: the slices cover [-1 - OUTER, 1 + OUTER]; the outward discs and the outlier Arnoldi look beyond. Small: a first
 #: shift far from the cluster at +1 converges slowly (paper breather, N = 1601: the segment from 1.02 down took 1.0 s
@@ -260,7 +260,6 @@ def sliced_floquet(lin, M: float, state=None, tolerance=None, *, hint=None, proc
     else ``stable`` None with the counts in ``coverage``; no ``vectors`` (2N x 2N of them). ``hint``: the expected
     mu, to cut segments of equal work (``segments``). ``processes``: the slices in worker processes (default: from
     ``PROCESS_MIN_ROWS`` rows of a block on)."""
-    from .spectrum import assemble
     from .hostblas import blas_threads
     from .krylov_floquet import probed_problem
     from .workers import Shared, Workers
