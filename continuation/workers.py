@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import collections
 import itertools
+import logging
 import os
 import pickle
 import queue
@@ -34,7 +35,6 @@ import sys
 import threading
 import time
 import traceback
-import logging
 from concurrent.futures import FIRST_EXCEPTION, ThreadPoolExecutor, wait
 
 #: worker processes at most (the caller's available cores bound it too)

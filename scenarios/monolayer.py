@@ -72,23 +72,33 @@ RULES = (
 )
 
 
-def _solve(params, omega, seed, flow):
+def _breather(params, omega, seed, flow):
+    """Newton from ``seed`` (dense, the reference flow): the breather, or None where Newton lost it (a residual above
+    1e-8, or the rest state)."""
     r = ct.find_breather(params, omega, seed, flow=flow, solver="dense")
-    if r.residual > 1e-8 or r.energy <= 0:
-        return None, None
-    return r, ct.floquet(r, solver="dense")
+    return None if r.residual > 1e-8 or r.energy <= 0 else r
+
+
+def _solve(params, omega, seed, flow):
+    r = _breather(params, omega, seed, flow)
+    return (None, None) if r is None else (r, ct.floquet(r, solver="dense"))
+
+
+def _participation(state) -> float:
+    """Participation ratio of the breather's z = u - v at t = 0, in sites."""
+    z = state[0] - state[1]
+    return float(np.sum(z * z) ** 2 / np.sum(z**4))
 
 
 def _row(omega, r, fl) -> dict:
-    z = r.state[0] - r.state[1]
     return {
         "omega": float(omega),
         "energy": float(r.energy),
         "stable": int(bool(fl.stable)),
         "floquet_complete": int(fl.complete),
         "max_modulus": float(fl.max_modulus),
-        "breather_participation": float(np.sum(z * z) ** 2 / np.sum(z**4)),
-        "centre_amplitude": float(np.abs(z).max()),
+        "breather_participation": _participation(r.state),
+        "centre_amplitude": float(np.abs(r.state[0] - r.state[1]).max()),
         "leading_kind": KINDS.index(fl.instabilities[0].kind) if fl.instabilities else -1,
     }
 
@@ -179,7 +189,7 @@ def _walk(ctx, name: str, P: Parameters) -> dict:
         )  # fmt: skip
     advice = None
     if threshold is None:  # the walk did not pass a minimum: where the small-amplitude theory puts it
-        gap = max(math.sqrt((P.M + 1.0) / P.M) - dnls["omega"], 1e-7)
+        gap = max(edge - dnls["omega"], 1e-7)
         start, step = dnls["omega"] - 3.0 * gap, max(gap / 10.0, 2e-7)
         advice = (
             f"no energy minimum on the walk ({reason} at w_b = {w[-1]:.6f}); the discrete NLS puts it at w_b = "
@@ -216,13 +226,12 @@ def _chain(ctx, P: Parameters, omegas) -> dict:
     flow = wc.ReferenceFlow(BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD)
     rows = {"omega": [], "energy": [], "breather_participation": []}
     for omega in omegas:
-        r = ct.find_breather(params, float(omega), ct.nls_seed(params, float(omega)), flow=flow, solver="dense")
-        if r.residual > 1e-8 or r.energy <= 0:
+        r = _breather(params, float(omega), ct.nls_seed(params, float(omega)), flow)
+        if r is None:
             continue
-        z = r.state[0] - r.state[1]
         rows["omega"].append(float(omega))
         rows["energy"].append(float(r.energy))
-        rows["breather_participation"].append(float(np.sum(z * z) ** 2 / np.sum(z**4)))
+        rows["breather_participation"].append(_participation(r.state))
     if rows["omega"]:
         ctx.log(
             "chain (%d sites): E = %.6f at w_b = %.5f down to %.6f at %.5f",

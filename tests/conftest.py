@@ -1,9 +1,8 @@
-import os
-
 import numpy as np
 import pytest
 
 from warpchain import ChainParams
+from warpchain.sweep import _environment_kept
 
 
 def localized_state(N, amplitude=0.6, width=2.0, batch=1, centre=None, seed=None):
@@ -32,8 +31,5 @@ def _environment_restored():
     """No test leaves os.environ changed for the next (a Dask LocalCluster started in a test wrote its workers'
     MALLOC_TRIM_THRESHOLD_ and one-thread BLAS settings here, and the scenes later tests start as subprocesses ran
     15 times slower)."""
-    kept = dict(os.environ)
-    yield
-    if dict(os.environ) != kept:
-        os.environ.clear()
-        os.environ.update(kept)
+    with _environment_kept():
+        yield
