@@ -16,6 +16,7 @@ import time
 import numpy as np
 
 from .integrators import SplittingMethod, get_method, steps_for
+from .lattice import neighbour_table
 from .losses import Damping, as_damping, require_splitting
 from .model import ChainParams, _signed_energy_change, as_batch, per_lattice_parameters, real_number
 from .engine.tuning import active
@@ -197,6 +198,11 @@ def simulate(
     frame_every = 0
     if observe is not None:
         require_splitting(meth, "observe reduces its observables in the splitting kernels")
+        if neighbour_table(params) is not None:
+            raise ValueError(
+                "simulate(): observe reduces the chain's observables; a lattice given as a neighbour table "
+                "(LatticeParams) runs without it: record frames (Record) and reduce them on the host"
+            )
         if record is not None:
             raise ValueError("simulate(): observe and record are exclusive (observables replace the fields)")
         if t_final <= 0:

@@ -33,6 +33,7 @@ from typing import Callable
 import numpy as np
 
 from .integrators import get_method
+from .lattice import geometry_key, neighbour_table
 from .model import ChainParams, as_batch, min_contact
 
 
@@ -265,7 +266,7 @@ class Flow:
         device = resolve_device(self.device)
         batch = x0.shape[0]
         Mb, Kb = per_lattice_parameters(params, batch, None, None)
-        key = (params.N, params.boundary, batch, int(nsteps) if record else 0, device)
+        key = (params.N, params.boundary, geometry_key(params), batch, int(nsteps) if record else 0, device)
         slot = self._pool.pop(key, None) or {"runners": [], "turn": 0}
         self._pool[key] = slot  # the most recent key last
         while len(self._pool) > POOL_KEYS:  # the oldest key's runners go (freed once no Linearization holds them)
@@ -381,7 +382,7 @@ class Flow:
                 lambda dx: wp.copy(dx, eye, src_offset=first * n, count=count * n), count, key=("unit", first, count)
             )
 
-        banded = params.boundary != "periodic"
+        banded = _banded(params)
         return Linearization(x0[0], x_end[0], contact[0], nsteps, dt, columns, unit=unit, banded=banded)
 
 
@@ -450,6 +451,12 @@ def _base_run(runner, x0: np.ndarray, nsteps: int, dt: float, record_stiffness: 
     return x_end, np.minimum(contact, low.numpy().reshape(runner.batch, 3)[:, 2])
 
 
+def _banded(params) -> bool:
+    """Whether a perturbation stays near its site index (``Linearization.banded``): on the chain with ends, not on
+    a ring, and not on a 2-D lattice given as a table (whose neighbours lie a row apart in the site order)."""
+    return neighbour_table(params) is None and params.boundary != "periodic"
+
+
 def _parameters(params: ChainParams):
     from .model import per_lattice_parameters
 
@@ -481,5 +488,5 @@ class ReferenceFlow(Flow):
             out = reference.integrate(self.method, params, x0, float(dt), int(nsteps), dx0=directions[None])
             return out["dx"][0]
 
-        banded = params.boundary != "periodic"
+        banded = _banded(params)
         return Linearization(x0[0], traj.x_end[0], traj.min_contact[0], nsteps, dt, columns, banded=banded)

@@ -26,6 +26,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from .lattice import neighbour_table
 from .model import ChainParams, band_edges, real_number
 
 
@@ -284,6 +285,12 @@ def stability_limit(method: Method | str, params: ChainParams, M=None, K=None) -
     """Linear stability limit on dt of ``method`` for these parameters (smallest over a batch),
     from the top of the optical band, w_max: dt < bound / w_max (bound = 2 for Verlet)."""
     method = get_method(method)
+    table = neighbour_table(params)
+    if table is not None:  # a lattice given as a table: its own optical top (lam_max)
+        Ms = np.atleast_1d(params.M if M is None else M).astype(float)
+        Ks = np.atleast_1d(params.K if K is None else K).astype(float)
+        pairs = np.unique(np.stack(np.broadcast_arrays(Ms, Ks), axis=-1).reshape(-1, 2), axis=0)
+        return method.linear_stability_limit(max(table.band_edges(m, k)["optical_top"] for m, k in pairs))
     if M is None and K is None:  # one chain for the whole batch (simulate's set-up: kept per chain)
         return method.linear_stability_limit(_optical_top(params.M, params.K))
     Ms = np.atleast_1d(params.M if M is None else M).astype(float)

@@ -503,8 +503,25 @@ class LatticeParams:
         """Linear resonance of one uncoupled site (the optical band's bottom on every lattice)."""
         return math.sqrt((self.M + 1.0) / self.M)
 
+    @property
+    def geometry_key(self) -> tuple:
+        """What fixes the neighbour table (the builders are deterministic): keys the engine's kept runners."""
+        lat = self.lattice
+        return (lat.name, lat.shape, lat.boundary, lat.direction_weights)
+
     def replace(self, **changes) -> "LatticeParams":
         return dataclasses.replace(self, **changes)
 
     def as_dict(self) -> dict:
         return {"M": self.M, "K": self.K, "lattice": self.lattice.describe()}
+
+
+def neighbour_table(params) -> Lattice | None:
+    """The lattice the engine runs from its neighbour table (``LatticeParams``), or None for ``model.ChainParams``
+    (the chain's own kernels: two neighbours and the walls of its boundary)."""
+    return params.lattice if isinstance(params, LatticeParams) else None
+
+
+def geometry_key(params) -> tuple | None:
+    """None for the chain's own kernels (``ChainParams``), else what fixes the neighbour table."""
+    return params.geometry_key if isinstance(params, LatticeParams) else None

@@ -49,6 +49,8 @@ from .thread_kernels import (
     peak_verdict,
     site_acceleration,
     site_energy,
+    held_energy,
+    table_bonds,
     site_tangent_acceleration,
     store_observables,
 )
@@ -623,10 +625,23 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
         site = j
         while site < n:
             state = load_site(x, b, site, True)
-            nb = neighbours_at(x, b, 0, site, n, lat.boundary)
-            e = e + site_energy(
-                state[0], state[1], state[2], state[3], nb[0], nb[1], site, lat.boundary, lat.mass[b], lat.coupling[b]
-            )
+            if lat.degree > 0:  # a neighbour table (the sites layout)
+                bonds = table_bonds(x, b, site, state[0], lat)
+                e = e + held_energy(state[0], state[1], state[2], state[3], bonds, lat.mass[b], lat.coupling[b])
+            else:
+                nb = neighbours_at(x, b, 0, site, n, lat.boundary)
+                e = e + site_energy(
+                    state[0],
+                    state[1],
+                    state[2],
+                    state[3],
+                    nb[0],
+                    nb[1],
+                    site,
+                    lat.boundary,
+                    lat.mass[b],
+                    lat.coupling[b],
+                )
             finite = wp.min(finite, finite_state(state[0], state[1], state[2], state[3]))
             low = wp.min(low, (ONE + state[0]) - state[1])
             for r in range(n_rec):

@@ -231,17 +231,30 @@ def _in_parallel(tasks) -> None:
         raise errors[0]
 
 
-def resolve_layout(layout: str, device: str, n_sites: int, method=None) -> str:
+def resolve_layout(layout: str, device: str, n_sites: int, method=None, table: bool = False) -> str:
     """Kernel layout: ``"block"`` (a thread block per lattice: the GPU path), ``"sites"`` (a thread per site, a
     launch per force evaluation: the GPU path for lattices longer than a block, splitting methods) or
     ``"thread"`` (a thread per lattice: the CPU path). ``"auto"`` picks block on a GPU when the lattice fits
-    one block, else sites on a GPU for a splitting ``method``, else thread (a None method: no sites)."""
+    one block, else sites on a GPU for a splitting ``method``, else thread (a None method: no sites). A lattice
+    given as a neighbour ``table`` (``warpchain.lattice.LatticeParams``) runs in the sites layout, on any device."""
     from ..integrators import SplittingMethod
     from . import block_kernels
 
     if layout not in LAYOUTS:
         raise ValueError(f"layout must be one of {LAYOUTS}, got {layout!r}")
     splitting = isinstance(method, SplittingMethod)
+    if table:
+        if layout not in ("auto", "sites"):
+            raise ValueError(
+                f"a lattice given as a neighbour table (LatticeParams) runs in the 'sites' layout, got {layout!r}; "
+                "use layout='auto' or 'sites'"
+            )
+        if method is not None and not splitting:
+            raise ValueError(
+                f"a lattice given as a neighbour table (LatticeParams) runs the splitting methods; {method.name!r} is "
+                "not one (see warpchain.METHODS)"
+            )
+        return "sites"
     if layout == "auto":
         if device == "cpu":
             return "thread"

@@ -11,6 +11,7 @@ from typing import Callable
 import numpy as np
 
 from ..integrators import Method, check_step, get_method
+from ..lattice import geometry_key, neighbour_table
 from ..losses import KICK_ENTRIES, Damping, kick_matrices, lossless
 from ..model import BOUNDARY_CODES, ChainParams, as_batch, per_lattice_parameters
 from .devices import DeviceState
@@ -85,7 +86,8 @@ class _Runner:
 
         self.wp, self.k, self.method, self.device = wp, kernels, method, device
         self.batch, _, self.N = x0.shape
-        self.layout = resolve_layout(layout, device, self.N, method)
+        table = neighbour_table(params)  # a lattice given as a neighbour table: the sites layout
+        self.layout = resolve_layout(layout, device, self.N, method, table=table is not None)
         if self.layout in ("block", "sites"):
             # the sites layout's guard: the block guard of a full block, each thread summing several sites
             self.block = block_kernels.block_size(min(self.N, block_kernels.MAX_BLOCK))
@@ -97,6 +99,14 @@ class _Runner:
         self.serial = self.layout in ("block", "sites") and device == "cpu"
         self.boundary = BOUNDARY_CODES[params.boundary]
         f64 = wp.float64
+        if table is None:
+            self.degree = 0
+            self.table = wp.zeros((1, 1), dtype=wp.int32, device=device)
+            self.weights = wp.zeros((1, 1), dtype=f64, device=device)
+        else:
+            self.degree = table.degree
+            self.table = wp.array(table.neighbours, dtype=wp.int32, device=device)
+            self.weights = wp.array(table.weights, dtype=f64, device=device)
         # pinned host staging of the state (made on first use), and the event after the last copy from each
         self._pinned_up_done = self._pinned_down_done = None
         self.x = wp.empty(x0.shape, dtype=f64, device=device)
@@ -161,6 +171,7 @@ class _Runner:
             )
             lat.damp = _part(self.damp, lo, hi) if self.damped else self.no_damp
             lat.boundary = self.boundary
+            lat.degree, lat.table, lat.weights = self.degree, self.table, self.weights
             kept[lo, hi] = lat
         return kept[lo, hi]
 
@@ -384,7 +395,9 @@ def _pooled_runner(
     is out of the pool, so concurrent calls never share one."""
     if device == "cpu":
         return _Runner(method, params, x0, M, K, device, layout=layout, upload=upload)
-    key = (method, params.N, params.boundary, x0.shape[0], device, resolve_layout(layout, device, params.N, method))
+    table = neighbour_table(params) is not None
+    layout = resolve_layout(layout, device, params.N, method, table=table)
+    key = (method, params.N, params.boundary, geometry_key(params), x0.shape[0], device, layout)
     with _STAGING_LOCK:
         free = _RUNNER_POOL.get(key)
         runner = free.pop() if free else None

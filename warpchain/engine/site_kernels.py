@@ -10,17 +10,20 @@ synchronisation, the neighbours' u before a force evaluation, is the end of a la
 ``kahan8`` at 16 steps is 241 launches, replayed as one CUDA graph by the ``Flow``.
 
 One launch is one force evaluation ``e`` (``evaluate``): site j reads its u from ``src`` (drifted for this
-evaluation) and its neighbours' u from the same array (``thread_kernels.neighbours_at``), computes the
-accelerations (``site_acceleration``: the base's contact law; ``site_tangent_acceleration`` for a tangent
-lane, with the base's recorded f'(z) of evaluation e), gives the kick
+evaluation) and its neighbours' u from the same array (the chain's ``thread_kernels.neighbours_at``, or a
+lattice's neighbour table: ``table_laplacian``), computes the accelerations (``coupled_acceleration``: the base's
+contact law; ``coupled_tangent_acceleration`` for a tangent lane, with the base's recorded f'(z) of evaluation
+e), gives the kick
 that follows the evaluation, records the frame when a step ends, gives the next step's first kick with the
 same accelerations (as the reference, which does not recompute them) and writes the u of the next
 evaluation, drifted, into ``dst``. ``src`` and ``dst`` alternate between the state's row 0 and a scratch
 row (ping-pong), so no thread overwrites a u another thread still reads. Same operations in the same order
 as ``reference.integrate`` and the other layouts.
 
-A 2-D lattice (the monolayer) changes ``neighbours_at``: the list of a site's neighbours (a table or a
-stencil); the launch sequence (``evaluations``) and the kick/drift arithmetic stay.
+A 2-D lattice (the square and triangular monolayers: ``warpchain.lattice.LatticeParams``) runs here: its
+neighbour table, carried in the ``Lattice`` struct, replaces ``neighbours_at``; the launch sequence
+(``evaluations``), the kick/drift arithmetic, the tangent lanes and the guard (``table_bonds``) stay. It is the
+one layout that takes a table (a thread per site needs no neighbour within a block or a thread's run).
 """
 
 import warp as wp
@@ -33,10 +36,12 @@ from .thread_kernels import (
     base_of,
     Array3,
     Indices,
+    ZERO,
     contact_stiffness,
+    coupled_acceleration,
+    coupled_tangent_acceleration,
     neighbours_at,
-    site_acceleration,
-    site_tangent_acceleration,
+    table_laplacian,
 )
 
 #: ``drift`` values of ``evaluate``: drift u by c into dst; copy u into dst unchanged; leave dst alone
@@ -83,12 +88,17 @@ def evaluate(
     k = lat.coupling[base]
     u = src[b, src_row, j]
     v = x[b, 1, j]
-    nb = neighbours_at(src, b, src_row, j, n, lat.boundary)
+    lap = ZERO
+    if lat.degree > 0:
+        lap = table_laplacian(src, b, src_row, j, u, lat)
+    else:
+        nb = neighbours_at(src, b, src_row, j, n, lat.boundary)
+        lap = (u - nb[0]) + (u - nb[1])
     loss = int(0)
     if tangent != 0:
-        a = site_tangent_acceleration(u, v, nb[0], nb[1], m, k, hist[slot, base, j])
+        a = coupled_tangent_acceleration(u, v, lap, m, k, hist[slot, base, j])
     else:
-        a = site_acceleration(u, v, nb[0], nb[1], m, k)
+        a = coupled_acceleration(u, v, lap, m, k)
         loss = lat.lossy[b]
         if out.stiffness != 0:
             hist[slot, b, j] = contact_stiffness(u - v)

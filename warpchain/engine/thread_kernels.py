@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import warp as wp
 
+from ..lattice import MISSING, WALL
 from ..model import BOUNDARY_CODES
 
 #: the kernels' annotation types: float64 arrays of 1 to 3 axes, int32 indices, float64
@@ -54,6 +55,9 @@ NO_CONTACT = wp.constant(wp.float64(1.0e300))
 BOUNDARY_FIXED = wp.constant(BOUNDARY_CODES["fixed"])
 BOUNDARY_FREE = wp.constant(BOUNDARY_CODES["free"])
 BOUNDARY_PERIODIC = wp.constant(BOUNDARY_CODES["periodic"])
+#: a neighbour table's slot codes (``warpchain.lattice``): a fixed wall (reads u = 0), no neighbour (reads the site)
+TABLE_WALL = wp.constant(WALL)
+TABLE_MISSING = wp.constant(MISSING)
 
 
 @wp.struct
@@ -73,8 +77,10 @@ class Recording:
 class Lattice:
     """What the kernels read of a batch of lattices besides the state, passed whole: per lattice the mass M, 1/M
     (the step kernels multiply by it), the coupling K and the losses (``lossy`` flag, the damped kicks'
-    coefficients ``damp``, ``losses``), and the boundary's code. A lattice of another geometry (a 2-D layer's
-    neighbour table) adds its description here, not to every kernel's arguments. Built by ``Runner.lattice``."""
+    coefficients ``damp``, ``losses``), and the boundary's code; a lattice given as a neighbour table
+    (``warpchain.lattice.Lattice``: the square and triangular monolayers) adds the table and its bond weights
+    (``degree`` > 0; read by ``table_laplacian`` and ``table_bonds``), which the ``"sites"`` layout runs. Built by
+    ``Runner.lattice``."""
 
     mass: Array1
     inv_mass: Array1
@@ -82,6 +88,12 @@ class Lattice:
     lossy: Indices
     damp: Array3
     boundary: int
+    #: 0: the chain's two neighbours (``neighbours_at``, the walls of ``boundary``); D > 0: ``table``'s D slots
+    degree: int
+    #: (sites, D) int32: a neighbour's site index, ``TABLE_WALL`` or ``TABLE_MISSING`` (``warpchain.lattice``)
+    table: wp.array2d(dtype=wp.int32)
+    #: (sites, D) float64: the bonds' weights
+    weights: Array2
 
 
 @wp.struct
@@ -150,6 +162,40 @@ def neighbours_at(x: Array3, b: int, comp: int, j: int, n: int, boundary: int) -
     if j < n - 1:
         right = x[b, comp, j + 1]
     return wp.vec2d(left, right)
+
+
+@wp.func
+def table_neighbour(x: Array3, b: int, comp: int, u: F64, t: int) -> F64:
+    """The u a neighbour-table slot reads (``warpchain.lattice``): site t's, 0 at a wall, the site's own ``u``
+    where the slot holds no neighbour (its bond, weight 0, adds nothing)."""
+    if t >= 0:
+        return x[b, comp, t]
+    if t == TABLE_WALL:
+        return ZERO
+    return u
+
+
+@wp.func
+def table_laplacian(x: Array3, b: int, comp: int, j: int, u: F64, lat: Lattice) -> F64:
+    """(L u)_j = sum_d w_jd (u_j - u_nb(j,d)) over the table's slots in order (``Lattice.laplacian``, operation
+    for operation: on the chain's table (u - left) + (u - right), the weights 1 multiplying exactly)."""
+    lap = lat.weights[j, 0] * (u - table_neighbour(x, b, comp, u, lat.table[j, 0]))
+    for d in range(1, lat.degree):
+        lap = lap + lat.weights[j, d] * (u - table_neighbour(x, b, comp, u, lat.table[j, d]))
+    return lap
+
+
+@wp.func
+def table_bonds(x: Array3, b: int, j: int, u: F64, lat: Lattice) -> F64:
+    """sum w (u_j - u_t)^2 over the bonds site j holds in the energy: its slots along +e_k (odd: each bond
+    between two sites is held once, a wrapped one too) and its walls (a wall bond belongs to its site alone)."""
+    bonds = ZERO
+    for d in range(lat.degree):
+        t = lat.table[j, d]
+        if d % 2 == 1 or t == TABLE_WALL:
+            diff = u - table_neighbour(x, b, 0, u, t)
+            bonds = bonds + lat.weights[j, d] * (diff * diff)
+    return bonds
 
 
 @wp.func
@@ -253,24 +299,36 @@ def row(x: Array3, i: int, r: int) -> wp.array(dtype=wp.float64):
 
 
 @wp.func
-def site_acceleration(u: F64, v: F64, left: F64, right: F64, inv_mass: F64, coupling: F64) -> wp.vec2d:
-    """(u_j'', v_j'') from u_j, v_j and the u of both neighbours (or the wall values): the arithmetic of
-    ``acceleration_at`` (and ``laplacian_at``) and of the numpy reference, operation for operation,
-    multiplied by 1/M. Shared by the thread kernels' fused sweep and the block kernels."""
+def coupled_acceleration(u: F64, v: F64, lap: F64, inv_mass: F64, coupling: F64) -> wp.vec2d:
+    """(u_j'', v_j'') from u_j, v_j and the Laplacian (L u)_j of any lattice: the arithmetic of the numpy
+    reference, operation for operation, multiplied by 1/M."""
     force = contact_force(u - v)
-    au = -(coupling * ((u - left) + (u - right)) + force) * inv_mass
+    au = -(coupling * lap + force) * inv_mass
     return wp.vec2d(au, force)
+
+
+@wp.func
+def coupled_tangent_acceleration(du: F64, dv: F64, lap: F64, inv_mass: F64, coupling: F64, stiffness: F64) -> wp.vec2d:
+    """The linear accelerations of a tangent (du, dv) with Laplacian ``lap`` at a site whose base has
+    f'(z) = ``stiffness``."""
+    dz = du - dv
+    au = -(coupling * lap + stiffness * dz) * inv_mass
+    return wp.vec2d(au, stiffness * dz)
+
+
+@wp.func
+def site_acceleration(u: F64, v: F64, left: F64, right: F64, inv_mass: F64, coupling: F64) -> wp.vec2d:
+    """``coupled_acceleration`` on the chain, from the u of both neighbours (or the wall values): the arithmetic
+    of ``acceleration_at`` (and ``laplacian_at``). Shared by the thread kernels' fused sweep and the block kernels."""
+    return coupled_acceleration(u, v, (u - left) + (u - right), inv_mass, coupling)
 
 
 @wp.func
 def site_tangent_acceleration(
     du: F64, dv: F64, left: F64, right: F64, inv_mass: F64, coupling: F64, stiffness: F64
 ) -> wp.vec2d:
-    """The linear accelerations of a tangent (du, dv) at a site whose base has f'(z) = ``stiffness``
-    (``tangent_acceleration_at``'s arithmetic)."""
-    dz = du - dv
-    au = -(coupling * ((du - left) + (du - right)) + stiffness * dz) * inv_mass
-    return wp.vec2d(au, stiffness * dz)
+    """``coupled_tangent_acceleration`` on the chain (``tangent_acceleration_at``'s arithmetic)."""
+    return coupled_tangent_acceleration(du, dv, (du - left) + (du - right), inv_mass, coupling, stiffness)
 
 
 @wp.struct
@@ -512,6 +570,13 @@ def site_energy(
     bonds = (right - u) * (right - u)
     if j == 0 and boundary != BOUNDARY_PERIODIC:
         bonds = bonds + (u - left) * (u - left)
+    return held_energy(u, v, pu, pv, bonds, mass, coupling)
+
+
+@wp.func
+def held_energy(u: F64, v: F64, pu: F64, pv: F64, bonds: F64, mass: F64, coupling: F64) -> F64:
+    """A site's share of the Hamiltonian given the sum of the squared (weighted) bond stretches it holds
+    (``site_energy`` on the chain, ``table_bonds`` on a table): kinetic, (K/2) bonds, contact."""
     kinetic = HALF * mass * (pu * pu) + HALF * (pv * pv)
     return kinetic + HALF * coupling * bonds + contact_potential(u - v)
 

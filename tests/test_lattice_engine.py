@@ -1,0 +1,164 @@
+"""Lattices given as neighbour tables (``warpchain.lattice.LatticeParams``: square and triangular monolayers, the
+chain as a table) on the Warp engine: ``simulate``, ``propagate_tangent`` and the ``Flow`` run them in the
+``"sites"`` layout, whose one kernel reads a site's neighbours from the table. Bit for bit with the numpy
+reference on the CPU (the GPU runs of ``tests/test_gpu_engine.py`` use the same checks); a 1 x N strip and the
+chain as a table give the chain's own kernels' bits, a square lattice without cross bonds independent chains'."""
+
+import numpy as np
+import pytest
+
+from warpchain import (
+    BOUNDARIES,
+    ChainParams,
+    Guard,
+    Placement,
+    Record,
+    StepSizeError,
+    energy,
+    propagate_tangent,
+    reference,
+    simulate,
+)
+from warpchain.flow import Flow, ReferenceFlow
+from warpchain.integrators import stability_limit
+from warpchain.lattice import LatticeParams, chain, square, triangular
+from warpchain.losses import Damping
+
+BUILDERS = {"square": square, "triangular": triangular}
+
+
+def _state(n: int, batch: int, seed: int, amplitude: float = 0.3) -> np.ndarray:
+    return amplitude * np.random.default_rng(seed).normal(size=(batch, 4, n))
+
+
+@pytest.mark.parametrize("boundary", BOUNDARIES)
+@pytest.mark.parametrize("geometry", sorted(BUILDERS))
+@pytest.mark.parametrize("method", ["verlet", "kahan8"])
+def test_2d_runs_bit_for_bit_with_the_reference(method, geometry, boundary):
+    p = LatticeParams(30.0, 4.0, BUILDERS[geometry](5, 4, boundary))
+    x0 = _state(p.N, 3, seed=7)
+    M, K = np.array([30.0, 10.0, 50.0]), np.array([4.0, 1.0, 8.0])
+    run = simulate(
+        p, x0, 40 * 0.05, 0.05, method=method, device="cpu", M=M, K=K, record=Record(every=7), guard=Guard(chunks=2)
+    )
+    ref = reference.integrate(method, p, x0, 0.05, run.nsteps, M=M, K=K, save_every=7)
+    assert run.layout == "sites"
+    assert np.array_equal(run.x, ref["x"]) and np.array_equal(run.u, ref["u"]) and np.array_equal(run.v, ref["v"])
+    # the guard's energy (the table's bonds, each held once) is the Hamiltonian
+    assert np.allclose(run.energy_final, energy(p, run.x, M, K), rtol=1e-13, atol=0)
+    assert np.allclose(run.energy_trace[0], energy(p, x0, M, K), rtol=1e-13, atol=0)
+
+
+def test_2d_losses_bit_for_bit_with_the_reference():
+    p = LatticeParams(30.0, 2.0, triangular(4, 4, "fixed"))
+    x0 = _state(p.N, 2, seed=5)
+    damping = Damping(contact=np.array([0.0, 0.02]), substrate=np.array([0.0, 0.01]))
+    run = simulate(p, x0, 40 * 0.05, 0.05, method="kahan6", device="cpu", damping=damping)
+    ref = reference.integrate("kahan6", p, x0, run.dt, run.nsteps, damping=damping)
+    assert np.array_equal(run.x, ref["x"]) and not np.array_equal(run.x[0], run.x[1])
+
+
+@pytest.mark.parametrize("geometry", sorted(BUILDERS))
+def test_2d_tangent_columns_bit_for_bit_with_the_reference(geometry):
+    p = LatticeParams(30.0, 3.0, BUILDERS[geometry](4, 3, "periodic"))
+    x0 = _state(p.N, 2, seed=1)
+    dx0 = np.random.default_rng(2).normal(size=(5, 4, p.N))
+    base = np.array([0, 1, 1, 0, 1], dtype=np.int32)
+    M, K = np.array([30.0, 20.0]), np.array([3.0, 1.5])
+    out = propagate_tangent(p, x0, dx0, 6, 0.05, method="kahan8", column_base=base, M=M, K=K, device="cpu")
+    assert out.layout == "sites"
+    for c in range(len(base)):
+        b = base[c]
+        pb = p.replace(M=M[b], K=K[b])
+        ref = reference.integrate("kahan8", pb, x0[b : b + 1], 0.05, 6, dx0=dx0[None, c : c + 1])
+        assert np.array_equal(out.columns[c], ref["dx"][0, 0])
+
+
+@pytest.mark.parametrize("geometry", sorted(BUILDERS))
+def test_2d_flow_bit_for_bit_with_the_reference_flow(geometry):
+    """The Flow (Newton's and Floquet's seam) on a patch: end state, min contact and every unit column."""
+    p = LatticeParams(30.0, 2.0, BUILDERS[geometry](4, 4, "fixed"))
+    x0 = _state(p.N, 1, seed=3)
+    flow, ref = Flow("kahan8", 16, device="cpu"), ReferenceFlow("kahan8", 16)
+    for dt in (0.05, 0.04):
+        a, b = flow.linearize(p, x0, 8, dt), ref.linearize(p, x0, 8, dt)
+        assert not a.banded
+        assert np.array_equal(a.x_end, b.x_end) and a.min_contact == b.min_contact
+        assert np.array_equal(a.unit_columns("all"), b.unit_columns("all"))
+    # a second geometry of the same size is not served the first one's kept runner
+    other = LatticeParams(30.0, 2.0, BUILDERS[geometry](2, 8, "fixed"))
+    assert np.array_equal(flow.run(other, x0, 8, 0.05).x_end, ref.run(other, x0, 8, 0.05).x_end)
+
+
+@pytest.mark.parametrize("boundary", BOUNDARIES)
+def test_strip_and_chain_table_are_the_chain(boundary):
+    """A 1 x N strip (no bond across) and the chain given as a table: the chain's kernels' bits, in the sites
+    layout and in the chain's own thread layout."""
+    N = 13
+    line = ChainParams(30.0, 160.0, N, boundary=boundary)
+    x0 = _state(N, 2, seed=11, amplitude=0.5)
+    expect = simulate(line, x0, 30 * 0.02, 0.02, device="cpu", record=Record(every=5))
+    sites = simulate(line, x0, 30 * 0.02, 0.02, device="cpu", record=Record(every=5), placement=Placement("sites"))
+    assert np.array_equal(expect.x, sites.x)
+    for lat in (square(N, 1, boundary, weights=(1.0, 0.0)), chain(N, boundary)):
+        run = simulate(LatticeParams(30.0, 160.0, lat), x0, 30 * 0.02, 0.02, device="cpu", record=Record(every=5))
+        assert np.array_equal(run.x, expect.x) and np.array_equal(run.u, expect.u)
+
+
+@pytest.mark.parametrize("boundary", BOUNDARIES)
+def test_square_without_cross_bonds_is_independent_chains(boundary):
+    nx, ny = 9, 3
+    p = LatticeParams(30.0, 160.0, square(nx, ny, boundary, weights=(1.0, 0.0)))
+    x0 = _state(p.N, 1, seed=13, amplitude=0.5)
+    run = simulate(p, x0, 30 * 0.02, 0.02, device="cpu")
+    rows = x0.reshape(4, ny, nx).transpose(1, 0, 2)  # site i + nx j: row j is chain j
+    line = simulate(ChainParams(30.0, 160.0, nx, boundary=boundary), rows, 30 * 0.02, 0.02, device="cpu")
+    assert np.array_equal(run.x.reshape(4, ny, nx).transpose(1, 0, 2), line.x)
+
+
+def test_2d_step_limit_and_refusals():
+    """The step limit is the lattice's optical top (lam_max 8 on the square, 4 on the chain); the layouts that
+    do not read a table refuse it in one line."""
+    chain_p, square_p = ChainParams(30.0, 4.0, 16), LatticeParams(30.0, 4.0, square(4, 4))
+    assert stability_limit("verlet", square_p) < stability_limit("verlet", chain_p)
+    x0 = np.zeros((1, 4, 16))
+    dt = 0.5 * (stability_limit("verlet", square_p) + stability_limit("verlet", chain_p))
+    simulate(chain_p, x0, 4 * dt, dt, method="verlet", device="cpu")
+    with pytest.raises(StepSizeError):
+        simulate(square_p, x0, 4 * dt, dt, method="verlet", device="cpu")
+    with pytest.raises(ValueError, match="runs in the 'sites' layout"):
+        simulate(square_p, x0, 0.1, 0.05, device="cpu", placement=Placement("thread"))
+    with pytest.raises(ValueError, match="splitting methods"):
+        simulate(square_p, x0, 0.1, 0.05, method="rk4", device="cpu")
+
+
+def _cuda_devices() -> list[str]:
+    from warpchain.engine.devices import available_devices
+
+    return [d for d in available_devices() if d.startswith("cuda")]
+
+
+@pytest.mark.skipif(not _cuda_devices(), reason="needs a GPU (CI has none: the CPU tests above hold the bits)")
+@pytest.mark.parametrize("geometry", sorted(BUILDERS))
+def test_2d_on_a_gpu_equals_the_reference(geometry):
+    """On a GPU (FMA contraction: rounding, not bits): simulate with frames and losses, the Flow's end state and
+    unit columns (replayed as CUDA graphs from the second call), a 21 x 21 patch."""
+    device = _cuda_devices()[0]
+    p = LatticeParams(30.0, 2.0, BUILDERS[geometry](21, 21, "fixed"))
+    x0 = _state(p.N, 3, seed=17)
+    damping = Damping(contact=np.array([0.0, 0.02, 0.0]), substrate=np.array([0.0, 0.01, 0.0]))
+    run = simulate(p, x0, 50 * 0.05, 0.05, device=device, record=Record(every=10), damping=damping)
+    ref = reference.integrate("kahan8", p, x0, run.dt, run.nsteps, save_every=10, damping=damping)
+    assert run.layout == "sites"
+    np.testing.assert_allclose(run.x, ref["x"], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(run.u, ref["u"], rtol=0, atol=1e-12)
+    assert np.allclose(run.energy_final[2], energy(p, run.x[2:]), rtol=1e-12, atol=0)
+    small = LatticeParams(30.0, 2.0, BUILDERS[geometry](5, 5, "periodic"))
+    flow, reference_flow = Flow("kahan8", 16, device=device), ReferenceFlow("kahan8", 16)
+    for _ in range(2):
+        a, b = (
+            flow.linearize(small, x0[:1, :, : small.N], 8, 0.05),
+            reference_flow.linearize(small, x0[:1, :, : small.N], 8, 0.05),
+        )
+        np.testing.assert_allclose(a.x_end, b.x_end, rtol=0, atol=1e-13)
+        np.testing.assert_allclose(a.unit_columns("all"), b.unit_columns("all"), rtol=0, atol=1e-12)
