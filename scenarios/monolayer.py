@@ -18,9 +18,10 @@ measured threshold approaches as K -> 0) and the chain's breathers at the same f
 whose energy has no minimum.
 
 How: Newton shooting on the time-reversible half-period map and the reduced Floquet analysis (every multiplier,
-even and odd blocks under the patch's 180-degree rotation) run on the numpy reference (``warpchain.lattice.
-LatticeParams`` with ``ReferenceFlow``): the Warp kernels do not take a lattice yet (issue #50), so the patches
-are small (15 x 15 by default). The walls are fixed. Measured on the square lattice (2026-11-27): 15 x 15 and
+even and odd blocks under the patch's 180-degree rotation) on the Warp ``Flow`` of ``--device``
+(``warpchain.lattice.LatticeParams``: the sites layout reads the patch's neighbour table; on the CPU its bits are
+the numpy reference's). The Jacobians and the Floquet analysis are dense, so the patches are small (15 x 15 by
+default). The walls are fixed. Measured on the square lattice (2026-11-27): 15 x 15 and
 21 x 21 give the same energies to the 6 digits logged up to w_b = 1.0161 (past the threshold) and the same
 threshold and stability change; they part by 4e-6 at 1.0162 and 4e-5 at 1.0163, where the breather spreads over
 4 to 8 sites.
@@ -73,7 +74,7 @@ RULES = (
 
 
 def _breather(params, omega, seed, flow):
-    """Newton from ``seed`` (dense, the reference flow): the breather, or None where Newton lost it (a residual above
+    """Newton from ``seed`` (dense): the breather, or None where Newton lost it (a residual above
     1e-8, or the rest state)."""
     r = ct.find_breather(params, omega, seed, flow=flow, solver="dense")
     return None if r.residual > 1e-8 or r.energy <= 0 else r
@@ -105,7 +106,7 @@ def _row(omega, r, fl) -> dict:
 
 def _walk(ctx, name: str, P: Parameters) -> dict:
     params = LatticeParams(P.M, P.K, BUILDERS[name](P.size, P.size, "fixed"))
-    flow = wc.ReferenceFlow(BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD)
+    flow = wc.Flow(BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD, device=ctx.device)
     edge = params.omega0
     seed = ct.anticontinuum_seed(params, P.omega_start)
     rows, states, reason, start = [], [], "edge", time.perf_counter()
@@ -221,9 +222,9 @@ CHAIN_SITES = 101
 
 def _chain(ctx, P: Parameters, omegas) -> dict:
     """The chain's site breather at the patches' frequencies (same M and K, ``CHAIN_SITES`` sites, the NLS seed and
-    the same reference flow): its energy falls to zero at the band edge, where the patches' have a minimum."""
+    the same flow): its energy falls to zero at the band edge, where the patches' have a minimum."""
     params = wc.ChainParams(P.M, P.K, CHAIN_SITES)
-    flow = wc.ReferenceFlow(BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD)
+    flow = wc.Flow(BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD, device=ctx.device)
     rows = {"omega": [], "energy": [], "breather_participation": []}
     for omega in omegas:
         r = _breather(params, float(omega), ct.nls_seed(params, float(omega)), flow)

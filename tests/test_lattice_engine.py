@@ -132,6 +132,24 @@ def test_2d_step_limit_and_refusals():
         simulate(square_p, x0, 0.1, 0.05, method="rk4", device="cpu")
 
 
+@pytest.mark.parametrize("geometry", sorted(BUILDERS))
+def test_2d_newton_and_floquet_on_the_warp_flow_equal_the_reference_flow(geometry):
+    """Dense Newton shooting and the complete reduced Floquet verdict on a 7 x 7 patch through the Warp Flow: the
+    reference flow's breather and multipliers, bit for bit (the ``monolayer`` scene's path)."""
+    import continuation as ct
+
+    params = LatticeParams(30.0, 1.0, BUILDERS[geometry](7, 7, "fixed"))
+    seed = ct.anticontinuum_seed(params, 1.005)
+    found = [
+        ct.require(ct.find_breather(params, 1.005, seed, flow=flow, solver="dense"))
+        for flow in (Flow("kahan8", 32, device="cpu"), ReferenceFlow("kahan8", 32))
+    ]
+    assert np.array_equal(found[0].state, found[1].state) and found[0].energy == found[1].energy
+    verdicts = [ct.floquet(b, solver="dense") for b in found]
+    assert verdicts[0].complete and verdicts[0].stable is True
+    assert np.array_equal(verdicts[0].multipliers, verdicts[1].multipliers)
+
+
 def _cuda_devices() -> list[str]:
     from warpchain.engine.devices import available_devices
 
