@@ -46,7 +46,6 @@ import numpy as np
 from warpchain import ChainParams, Flow, energy
 
 from .branch import ArclengthCorrector, CouplingAxis
-from .driver import Failure
 from .floquet import (
     central_weight,
     energy_centre,
@@ -56,6 +55,7 @@ from .floquet import (
     vector_parity,
 )
 from .newton import NewtonSettings
+from .results import Failure
 from .shooting import find_breather, is_mirror_symmetric
 
 

@@ -30,8 +30,9 @@ import numpy as np
 from warpchain import ChainParams, Flow, band_edges, lowest_optical_mode
 from warpchain.model import accelerations
 
-from .driver import Branch, BranchPoint, ContinuationSettings, Failure, Solution, continuation
+from .driver import ContinuationSettings, continuation
 from .newton import NewtonSettings, newton
+from .results import Branch, BranchPoint, Failure, Solution
 from .shooting import PeriodMap, chord_solver, find_breather, is_mirror_symmetric, make_flow, mirror_projector
 
 __all__ = [

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from continuation.driver import Branch, BranchPoint, WalkState
+from continuation.results import Branch, BranchPoint, WalkState
 from continuation.floquet import KINDS, Instability, multipliers_from_mu, outer_modulus
 from continuation.shooting import frequency_report
 from warpchain.variables import describe

@@ -24,7 +24,7 @@ median is its number of breathers. Time to breakup: the first period that starts
 periods in a row with two peaks or more. Positions, amplitudes and drift velocities of the final
 peaks come from the envelope profiles ``velocity_lag`` periods apart (each final peak matched with
 the mutually nearest peak within ``max_speed`` x the lag). Breakup probabilities carry 95 % Wilson
-score intervals.
+score intervals. These reductions are in ``_breakup_measures``.
 
 Theory compared: a wide packet z = a cos(w_0 t) at the optical band edge obeys the focusing NLS
 2 i w_0 A_T = D A_XX + G |A|^2 A (``continuation.seeds.nls_coefficients``, X = j / sqrt(K), z = 2 Re A
@@ -58,6 +58,7 @@ from warpchain.losses import Damping, rhs_flat
 from warpchain.observe import OBSERVABLES, Observation, observe, peak_tracks
 from warpchain.store import FieldWriter, open_store, provenance
 
+from ._breakup_measures import breakup_times, distribution, final_counts, mi_summary, omega0, wilson_interval
 from ._common import (
     progress_bars,
     PAPER_K,
@@ -211,31 +212,6 @@ def initial_states(N: int, A: float, widths, realisations: int, P: Parameters) -
     x = np.zeros((len(widths), realisations, 4, N))
     x[:, :, row] = profiles[:, None, :] * (1.0 + P.noise * xi[None, :, :])
     return x.reshape(-1, 4, N)
-
-
-def final_counts(peaks: np.ndarray, final_frames: int) -> np.ndarray:
-    """Median peak count over the last frames: peaks (..., frame) -> (...)."""
-    return np.median(peaks[..., -final_frames:], axis=-1)
-
-
-def breakup_times(peaks: np.ndarray, t: np.ndarray, persist: int = 1) -> np.ndarray:
-    """Time of the first frame that starts ``persist`` frames in a row with >= 2 peaks (NaN if none):
-    peaks (..., frame) -> (...)."""
-    broken = peaks >= 2
-    run = broken.copy()
-    for k in range(1, persist):
-        run[..., :-k] &= broken[..., k:]
-        run[..., -k:] = False
-    first = np.argmax(run, axis=-1)
-    return np.where(run.any(axis=-1), t[first], np.nan)
-
-
-def wilson_interval(p: np.ndarray, n: int, z: float = 1.96) -> tuple[np.ndarray, np.ndarray]:
-    """95 % Wilson score interval (lo, hi) of a binomial proportion p out of n trials."""
-    p = np.asarray(p, dtype=float)
-    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
-    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    return np.clip(centre - half, 0.0, 1.0), np.clip(centre + half, 0.0, 1.0)
 
 
 def _task(index: dict, device: str, *, config: dict) -> dict:
@@ -394,7 +370,7 @@ def run(ctx: Context) -> dict:
     product = gamma * t_break  # (A, damping, W, R)
     lossless = 0
     wide = W >= P.mi_min_width
-    mi = _mi_summary(A, W[wide], product[:, lossless, wide], t_break[:, lossless, wide], a_initial[:, lossless, wide])
+    mi = mi_summary(A, W[wide], product[:, lossless, wide], t_break[:, lossless, wide], a_initial[:, lossless, wide])
     mi["widths"] = W[wide].tolist()
     amplitudes = ds["peak_amplitude"].values
     velocities = ds["peak_velocity"].values
@@ -447,8 +423,8 @@ def run(ctx: Context) -> dict:
         },
         "loss_survival": survive,
         "modulational_instability": mi,
-        "amplitudes": _distribution(amplitudes[:, lossless]),
-        "velocities": _distribution(np.abs(velocities[:, lossless])),
+        "amplitudes": distribution(amplitudes[:, lossless]),
+        "velocities": distribution(np.abs(velocities[:, lossless])),
         "contact_lost_fraction": float(np.isfinite(ds["contact_loss_time"].values).mean()),
     }
     if P.checks:
@@ -463,46 +439,6 @@ def run(ctx: Context) -> dict:
         mi["gamma_t_iqr"] if mi["gamma_t_iqr"] is not None else float("nan"),
     )
     return summary
-
-
-def omega0() -> float:
-    return float(np.sqrt((PAPER_M + 1.0) / PAPER_M))
-
-
-def _distribution(values: np.ndarray) -> dict:
-    v = values[np.isfinite(values)]
-    if not v.size:
-        return {"count": 0}
-    return {
-        "count": int(v.size),
-        "median": float(np.median(v)),
-        "p10": float(np.percentile(v, 10)),
-        "p90": float(np.percentile(v, 90)),
-        "max": float(v.max()),
-    }
-
-
-def _mi_summary(A, W, product, t_break, a_initial) -> dict:
-    """Gamma * t_breakup of the lossless, wide-spot lattices that broke up, per A and overall, and the
-    power law t_breakup ~ a^p fitted to them (MI: p = -2, up to the slowly varying log factor)."""
-    finite = np.isfinite(product)
-    if finite.sum() >= 3:
-        slope = np.polyfit(np.log(a_initial[finite]), np.log(t_break[finite]), 1)[0]
-    else:
-        slope = None
-    by_A = [float(np.median(product[i][finite[i]])) if finite[i].any() else None for i in range(len(A))]
-    t_by_A = [float(np.median(t_break[i][np.isfinite(t_break[i])])) if finite[i].any() else None for i in range(len(A))]
-    all_ = product[finite]
-    return {
-        "gamma_rule": "Gamma = w0 a^2 / 24, a = the first period's max |z| envelope",
-        "gamma_t_by_A": by_A,
-        "t_breakup_median_by_A": t_by_A,
-        "a_initial_by_A": [float(np.median(a_initial[i])) for i in range(len(A))],
-        "gamma_t_median": float(np.median(all_)) if all_.size else None,
-        "gamma_t_iqr": float(np.subtract(*np.percentile(all_, [75, 25]))) if all_.size else None,
-        "broken_lattices": int(all_.size),
-        "t_breakup_exponent": None if slope is None else float(slope),
-    }
 
 
 def _checks(ctx, P: Parameters, params, count, prob, interval) -> dict:
