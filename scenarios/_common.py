@@ -30,6 +30,7 @@ SCENES = {
     "finite-size": "scenarios.finite_size",
     "stability-atlas": "scenarios.stability_atlas",
     "monolayer": "scenarios.monolayer",
+    "monolayer-spot": "scenarios.monolayer_spot",
 }
 #: scenes that reproduce the paper (``python -m scenarios paper``); the rest chart speed and accuracy
 PAPER_SCENES = [

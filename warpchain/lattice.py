@@ -216,6 +216,17 @@ class Lattice:
                 total = total + np.sum(self._bond_weights[:, d] * diff * diff, axis=-1)
         return 0.5 * total
 
+    def site_bond_energy(self, u) -> np.ndarray:
+        """``bond_energy`` shared out to the sites, shape u.shape: half of each bond between two sites to each, a
+        wall bond to its site. Summed over the sites it is ``bond_energy`` (to rounding): an energy density."""
+        u, padded = self._field(u)
+        out = np.zeros(u.shape)
+        for d in range(self.degree):
+            share = np.where(self.neighbours[:, d] == WALL, 0.5, 0.25) * self.weights[:, d]
+            diff = u - padded[..., self._gather[:, d]]
+            out = out + share * diff * diff
+        return out
+
     # ------------------------------------------------------------------ linear waves
 
     def lam(self, q) -> np.ndarray:

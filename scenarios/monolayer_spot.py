@@ -1,0 +1,412 @@
+"""The spot experiment on a surface: an impulsive Gaussian spot on a monolayer patch, does it break up into
+breathers, and how does that compare with the chain and with the monolayer's energy threshold? (issue #51; beyond
+the paper)
+
+Command: ``python -m scenarios run monolayer-spot --device cpu`` (81 x 81 triangular patch, 9 spots, 100 periods:
+about 2 min on a 2-core CPU; ``--quick`` about 10 s). On a GPU: ``--device cuda --set n=201 --set periods=200``
+(or ``n=512``). Options: ``--set KEY=VALUE`` (fields of ``Parameters``).
+
+The paper closes by proposing to see breathers by "impulsively exciting a large spot on the substrate surface";
+``breakup-statistics`` ran that on the chain. Here the spot is two-dimensional: every lattice starts at rest in
+place with the substrate velocity u'_s = A exp(-d_s^2 / (2 W^2)) (1 + ``noise`` xi_s) (d_s: the distance of site
+s from the patch's centre, in lattice spacings; xi_s standard normal, one draw for all spots, as the chain's study
+seeds its modulational instability; the spheres at rest), for every amplitude A and width W of the sweep, all
+lattices in one launch. The same spots run on the chain (``n`` sites, the same M, K, losses and observables: the
+chain is the lattice ``warpchain.lattice.chain``). Losses are the breakup study's (``warpchain.losses``): contact
+damping gamma_c on z and substrate damping gamma_s on u'.
+
+Why it differs from the chain: near the optical bottom a wide packet obeys the focusing cubic NLS, critical in
+two dimensions: a spot whose NLS norm is below the Townes value spreads out, one above it collapses; and the
+monolayer's breathers have an energy threshold E* (the ``monolayer`` scene; the discrete NLS's prediction
+``continuation.dnls_threshold``, within 2-72 % of the measured E* for K <= 2, is the reference here). On the chain
+breathers exist at every energy. Each spot's energy E0 is stated against E*_DNLS.
+
+Observables, once per period, from ``FRAMES_PER_PERIOD`` frames of the period and its end state, reduced on the
+host (``observables``): the envelope e_s = max |v_s - u_s| over the period's frames; *peaks*, sites whose envelope
+is above ``threshold``, the largest within ``radius`` lattice spacings, and falls to ``contrast`` of it at that
+distance; the energy within ``radius`` of a peak (the breathers' share); the r.m.s. distance from the centre
+weighted by the envelope squared (the spread of the resonators' motion: the acoustic waves the impulse also
+launches carry most of the energy away at the speed of sound); the energy. Every spot runs beside its *linear
+control*, the same spot times ``LINEAR`` (peaks counted above ``threshold`` times ``LINEAR``): what the control does
+is dispersion alone. A spot has *formed breathers* when the median peak count over the last ``final_frames``
+periods is >= 1 and its control's is 0; that median is its number of breathers. The envelope of one lattice
+(``movie``) is stored every period: the snapshots and the animation (``monolayer-spot.gif``) are drawn from it.
+
+Integration: Kahan-Li order 6 (kahan6) at 32 steps per period of T = 2 pi / 1.01, as the breakup study (its
+accuracy check there: kahan6/32, kahan8/32 and kahan8/64 gave the same breakup probabilities); the Warp kernels of
+``--device`` (the patch's neighbour table in the sites layout).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+
+import numpy as np
+
+import continuation as ct
+from warpchain import Guard, Record, frame_buffers, simulate
+from warpchain.lattice import BOUNDARIES, LatticeParams, chain, square, triangular
+from warpchain.losses import Damping
+from warpchain.model import contact_potential
+from warpchain.store import read_group, write_fields, write_table
+
+from ._common import PAPER_K, PAPER_M, Context, pyplot, read_summary, save_figure
+from ._params import Rule, param
+
+BUILDERS = {"square": square, "triangular": triangular}
+#: frames recorded per period for the envelope (every 4 steps of 32: a carrier's maximum is caught to cos(pi / 8),
+#: 8 %)
+FRAMES_PER_PERIOD = 8
+#: the frequency that sets the period, as the chain's Fig. 9 and breakup study
+OMEGA_PERIOD = 1.01
+#: the observables per period and lattice, in the store's ``series`` group
+SERIES = ("peaks", "energy", "breather_energy", "spread", "max_envelope")
+
+
+@dataclasses.dataclass(frozen=True)
+class Parameters:
+    """The scene's parameters (``--set KEY=VALUE`` overrides any of them)."""
+
+    lattice: str = param("triangular", "the monolayer's lattice", choices=tuple(BUILDERS))
+    n: int = param(81, "the patch is n x n sites (the chain: n sites)", ge=11, le=1025)
+    boundary: str = param("fixed", "walls of the patch and the chain", choices=BOUNDARIES)
+    M: float = param(PAPER_M, "mass ratio m1 / m2", gt=0)
+    K: float = param(PAPER_K, "coupling ratio k1 / k2 (every bond)", gt=0, le=1000)
+    amplitudes: tuple[float, ...] = param(
+        (0.05, 0.15, 0.4), "peak substrate velocities A of the spots", gt=0, le=2, length=(1, 64)
+    )
+    widths: tuple[float, ...] = param((3.0, 6.0, 10.0), "Gaussian widths W of the spots, lattice spacings", gt=0)
+    periods: int = param(100, "periods of T = 2 pi / 1.01 simulated", ge=2, le=5000)
+    contact_damping: float = param(0.0, "gamma_c: contact damping on z (Q = w0 / gamma_c)", ge=0, le=1)
+    substrate_damping: float = param(0.0, "gamma_s: substrate damping on u' (radiation into the bulk)", ge=0, le=1)
+    threshold: float = param(0.1, "envelope |v - u| above which a peak counts as a breather", gt=0)
+    radius: float = param(10.0, "a peak is the largest envelope within this many lattice spacings", ge=1, le=50)
+    contrast: float = param(0.5, "localized: the envelope at the radius falls to this fraction of the peak", gt=0, le=1)
+    final_frames: int = param(10, "periods over which the final count is a median", ge=1, le=5000)
+    noise: float = param(0.02, "relative per-site perturbation of the impulse (seeds the modulational instability)",
+                         ge=0, le=1)  # fmt: skip
+    seed: int = param(20261128, "seed of the noise (numpy's default_rng)", ge=0, le=2**63 - 1)
+    movie: int = param(-1, "the spot (index in amplitude-major order; -1 the last) whose envelope is stored", ge=-4096)
+
+
+QUICK = {"n": 41, "amplitudes": (0.05, 0.4), "widths": (3.0,), "periods": 30, "final_frames": 5, "radius": 4.0}
+RULES = (
+    Rule(("widths", "n"), "widths below n / 4 (the spot fits the patch)", lambda P: max(P.widths) < P.n / 4),
+    Rule(("final_frames", "periods"), "final_frames <= periods", lambda P: P.final_frames <= P.periods),
+    Rule(
+        ("movie", "amplitudes", "widths"),
+        "movie an index of the sweep (-len .. len - 1, amplitude-major)",
+        lambda P: -len(P.amplitudes) * len(P.widths) <= P.movie < len(P.amplitudes) * len(P.widths),
+    ),
+    Rule(
+        ("n", "amplitudes", "widths", "periods"),
+        "n^2 x spots x periods <= 2e9 site-periods (a day on a GPU)",
+        lambda P: P.n**2 * len(P.amplitudes) * len(P.widths) * P.periods <= 2e9,
+    ),
+)
+
+
+def spots(lattice, P: Parameters) -> np.ndarray:
+    """The initial states (spots, 4, sites): u' = A exp(-d^2 / (2 W^2)) (1 + noise xi) about the centre, xi standard
+    normal (one draw for every spot), amplitude-major."""
+    d = lattice.distances(lattice.centre)
+    xi = np.random.default_rng(P.seed).standard_normal(lattice.n_sites)
+    x0 = np.zeros((len(P.amplitudes) * len(P.widths), 4, lattice.n_sites))
+    for k, (A, W) in enumerate((A, W) for A in P.amplitudes for W in P.widths):
+        x0[k, 2] = A * np.exp(-0.5 * (d / W) ** 2) * (1.0 + P.noise * xi)
+    return x0
+
+
+def _footprints(lattice, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """The disc d <= radius and its rim radius - 1 < d <= radius on the lattice's axial grid (a small patch of the
+    same geometry: a new lattice needs nothing here)."""
+    r = int(math.floor(radius))
+    small = chain(2 * r + 1) if lattice.name == "chain" else BUILDERS[lattice.name](2 * r + 1, 2 * r + 1)
+    d = small.distances(small.centre).reshape(small.shape[::-1])
+    return d <= radius + 1e-9, (d > radius - 1.0 + 1e-9) & (d <= radius + 1e-9)
+
+
+def site_energies(params: LatticeParams, x: np.ndarray) -> np.ndarray:
+    """The Hamiltonian's density (batch, sites): kinetic, contact, and the bonds shared out
+    (``Lattice.site_bond_energy``); it sums to ``model.energy``."""
+    u, v, pu, pv = x[:, 0], x[:, 1], x[:, 2], x[:, 3]
+    return (
+        0.5 * params.M * pu * pu
+        + 0.5 * pv * pv
+        + contact_potential(u - v)
+        + params.K * params.lattice.site_bond_energy(u)
+    )
+
+
+def observables(params: LatticeParams, envelope: np.ndarray, x: np.ndarray, P: Parameters, scale) -> dict:
+    """One period's observables of each lattice (see the module docstring), from its envelope (batch, sites) and
+    end state (batch, 4, sites); a lattice's peaks count above ``threshold`` times its ``scale`` (batch,)."""
+    from scipy import ndimage
+
+    lat = params.lattice
+    grid = lat.shape[::-1]  # (ny, nx): site i + nx j
+    disc, rim = _footprints(lat, P.radius)
+    mode = "wrap" if lat.boundary == "periodic" else "constant"
+    e = envelope.reshape((-1,) + grid)
+    largest = np.stack([ndimage.maximum_filter(f, footprint=disc, mode=mode, cval=0.0) for f in e])
+    edge = np.stack([ndimage.maximum_filter(f, footprint=rim, mode=mode, cval=0.0) for f in e])
+    above = e > (P.threshold * np.asarray(scale)).reshape((-1,) + (1,) * len(grid))
+    peaks = (above & (e >= largest) & (edge <= P.contrast * e)).reshape(len(e), -1)
+    density = site_energies(params, x)
+    near = np.stack(
+        [ndimage.maximum_filter(p.reshape(grid), footprint=disc, mode=mode, cval=False).ravel() for p in peaks]
+    )
+    total = density.sum(axis=1)
+    r2 = np.sum((lat.positions - lat.positions[lat.centre]) ** 2, axis=1)
+    weight = envelope * envelope  # the resonators' (optical) part: the acoustic waves carry most of the energy away
+    return {
+        "peaks": peaks.sum(axis=1),
+        "energy": total,
+        "breather_energy": np.where(near, density, 0.0).sum(axis=1),
+        "spread": np.sqrt(weight @ r2 / np.maximum(weight.sum(axis=1), 1e-300)),
+        "max_envelope": envelope.max(axis=1),
+    }
+
+
+#: the linear control: every spot again at this fraction of its amplitude (its nonlinearity 1e-6 of the spot's)
+LINEAR = 1e-3
+
+
+def _run_spots(ctx: Context, params: LatticeParams, P: Parameters, label: str, movie: int | None):
+    """Every spot on one lattice, and its linear control (the same spot times ``LINEAR``, peaks counted above the
+    threshold times ``LINEAR``), in one batch for ``periods`` periods, a period per ``simulate`` call (its frames give
+    the envelope). Returns the series of the spots and of the controls (name -> (periods + 1, spots)) and the movie
+    spot's envelope per period."""
+    x = spots(params.lattice, P)
+    n_spots = len(x)
+    x = np.concatenate([x, LINEAR * x])
+    scale = np.repeat([1.0, LINEAR], n_spots)
+    damping = None
+    if P.contact_damping or P.substrate_damping:
+        damping = Damping(contact=P.contact_damping, substrate=P.substrate_damping)
+    period = 2.0 * math.pi / OMEGA_PERIOD
+    dt = period / 32
+    series = {k: [] for k in SERIES}
+    first = observables(params, np.abs(x[:, 1] - x[:, 0]), x, P, scale)
+    for k in SERIES:
+        series[k].append(first[k])
+    frames = [np.abs(x[movie, 1] - x[movie, 0])] if movie is not None else []
+    every = 32 // FRAMES_PER_PERIOD
+    into = frame_buffers(params, len(x), period, dt, every, device=ctx.device)  # page-locked on a GPU, reused
+    z = np.empty(into[0][1:].shape)
+    start, last_log = time.perf_counter(), time.perf_counter()
+    for p in range(P.periods):
+        run = simulate(
+            params, x, period, dt, method="kahan6", device=ctx.device, damping=damping,
+            record=Record(every=every, into=into), guard=Guard(chunks=1),
+        )  # fmt: skip
+        x = run.x
+        np.subtract(into[1][1:], into[0][1:], out=z)
+        envelope = np.abs(z, out=z).max(axis=0)  # (lattices, sites)
+        obs = observables(params, envelope, x, P, scale)
+        for k in SERIES:
+            series[k].append(obs[k])
+        if movie is not None:
+            frames.append(envelope[movie])
+        if time.perf_counter() - last_log > 20 or p == P.periods - 1:
+            last_log = time.perf_counter()
+            ctx.log(
+                "%s: period %d / %d, peaks %s, linear controls %s (%.0f s)", label, p + 1, P.periods,
+                series["peaks"][-1][:n_spots].tolist(), series["peaks"][-1][n_spots:].tolist(), last_log - start,
+            )  # fmt: skip
+    out = {k: np.array(v) for k, v in series.items()}
+    spots_, controls = ({k: v[:, sl] for k, v in out.items()} for sl in (slice(0, n_spots), slice(n_spots, None)))
+    return spots_, controls, (np.array(frames) if movie is not None else None)
+
+
+def _finals(series, controls, P: Parameters) -> dict:
+    """Per spot at the end: breathers (the median peak count over the last ``final_frames`` periods), whether they
+    formed (>= 1, and none in the linear control: a packet that only disperses slowly is not a breather), the
+    energy fractions within the breathers (the spot's and its control's), the spread against the control's."""
+    count = np.median(series["peaks"][-P.final_frames :], axis=0)
+    linear = np.median(controls["peaks"][-P.final_frames :], axis=0)
+    e, c = series["energy"], controls["energy"]
+    return {
+        "breathers": count,
+        "linear_peaks": linear,
+        "formed": ((count >= 1) & (linear == 0)).astype(np.int8),
+        "breather_energy_fraction": series["breather_energy"][-1] / np.maximum(e[-1], 1e-300),
+        "linear_energy_fraction": controls["breather_energy"][-1] / np.maximum(c[-1], 1e-300),
+        "energy_initial": e[0],
+        "energy_final": e[-1],
+        "spread_final": series["spread"][-1],
+        "spread_over_linear": series["spread"][-1] / np.maximum(controls["spread"][-1], 1e-300),
+    }
+
+
+def run(ctx: Context) -> dict:
+    P: Parameters = ctx.params
+    lattice = BUILDERS[P.lattice](P.n, P.n, P.boundary)
+    patch = LatticeParams(P.M, P.K, lattice)
+    line = LatticeParams(P.M, P.K, chain(P.n, P.boundary))
+    n_spots = len(P.amplitudes) * len(P.widths)
+    movie = P.movie % n_spots
+    A = np.repeat(np.array(P.amplitudes, dtype=float), len(P.widths))
+    W = np.tile(np.array(P.widths, dtype=float), len(P.amplitudes))
+    dnls = ct.dnls_threshold(lattice, P.M, P.K)
+    ctx.log(
+        "%s, M = %g, K = %g: %d spots (A x W) and their linear controls, %d periods; the discrete NLS puts the "
+        "breathers' energy threshold at E* = %.4g", lattice.describe(), P.M, P.K, n_spots, P.periods, dnls["energy"],
+    )  # fmt: skip
+    t0 = time.perf_counter()
+    flat, flat_linear, movie_frames = _run_spots(ctx, patch, P, P.lattice, movie)
+    t_patch = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    line_series, line_linear, _ = _run_spots(ctx, line, P, "chain", None)
+    t_chain = time.perf_counter() - t0
+    results = {"monolayer": _finals(flat, flat_linear, P), "chain": _finals(line_series, line_linear, P)}
+    root = ctx.store(None)
+    times = np.arange(P.periods + 1) * 2 * math.pi / OMEGA_PERIOD
+    for name, series, controls in (("monolayer", flat, flat_linear), ("chain", line_series, line_linear)):
+        write_table(root, f"{name}_spots", {"A": A, "W": W, **results[name]}, dim="spot")
+        fields = {**{k: series[k] for k in SERIES}, **{f"linear_{k}": controls[k] for k in SERIES}}
+        write_fields(root, ctx.out / "data.zarr", f"{name}_series", times, fields, dims=("t", "spot"))
+    i, j = lattice._coords.T
+    write_fields(
+        root, ctx.out / "data.zarr", "movie", times, {"envelope": movie_frames}, dims=("t", "site"),
+        coords={"x": (("site",), lattice.positions[:, 0]), "y": (("site",), lattice.positions[:, 1]),
+                "i": (("site",), i), "j": (("site",), j)},
+        attrs={"A": float(A[movie]), "W": float(W[movie]), "spot": int(movie)},
+    )  # fmt: skip
+    m, c = results["monolayer"], results["chain"]
+    for k in range(n_spots):
+        ctx.log(
+            "A = %g, W = %g: E0 = %.4g (%.3g E*); %s: %g breathers (%.0f %% of the energy, linear control %.0f %%), "
+            "spread / linear %.2f; chain: %g (%.0f %%, linear %.0f %%), spread / linear %.2f",
+            A[k], W[k], m["energy_initial"][k], m["energy_initial"][k] / dnls["energy"], P.lattice,
+            m["breathers"][k], 100 * m["breather_energy_fraction"][k], 100 * m["linear_energy_fraction"][k],
+            m["spread_over_linear"][k], c["breathers"][k], 100 * c["breather_energy_fraction"][k],
+            100 * c["linear_energy_fraction"][k], c["spread_over_linear"][k],
+        )  # fmt: skip
+    below = m["energy_initial"] < dnls["energy"]
+    summary = {
+        "lattice": lattice.describe(),
+        "M": P.M,
+        "K": P.K,
+        "dnls_threshold": dnls,
+        "spots": n_spots,
+        "sites": lattice.n_sites,
+        "site_steps": float(2 * n_spots * lattice.n_sites * 32 * P.periods),
+        "seconds": {"monolayer": t_patch, "chain": t_chain},
+        "formed": {name: int(r["formed"].sum()) for name, r in results.items()},
+        "below_threshold": {"spots": int(below.sum()), "formed_breathers": int(m["formed"][below].sum())},
+        "movie": {"A": float(A[movie]), "W": float(W[movie])},
+    }
+    ctx.log(
+        "%d of %d spots formed breathers on the %s patch, %d on the chain; %d spots below E*_DNLS, of which %d formed "
+        "breathers (the patch with its controls: %.1f s, %.3g site-steps/s)",
+        summary["formed"]["monolayer"], n_spots, P.lattice, summary["formed"]["chain"], below.sum(),
+        summary["below_threshold"]["formed_breathers"], t_patch, summary["site_steps"] / t_patch,
+    )  # fmt: skip
+    return summary
+
+
+def plot(out) -> None:
+    s = read_summary(out)
+    store = out / "data.zarr"
+    plt = pyplot()
+    E_star = s["dnls_threshold"]["energy"]
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.6), layout="constrained")
+    for name, marker in (("monolayer", "o"), ("chain", "s")):
+        d, _ = read_group(store, f"{name}_spots")
+        widths = np.unique(d["W"])
+        for w in widths:
+            k = d["W"] == w
+            colour = plt.cm.viridis(float(np.searchsorted(widths, w)) / max(len(widths) - 1, 1))
+            face = colour if name == "monolayer" else "none"
+            label = f"{'patch' if name == 'monolayer' else 'chain'}, W = {w:g}"
+            x = d["energy_initial"][k] / E_star
+            axes[0].plot(x, d["breathers"][k], marker, mfc=face, color=colour, label=label)
+            unformed = k & (d["formed"] == 0) & (d["breathers"] > 0)  # the linear control had peaks too
+            axes[0].plot(d["energy_initial"][unformed] / E_star, d["breathers"][unformed], "x", color="k", ms=9)
+            axes[1].plot(x, d["spread_over_linear"][k], marker, mfc=face, color=colour, label=label)
+    series, _ = read_group(store, "monolayer_series")
+    spots, _ = read_group(store, "monolayer_spots")
+    for k in range(len(spots["A"])):
+        (line,) = axes[2].plot(series["t"], series["spread"][:, k], lw=0.9, label=f"A = {spots['A'][k]:g}, "
+                               f"W = {spots['W'][k]:g}")  # fmt: skip
+        axes[2].plot(series["t"], series["linear_spread"][:, k], lw=0.7, ls=":", color=line.get_color())
+    for ax in axes[:2]:
+        ax.axvline(1.0, color="0.4", ls="--", lw=0.8)
+        ax.set_xscale("log")
+        ax.set_xlabel(r"spot energy $E_0 / E^*_{DNLS}$ (dashed: the monolayer's threshold)")
+    axes[0].set(
+        ylabel="breathers at the end (median peak count)",
+        title=f"{s['lattice']}, M = {s['M']:g}, K = {s['K']:g}\nfilled: the patch, open: the chain; "
+        "x: the linear control has peaks too",
+    )
+    axes[1].axhline(1.0, color="0.4", lw=0.8)
+    axes[1].set(ylabel="r.m.s. spread at the end / the linear control's", title="below 1: self-localized")
+    axes[2].set(xlabel="t", ylabel="r.m.s. distance from the centre (weight: envelope$^2$)",
+                title="the patch's spread (dotted: linear controls)")  # fmt: skip
+    axes[0].legend(fontsize=6, ncols=2)
+    axes[2].legend(fontsize=6, ncols=2)
+    save_figure(fig, out, "monolayer-spot")
+    _snapshots(out, s)
+
+
+def _movie(out):
+    frames, attrs = read_group(out / "data.zarr", "movie")
+    return frames, attrs
+
+
+def _draw(ax, frames, k, scale):
+    """Envelope k of the movie on the true geometry (a triangulation of the site positions)."""
+    import matplotlib.tri as mtri
+
+    triangulation = mtri.Triangulation(frames["x"], frames["y"])
+    return ax.tripcolor(triangulation, frames["envelope"][k], shading="gouraud", cmap="magma", vmin=0, vmax=scale)
+
+
+def _snapshots(out, s) -> None:
+    frames, attrs = _movie(out)
+    plt = pyplot()
+    n = len(frames["t"])
+    picks = sorted({0, n // 4, n // 2, (3 * n) // 4, n - 1})
+    scale = float(np.quantile(frames["envelope"][1:], 0.999)) if n > 1 else float(frames["envelope"].max())
+    fig, axes = plt.subplots(1, len(picks), figsize=(3.6 * len(picks), 3.6), layout="constrained")
+    for ax, k in zip(axes, picks):
+        im = _draw(ax, frames, k, scale)
+        ax.set_aspect("equal")
+        ax.set(xticks=[], yticks=[], title=f"t = {frames['t'][k]:.0f} ({k} periods)")
+    fig.colorbar(im, ax=axes, shrink=0.8, label="envelope max |v - u| over the period")
+    fig.suptitle(f"{s['lattice']}: the spot A = {attrs['A']:g}, W = {attrs['W']:g}")
+    save_figure(fig, out, "monolayer-spot-snapshots")
+    _animation(out, frames, attrs, s, scale)
+
+
+#: frames of the animation at most (the stored periods subsampled evenly)
+ANIMATION_FRAMES = 100
+
+
+def _animation(out, frames, attrs, s, scale) -> None:
+    """``monolayer-spot.gif``: the movie's envelope, period by period (Pillow, written whole)."""
+    from matplotlib.animation import FuncAnimation, PillowWriter
+
+    plt = pyplot()
+    n = len(frames["t"])
+    picks = np.unique(np.linspace(0, n - 1, min(n, ANIMATION_FRAMES)).round().astype(int))
+    fig, ax = plt.subplots(figsize=(5, 4.4), layout="constrained")
+    ax.set_aspect("equal")
+    ax.set(xticks=[], yticks=[])
+    im = _draw(ax, frames, 0, scale)
+    fig.colorbar(im, ax=ax, shrink=0.8, label="max |v - u| over the period")
+    title = ax.set_title("")
+
+    def update(k):
+        im.set_array(frames["envelope"][picks[k]])
+        title.set_text(f"{s['lattice']}: A = {attrs['A']:g}, W = {attrs['W']:g}, t = {frames['t'][picks[k]]:.0f}")
+        return im, title
+
+    animation = FuncAnimation(fig, update, frames=len(picks), blit=False)
+    tmp = out / "monolayer-spot.part.gif"
+    animation.save(tmp, writer=PillowWriter(fps=10), dpi=80)
+    tmp.replace(out / "monolayer-spot.gif")
+    plt.close(fig)
