@@ -61,6 +61,8 @@ BUILDERS = {"square": square, "triangular": triangular}
 FRAMES_PER_PERIOD = 8
 #: the frequency that sets the period, as the chain's Fig. 9 and breakup study
 OMEGA_PERIOD = 1.01
+#: the side of the patch on which the discrete NLS's threshold is computed
+DNLS_SITES = 41
 #: the observables per period and lattice, in the store's ``series`` group
 SERIES = ("peaks", "energy", "breather_energy", "spread", "max_envelope")
 
@@ -232,7 +234,9 @@ def _run_spots(ctx: Context, params: LatticeParams, P: Parameters, label: str, m
     into = frame_buffers(params, len(x), period, dt, every, device=ctx.device)  # page-locked on a GPU, reused
     z = np.empty(into[0][1:].shape)
     start, last_log = time.perf_counter(), time.perf_counter()
+    seconds = {"simulate": 0.0, "observables": 0.0}
     for p in range(P.periods):
+        t0 = time.perf_counter()
         run = simulate(
             params, x, period, dt, method="kahan6", device=ctx.device, damping=damping,
             record=Record(every=every, into=into), guard=Guard(chunks=1),
@@ -240,7 +244,10 @@ def _run_spots(ctx: Context, params: LatticeParams, P: Parameters, label: str, m
         x = run.x
         np.subtract(into[1][1:], into[0][1:], out=z)
         envelope = np.abs(z, out=z).max(axis=0)  # (lattices, sites)
+        t1 = time.perf_counter()
         obs = observables(params, envelope, x, P, scale)
+        seconds["simulate"] += t1 - t0
+        seconds["observables"] += time.perf_counter() - t1
         for k in SERIES:
             series[k].append(obs[k])
         if movie is not None:
@@ -253,7 +260,7 @@ def _run_spots(ctx: Context, params: LatticeParams, P: Parameters, label: str, m
             )  # fmt: skip
     out = {k: np.array(v) for k, v in series.items()}
     spots_, controls = ({k: v[:, sl] for k, v in out.items()} for sl in (slice(0, n_spots), slice(n_spots, None)))
-    return spots_, controls, (np.array(frames) if movie is not None else None)
+    return spots_, controls, (np.array(frames) if movie is not None else None), seconds
 
 
 def _finals(series, controls, P: Parameters) -> dict:
@@ -285,16 +292,18 @@ def run(ctx: Context) -> dict:
     movie = P.movie % n_spots
     A = np.repeat(np.array(P.amplitudes, dtype=float), len(P.widths))
     W = np.tile(np.array(P.widths, dtype=float), len(P.amplitudes))
-    dnls = ct.dnls_threshold(lattice, P.M, P.K)
+    # the discrete NLS's threshold on a patch of DNLS_SITES^2 of the same geometry: the minimal-norm soliton spans
+    # ~2 sites (15 x 15 and 41 x 41 agree to 1e-5), and its sparse Newton on a 201 x 201 patch took minutes
+    dnls = ct.dnls_threshold(BUILDERS[P.lattice](min(P.n, DNLS_SITES), min(P.n, DNLS_SITES), P.boundary), P.M, P.K)
     ctx.log(
         "%s, M = %g, K = %g: %d spots (A x W) and their linear controls, %d periods; the discrete NLS puts the "
         "breathers' energy threshold at E* = %.4g", lattice.describe(), P.M, P.K, n_spots, P.periods, dnls["energy"],
     )  # fmt: skip
     t0 = time.perf_counter()
-    flat, flat_linear, movie_frames = _run_spots(ctx, patch, P, P.lattice, movie)
+    flat, flat_linear, movie_frames, patch_seconds = _run_spots(ctx, patch, P, P.lattice, movie)
     t_patch = time.perf_counter() - t0
     t0 = time.perf_counter()
-    line_series, line_linear, _ = _run_spots(ctx, line, P, "chain", None)
+    line_series, line_linear, _, chain_seconds = _run_spots(ctx, line, P, "chain", None)
     t_chain = time.perf_counter() - t0
     results = {"monolayer": _finals(flat, flat_linear, P), "chain": _finals(line_series, line_linear, P)}
     root = ctx.store(None)
@@ -329,7 +338,12 @@ def run(ctx: Context) -> dict:
         "spots": n_spots,
         "sites": lattice.n_sites,
         "site_steps": float(2 * n_spots * lattice.n_sites * 32 * P.periods),
-        "seconds": {"monolayer": t_patch, "chain": t_chain},
+        "seconds": {
+            "monolayer": t_patch,
+            "chain": t_chain,
+            "monolayer_parts": patch_seconds,
+            "chain_parts": chain_seconds,
+        },  # fmt: skip
         "formed": {name: int(r["formed"].sum()) for name, r in results.items()},
         "below_threshold": {"spots": int(below.sum()), "formed_breathers": int(m["formed"][below].sum())},
         "movie": {"A": float(A[movie]), "W": float(W[movie])},
@@ -387,9 +401,17 @@ def plot(out) -> None:
     _snapshots(out, s)
 
 
+#: the drawings show at most this many sites along a side (every k-th site of a larger patch)
+DRAWN_SITES = 256
+
+
 def _movie(out):
+    """The stored movie, every k-th site along each axis where the patch is larger than ``DRAWN_SITES``."""
     frames, attrs = read_group(out / "data.zarr", "movie")
-    return frames, attrs
+    stride = max(1, math.ceil((int(frames["i"].max()) + 1) / DRAWN_SITES))
+    keep = (frames["i"] % stride == 0) & (frames["j"] % stride == 0)
+    frames = {k: (v[..., keep] if k in ("envelope", "x", "y", "i", "j") else v) for k, v in frames.items()}
+    return frames, {**attrs, "stride": stride}
 
 
 def _draw(ax, frames, k, scale):
@@ -412,7 +434,8 @@ def _snapshots(out, s) -> None:
         ax.set_aspect("equal")
         ax.set(xticks=[], yticks=[], title=f"t = {frames['t'][k]:.0f} ({k} periods)")
     fig.colorbar(im, ax=axes, shrink=0.8, label="envelope max |v - u| over the period")
-    fig.suptitle(f"{s['lattice']}: the spot A = {attrs['A']:g}, W = {attrs['W']:g}")
+    every = f" (every {attrs['stride']}th site drawn)" if attrs["stride"] > 1 else ""
+    fig.suptitle(f"{s['lattice']}: the spot A = {attrs['A']:g}, W = {attrs['W']:g}{every}")
     save_figure(fig, out, "monolayer-spot-snapshots")
     _animation(out, frames, attrs, s, scale)
 

@@ -165,7 +165,7 @@ def test_2d_on_a_gpu_equals_the_reference(geometry):
     p = LatticeParams(30.0, 2.0, BUILDERS[geometry](21, 21, "fixed"))
     x0 = _state(p.N, 3, seed=17)
     damping = Damping(contact=np.array([0.0, 0.02, 0.0]), substrate=np.array([0.0, 0.01, 0.0]))
-    run = simulate(p, x0, 50 * 0.05, 0.05, device=device, record=Record(every=10), damping=damping)
+    run = simulate(p, x0, 50 * 0.05, 0.05, method="kahan8", device=device, record=Record(every=10), damping=damping)
     ref = reference.integrate("kahan8", p, x0, run.dt, run.nsteps, save_every=10, damping=damping)
     assert run.layout == "sites"
     np.testing.assert_allclose(run.x, ref["x"], rtol=0, atol=1e-12)
