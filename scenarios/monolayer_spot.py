@@ -28,7 +28,8 @@ distance; the energy within ``radius`` of a peak (the breathers' share); the r.m
 weighted by the envelope squared (the spread of the resonators' motion: the acoustic waves the impulse also
 launches carry most of the energy away at the speed of sound); the energy. Every spot runs beside its *linear
 control*, the same spot times ``LINEAR`` (peaks counted above ``threshold`` times ``LINEAR``): what the control does
-is dispersion alone. A spot has *formed breathers* when the median peak count over the last ``final_frames``
+is dispersion alone. A spot is *self-localized* when its spread at the end is below ``LOCALIZED`` of its control's;
+it has *formed breathers* when the median peak count over the last ``final_frames``
 periods is >= 1 and its control's is 0; that median is its number of breathers. The envelope of one lattice
 (``movie``) is stored every period: the snapshots and the animation (``monolayer-spot.gif``) are drawn from it.
 
@@ -207,6 +208,9 @@ def observables(params: LatticeParams, envelope: np.ndarray, x: np.ndarray, P: P
     }
 
 
+#: a spot is *self-localized* when its spread at the end is below this fraction of its linear control's
+LOCALIZED = 0.8
+
 #: the linear control: every spot again at this fraction of its amplitude (its nonlinearity 1e-6 of the spot's)
 LINEAR = 1e-3
 
@@ -280,6 +284,7 @@ def _finals(series, controls, P: Parameters) -> dict:
         "energy_final": e[-1],
         "spread_final": series["spread"][-1],
         "spread_over_linear": series["spread"][-1] / np.maximum(controls["spread"][-1], 1e-300),
+        "self_localized": (series["spread"][-1] < LOCALIZED * controls["spread"][-1]).astype(np.int8),
     }
 
 
@@ -345,13 +350,15 @@ def run(ctx: Context) -> dict:
             "chain_parts": chain_seconds,
         },  # fmt: skip
         "formed": {name: int(r["formed"].sum()) for name, r in results.items()},
+        "self_localized": {name: int(r["self_localized"].sum()) for name, r in results.items()},
         "below_threshold": {"spots": int(below.sum()), "formed_breathers": int(m["formed"][below].sum())},
         "movie": {"A": float(A[movie]), "W": float(W[movie])},
     }
     ctx.log(
-        "%d of %d spots formed breathers on the %s patch, %d on the chain; %d spots below E*_DNLS, of which %d formed "
-        "breathers (the patch with its controls: %.1f s, %.3g site-steps/s)",
-        summary["formed"]["monolayer"], n_spots, P.lattice, summary["formed"]["chain"], below.sum(),
+        "%d of %d spots formed breathers on the %s patch (%d self-localized), %d on the chain (%d); %d spots below "
+        "E*_DNLS, of which %d formed breathers (the patch with its controls: %.1f s, %.3g site-steps/s)",
+        summary["formed"]["monolayer"], n_spots, P.lattice, summary["self_localized"]["monolayer"],
+        summary["formed"]["chain"], summary["self_localized"]["chain"], below.sum(),
         summary["below_threshold"]["formed_breathers"], t_patch, summary["site_steps"] / t_patch,
     )  # fmt: skip
     return summary
