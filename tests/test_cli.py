@@ -523,3 +523,25 @@ def test_every_store_of_the_paper_reads_checked_with_units_and_long_names(paper_
                 assert var.attrs.get("long_name") and "units" in var.attrs, (path, node.path, name)
     assert wc.read_store(paper_quick / "continuation-k" / "data.zarr", "branch").energy.dims == ("K",)
     assert wc.read_store(paper_quick / "continuation-omega" / "data.zarr", "branch").energy.dims == ("omega",)
+
+
+@pytest.mark.slow
+def test_monolayer_spot_quick_localizes_above_the_threshold_only(tmp_path):
+    """The spot experiment (41 x 41 triangular patch, K = 16): the strong spot (optical energy above the discrete
+    NLS's threshold) self-localizes against its linear control, the weak one (far below) does not; every group of
+    the store reads checked, and the figures and the animation are written."""
+    import warpchain as wc
+
+    out = _run("run", "monolayer-spot", "--quick", "--out", str(tmp_path), "--device", "cpu")
+    assert out.returncode == 0, out.stderr[-3000:]
+    folder = tmp_path / "monolayer-spot"
+    s = json.loads((folder / "summary.json").read_text())
+    spots = s["per_spot"]
+    weak, strong = np.argsort(spots["optical_energy_over_threshold"])
+    assert spots["optical_energy_over_threshold"][weak] < 0.1 < 1.0 < spots["optical_energy_over_threshold"][strong]
+    assert spots["monolayer_spread_over_linear"][weak] > 0.95 and spots["monolayer_self_localized"][weak] == 0
+    assert spots["monolayer_spread_over_linear"][strong] < 0.8 and spots["monolayer_self_localized"][strong] == 1
+    for group in ("monolayer_spots", "chain_spots", "monolayer_series", "chain_series", "movie"):
+        wc.read_store(folder / "data.zarr", group)
+    for name in ("monolayer-spot.png", "monolayer-spot-snapshots.png", "monolayer-spot.gif"):
+        assert (folder / name).stat().st_size > 0
