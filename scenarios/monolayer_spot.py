@@ -11,8 +11,10 @@ The paper closes by proposing to see breathers by "impulsively exciting a large 
 place with the substrate velocity u'_s = A exp(-d_s^2 / (2 W^2)) (1 + ``noise`` xi_s) (d_s: the distance of site
 s from the patch's centre, in lattice spacings; xi_s standard normal, one draw for all spots, as the chain's study
 seeds its modulational instability; the spheres at rest), for every amplitude A and width W of the sweep, all
-lattices in one launch. The same spots run on the chain (``n`` sites, the same M, K, losses and observables: the
-chain is the lattice ``warpchain.lattice.chain``). Losses are the breakup study's (``warpchain.losses``): contact
+lattices in one launch. The same spots run on the chain (``n`` sites, the same M, losses and observables: the
+chain is the lattice ``warpchain.lattice.chain``). ``K`` is the chain's; the patch takes K / kappa, which keeps the
+chain's long-wave speed (``warpchain.physical.monolayer_coupling``: both fitted to the same surface wave; the
+triangular patch of the paper's K = 160 has K = 106.7). Losses are the breakup study's (``warpchain.losses``): contact
 damping gamma_c on z and substrate damping gamma_s on u'.
 
 Why it differs from the chain: near the optical bottom a wide packet obeys the focusing cubic NLS, critical in
@@ -53,6 +55,7 @@ import continuation as ct
 from warpchain import Guard, Record, frame_buffers, simulate
 from warpchain.lattice import BOUNDARIES, LatticeParams, chain, square, triangular
 from warpchain.losses import Damping
+from warpchain.physical import monolayer_coupling
 from warpchain.model import contact_potential
 from warpchain.store import read_group, write_fields, write_table
 
@@ -79,7 +82,9 @@ class Parameters:
     n: int = param(81, "the patch is n x n sites (the chain: n sites)", ge=11, le=1025)
     boundary: str = param("fixed", "walls of the patch and the chain", choices=BOUNDARIES)
     M: float = param(PAPER_M, "mass ratio m1 / m2", gt=0)
-    K: float = param(PAPER_K, "coupling ratio k1 / k2 (every bond)", gt=0, le=1000)
+    K: float = param(
+        PAPER_K, "the chain's coupling k1 / k2; the patch's is K / kappa (the same long-wave speed)", gt=0, le=1000
+    )
     amplitudes: tuple[float, ...] = param(
         (0.05, 0.15, 0.4), "peak substrate velocities A of the spots", gt=0, le=2, length=(1, 64)
     )
@@ -306,7 +311,8 @@ def _finals(series, controls, P: Parameters) -> dict:
 def run(ctx: Context) -> dict:
     P: Parameters = ctx.params
     lattice = BUILDERS[P.lattice](P.n, P.n, P.boundary)
-    patch = LatticeParams(P.M, P.K, lattice)
+    K_patch = monolayer_coupling(P.K, lattice)  # the chain's long-wave speed (warpchain.physical)
+    patch = LatticeParams(P.M, K_patch, lattice)
     line = LatticeParams(P.M, P.K, chain(P.n, P.boundary))
     n_spots = len(P.amplitudes) * len(P.widths)
     movie = P.movie % n_spots
@@ -314,10 +320,11 @@ def run(ctx: Context) -> dict:
     W = np.tile(np.array(P.widths, dtype=float), len(P.amplitudes))
     # the discrete NLS's threshold on a patch of DNLS_SITES^2 of the same geometry: the minimal-norm soliton spans
     # ~2 sites (15 x 15 and 41 x 41 agree to 1e-5), and its sparse Newton on a 201 x 201 patch took minutes
-    dnls = ct.dnls_threshold(BUILDERS[P.lattice](min(P.n, DNLS_SITES), min(P.n, DNLS_SITES), P.boundary), P.M, P.K)
+    dnls = ct.dnls_threshold(BUILDERS[P.lattice](min(P.n, DNLS_SITES), min(P.n, DNLS_SITES), P.boundary), P.M, K_patch)
     ctx.log(
-        "%s, M = %g, K = %g: %d spots (A x W) and their linear controls, %d periods; the discrete NLS puts the "
-        "breathers' energy threshold at E* = %.4g", lattice.describe(), P.M, P.K, n_spots, P.periods, dnls["energy"],
+        "%s, M = %g, K = %.6g (the chain's %g over kappa = %g): %d spots (A x W) and their linear controls, "
+        "%d periods; the discrete NLS puts the breathers' energy threshold at E* = %.4g", lattice.describe(), P.M,
+        K_patch, P.K, lattice.long_wave_curvature, n_spots, P.periods, dnls["energy"],
     )  # fmt: skip
     t0 = time.perf_counter()
     flat, flat_linear, movie_frames, patch_seconds = _run_spots(ctx, patch, P, P.lattice, movie)
@@ -354,6 +361,7 @@ def run(ctx: Context) -> dict:
         "lattice": lattice.describe(),
         "M": P.M,
         "K": P.K,
+        "K_patch": K_patch,
         "dnls_threshold": dnls,
         "spots": n_spots,
         "sites": lattice.n_sites,
@@ -420,8 +428,8 @@ def plot(out) -> None:
         ax.set_xlabel(r"the spot's optical energy $E_{opt} / E^*_{DNLS}$ (dashed: the monolayer's threshold)")
     axes[0].set(
         ylabel="breathers at the end (median peak count)",
-        title=f"{s['lattice']}, M = {s['M']:g}, K = {s['K']:g}\nfilled: the patch, open: the chain; "
-        "x: the linear control has peaks too",
+        title=f"{s['lattice']}, M = {s['M']:g}, K = {s['K_patch']:.4g} (chain: {s['K']:g})\n"
+        "filled: the patch, open: the chain; x: the linear control has peaks too",
     )
     axes[1].axhline(1.0, color="0.4", lw=0.8)
     axes[1].set(ylabel="r.m.s. spread at the end / the linear control's", title="below 1: self-localized")

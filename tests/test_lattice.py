@@ -454,3 +454,23 @@ def test_a_monolayer_on_the_reference_keeps_its_energy_and_its_symmetry(build):
     for name, p in params.lattice.symmetries().items():
         if p[params.lattice.centre] == params.lattice.centre:
             np.testing.assert_allclose(x[0][:, p], x[0], rtol=0, atol=1e-14, err_msg=name)
+
+
+@pytest.mark.parametrize("build", [square, triangular])
+def test_long_wave_curvature_and_the_monolayer_coupling(build):
+    """lam(q) = kappa |k|^2 for small cartesian k in every direction (isotropic to O(k^4)); the lattice at
+    K / kappa has the chain's long-wave acoustic speed at K (``physical.monolayer_coupling``)."""
+    from warpchain.physical import monolayer_coupling
+
+    lat = build(5, 5)
+    eps = 1e-4
+    for theta in np.linspace(0.0, np.pi, 7):
+        k = eps * np.array([np.cos(theta), np.sin(theta)])
+        q = lat.basis @ k  # axial Bloch numbers: q_i = k . a_i
+        assert abs(lat.lam(q) / eps**2 - lat.long_wave_curvature) < 1e-6
+    assert chain(5).long_wave_curvature == 1.0
+    M, K = 30.0, 160.0
+    K_lattice = monolayer_coupling(K, lat)
+    speed = np.sqrt(lat.long_wave_curvature * K_lattice / (M + 1.0))
+    assert abs(speed - np.sqrt(K / (M + 1.0))) < 1e-14
+    assert abs(K_lattice - (K / 1.5 if build is triangular else K)) < 1e-12

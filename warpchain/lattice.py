@@ -216,6 +216,15 @@ class Lattice:
                 total = total + np.sum(self._bond_weights[:, d] * diff * diff, axis=-1)
         return 0.5 * total
 
+    @property
+    def long_wave_curvature(self) -> float:
+        """kappa in lam(q) = kappa |q|^2 + O(q^4), q cartesian (lattice spacing 1), averaged over the directions:
+        sum_k w_k |e_k|^2 / dimension (unit weights: 1 on the chain and the square lattice, 3/2 on the triangular).
+        The acoustic branch's long-wave speed is w0 sqrt(kappa K / (M + 1)) spacings per unit time, so a lattice
+        with K / kappa has the chain's long-wave speed at K (``physical.monolayer_coupling``)."""
+        steps = self.directions @ self.basis  # the bonds' cartesian vectors
+        return float(np.dot(self.direction_weights, np.sum(steps * steps, axis=1)) / len(self.shape))
+
     def site_bond_energy(self, u) -> np.ndarray:
         """``bond_energy`` shared out to the sites, shape u.shape: half of each bond between two sites to each, a
         wall bond to its site. Summed over the sites it is ``bond_energy`` (to rounding): an energy density."""

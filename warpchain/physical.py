@@ -30,6 +30,13 @@ D w_0 sqrt(K / (M + 1)) (its acoustic branch is w^2 = 2K(1 - cos kD) / (M + 1) +
 paper's D w_0 sqrt(K/M); setting it to c_R fixes K/(M + 1). Then K is chosen so that the discrete
 optical branch passes through the point where the continuous upper branch meets the c_T line.
 
+**The monolayer** (``monolayer_coupling``). The same surface carries a close-packed monolayer; its discrete model
+(``warpchain.lattice``) has lam(q) = kappa |q|^2 D^2 + O(q^4) (kappa = 3/2 on the triangular lattice, 1 on the chain
+and the square lattice: ``Lattice.long_wave_curvature``), so its long-wave speed is D w_0 sqrt(kappa K / (M + 1)).
+Fitted to the same c_R it keeps M and takes K / kappa: the triangular monolayer of the chain fitted at K is the
+lattice at (2/3) K. (The optical-branch point of the chain's fit is not refitted: on the lattice the branch depends
+on the direction of k beyond long waves.)
+
 **Appendix estimates** (``estimate_mass_ratio``, ``estimate_stiffness_ratio``): the paper's
 order-of-magnitude M and K (a substrate slab of depth ~ one wavelength under each sphere).
 """
@@ -353,6 +360,13 @@ def discrete_long_wave_speed(M: float, K: float, omega0: float, diameter: float,
     """Long-wave sound speed (m/s) of the chain with cells of width D: D w_0 sqrt(K/(M+1)) (exact),
     or the paper's D w_0 sqrt(K/M)."""
     return diameter * omega0 * math.sqrt(K / ((M + 1.0) if exact else M))
+
+
+def monolayer_coupling(K: float, lattice) -> float:
+    """K of a lattice (``warpchain.lattice``) with the long-wave speed of the chain at K (module docstring):
+    K / ``lattice.long_wave_curvature`` (the triangular monolayer: 2 K / 3)."""
+    _positive(K=K)
+    return K / lattice.long_wave_curvature
 
 
 def discrete_optical(q, M: float, K: float):

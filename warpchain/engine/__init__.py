@@ -49,8 +49,10 @@ ends the site-group kernels publish (``ends``) and its bond counted once (``wall
 The tests over ``BOUNDARIES`` (``tests/test_gpu_engine.py``, ``tests/test_integrators.py``,
 ``tests/test_site_kernels.py``, ``tests/test_model.py``) check every layout against the reference bit for bit.
 
-A 2-D lattice (the monolayer) is a new neighbour rule, not a new engine: ``site_kernels.evaluate`` reads a
-site's neighbours through ``neighbours_at``; a neighbour table (or a stencil), carried in the ``Lattice`` struct
-every kernel already takes, replaces it there, and the launch sequence, the kicks and drifts and the tangent
-lanes stay.
+A 2-D lattice (the monolayer) is a new neighbour rule, not a new engine: a ``warpchain.lattice.LatticeParams``
+carries its neighbour table and bond weights in the ``Lattice`` struct every kernel already takes
+(``Lattice.degree`` > 0), and ``site_kernels.evaluate`` reads a site's neighbours from it
+(``thread_kernels.table_laplacian``) where the chain's read ``neighbours_at``; the launch sequence, the kicks and
+drifts, the tangent lanes and the guard (``table_bonds``) stay. Only the sites layout takes a table
+(``devices.resolve_layout(table=True)``); the thread, block and site-group kernels keep the chain's neighbours.
 """
