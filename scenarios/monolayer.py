@@ -17,6 +17,10 @@ discrete NLS's threshold on the same patch (``continuation.dnls_threshold``: the
 measured threshold approaches as K -> 0) and the chain's breathers at the same frequencies (``CHAIN_SITES`` sites),
 whose energy has no minimum.
 
+The linear waves beside them (``_monolayer_waves``): band edges, the dispersion along the Brillouin zone's
+high-symmetry path and over the zone, the patch's lowest optical modes, and the chain's coupling with the same
+long-wave speed (``monolayer-waves.png``).
+
 How: Newton shooting on the time-reversible half-period map and the reduced Floquet analysis (every multiplier,
 even and odd blocks under the patch's 180-degree rotation) on the Warp ``Flow`` of ``--device``
 (``warpchain.lattice.LatticeParams``: the sites layout reads the patch's neighbour table; on the CPU its bits are
@@ -41,6 +45,7 @@ from warpchain.lattice import LatticeParams, square, triangular
 from continuation.floquet import KINDS
 from warpchain.store import read_group, write_table
 
+from ._monolayer_waves import draw, waves
 from ._common import BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD, PAPER_M, Context, pyplot, read_summary, save_figure
 from ._params import Rule, param
 
@@ -248,6 +253,17 @@ def run(ctx: Context) -> dict:
     chain = _chain(ctx, P, sorted({row["omega"] for walk in walks.values() for row in walk["rows"]}))
     root = ctx.store(None)
     write_table(root, "chain", chain, dim="point", attrs={"sites": CHAIN_SITES})
+    linear = {}
+    for name in names:  # the linear waves of each lattice (``_monolayer_waves``)
+        lattice = BUILDERS[name](P.size, P.size, "fixed")
+        linear[name] = waves(root, name, lattice, P.M, P.K)
+        ctx.log(
+            "%s: acoustic top %.6f, optical band [%.6f, %.6f]; the patch's lowest optical modes %s; K = %g is the "
+            "chain's %.4g (the same long-wave speed)", name, linear[name]["band_edges"]["acoustic_top"],
+            linear[name]["band_edges"]["optical_bottom"], linear[name]["band_edges"]["optical_top"],
+            ", ".join(f"{w:.6f}" for w in linear[name]["lowest_optical_modes"]), P.K,
+            linear[name]["chain_equivalent_K"],
+        )  # fmt: skip
     for name, walk in walks.items():
         write_table(root, name, {k: [r[k] for r in walk["rows"]] for k in walk["rows"][0]}, dim="point")
         z = walk["profile"][0] - walk["profile"][1]
@@ -263,6 +279,7 @@ def run(ctx: Context) -> dict:
     for name, walk in walks.items():
         summary[name] = {k: v for k, v in walk.items() if k not in ("rows", "profile", "positions")}
         summary[name]["points"] = len(walk["rows"])
+        summary[name]["waves"] = linear[name]
     return summary
 
 
@@ -318,3 +335,7 @@ def plot(out) -> None:
         ax.set_yticks([])
         fig.colorbar(im, ax=ax, shrink=0.8)
     save_figure(fig, out, "monolayer")
+    fig, axes = plt.subplots(len(names), 3, figsize=(15, 4.6 * len(names)), layout="constrained", squeeze=False)
+    for row, name in zip(axes, names):
+        draw(fig, row, out / "data.zarr", name, s[name]["waves"])
+    save_figure(fig, out, "monolayer-waves")

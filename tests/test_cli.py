@@ -332,6 +332,16 @@ def test_monolayer_quick_has_an_energy_threshold_where_the_stability_changes(tmp
         assert bool(ds.floquet_complete.all()) and float(ds.energy.min()) >= t["energy"] - 1e-6
     assert s["square"]["threshold"]["energy"] < s["triangular"]["threshold"]["energy"]  # six neighbours cost more
     assert (tmp_path / "monolayer" / "monolayer.png").exists()
+    for name, kappa in (("square", 1.0), ("triangular", 1.5)):  # the linear waves
+        w = s[name]["waves"]
+        edges, modes = w["band_edges"], w["lowest_optical_modes"]
+        assert abs(edges["optical_bottom"] - np.sqrt(31.0 / 30.0)) < 1e-15
+        assert edges["optical_bottom"] < modes[0] <= modes[1] <= modes[2] < edges["optical_top"]
+        assert w["chain_equivalent_K"] == kappa * s["K"]
+        path = wc.read_store(tmp_path / "monolayer" / "data.zarr", f"{name}_path")
+        assert abs(float(path.optical.min()) - edges["optical_bottom"]) < 1e-12
+        assert abs(float(path.acoustic.max()) - edges["acoustic_top"]) < 1e-12  # the path passes the top
+    assert (tmp_path / "monolayer" / "monolayer-waves.png").exists()
 
 
 @pytest.mark.slow
