@@ -537,9 +537,10 @@ def test_every_store_of_the_paper_reads_checked_with_units_and_long_names(paper_
 
 @pytest.mark.slow
 def test_monolayer_spot_quick_localizes_above_the_threshold_only(tmp_path):
-    """The spot experiment (41 x 41 triangular patch, the chain's K = 16: the patch's 10.7): the strong spot (optical energy above the discrete
-    NLS's threshold) self-localizes against its linear control, the weak one (far below) does not; every group of
-    the store reads checked, and the figures and the animation are written."""
+    """The spot experiment (41 x 41 triangular patch, the chain's K = 16: the patch's 10.7): the strong spot
+    (optical energy above the discrete NLS's threshold) self-localizes against its linear control and forms a
+    breather, the weak one (far below) does not; every group of the store reads checked, and the figures and the
+    animation are written."""
     import warpchain as wc
 
     out = _run("run", "monolayer-spot", "--quick", "--out", str(tmp_path), "--device", "cpu")
