@@ -206,3 +206,21 @@ def test_spot_peaks_equal_the_full_disc_filter():
                 assert np.array_equal(peaks, expect.ravel()) and np.array_equal(near, covered.ravel())
                 found += int(peaks.sum())
     assert found > 20
+
+
+@pytest.mark.parametrize("geometry", sorted(BUILDERS))
+def test_2d_probed_columns_equal_the_plain_ones(geometry):
+    """The Flow's probed columns on a patch (colour groups of the lattice's own colouring, each site's column read
+    over its ball of bonds, the rim checked): the plain unit columns to far below rounding, from fewer runs; on a
+    periodic patch (a perturbation wraps round) the plain columns."""
+    p = LatticeParams(30.0, 0.1, BUILDERS[geometry](25, 25, "fixed"))
+    x0 = _state(p.N, 1, seed=5, amplitude=0.05)
+    lin = Flow("kahan8", 16, device="cpu").linearize(p, x0, 8, 0.1)
+    A, b = lin.probed_columns("positions")
+    runs = lin.stats["tangent_columns"]
+    plain = lin._plain_columns("positions")
+    assert b < p.N and runs < 2 * p.N
+    assert np.abs(A.toarray() - plain).max() <= 1e-25 * np.abs(plain).max()
+    ring = LatticeParams(30.0, 0.1, BUILDERS[geometry](6, 6, "periodic"))
+    lin = Flow("kahan8", 16, device="cpu").linearize(ring, _state(ring.N, 1, seed=6, amplitude=0.05), 8, 0.1)
+    assert lin.lattice is None and lin.probed_columns("positions")[1] == ring.N

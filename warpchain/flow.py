@@ -44,6 +44,9 @@ PROBE_MIN_SITES = 1025
 #: the first half-bandwidth a probe tries (sites)
 PROBE_HALFWIDTH = 32
 
+#: the first ball radius (bonds) a lattice's probe tries (``Linearization._probed_lattice``)
+LATTICE_HALFWIDTH = 4
+
 #: a probed column's entries at its band's edge must be below this fraction of its run's largest entry
 PROBE_TOLERANCE = 1e-16
 
@@ -60,6 +63,25 @@ class Trajectory:
 
     x_end: np.ndarray
     min_contact: np.ndarray
+
+
+def _balls(lattice, b: int) -> tuple:
+    """CSR (sites x sites) of the sites within b bonds (weight != 0) of each site, and of those exactly b away."""
+    import scipy.sparse as sp
+
+    n, nb = lattice.n_sites, lattice.neighbours
+    s, d = np.nonzero((nb >= 0) & (lattice.weights != 0))
+    eye = sp.identity(n, dtype=bool, format="csr")
+    step = sp.csr_matrix((np.ones(len(s), bool), (s, nb[s, d])), shape=(n, n)) + eye
+    inner = eye
+    for _ in range(b - 1):
+        inner = (inner @ step).astype(bool)
+    ball = (inner @ step).astype(bool).tocsr()
+    rim = (ball.astype(np.int8) - inner.astype(np.int8)).astype(bool).tocsr()
+    rim.eliminate_zeros()
+    ball.sort_indices()
+    rim.sort_indices()
+    return ball, rim
 
 
 class Linearization:
@@ -83,6 +105,7 @@ class Linearization:
         columns: Callable[[np.ndarray], np.ndarray],
         unit: Callable[[int, int], np.ndarray] | None = None,
         banded: bool = True,
+        lattice=None,
     ):
         self.x0, self.x_end, self.min_contact = x0, x_end, float(min_contact_value)
         self.nsteps, self.dt = int(nsteps), float(dt)
@@ -93,6 +116,9 @@ class Linearization:
         # whether a perturbation stays near its site (fixed and free ends; a periodic ring carries it round to the
         # other end, where a colour group's decoding would give it to the wrong site): ``probed_columns`` needs it
         self.banded = bool(banded)
+        # a lattice given as a neighbour table (``warpchain.lattice``, not periodic): probed by its own colouring
+        # (``probed_columns``), the bands being balls of bonds around each site instead of index intervals
+        self.lattice = lattice
         self._cache: dict[str, np.ndarray] = {}
         self.stats = {"tangent_columns": 0}
 
@@ -123,7 +149,7 @@ class Linearization:
             return self._cache[which]
         if which == "all" and "positions" in self._cache and "velocities" in self._cache:
             return np.hstack([self._cache["positions"], self._cache["velocities"]])
-        if self.x0.shape[1] >= PROBE_MIN_SITES and self.banded:
+        if self.x0.shape[1] >= PROBE_MIN_SITES and (self.banded or self.lattice is not None):
             cols = self.probed_columns(which)[0].toarray()
             self._cache[which] = cols
             return cols
@@ -159,6 +185,8 @@ class Linearization:
 
         N = self.x0.shape[1]
         comps = {"positions": (0, 1), "velocities": (2, 3), "all": (0, 1, 2, 3)}[which]
+        if self.lattice is not None:
+            return self._probed_lattice(which, comps)
         b = int(halfwidth)
         while self.banded and 2 * b + 1 < N:
             A, edge = self._probe(comps, b)
@@ -166,6 +194,55 @@ class Linearization:
                 return A, b
             b *= 2
         return sp.csc_matrix(self._plain_columns(which)), N
+
+    def _probed_lattice(self, which: str, comps: tuple) -> tuple:
+        """``probed_columns`` on a lattice given as a table: sites are coloured so that no two within 2 b bonds share
+        a colour (``Lattice.colouring``), one tangent run per colour and component gives the columns of all its
+        sites, and site j's column is its entries within b bonds of j (its ball). Checked as on the chain: the
+        entries on each ball's rim (exactly b bonds away) must be below ``PROBE_TOLERANCE`` of their run's largest,
+        else b doubles, from ``LATTICE_HALFWIDTH`` until the colours are no fewer than the sites (plain columns)."""
+        import scipy.sparse as sp
+
+        lat, N = self.lattice, self.x0.shape[1]
+        b = LATTICE_HALFWIDTH
+        while True:
+            colours = lat.colouring(2 * b)
+            if colours.max() + 1 >= N:
+                return sp.csc_matrix(self._plain_columns(which)), N
+            balls = _balls(lat, b)
+            A, edge = self._probe_groups(comps, colours, balls)
+            if edge <= PROBE_TOLERANCE:
+                return A, b
+            b *= 2
+
+    def _probe_groups(self, comps: tuple, colours: np.ndarray, balls: tuple) -> tuple:
+        """The columns of ``comps`` from one run per (component, colour), site j's entries those of its ball (CSR
+        rows ``balls[0]``; ``balls[1]`` its rim), and the largest rim entry relative to its run's largest."""
+        import scipy.sparse as sp
+
+        N, n_colours = self.x0.shape[1], int(colours.max()) + 1
+        j = np.arange(N)
+        dirs = np.zeros((len(comps), n_colours, 4, N))
+        for c, comp in enumerate(comps):
+            dirs[c, colours, comp, j] = 1.0
+        C = self.columns(dirs.reshape(-1, 4, N)).reshape(4, N, len(comps), n_colours)  # [out, i, comp, colour]
+        top = np.max(np.abs(C), axis=(0, 1))  # (comps, colours)
+        top[top == 0] = 1.0
+        edge = 0.0
+        ball, rim = balls
+        rim_site = np.repeat(j, np.diff(rim.indptr))
+        if rim.nnz:
+            values = np.abs(C[:, rim.indices, :, colours[rim_site]])  # (rim entries, out, comp)
+            edge = float(np.max(values / top.T[colours[rim_site]][:, None, :]))
+        owner = np.repeat(j, np.diff(ball.indptr))  # the column (site) of each ball entry
+        blocks = []
+        for c in range(len(comps)):
+            data = C[:, ball.indices, c, colours[owner]]  # (out, entries)
+            rows = np.arange(4)[:, None] * N + ball.indices[None, :]
+            cols = np.broadcast_to(c * N + owner, rows.shape)
+            blocks.append((data.ravel(), rows.ravel(), cols.ravel()))
+        data, rows, cols = (np.concatenate(x) for x in zip(*blocks))
+        return sp.csc_matrix((data, (rows, cols)), shape=(4 * N, len(comps) * N)), edge
 
     def _probe(self, comps: tuple, b: int) -> tuple:
         """The columns of components ``comps`` from the len(comps) (2 b + 1) colour-group runs at half-bandwidth b,
@@ -383,7 +460,9 @@ class Flow:
             )
 
         banded = _banded(params)
-        return Linearization(x0[0], x_end[0], contact[0], nsteps, dt, columns, unit=unit, banded=banded)
+        return Linearization(
+            x0[0], x_end[0], contact[0], nsteps, dt, columns, unit=unit, banded=banded, lattice=_probed(params)
+        )
 
 
 def _column_buffers(runner, count: int):
@@ -457,6 +536,13 @@ def _banded(params) -> bool:
     return neighbour_table(params) is None and params.boundary != "periodic"
 
 
+def _probed(params):
+    """The lattice whose colouring probes the columns (``Linearization._probed_lattice``): a table's, unless periodic
+    (a perturbation wraps round: plain columns)."""
+    table = neighbour_table(params)
+    return table if table is not None and params.boundary != "periodic" else None
+
+
 def _parameters(params: ChainParams):
     from .model import per_lattice_parameters
 
@@ -489,4 +575,6 @@ class ReferenceFlow(Flow):
             return out["dx"][0]
 
         banded = _banded(params)
-        return Linearization(x0[0], traj.x_end[0], traj.min_contact[0], nsteps, dt, columns, banded=banded)
+        return Linearization(
+            x0[0], traj.x_end[0], traj.min_contact[0], nsteps, dt, columns, banded=banded, lattice=_probed(params)
+        )
