@@ -425,7 +425,7 @@ def plot(out) -> None:
     for ax in axes[:2]:
         ax.axvline(1.0, color="0.4", ls="--", lw=0.8)
         ax.set_xscale("log")
-        ax.set_xlabel(r"the spot's optical energy $E_{opt} / E^*_{DNLS}$ (dashed: the monolayer's threshold)")
+        ax.set_xlabel(r"optical energy $E_{opt} / E^*_{DNLS}$ (dashed: the patch's threshold)")
     axes[0].set(
         ylabel="breathers at the end (median peak count)",
         title=f"{s['lattice']}, M = {s['M']:g}, K = {s['K_patch']:.4g} (chain: {s['K']:g})\n"
