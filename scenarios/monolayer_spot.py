@@ -99,7 +99,9 @@ class Parameters:
     noise: float = param(0.02, "relative per-site perturbation of the impulse (seeds the modulational instability)",
                          ge=0, le=1)  # fmt: skip
     seed: int = param(20261128, "seed of the noise (numpy's default_rng)", ge=0, le=2**63 - 1)
-    movie: int = param(-1, "the spot (index in amplitude-major order; -1 the last) whose envelope is stored", ge=-4096)
+    movie: int = param(
+        -1, "the spot (index in amplitude-major order; -1 the last) whose envelope is stored", ge=-4096, lt=4096
+    )
 
 
 #: the quick run: K = 16 (breathers ~4 sites wide) so that a 41 x 41 patch holds spots that do and do not localize
