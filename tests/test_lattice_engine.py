@@ -208,6 +208,7 @@ def test_spot_peaks_equal_the_full_disc_filter():
     assert found > 20
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("geometry", sorted(BUILDERS))
 def test_2d_probed_columns_equal_the_plain_ones(geometry):
     """The Flow's probed columns on a patch (colour groups of the lattice's own colouring, each site's column read
