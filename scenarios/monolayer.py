@@ -17,6 +17,11 @@ discrete NLS's threshold on the same patch (``continuation.dnls_threshold``: the
 measured threshold approaches as K -> 0) and the chain's breathers at the same frequencies (``CHAIN_SITES`` sites),
 whose energy has no minimum.
 
+``family`` picks the breather: site-centred (default), bond-centred (two neighbours in phase) or triangle-centred
+(three mutual neighbours, the triangular lattice); ``check_size`` locates the threshold again on a larger patch
+(the refined solves, from the breather embedded in it) and states the relative difference: the threshold's
+independence of the patch size.
+
 The linear waves beside them (``_monolayer_waves``): band edges, the dispersion along the Brillouin zone's
 high-symmetry path and over the zone, the patch's lowest optical modes, and the chain's coupling with the same
 long-wave speed (``monolayer-waves.png``).
@@ -66,10 +71,28 @@ class Parameters:
     omega_step: float = param(1e-4, "step of w_b towards the band edge", gt=1e-7, lt=1e-2)
     points_after_minimum: int = param(4, "points walked past the lowest energy before the walk stops", ge=2, le=1000)
     resolution: float = param(1e-7, "bracket of w_b the stability change is bisected to", ge=1e-10)
+    family: str = param(
+        "site",
+        "the breather's centre: a site; a bond (two neighbours in phase); a triangle (three, the triangular lattice)",
+        choices=("site", "bond", "triangle"),
+    )
+    check_size: int = param(
+        0, "a larger patch on which the threshold is located again, its size-independence (0: none)", ge=0, le=61
+    )
 
 
 QUICK = {"size": 9, "omega_start": 1.0130, "omega_step": 3e-4, "resolution": 1e-6}
 RULES = (
+    Rule(
+        ("family", "lattices"),
+        "family=triangle on the triangular lattice only (lattices=triangular)",
+        lambda P: P.family != "triangle" or P.lattices == "triangular",
+    ),  # fmt: skip
+    Rule(
+        ("check_size", "size"),
+        "check_size 0 or larger than size",
+        lambda P: P.check_size in (0,) or P.check_size > P.size,
+    ),  # fmt: skip
     Rule(
         ("omega_start", "M"),
         "omega_start below the optical band's bottom sqrt((M + 1) / M)",
@@ -83,6 +106,34 @@ def _breather(params, omega, seed, flow):
     1e-8, or the rest state)."""
     r = ct.find_breather(params, omega, seed, flow=flow, solver="dense")
     return None if r.residual > 1e-8 or r.energy <= 0 else r
+
+
+def _seed(params, omega: float, family: str) -> np.ndarray:
+    """The anti-continuum seed of ``family``: the single-site orbit at the patch's centre, plus the same orbit in
+    phase on its +x neighbour (a bond), and on its +y neighbour too (a triangle: the three are mutual neighbours on
+    the triangular lattice)."""
+    single = ct.anticontinuum_seed(params, omega)
+    seed = single.copy()
+    if family in ("bond", "triangle"):
+        seed = seed + np.roll(single, 1, axis=1)  # site i + 1 + nx j
+    if family == "triangle":
+        seed = seed + np.roll(single, params.lattice.shape[0], axis=1)  # site i + nx (j + 1)
+    return seed
+
+
+def _embed(state: np.ndarray, small: int, large: int) -> np.ndarray:
+    """A small x small patch's state (4, small^2) at the centre of a large x large patch, zero around it."""
+    out = np.zeros((4, large, large))
+    o = large // 2 - small // 2
+    out[:, o : o + small, o : o + small] = state.reshape(4, small, small)
+    return out.reshape(4, large * large)
+
+
+def _vertex(omegas, energies) -> tuple[float, float, int]:
+    """The vertex (w_b, E) of the parabola through the lowest of ``energies`` and its two neighbours."""
+    k = int(np.clip(np.argmin(energies), 1, len(omegas) - 2))
+    c2, c1, c0 = np.polyfit(omegas[k - 1 : k + 2] - omegas[k], energies[k - 1 : k + 2], 2)
+    return float(omegas[k] - c1 / (2 * c2)), float(c0 - c1 * c1 / (4 * c2)), k
 
 
 def _solve(params, omega, seed, flow):
@@ -113,7 +164,7 @@ def _walk(ctx, name: str, P: Parameters) -> dict:
     params = LatticeParams(P.M, P.K, BUILDERS[name](P.size, P.size, "fixed"))
     flow = wc.Flow(BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD, device=ctx.device)
     edge = params.omega0
-    seed = ct.anticontinuum_seed(params, P.omega_start)
+    seed = _seed(params, P.omega_start, P.family)
     rows, states, reason, start = [], [], "edge", time.perf_counter()
     omega = P.omega_start
     while omega < edge:
@@ -151,14 +202,33 @@ def _walk(ctx, name: str, P: Parameters) -> dict:
         for omega in fine:
             r, _ = _solve(params, omega, states[low], flow)
             e_fine.append(np.inf if r is None else r.energy)
-        k = int(np.clip(np.argmin(e_fine), 1, len(fine) - 2))
-        c2, c1, c0 = np.polyfit(fine[k - 1 : k + 2] - fine[k], e_fine[k - 1 : k + 2], 2)
+        omega_star, energy_star, k = _vertex(fine, np.array(e_fine))
         threshold = {
-            "omega": float(fine[k] - c1 / (2 * c2)),
-            "energy": float(c0 - c1 * c1 / (4 * c2)),
+            "omega": omega_star,
+            "energy": energy_star,
             "bracket": [float(fine[k - 1]), float(fine[k + 1])],
             "spacing": float(fine[1] - fine[0]),
         }
+    size_check = None
+    if threshold and P.check_size:  # the same refined solves on a larger patch, from the breather embedded in it
+        big = LatticeParams(P.M, P.K, BUILDERS[name](P.check_size, P.check_size, "fixed"))
+        state, e_big = _embed(states[low], P.size, P.check_size), []
+        for omega in fine:
+            r = _breather(big, omega, state, flow)
+            state = state if r is None else r.state
+            e_big.append(np.inf if r is None else r.energy)
+        omega_big, energy_big, _ = _vertex(fine, np.array(e_big))
+        size_check = {
+            "size": P.check_size,
+            "omega": omega_big,
+            "energy": energy_big,
+            "relative_difference": abs(energy_big - threshold["energy"]) / threshold["energy"],
+        }
+        ctx.log(
+            "%s: on %d x %d the threshold is E* = %.7f at w_b = %.7f (%.1e relative to %d x %d)",
+            name, P.check_size, P.check_size, energy_big, omega_big, size_check["relative_difference"], P.size,
+            P.size,
+        )  # fmt: skip
     changes = []  # every change of the verdict along the walk, bisected
     for i in [i for i in range(1, len(rows)) if rows[i]["stable"] != rows[i - 1]["stable"]]:
         lo, hi, s_lo, seed = w[i - 1], w[i], rows[i - 1]["stable"], states[i - 1]
@@ -207,6 +277,8 @@ def _walk(ctx, name: str, P: Parameters) -> dict:
         "lattice": params.lattice.describe(),
         "dnls_threshold": dnls,
         "threshold_over_dnls": threshold["energy"] / dnls["energy"] if threshold else None,
+        "size_check": size_check,
+        "family": P.family,
         "band_edges": params.lattice.band_edges(P.M, P.K),
         "rows": rows,
         "stop_reason": reason,
@@ -318,7 +390,7 @@ def plot(out) -> None:
     axes[0].set(
         ylabel="energy H",
         title="energy threshold (star; X: the discrete NLS's); dotted: stability change\n"
-        f"M = {s['M']:g}, K = {s['K']:g}, {s['size']} x {s['size']} fixed",
+        f"M = {s['M']:g}, K = {s['K']:g}, {s['size']} x {s['size']} fixed, {s[names[0]].get('family', 'site')}-centred",
     )
     axes[1].set(
         yscale="log", ylabel=r"max $|\lambda|$ - 1", title="complete Floquet verdicts (dashed: optical band bottom)"

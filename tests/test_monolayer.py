@@ -73,3 +73,23 @@ def test_the_discrete_nls_threshold():
     assert sq["townes_energy"] == pytest.approx(2.0 * D / G * TOWNES_NORM, rel=1e-12)
     assert tri["townes_energy"] == pytest.approx(math.sqrt(3.0) * sq["townes_energy"], rel=1e-12)
     assert sq["norm"] == pytest.approx(5.70125, abs=2e-4) and tri["norm"] == pytest.approx(8.77593, abs=2e-4)
+
+
+def test_the_scene_seeds_each_family_and_embeds_a_patch():
+    """``monolayer``'s seeds: the single-site orbit at the centre, in phase on its +x neighbour (a bond) and on its
+    +y neighbour too (a triangle of mutual neighbours on the triangular lattice); a small patch's state embedded at
+    the centre of a larger one."""
+    from scenarios.monolayer import _embed, _seed
+
+    params = LatticeParams(30.0, 1.0, triangular(7, 7, "fixed"))
+    c, nx = params.lattice.centre, 7
+    for family, sites in (("site", [c]), ("bond", [c, c + 1]), ("triangle", [c, c + 1, c + nx])):
+        seed = _seed(params, 1.005, family)
+        peaks = np.flatnonzero(np.abs(seed[1]) == np.abs(seed[1]).max())
+        assert sorted(peaks) == sorted(sites), family
+    nb = params.lattice.neighbours
+    assert c + 1 in nb[c] and c + nx in nb[c] and c + nx in nb[c + 1]  # mutual neighbours
+    state = np.arange(4 * 49, dtype=float).reshape(4, 49)
+    big = _embed(state, 7, 11)
+    assert big.shape == (4, 121) and big[:, triangular(11, 11).centre].tolist() == state[:, c].tolist()
+    assert np.count_nonzero(big) == np.count_nonzero(state)
