@@ -17,6 +17,9 @@ discrete NLS's threshold on the same patch (``continuation.dnls_threshold``: the
 measured threshold approaches as K -> 0) and the chain's breathers at the same frequencies (``CHAIN_SITES`` sites),
 whose energy has no minimum.
 
+``K_walk`` continues the breather at the threshold's w_b in K (Newton from the previous one, a complete verdict at
+every point; ``monolayer-K.png``).
+
 ``family`` picks the breather: site-centred (default), bond-centred (two neighbours in phase) or triangle-centred
 (three mutual neighbours, the triangular lattice); ``check_size`` locates the threshold again on a larger patch
 (the refined solves, from the breather embedded in it) and states the relative difference: the threshold's
@@ -79,6 +82,10 @@ class Parameters:
     check_size: int = param(
         0, "a larger patch on which the threshold is located again, its size-independence (0: none)", ge=0, le=61
     )
+    K_walk: tuple[float, ...] = param(
+        (), "couplings walked in order at the threshold's w_b, from the breather there (); () skips it", gt=0, le=10,
+        length=(0, 200),
+    )  # fmt: skip
 
 
 QUICK = {"size": 9, "omega_start": 1.0130, "omega_step": 3e-4, "resolution": 1e-6}
@@ -134,6 +141,26 @@ def _vertex(omegas, energies) -> tuple[float, float, int]:
     k = int(np.clip(np.argmin(energies), 1, len(omegas) - 2))
     c2, c1, c0 = np.polyfit(omegas[k - 1 : k + 2] - omegas[k], energies[k - 1 : k + 2], 2)
     return float(omegas[k] - c1 / (2 * c2)), float(c0 - c1 * c1 / (4 * c2)), k
+
+
+def _K_walk(ctx, name: str, params, omega: float, state, flow, P) -> list:
+    """The breather at fixed w_b = ``omega`` continued in K through ``P.K_walk`` (Newton from the previous one), with
+    its complete verdict at every point; stops where Newton loses it."""
+    rows = []
+    for K in P.K_walk:
+        r, fl = _solve(params.replace(K=float(K)), omega, state, flow)
+        if r is None:
+            ctx.log("%s: the K walk lost the breather at K = %g (w_b = %.6f)", name, K, omega)
+            break
+        if not fl.complete:
+            raise RuntimeError(f"{name}: the Floquet count did not close at K = {K:g}, w_b = {omega:.6f}")
+        state = r.state
+        rows.append({"K": float(K), **_row(omega, r, fl)})
+        ctx.log(
+            "%s at w_b = %.6f: K = %g, E = %.6f, %s (max |l| - 1 = %.2e)",
+            name, omega, K, r.energy, fl.verdict, fl.max_modulus - 1,
+        )  # fmt: skip
+    return rows
 
 
 def _solve(params, omega, seed, flow):
@@ -287,6 +314,7 @@ def _walk(ctx, name: str, P: Parameters) -> dict:
         "stability_changes": changes,
         "threshold_minus_change": (threshold["omega"] - 0.5 * sum(change["bracket"]) if threshold and change else None),
         "profile": profile,
+        "K_walk": _K_walk(ctx, name, params, threshold["omega"], profile, flow, P) if threshold and P.K_walk else [],
         "positions": params.lattice.positions,
         "seconds": time.perf_counter() - start,
     }
@@ -349,7 +377,10 @@ def run(ctx: Context) -> dict:
         )
     summary = {"M": P.M, "K": P.K, "size": P.size, "optical_bottom": math.sqrt((P.M + 1.0) / P.M)}
     for name, walk in walks.items():
-        summary[name] = {k: v for k, v in walk.items() if k not in ("rows", "profile", "positions")}
+        summary[name] = {k: v for k, v in walk.items() if k not in ("rows", "profile", "positions", "K_walk")}
+        if walk["K_walk"]:
+            write_table(root, f"{name}_K", {k: [r[k] for r in walk["K_walk"]] for k in walk["K_walk"][0]}, dim="point")
+            summary[name]["K_walk_points"] = len(walk["K_walk"])
         summary[name]["points"] = len(walk["rows"])
         summary[name]["waves"] = linear[name]
     return summary
@@ -411,3 +442,18 @@ def plot(out) -> None:
     for row, name in zip(axes, names):
         draw(fig, row, out / "data.zarr", name, s[name]["waves"])
     save_figure(fig, out, "monolayer-waves")
+    walked = [name for name in names if s[name].get("K_walk_points")]
+    if walked:  # the continuation in K at the threshold's frequency
+        fig, ax = plt.subplots(figsize=(6, 4.4), layout="constrained")
+        for name in walked:
+            d, _ = read_group(out / "data.zarr", f"{name}_K")
+            st = d["stable"] == 1
+            ax.plot(d["K"], d["energy"], "-", color=colours[name], lw=0.8)
+            ax.plot(d["K"][st], d["energy"][st], "o", ms=4, color=colours[name], label=f"{name}: stable")
+            ax.plot(
+                d["K"][~st], d["energy"][~st], "o", ms=4, mfc="none", color=colours[name], label=f"{name}: unstable"
+            )
+            ax.set_title(f"the breather at the threshold's $\\omega_b$ = {d['omega'][0]:.6f} ({name}), continued in K")
+        ax.set(xlabel="K", ylabel="energy H")
+        ax.legend(fontsize=7)
+        save_figure(fig, out, "monolayer-K")

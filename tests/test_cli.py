@@ -319,12 +319,18 @@ def test_monolayer_quick_has_an_energy_threshold_where_the_stability_changes(tmp
     threshold lies above the discrete NLS's prediction; the store reads checked, with positions for the profile."""
     import warpchain as wc
 
-    out = _run("run", "monolayer", "--quick", "--out", str(tmp_path), "--device", "cpu", "--set", "check_size=13")
+    out = _run(
+        "run", "monolayer", "--quick", "--out", str(tmp_path), "--device", "cpu", "--set", "check_size=13",
+        "--set", "K_walk=1.25,1.5",
+    )  # fmt: skip
     assert out.returncode == 0, out.stderr[-3000:]
     s = json.loads((tmp_path / "monolayer" / "summary.json").read_text())
     for name in ("square", "triangular"):
         # the threshold again on a 13 x 13 patch (measured: 4.2e-4 and 5.7e-4 from 9 x 9)
         assert s[name]["size_check"]["size"] == 13 and s[name]["size_check"]["relative_difference"] < 1e-3
+        walk = wc.read_store(tmp_path / "monolayer" / "data.zarr", f"{name}_K")  # the continuation in K at fixed w_b
+        assert s[name]["K_walk_points"] == 2 and bool(walk.floquet_complete.all())
+        assert float(walk.energy[1]) > float(walk.energy[0]) > s[name]["threshold"]["energy"]
         t, change = s[name]["threshold"], s[name]["stability_change"]
         assert t and change and change["from_stable"], name
         assert abs(t["omega"] - np.mean(change["bracket"])) < t["spacing"], name
