@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from ..lattice import MISSING, WALL
+from ..lattice import WALL
 from ..model import BOUNDARY_CODES
 
 #: the kernels' annotation types: float64 arrays of 1 to 3 axes, int32 indices, float64
@@ -55,9 +55,9 @@ NO_CONTACT = wp.constant(wp.float64(1.0e300))
 BOUNDARY_FIXED = wp.constant(BOUNDARY_CODES["fixed"])
 BOUNDARY_FREE = wp.constant(BOUNDARY_CODES["free"])
 BOUNDARY_PERIODIC = wp.constant(BOUNDARY_CODES["periodic"])
-#: a neighbour table's slot codes (``warpchain.lattice``): a fixed wall (reads u = 0), no neighbour (reads the site)
+#: a neighbour table's wall slot (``warpchain.lattice.WALL``: reads u = 0); any other negative slot (``MISSING``: no
+#: neighbour) reads the site itself
 TABLE_WALL = wp.constant(WALL)
-TABLE_MISSING = wp.constant(MISSING)
 
 
 @wp.struct
@@ -90,7 +90,7 @@ class Lattice:
     boundary: int
     #: 0: the chain's two neighbours (``neighbours_at``, the walls of ``boundary``); D > 0: ``table``'s D slots
     degree: int
-    #: (sites, D) int32: a neighbour's site index, ``TABLE_WALL`` or ``TABLE_MISSING`` (``warpchain.lattice``)
+    #: (sites, D) int32: a neighbour's site index, ``lattice.WALL`` or ``lattice.MISSING`` (``warpchain.lattice``)
     table: wp.array2d(dtype=wp.int32)
     #: (sites, D) float64: the bonds' weights
     weights: Array2
