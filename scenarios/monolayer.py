@@ -20,6 +20,10 @@ whose energy has no minimum.
 ``K_walk`` continues the breather at the threshold's w_b in K (Newton from the previous one, a complete verdict at
 every point; ``monolayer-K.png``).
 
+``--set omega=...`` (with one ``lattice``) computes one breather instead of the walk: its ``energy``,
+``max_floquet_modulus`` and ``stable`` (the complete verdict) in ``summary.json``, its state and multipliers in the
+store. ``n`` and ``boundary`` set the patch.
+
 ``family`` picks the breather: site-centred (default), bond-centred (two neighbours in phase) or triangle-centred
 (three mutual neighbours, the triangular lattice); ``check_size`` locates the threshold again on a larger patch
 (the refined solves, from the breather embedded in it) and states the relative difference: the threshold's
@@ -49,7 +53,7 @@ import numpy as np
 
 import continuation as ct
 import warpchain as wc
-from warpchain.lattice import LatticeParams, square, triangular
+from warpchain.lattice import BOUNDARIES, LatticeParams, square, triangular
 from continuation.floquet import KINDS
 from warpchain.store import read_group, write_table
 
@@ -68,8 +72,12 @@ class Parameters:
 
     M: float = param(PAPER_M, "mass ratio m1 / m2", gt=0)
     K: float = param(1.0, "coupling ratio k1 / k2 (every bond)", gt=0, le=10)
-    size: int = param(15, "the patches are size x size sites, fixed walls (odd: a centre site)", ge=5, le=41)
-    lattices: str = param("both", "the patches: square, triangular or both", choices=("both", "square", "triangular"))
+    n: int = param(15, "the patches are n x n sites (odd: a centre site)", ge=5, le=41)
+    lattice: str = param("both", "the patches: square, triangular or both", choices=("both", "square", "triangular"))
+    boundary: str = param("fixed", "the patches' walls", choices=BOUNDARIES)
+    omega: float | None = param(
+        None, "one breather at this w_b (with its complete verdict) instead of the walk; one lattice", gt=0
+    )
     omega_start: float = param(1.013, "first frequency w_b of the walk, in the gap", gt=0)
     omega_step: float = param(1e-4, "step of w_b towards the band edge", gt=1e-7, lt=1e-2)
     points_after_minimum: int = param(4, "points walked past the lowest energy before the walk stops", ge=2, le=1000)
@@ -87,25 +95,36 @@ class Parameters:
         length=(0, 200),
     )  # fmt: skip
 
+    RULES = (
+        Rule(
+            ("omega", "lattice"),
+            "omega (one breather) with one lattice (lattice=square or triangular)",
+            lambda P: P.omega is None or P.lattice != "both",
+        ),
+        Rule(
+            ("omega", "M"),
+            "omega below the optical band's bottom sqrt((M + 1) / M)",
+            lambda P: P.omega is None or P.omega < math.sqrt((P.M + 1.0) / P.M),
+        ),
+        Rule(
+            ("family", "lattice"),
+            "family=triangle on the triangular lattice only (lattice=triangular)",
+            lambda P: P.family != "triangle" or P.lattice == "triangular",
+        ),
+        Rule(
+            ("check_size", "n"),
+            "check_size 0 or larger than n",
+            lambda P: P.check_size in (0,) or P.check_size > P.n,
+        ),
+        Rule(
+            ("omega_start", "M"),
+            "omega_start below the optical band's bottom sqrt((M + 1) / M)",
+            lambda P: P.omega_start < math.sqrt((P.M + 1.0) / P.M),
+        ),
+    )
 
-QUICK = {"size": 9, "omega_start": 1.0130, "omega_step": 3e-4, "resolution": 1e-6}
-RULES = (
-    Rule(
-        ("family", "lattices"),
-        "family=triangle on the triangular lattice only (lattices=triangular)",
-        lambda P: P.family != "triangle" or P.lattices == "triangular",
-    ),  # fmt: skip
-    Rule(
-        ("check_size", "size"),
-        "check_size 0 or larger than size",
-        lambda P: P.check_size in (0,) or P.check_size > P.size,
-    ),  # fmt: skip
-    Rule(
-        ("omega_start", "M"),
-        "omega_start below the optical band's bottom sqrt((M + 1) / M)",
-        lambda P: P.omega_start < math.sqrt((P.M + 1.0) / P.M),
-    ),
-)
+
+QUICK = {"n": 9, "omega_start": 1.0130, "omega_step": 3e-4, "resolution": 1e-6}
 
 
 def _breather(params, omega, seed, flow):
@@ -141,6 +160,50 @@ def _vertex(omegas, energies) -> tuple[float, float, int]:
     k = int(np.clip(np.argmin(energies), 1, len(omegas) - 2))
     c2, c1, c0 = np.polyfit(omegas[k - 1 : k + 2] - omegas[k], energies[k - 1 : k + 2], 2)
     return float(omegas[k] - c1 / (2 * c2)), float(c0 - c1 * c1 / (4 * c2)), k
+
+
+def _one(ctx, name: str, P) -> dict:
+    """One breather at w_b = ``omega`` (``--set omega=...``): Newton from the family's anti-continuum seed and its
+    complete verdict; the summary's ``energy``, ``max_floquet_modulus`` and ``stable`` are this breather's, and the
+    store holds its state (``<lattice>_breather``) and multipliers (``<lattice>_multipliers``)."""
+    params = LatticeParams(P.M, P.K, BUILDERS[name](P.n, P.n, P.boundary))
+    flow = wc.Flow(BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD, device=ctx.device)
+    r, fl = _solve(params, P.omega, _seed(params, P.omega, P.family), flow)
+    if r is None:
+        raise RuntimeError(
+            f"{name}: Newton found no breather at w_b = {P.omega:g} from the {P.family}-centred seed (it converged "
+            "to rest or not at all): try a w_b deeper in the gap (--set omega=...)"
+        )
+    ctx.log(
+        "%s %dx%d %s, %s-centred, w_b = %.6f: E = %.10f, %s (max |l| = %.12f, complete %s), residual %.1e",
+        name, P.n, P.n, P.boundary, P.family, P.omega, r.energy, fl.verdict, fl.max_modulus, fl.complete, r.residual,
+    )  # fmt: skip
+    root = ctx.store(None)
+    x, y = params.lattice.positions.T
+    write_table(
+        root, f"{name}_breather", {"site": np.arange(params.N), "x": x, "y": y, "u": r.state[0], "v": r.state[1],
+                                   "du": r.state[2], "dv": r.state[3]},
+        dim="site", attrs={"omega": float(P.omega)},
+    )  # fmt: skip
+    mu = np.asarray(fl.multipliers)
+    write_table(root, f"{name}_multipliers", {"real": mu.real, "imag": mu.imag}, dim="multiplier")
+    return {
+        "mode": "one",
+        "lattice": name,
+        "M": P.M,
+        "K": P.K,
+        "n": P.n,
+        "boundary": P.boundary,
+        "family": P.family,
+        "omega": float(P.omega),
+        "energy": float(r.energy),
+        "max_floquet_modulus": float(fl.max_modulus),
+        "stable": None if fl.stable is None else bool(fl.stable),
+        "floquet_complete": bool(fl.complete),
+        "verdict": fl.verdict,
+        "residual": float(r.residual),
+        "breather_participation": _participation(r.state),
+    }
 
 
 def _K_walk(ctx, name: str, params, omega: float, state, flow, P) -> list:
@@ -188,7 +251,7 @@ def _row(omega, r, fl) -> dict:
 
 
 def _walk(ctx, name: str, P: Parameters) -> dict:
-    params = LatticeParams(P.M, P.K, BUILDERS[name](P.size, P.size, "fixed"))
+    params = LatticeParams(P.M, P.K, BUILDERS[name](P.n, P.n, P.boundary))
     flow = wc.Flow(BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD, device=ctx.device)
     edge = params.omega0
     seed = _seed(params, P.omega_start, P.family)
@@ -207,7 +270,7 @@ def _walk(ctx, name: str, P: Parameters) -> dict:
         low = int(np.argmin([x["energy"] for x in rows]))
         ctx.log(
             "%s %dx%d: w_b = %.5f, E = %.6f, %s (max |l| - 1 = %.2e), participation %.1f sites",
-            name, P.size, P.size, omega, r.energy, fl.verdict, fl.max_modulus - 1, rows[-1]["breather_participation"],
+            name, P.n, P.n, omega, r.energy, fl.verdict, fl.max_modulus - 1, rows[-1]["breather_participation"],
         )  # fmt: skip
         if len(rows) - 1 - low >= P.points_after_minimum:
             reason = "past_minimum"
@@ -238,8 +301,8 @@ def _walk(ctx, name: str, P: Parameters) -> dict:
         }
     size_check = None
     if threshold and P.check_size:  # the same refined solves on a larger patch, from the breather embedded in it
-        big = LatticeParams(P.M, P.K, BUILDERS[name](P.check_size, P.check_size, "fixed"))
-        state, e_big = _embed(states[low], P.size, P.check_size), []
+        big = LatticeParams(P.M, P.K, BUILDERS[name](P.check_size, P.check_size, P.boundary))
+        state, e_big = _embed(states[low], P.n, P.check_size), []
         for omega in fine:
             r = _breather(big, omega, state, flow)
             state = state if r is None else r.state
@@ -253,8 +316,8 @@ def _walk(ctx, name: str, P: Parameters) -> dict:
         }
         ctx.log(
             "%s: on %d x %d the threshold is E* = %.7f at w_b = %.7f (%.1e relative to %d x %d)",
-            name, P.check_size, P.check_size, energy_big, omega_big, size_check["relative_difference"], P.size,
-            P.size,
+            name, P.check_size, P.check_size, energy_big, omega_big, size_check["relative_difference"], P.n,
+            P.n,
         )  # fmt: skip
     changes = []  # every change of the verdict along the walk, bisected
     for i in [i for i in range(1, len(rows)) if rows[i]["stable"] != rows[i - 1]["stable"]]:
@@ -348,14 +411,16 @@ def _chain(ctx, P: Parameters, omegas) -> dict:
 
 def run(ctx: Context) -> dict:
     P: Parameters = ctx.params
-    names = list(BUILDERS) if P.lattices == "both" else [P.lattices]
+    names = list(BUILDERS) if P.lattice == "both" else [P.lattice]
+    if P.omega is not None:
+        return _one(ctx, names[0], P)
     walks = {name: _walk(ctx, name, P) for name in names}
     chain = _chain(ctx, P, sorted({row["omega"] for walk in walks.values() for row in walk["rows"]}))
     root = ctx.store(None)
     write_table(root, "chain", chain, dim="point", attrs={"sites": CHAIN_SITES})
     linear = {}
     for name in names:  # the linear waves of each lattice (``_monolayer_waves``)
-        lattice = BUILDERS[name](P.size, P.size, "fixed")
+        lattice = BUILDERS[name](P.n, P.n, P.boundary)
         linear[name] = waves(root, name, lattice, P.M, P.K)
         ctx.log(
             "%s: acoustic top %.6f, optical band [%.6f, %.6f]; the patch's lowest optical modes %s; K = %g is the "
@@ -375,7 +440,7 @@ def run(ctx: Context) -> dict:
             dim="site",
             attrs={"omega": walk["rows"][int(np.argmin([r["energy"] for r in walk["rows"]]))]["omega"]},
         )
-    summary = {"M": P.M, "K": P.K, "size": P.size, "optical_bottom": math.sqrt((P.M + 1.0) / P.M)}
+    summary = {"M": P.M, "K": P.K, "n": P.n, "boundary": P.boundary, "optical_bottom": math.sqrt((P.M + 1.0) / P.M)}
     for name, walk in walks.items():
         summary[name] = {k: v for k, v in walk.items() if k not in ("rows", "profile", "positions", "K_walk")}
         if walk["K_walk"]:
@@ -388,6 +453,8 @@ def run(ctx: Context) -> dict:
 
 def plot(out) -> None:
     s = read_summary(out)
+    if s.get("mode") == "one":
+        return _plot_one(out, s)
     names = [n for n in BUILDERS if n in s]
     plt = pyplot()
     fig, axes = plt.subplots(1, 2 + len(names), figsize=(5 * (2 + len(names)), 4.4), layout="constrained")
@@ -421,7 +488,8 @@ def plot(out) -> None:
     axes[0].set(
         ylabel="energy H",
         title="energy threshold (star; X: the discrete NLS's); dotted: stability change\n"
-        f"M = {s['M']:g}, K = {s['K']:g}, {s['size']} x {s['size']} fixed, {s[names[0]].get('family', 'site')}-centred",
+        f"M = {s['M']:g}, K = {s['K']:g}, {s['n']} x {s['n']} {s['boundary']}, "
+        f"{s[names[0]].get('family', 'site')}-centred",
     )
     axes[1].set(
         yscale="log", ylabel=r"max $|\lambda|$ - 1", title="complete Floquet verdicts (dashed: optical band bottom)"
@@ -457,3 +525,26 @@ def plot(out) -> None:
         ax.set(xlabel="K", ylabel="energy H")
         ax.legend(fontsize=7)
         save_figure(fig, out, "monolayer-K")
+
+
+def _plot_one(out, s) -> None:
+    """One breather: z = u - v at t = 0 on the patch, and its multipliers on the unit circle."""
+    plt = pyplot()
+    b, _ = read_group(out / "data.zarr", f"{s['lattice']}_breather")
+    m, _ = read_group(out / "data.zarr", f"{s['lattice']}_multipliers")
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4.4), layout="constrained")
+    z = b["u"] - b["v"]
+    scale = np.abs(z).max()
+    im = axes[0].scatter(b["x"], b["y"], c=z, s=30, cmap="RdBu_r", vmin=-scale, vmax=scale)
+    axes[0].set(aspect="equal", xticks=[], yticks=[])
+    axes[0].set_title(
+        f"{s['lattice']} {s['n']} x {s['n']} {s['boundary']}, {s['family']}-centred, $\\omega_b$ = {s['omega']:g}\n"
+        f"z = u - v at t = 0; E = {s['energy']:.8f}"
+    )
+    fig.colorbar(im, ax=axes[0], shrink=0.8)
+    t = np.linspace(0, 2 * np.pi, 400)
+    axes[1].plot(np.cos(t), np.sin(t), color="0.6", lw=0.8)
+    axes[1].plot(m["real"], m["imag"], "o", ms=3)
+    axes[1].set(aspect="equal", xlabel="Re", ylabel="Im")
+    axes[1].set_title(f"Floquet multipliers: {s['verdict']} (max |l| = {s['max_floquet_modulus']:.10f})")
+    save_figure(fig, out, "monolayer")

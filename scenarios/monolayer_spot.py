@@ -103,6 +103,21 @@ class Parameters:
         -1, "the spot (index in amplitude-major order; -1 the last) whose envelope is stored", ge=-4096, lt=4096
     )
 
+    RULES = (
+        Rule(("widths", "n"), "widths below n / 4 (the spot fits the patch)", lambda P: max(P.widths) < P.n / 4),
+        Rule(("final_frames", "periods"), "final_frames <= periods", lambda P: P.final_frames <= P.periods),
+        Rule(
+            ("movie", "amplitudes", "widths"),
+            "movie an index of the sweep (-len .. len - 1, amplitude-major)",
+            lambda P: -len(P.amplitudes) * len(P.widths) <= P.movie < len(P.amplitudes) * len(P.widths),
+        ),
+        Rule(
+            ("n", "amplitudes", "widths", "periods"),
+            "n^2 x spots x periods <= 2e9 site-periods (a day on a GPU)",
+            lambda P: P.n**2 * len(P.amplitudes) * len(P.widths) * P.periods <= 2e9,
+        ),
+    )
+
 
 #: the quick run: K = 16 (breathers ~4 sites wide) so that a 41 x 41 patch holds spots that do and do not localize
 QUICK = {
@@ -114,20 +129,6 @@ QUICK = {
     "final_frames": 5,
     "radius": 4.0,
 }
-RULES = (
-    Rule(("widths", "n"), "widths below n / 4 (the spot fits the patch)", lambda P: max(P.widths) < P.n / 4),
-    Rule(("final_frames", "periods"), "final_frames <= periods", lambda P: P.final_frames <= P.periods),
-    Rule(
-        ("movie", "amplitudes", "widths"),
-        "movie an index of the sweep (-len .. len - 1, amplitude-major)",
-        lambda P: -len(P.amplitudes) * len(P.widths) <= P.movie < len(P.amplitudes) * len(P.widths),
-    ),
-    Rule(
-        ("n", "amplitudes", "widths", "periods"),
-        "n^2 x spots x periods <= 2e9 site-periods (a day on a GPU)",
-        lambda P: P.n**2 * len(P.amplitudes) * len(P.widths) * P.periods <= 2e9,
-    ),
-)
 
 
 def spots(lattice, P: Parameters) -> np.ndarray:
