@@ -227,6 +227,58 @@ def nls_breather(M: float, K: float, omega: float) -> NLSBreather:
 TOWNES_NORM = 11.700896
 
 
+def _dnls_newton(lattice):
+    """Newton for the C = 1 DNLS soliton -L phi - r phi + phi^3 = 0 on ``lattice`` (``dnls_threshold``'s equation),
+    its single-site start at r = 4 degree (phi^2 = r + degree at the centre) and the degree."""
+    import scipy.sparse as sp
+    from scipy.sparse.linalg import spsolve
+
+    L = sp.csr_matrix(lattice.laplacian_matrix())
+    n, centre = L.shape[0], lattice.centre
+    identity = sp.identity(n, format="csr")
+
+    def newton(r, phi):
+        for _ in range(60):
+            F = -(L @ phi) - r * phi + phi**3
+            step = spsolve((-L - r * identity + sp.diags(3.0 * phi * phi)).tocsc(), F)
+            phi = phi - step
+            if float(np.max(np.abs(step))) < 1e-13 * max(1.0, float(np.max(np.abs(phi)))):
+                return phi
+        raise RuntimeError(f"the discrete NLS: Newton did not converge at r = {r:g}")
+
+    degree = float(L.diagonal().max())
+    phi = np.zeros(n)
+    phi[centre] = math.sqrt(4.0 * degree + degree)
+    return newton, phi, degree
+
+
+def dnls_seed(params, omega: float, order: int = 2) -> np.ndarray:
+    """A seed state (4, N) at t = 0 for a lattice's site breather of frequency ``omega`` near the optical bottom: the
+    discrete NLS soliton of ``dnls_threshold`` at r = 2 w0 (w0 - omega) / (D K) (continued from the single-site limit
+    in r), a_j = sqrt(4 D K / G) phi_j the amplitude of z_j, and (u, v) from it as ``nls_seed`` builds them on the
+    chain (``order`` 2: the second-harmonic and mean corrections). Where the anti-continuum seed needs a long walk
+    (wide breathers near the band edge), Newton starts here."""
+    M, K = params.M, params.K
+    w0 = math.sqrt((M + 1.0) / M)
+    if not 0.0 < omega < w0:
+        raise ValueError(f"dnls_seed needs omega below the optical band's bottom w0 = {w0:.6f}, got {omega!r}")
+    if K <= 0:
+        raise ValueError("dnls_seed needs K > 0")
+    D, G = nls_coefficients(M)
+    r = 2.0 * w0 * (w0 - omega) / (D * K)
+    newton, phi, degree = _dnls_newton(params.lattice)
+    start = 4.0 * degree
+    for rr in np.geomspace(start, r, max(2, int(20 * abs(math.log(start / r))) + 1)) if r < start else [r]:
+        phi = newton(rr, phi)
+    b = 0.5 * math.sqrt(4.0 * D * K / G) * phi  # z = 2 b cos(w t)
+    z_osc = 2.0 * b + (b * b / 6.0 if order >= 2 else 0.0)
+    u = z_osc / (M + 1.0)
+    v = -M * z_osc / (M + 1.0)
+    if order >= 2:
+        v = v + b * b / 2.0
+    return state_from_positions(u, v)
+
+
 def dnls_threshold(lattice, M: float, K: float) -> dict:
     """The small-amplitude prediction of a lattice breather's energy threshold: the discrete NLS of the optical band
     bottom (module docstring, the X derivative replaced by the lattice's Laplacian L, ``Lattice.laplacian_matrix``)
@@ -246,26 +298,9 @@ def dnls_threshold(lattice, M: float, K: float) -> dict:
         {"norm": p at the minimum, "ratio": r there, "energy": (2 D K / G) p, "omega": w0 - r D K / (2 w0),
         "townes_energy": the continuum limit's (2 D K / G) p, the norm p of the Townes soliton on the lattice}.
     """
-    import scipy.sparse as sp
     from scipy.optimize import minimize_scalar
-    from scipy.sparse.linalg import spsolve
 
-    L = sp.csr_matrix(lattice.laplacian_matrix())
-    n, centre = L.shape[0], lattice.centre
-    identity = sp.identity(n, format="csr")
-
-    def newton(r, phi):
-        for _ in range(60):
-            F = -(L @ phi) - r * phi + phi**3
-            step = spsolve((-L - r * identity + sp.diags(3.0 * phi * phi)).tocsc(), F)
-            phi = phi - step
-            if float(np.max(np.abs(step))) < 1e-13 * max(1.0, float(np.max(np.abs(phi)))):
-                return phi
-        raise RuntimeError(f"dnls_threshold: Newton did not converge at r = {r:g}")
-
-    degree = float(L.diagonal().max())
-    phi = np.zeros(n)
-    phi[centre] = math.sqrt(4.0 * degree + degree)  # the single-site solution at r = 4 degree: phi^2 = r + degree
+    newton, phi, degree = _dnls_newton(lattice)
     path = []
     for r in np.geomspace(4.0 * degree, 0.05 * degree, 80):
         phi = newton(r, phi)

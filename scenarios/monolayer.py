@@ -87,6 +87,12 @@ class Parameters:
         "the breather's centre: a site; a bond (two neighbours in phase); a triangle (three, the triangular lattice)",
         choices=("site", "bond", "triangle"),
     )
+    seed: str = param(
+        "anticontinuum",
+        "Newton's first seed: the anti-continuum orbit(s) of the family, or the discrete NLS soliton (site family: "
+        "near the band edge, where the breather is wide)",
+        choices=("anticontinuum", "dnls"),
+    )
     check_size: int = param(
         0, "a larger patch on which the threshold is located again, its size-independence (0: none)", ge=0, le=61
     )
@@ -105,6 +111,11 @@ class Parameters:
             ("omega", "M"),
             "omega below the optical band's bottom sqrt((M + 1) / M)",
             lambda P: P.omega is None or P.omega < math.sqrt((P.M + 1.0) / P.M),
+        ),
+        Rule(
+            ("seed", "family"),
+            "seed=dnls for the site family (the discrete NLS soliton is site-centred)",
+            lambda P: P.seed != "dnls" or P.family == "site",
         ),
         Rule(
             ("family", "lattice"),
@@ -134,10 +145,13 @@ def _breather(params, omega, seed, flow):
     return None if r.residual > 1e-8 or r.energy <= 0 else r
 
 
-def _seed(params, omega: float, family: str) -> np.ndarray:
-    """The anti-continuum seed of ``family``: the single-site orbit at the patch's centre, plus the same orbit in
+def _seed(params, omega: float, family: str, kind: str = "anticontinuum") -> np.ndarray:
+    """With ``kind`` "dnls" the discrete NLS soliton (``continuation.dnls_seed``, site-centred); else the anti-continuum
+    seed of ``family``: the single-site orbit at the patch's centre, plus the same orbit in
     phase on its +x neighbour (a bond), and on its +y neighbour too (a triangle: the three are mutual neighbours on
     the triangular lattice)."""
+    if kind == "dnls":
+        return ct.dnls_seed(params, omega)
     single = ct.anticontinuum_seed(params, omega)
     seed = single.copy()
     if family in ("bond", "triangle"):
@@ -168,11 +182,12 @@ def _one(ctx, name: str, P) -> dict:
     store holds its state (``<lattice>_breather``) and multipliers (``<lattice>_multipliers``)."""
     params = LatticeParams(P.M, P.K, BUILDERS[name](P.n, P.n, P.boundary))
     flow = wc.Flow(BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD, device=ctx.device)
-    r, fl = _solve(params, P.omega, _seed(params, P.omega, P.family), flow)
+    r, fl = _solve(params, P.omega, _seed(params, P.omega, P.family, P.seed), flow)
     if r is None:
         raise RuntimeError(
             f"{name}: Newton found no breather at w_b = {P.omega:g} from the {P.family}-centred seed (it converged "
-            "to rest or not at all): try a w_b deeper in the gap (--set omega=...)"
+            "to rest or not at all): try a w_b deeper in the gap (--set omega=...), or near the band edge the discrete "
+            "NLS's seed (--set seed=dnls)"
         )
     ctx.log(
         "%s %dx%d %s, %s-centred, w_b = %.6f: E = %.10f, %s (max |l| = %.12f, complete %s), residual %.1e",
@@ -254,7 +269,7 @@ def _walk(ctx, name: str, P: Parameters) -> dict:
     params = LatticeParams(P.M, P.K, BUILDERS[name](P.n, P.n, P.boundary))
     flow = wc.Flow(BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD, device=ctx.device)
     edge = params.omega0
-    seed = _seed(params, P.omega_start, P.family)
+    seed = _seed(params, P.omega_start, P.family, P.seed)
     rows, states, reason, start = [], [], "edge", time.perf_counter()
     omega = P.omega_start
     while omega < edge:

@@ -592,3 +592,21 @@ def test_monolayer_one_breather_reports_its_verdict(tmp_path):
     assert s["energy"] > 0 and s["residual"] < 1e-10
     m = wc.read_store(tmp_path / "monolayer" / "data.zarr", "triangular_multipliers")
     assert m.sizes["multiplier"] == 4 * 49
+    near = _run(
+        "run",
+        "monolayer",
+        "--out",
+        str(tmp_path / "near"),
+        "--device",
+        "cpu",
+        "--set",
+        "lattice=square",
+        "--set",
+        "n=9",
+        "--set",
+        "omega=1.0160",
+        "--set",
+        "seed=dnls",
+    )  # fmt: skip  (near the band edge, from the discrete NLS's seed)
+    assert near.returncode == 0, near.stderr[-3000:]
+    assert json.loads((tmp_path / "near" / "monolayer" / "summary.json").read_text())["residual"] < 1e-9

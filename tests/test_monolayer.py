@@ -93,3 +93,18 @@ def test_the_scene_seeds_each_family_and_embeds_a_patch():
     big = _embed(state, 7, 11)
     assert big.shape == (4, 121) and big[:, triangular(11, 11).centre].tolist() == state[:, c].tolist()
     assert np.count_nonzero(big) == np.count_nonzero(state)
+
+
+@pytest.mark.parametrize("build", [square, triangular])
+def test_newton_from_the_discrete_nls_seed_near_the_band_edge(build):
+    """``continuation.dnls_seed``: the discrete NLS soliton on the patch as a seed reaches a wide breather near the
+    optical bottom in a few Newton iterations; outside the gap it is refused."""
+    params = LatticeParams(30.0, 1.0, build(11, 11, "fixed"))
+    omega = params.omega0 - 5e-4
+    seed = ct.dnls_seed(params, omega)
+    b = ct.require(ct.find_breather(params, omega, seed, flow=wc.ReferenceFlow("kahan8", 32), solver="dense"))
+    assert b.residual < 1e-9 and b.energy > 0
+    z, z_seed = b.state[0] - b.state[1], seed[0] - seed[1]
+    assert np.argmax(np.abs(z)) == params.lattice.centre and abs(np.abs(z).max() / np.abs(z_seed).max() - 1) < 0.2
+    with pytest.raises(ValueError, match="below the optical band"):
+        ct.dnls_seed(params, params.omega0)
