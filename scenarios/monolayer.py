@@ -37,7 +37,7 @@ How: Newton shooting on the time-reversible half-period map and the reduced Floq
 even and odd blocks under the patch's 180-degree rotation) on the Warp ``Flow`` of ``--device``
 (``warpchain.lattice.LatticeParams``: the sites layout reads the patch's neighbour table; on the CPU its bits are
 the numpy reference's). The Jacobians and the Floquet analysis are dense, so the patches are small (15 x 15 by
-default). The walls are fixed. Measured on the square lattice (2026-11-27): 15 x 15 and
+default). The walls are fixed by default (``boundary``). Measured on the square lattice (2026-11-27): 15 x 15 and
 21 x 21 give the same energies to the 6 digits logged up to w_b = 1.0161 (past the threshold) and the same
 threshold and stability change; they part by 4e-6 at 1.0162 and 4e-5 at 1.0163, where the breather spreads over
 4 to 8 sites.
@@ -112,6 +112,12 @@ class Parameters:
             "omega below the optical band's bottom sqrt((M + 1) / M)",
             lambda P: P.omega is None or P.omega < math.sqrt((P.M + 1.0) / P.M),
         ),
+        Rule(("n",), "n odd (the patch has a centre site, where the site breather sits)", lambda P: P.n % 2 == 1),
+        Rule(
+            ("check_size", "K_walk", "omega"),
+            "check_size and K_walk belong to the walk, not to one breather (omega)",
+            lambda P: P.omega is None or (P.check_size == 0 and not P.K_walk),
+        ),
         Rule(
             ("seed", "family"),
             "seed=dnls for the site family (the discrete NLS soliton is site-centred)",
@@ -124,8 +130,8 @@ class Parameters:
         ),
         Rule(
             ("check_size", "n"),
-            "check_size 0 or larger than n",
-            lambda P: P.check_size in (0,) or P.check_size > P.n,
+            "check_size 0, or odd and larger than n",
+            lambda P: P.check_size in (0,) or (P.check_size > P.n and P.check_size % 2 == 1),
         ),
         Rule(
             ("omega_start", "M"),
@@ -170,8 +176,14 @@ def _embed(state: np.ndarray, small: int, large: int) -> np.ndarray:
 
 
 def _vertex(omegas, energies) -> tuple[float, float, int]:
-    """The vertex (w_b, E) of the parabola through the lowest of ``energies`` and its two neighbours."""
+    """The vertex (w_b, E) of the parabola through the lowest of ``energies`` and its two neighbours; a failed solve
+    among the three (an infinite energy) is an error, not a NaN threshold."""
     k = int(np.clip(np.argmin(energies), 1, len(omegas) - 2))
+    if not np.all(np.isfinite(energies[k - 1 : k + 2])):
+        raise RuntimeError(
+            f"Newton lost the breather beside the lowest energy (w_b = {omegas[k - 1]:.7f} .. {omegas[k + 1]:.7f}): "
+            "no threshold is placed; try a smaller omega_step"
+        )
     c2, c1, c0 = np.polyfit(omegas[k - 1 : k + 2] - omegas[k], energies[k - 1 : k + 2], 2)
     return float(omegas[k] - c1 / (2 * c2)), float(c0 - c1 * c1 / (4 * c2)), k
 
@@ -307,13 +319,16 @@ def _walk(ctx, name: str, P: Parameters) -> dict:
         for omega in fine:
             r, _ = _solve(params, omega, states[low], flow)
             e_fine.append(np.inf if r is None else r.energy)
-        omega_star, energy_star, k = _vertex(fine, np.array(e_fine))
-        threshold = {
-            "omega": omega_star,
-            "energy": energy_star,
-            "bracket": [float(fine[k - 1]), float(fine[k + 1])],
-            "spacing": float(fine[1] - fine[0]),
-        }
+        try:
+            omega_star, energy_star, k = _vertex(fine, np.array(e_fine))
+            threshold = {
+                "omega": omega_star,
+                "energy": energy_star,
+                "bracket": [float(fine[k - 1]), float(fine[k + 1])],
+                "spacing": float(fine[1] - fine[0]),
+            }
+        except RuntimeError as exc:
+            ctx.log("%s: %s", name, exc)
     size_check = None
     if threshold and P.check_size:  # the same refined solves on a larger patch, from the breather embedded in it
         big = LatticeParams(P.M, P.K, BUILDERS[name](P.check_size, P.check_size, P.boundary))
@@ -322,18 +337,22 @@ def _walk(ctx, name: str, P: Parameters) -> dict:
             r = _breather(big, omega, state, flow)
             state = state if r is None else r.state
             e_big.append(np.inf if r is None else r.energy)
-        omega_big, energy_big, _ = _vertex(fine, np.array(e_big))
-        size_check = {
-            "size": P.check_size,
-            "omega": omega_big,
-            "energy": energy_big,
-            "relative_difference": abs(energy_big - threshold["energy"]) / threshold["energy"],
-        }
-        ctx.log(
-            "%s: on %d x %d the threshold is E* = %.7f at w_b = %.7f (%.1e relative to %d x %d)",
-            name, P.check_size, P.check_size, energy_big, omega_big, size_check["relative_difference"], P.n,
-            P.n,
-        )  # fmt: skip
+        try:
+            omega_big, energy_big, _ = _vertex(fine, np.array(e_big))
+            size_check = {
+                "size": P.check_size,
+                "omega": omega_big,
+                "energy": energy_big,
+                "relative_difference": abs(energy_big - threshold["energy"]) / threshold["energy"],
+            }
+            ctx.log(
+                "%s: on %d x %d the threshold is E* = %.7f at w_b = %.7f (%.1e relative to %d x %d)",
+                name, P.check_size, P.check_size, energy_big, omega_big, size_check["relative_difference"], P.n,
+                P.n,
+            )  # fmt: skip
+        except RuntimeError as exc:  # said, stored, and the walk's own results kept
+            size_check = {"size": P.check_size, "error": str(exc)}
+            ctx.log("%s: on %d x %d: %s", name, P.check_size, P.check_size, exc)
     changes = []  # every change of the verdict along the walk, bisected
     for i in [i for i in range(1, len(rows)) if rows[i]["stable"] != rows[i - 1]["stable"]]:
         lo, hi, s_lo, seed = w[i - 1], w[i], rows[i - 1]["stable"], states[i - 1]

@@ -107,6 +107,11 @@ class Parameters:
         Rule(("widths", "n"), "widths below n / 4 (the spot fits the patch)", lambda P: max(P.widths) < P.n / 4),
         Rule(("final_frames", "periods"), "final_frames <= periods", lambda P: P.final_frames <= P.periods),
         Rule(
+            ("K", "lattice", "M"),
+            "K small enough for kahan6 at 32 steps per period on the patch (the step below its stability limit)",
+            lambda P: _step_is_stable(P),
+        ),
+        Rule(
             ("movie", "amplitudes", "widths"),
             "movie an index of the sweep (-len .. len - 1, amplitude-major)",
             lambda P: -len(P.amplitudes) * len(P.widths) <= P.movie < len(P.amplitudes) * len(P.widths),
@@ -131,6 +136,18 @@ QUICK = {
 }
 
 
+def _step_is_stable(P) -> bool:
+    """Whether T / 32 is below kahan6's stability limit on the patch and on the chain (the optical tops)."""
+    from warpchain.integrators import stability_limit
+
+    lattice = BUILDERS[P.lattice](3, 3)
+    limit = min(
+        stability_limit("kahan6", LatticeParams(P.M, monolayer_coupling(P.K, lattice), lattice)),
+        stability_limit("kahan6", LatticeParams(P.M, P.K, chain(3))),
+    )
+    return 2.0 * math.pi / OMEGA_PERIOD / 32 < limit
+
+
 def spots(lattice, P: Parameters) -> np.ndarray:
     """The initial states (spots, 4, sites): u' = A exp(-d^2 / (2 W^2)) (1 + noise xi) about the centre, xi standard
     normal (one draw for every spot), amplitude-major."""
@@ -145,10 +162,16 @@ def spots(lattice, P: Parameters) -> np.ndarray:
 def _footprints(lattice, radius: float) -> tuple[np.ndarray, np.ndarray]:
     """The disc d <= radius and its rim radius - 1 < d <= radius on the lattice's axial grid (a small patch of the
     same geometry: a new lattice needs nothing here)."""
-    r = int(math.floor(radius))
-    small = chain(2 * r + 1) if lattice.name == "chain" else BUILDERS[lattice.name](2 * r + 1, 2 * r + 1)
+    side = 4 * math.ceil(radius) + 1  # axial reach of a disc: 2 R / sqrt(3) on the triangular lattice, so 2 R is ample
+    small = chain(side) if lattice.name == "chain" else BUILDERS[lattice.name](side, side)
     d = small.distances(small.centre).reshape(small.shape[::-1])
-    return d <= radius + 1e-9, (d > radius - 1.0 + 1e-9) & (d <= radius + 1e-9)
+    disc = d <= radius + 1e-9
+    # cropped to the disc's extent about the centre on each axis (odd sides, still centred)
+    centre = np.array(d.shape) // 2
+    reach = [int(np.max(np.abs(np.nonzero(disc.any(axis=tuple(a for a in range(disc.ndim) if a != k)))[0] - centre[k])))
+             for k in range(disc.ndim)]  # fmt: skip
+    crop = tuple(slice(c - h, c + h + 1) for c, h in zip(centre, reach))
+    return disc[crop], ((d > radius - 1.0 + 1e-9) & disc)[crop]
 
 
 def site_energies(params: LatticeParams, x: np.ndarray) -> np.ndarray:
@@ -219,7 +242,7 @@ def observables(params: LatticeParams, envelope: np.ndarray, x: np.ndarray, P: P
     covered = np.array([f[1] for f in found])
     density = site_energies(params, x)
     total = density.sum(axis=1)
-    r2 = np.sum((lat.positions - lat.positions[lat.centre]) ** 2, axis=1)
+    r2 = lat.distances(lat.centre) ** 2  # the nearest image on a periodic patch
     weight = envelope * envelope  # the resonators' (optical) part: the acoustic waves carry most of the energy away
     return {
         "peaks": peaks.sum(axis=1),
@@ -416,7 +439,7 @@ def plot(out) -> None:
             label = f"{'patch' if name == 'monolayer' else 'chain'}, W = {w:g}"
             x = d["optical_energy"][k] / E_star
             axes[0].plot(x, d["breathers"][k], marker, mfc=face, color=colour, label=label)
-            unformed = k & (d["formed"] == 0) & (d["breathers"] > 0)  # the linear control had peaks too
+            unformed = k & (d["linear_peaks"] > 0) & (d["breathers"] > 0)  # the linear control had peaks too
             axes[0].plot(d["optical_energy"][unformed] / E_star, d["breathers"][unformed], "x", color="k", ms=9)
             axes[1].plot(x, d["spread_over_linear"][k], marker, mfc=face, color=colour, label=label)
     series, _ = read_group(store, "monolayer_series")

@@ -238,3 +238,33 @@ def test_2d_kahan8_order_against_dop853(geometry):
     ref, _ = solve_ivp_reference(p, x0[0], 4.0)
     errors = [np.abs(simulate(p, x0, 4.0, dt, method="kahan8", device="cpu").x[0] - ref).max() for dt in (0.4, 0.2)]
     assert errors[0] < 1e-8 and 7.5 < np.log2(errors[0] / errors[1]) < 8.5
+
+
+def test_spot_footprints_hold_the_whole_disc():
+    """monolayer-spot's disc and rim hold every site within the radius on each lattice (the triangular disc reaches
+    2 R / sqrt(3) along an axis: a (2R + 1)^2 patch cut it, 343 of 367 sites at R = 10)."""
+    from scenarios.monolayer_spot import _footprints
+
+    for lat, big in ((triangular(5, 5), triangular(81, 81)), (square(5, 5), square(81, 81)), (chain(5), chain(201))):
+        d = big.distances(big.centre)
+        for radius in (1.0, 4.5, 10.0):
+            disc, rim = _footprints(lat, radius)
+            assert all(s % 2 == 1 for s in disc.shape) and disc[tuple(s // 2 for s in disc.shape)]
+            assert disc.sum() == np.sum(d <= radius + 1e-9)
+            assert rim.sum() == np.sum((d > radius - 1.0 + 1e-9) & (d <= radius + 1e-9))
+
+
+def test_a_hand_built_table_is_not_served_its_builders_runner():
+    """The kept runners are keyed by the table's contents: the same patch with one bond removed runs its own table
+    (a key by name, shape, boundary and weights handed it the intact patch's, found by review)."""
+    import dataclasses
+
+    intact = square(5, 5, "fixed")
+    weights = np.array(intact.weights)
+    c = intact.centre
+    weights[c, 1] = weights[c + 1, 0] = 0.0  # the centre's +x bond, both ends
+    cut = dataclasses.replace(intact, weights=weights)
+    x0 = _state(25, 1, seed=9)
+    flow, ref = Flow("verlet", 16, device="cpu"), ReferenceFlow("verlet", 16)
+    for params in (LatticeParams(30.0, 2.0, intact),) * 2 + (LatticeParams(30.0, 2.0, cut),) * 2:
+        assert np.array_equal(flow.run(params, x0, 8, 0.05).x_end, ref.run(params, x0, 8, 0.05).x_end)

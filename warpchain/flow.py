@@ -179,7 +179,9 @@ class Linearization:
         sites {r, r + s, r + 2 s, ...} of a component (s = 2 b + 1) gives all their columns at once: the entries
         within b of each site are that site's. The check is measured, not assumed: each decoded column's entries at
         distance b must be below ``PROBE_TOLERANCE`` of its run's largest, else b is doubled (plain unit columns once
-        2 b + 1 >= N, and on a periodic ring, where a perturbation wraps round to the other end).
+        2 b + 1 >= N, and on a periodic ring, where a perturbation wraps round to the other end). A lattice given as a
+        table (``lattice``) is probed by its own colouring and balls of bonds instead (``_probed_lattice``, from
+        ``LATTICE_HALFWIDTH``; ``halfwidth`` is the chain's).
         """
         import scipy.sparse as sp
 
@@ -275,7 +277,7 @@ class Linearization:
         return sp.csc_matrix((data.ravel(), np.tile(index, n_comps), indptr), shape=shape), edge
 
 
-#: (N, boundary, batch, steps) keys whose runners a Flow keeps (two each, handed out in turn); a Flow that walks
+#: (N, boundary, table, batch, steps) keys whose runners a Flow keeps (two each, handed out in turn); a Flow that walks
 #: through more shapes (a scan over N) frees the oldest
 POOL_KEYS = 4
 

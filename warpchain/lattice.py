@@ -225,6 +225,14 @@ class Lattice:
         steps = self.directions @ self.basis  # the bonds' cartesian vectors
         return float(np.dot(self.direction_weights, np.sum(steps * steps, axis=1)) / len(self.shape))
 
+    @functools.cached_property
+    def table_digest(self) -> tuple:
+        """(n_sites, degree, a SHA-1 of the neighbour slots and the weights): equal exactly for equal tables."""
+        import hashlib
+
+        digest = hashlib.sha1(self.neighbours.tobytes() + self.weights.tobytes()).hexdigest()
+        return (self.n_sites, self.degree, digest)
+
     def site_bond_energy(self, u) -> np.ndarray:
         """``bond_energy`` shared out to the sites, shape u.shape: half of each bond between two sites to each, a
         wall bond to its site. Summed over the sites it is ``bond_energy`` (to rounding): an energy density."""
@@ -525,9 +533,9 @@ class LatticeParams:
 
     @property
     def geometry_key(self) -> tuple:
-        """What fixes the neighbour table (the builders are deterministic): keys the engine's kept runners."""
-        lat = self.lattice
-        return (lat.name, lat.shape, lat.boundary, lat.direction_weights)
+        """The neighbour table itself (a digest of its slots and weights: a hand-built table, a removed bond, other
+        weights, are other keys): keys the engine's kept runners, whose table is uploaded once."""
+        return self.lattice.table_digest
 
     def replace(self, **changes) -> "LatticeParams":
         return dataclasses.replace(self, **changes)
