@@ -193,12 +193,29 @@ class NLSBreather:
         j = np.arange(N) - c
         with np.errstate(over="ignore"):  # cosh overflows far out on long chains: the profile is 0 there
             b = 0.5 * self.amplitude / np.cosh(self.kappa * j)
-        z_osc = 2.0 * b + (b * b / 6.0 if order >= 2 else 0.0)
-        u = z_osc / (self.M + 1.0)
-        v = -self.M * z_osc / (self.M + 1.0)
-        if order >= 2:
-            v = v + b * b / 2.0  # the mean shift sits on the resonators (u's mean is zero)
-        return u, v
+        return envelope_positions(b, self.M, order)
+
+
+def envelope_positions(b, M: float, order: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    """u and v at t = 0 of an optical-band-edge packet z = 2 b cos(w t) with envelope b (any lattice): the spheres
+    against the substrate in the ratio -M : 1, and with ``order`` 2 the second harmonic b^2 / 6 and the mean shift
+    b^2 / 2 on the resonators (u's mean is zero)."""
+    z_osc = 2.0 * b + (b * b / 6.0 if order >= 2 else 0.0)
+    u = z_osc / (M + 1.0)
+    v = -M * z_osc / (M + 1.0)
+    if order >= 2:
+        v = v + b * b / 2.0
+    return u, v
+
+
+def _gap(who: str, M: float, K: float, omega: float) -> float:
+    """w0 = sqrt((M + 1) / M), after checking that omega lies below it and K > 0 (the NLS needs both)."""
+    omega0 = math.sqrt((M + 1.0) / M)
+    if not 0.0 < omega < omega0:
+        raise ValueError(f"{who} needs omega below the optical band edge w0 = {omega0:.6f}; got {omega}")
+    if K <= 0:
+        raise ValueError(f"{who} needs K > 0")
+    return omega0
 
 
 def nls_coefficients(M: float) -> tuple[float, float]:
@@ -209,11 +226,7 @@ def nls_coefficients(M: float) -> tuple[float, float]:
 
 def nls_breather(M: float, K: float, omega: float) -> NLSBreather:
     """NLS approximation of the band-gap breather of frequency omega < w0 (needs K > 0)."""
-    omega0 = math.sqrt((M + 1.0) / M)
-    if not 0.0 < omega < omega0:
-        raise ValueError(f"the NLS breather needs omega below the optical band edge w0 = {omega0:.6f}; got {omega}")
-    if K <= 0:
-        raise ValueError("the NLS (continuum) approximation needs K > 0")
+    omega0 = _gap("the NLS breather (a continuum approximation)", M, K, omega)
     D, G = nls_coefficients(M)
     delta = omega0 - omega
     amplitude = 2.0 * math.sqrt(12.0 * delta / omega0)
@@ -259,11 +272,7 @@ def dnls_seed(params, omega: float, order: int = 2) -> np.ndarray:
     chain (``order`` 2: the second-harmonic and mean corrections). Where the anti-continuum seed needs a long walk
     (wide breathers near the band edge), Newton starts here."""
     M, K = params.M, params.K
-    w0 = math.sqrt((M + 1.0) / M)
-    if not 0.0 < omega < w0:
-        raise ValueError(f"dnls_seed needs omega below the optical band's bottom w0 = {w0:.6f}, got {omega!r}")
-    if K <= 0:
-        raise ValueError("dnls_seed needs K > 0")
+    w0 = _gap("dnls_seed", M, K, omega)
     D, G = nls_coefficients(M)
     r = 2.0 * w0 * (w0 - omega) / (D * K)
     newton, phi, degree = _dnls_newton(params.lattice)
@@ -271,12 +280,7 @@ def dnls_seed(params, omega: float, order: int = 2) -> np.ndarray:
     for rr in np.geomspace(start, r, max(2, int(20 * abs(math.log(start / r))) + 1)) if r < start else [r]:
         phi = newton(rr, phi)
     b = 0.5 * math.sqrt(4.0 * D * K / G) * phi  # z = 2 b cos(w t)
-    z_osc = 2.0 * b + (b * b / 6.0 if order >= 2 else 0.0)
-    u = z_osc / (M + 1.0)
-    v = -M * z_osc / (M + 1.0)
-    if order >= 2:
-        v = v + b * b / 2.0
-    return state_from_positions(u, v)
+    return state_from_positions(*envelope_positions(b, M, order))
 
 
 def dnls_threshold(lattice, M: float, K: float) -> dict:

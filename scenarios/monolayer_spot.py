@@ -46,6 +46,7 @@ accuracy check there: kahan6/32, kahan8/32 and kahan8/64 gave the same breakup p
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import time
 
@@ -161,9 +162,14 @@ def spots(lattice, P: Parameters) -> np.ndarray:
 
 def _footprints(lattice, radius: float) -> tuple[np.ndarray, np.ndarray]:
     """The disc d <= radius and its rim radius - 1 < d <= radius on the lattice's axial grid (a small patch of the
-    same geometry: a new lattice needs nothing here)."""
+    same geometry: a new lattice needs nothing here); made once per geometry and radius (read-only)."""
+    return _footprints_of(lattice.name, float(radius))
+
+
+@functools.lru_cache(maxsize=8)
+def _footprints_of(name: str, radius: float) -> tuple[np.ndarray, np.ndarray]:
     side = 4 * math.ceil(radius) + 1  # axial reach of a disc: 2 R / sqrt(3) on the triangular lattice, so 2 R is ample
-    small = chain(side) if lattice.name == "chain" else BUILDERS[lattice.name](side, side)
+    small = chain(side) if name == "chain" else BUILDERS[name](side, side)
     d = small.distances(small.centre).reshape(small.shape[::-1])
     disc = d <= radius + 1e-9
     # cropped to the disc's extent about the centre on each axis (odd sides, still centred)
@@ -171,7 +177,18 @@ def _footprints(lattice, radius: float) -> tuple[np.ndarray, np.ndarray]:
     reach = [int(np.max(np.abs(np.nonzero(disc.any(axis=tuple(a for a in range(disc.ndim) if a != k)))[0] - centre[k])))
              for k in range(disc.ndim)]  # fmt: skip
     crop = tuple(slice(c - h, c + h + 1) for c, h in zip(centre, reach))
-    return disc[crop], ((d > radius - 1.0 + 1e-9) & disc)[crop]
+    out = disc[crop], ((d > radius - 1.0 + 1e-9) & disc)[crop]
+    for a in out:
+        a.setflags(write=False)
+    return out
+
+
+@functools.lru_cache(maxsize=4)
+def _centre_distance2(lattice) -> np.ndarray:
+    """Squared distances from the patch's centre (the nearest image on a periodic patch), made once per lattice."""
+    r2 = lattice.distances(lattice.centre) ** 2
+    r2.setflags(write=False)
+    return r2
 
 
 def site_energies(params: LatticeParams, x: np.ndarray) -> np.ndarray:
@@ -242,7 +259,7 @@ def observables(params: LatticeParams, envelope: np.ndarray, x: np.ndarray, P: P
     covered = np.array([f[1] for f in found])
     density = site_energies(params, x)
     total = density.sum(axis=1)
-    r2 = lat.distances(lat.centre) ** 2  # the nearest image on a periodic patch
+    r2 = _centre_distance2(lat)
     weight = envelope * envelope  # the resonators' (optical) part: the acoustic waves carry most of the energy away
     return {
         "peaks": peaks.sum(axis=1),

@@ -26,6 +26,7 @@ makes once on the device so that Newton's 2N columns cost no host-to-device copy
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import weakref
 from typing import Callable
@@ -65,6 +66,16 @@ class Trajectory:
     min_contact: np.ndarray
 
 
+@functools.lru_cache(maxsize=8)
+def _colouring(lattice, distance: int) -> np.ndarray:
+    """``lattice.colouring(distance)``, kept (with ``_balls``): Newton asks for a patch's probed columns at every
+    iterate, and the greedy colouring of a 101 x 101 patch at distance 32 takes seconds."""
+    colours = lattice.colouring(distance)
+    colours.setflags(write=False)
+    return colours
+
+
+@functools.lru_cache(maxsize=8)
 def _balls(lattice, b: int) -> tuple:
     """CSR (sites x sites) of the sites within b bonds (weight != 0) of each site, and of those exactly b away."""
     import scipy.sparse as sp
@@ -208,7 +219,7 @@ class Linearization:
         lat, N = self.lattice, self.x0.shape[1]
         b = LATTICE_HALFWIDTH
         while True:
-            colours = lat.colouring(2 * b)
+            colours = _colouring(lat, 2 * b)
             if colours.max() + 1 >= N:
                 return sp.csc_matrix(self._plain_columns(which)), N
             balls = _balls(lat, b)
