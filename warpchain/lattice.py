@@ -531,12 +531,6 @@ class LatticeParams:
         """Linear resonance of one uncoupled site (the optical band's bottom on every lattice)."""
         return math.sqrt((self.M + 1.0) / self.M)
 
-    @property
-    def geometry_key(self) -> tuple:
-        """The neighbour table itself (a digest of its slots and weights: a hand-built table, a removed bond, other
-        weights, are other keys): keys the engine's kept runners, whose table is uploaded once."""
-        return self.lattice.table_digest
-
     def replace(self, **changes) -> "LatticeParams":
         return dataclasses.replace(self, **changes)
 
@@ -551,5 +545,8 @@ def neighbour_table(params) -> Lattice | None:
 
 
 def geometry_key(params) -> tuple | None:
-    """None for the chain's own kernels (``ChainParams``), else what fixes the neighbour table."""
-    return params.geometry_key if isinstance(params, LatticeParams) else None
+    """None for the chain's own kernels (``ChainParams``), else the neighbour table itself (``Lattice.table_digest``:
+    a hand-built table, a removed bond, other weights are other keys): keys the engine's kept runners, whose table is
+    uploaded once."""
+    table = neighbour_table(params)
+    return None if table is None else table.table_digest
