@@ -67,7 +67,7 @@ from warpchain.model import real_number, whole_number
 from . import bubbles
 from . import events as ev
 from .events import StopReason
-from .floquet import VERDICTS, FloquetResult, floquet_path, linear_mu, reduced_analysis
+from .floquet import VERDICTS, FloquetResult, floquet_path, reduced_analysis
 from .hostblas import blas_threads, threads_for
 from .results import Branch, BranchPoint, Failure, Solution, WalkState
 from .shooting import frequency_report
@@ -204,7 +204,7 @@ def analyse(solution: Solution, with_floquet: bool = True, spectra: dict | None 
     settings = settings or ContinuationSettings()
     if with_floquet:
         fl: FloquetResult = reduced_analysis(
-            lin, params.M, solution.state, solver=settings.floquet_solver, hint=linear_mu(params, lin)
+            lin, params.M, solution.state, solver=settings.floquet_solver, params=params
         )
         if not fl.complete:
             counts = "; ".join(

@@ -197,23 +197,36 @@ def floquet_path(solver: str, N: int) -> str:
     return solver
 
 
-def linear_mu(params: ChainParams, lin) -> np.ndarray:
-    """The mu = cos(w T) of the linear chain's 2N modes (fixed-end Bloch numbers j pi / (N + 1)) over the period T
-    of a half-period Linearization: where a breather's multipliers lie, but for its few core modes (the sliced
-    path cuts its segments by them)."""
-    q = np.arange(1, params.N + 1) * np.pi / (params.N + 1)
+#: ``linear_mu`` of a lattice patch takes its Laplacian's eigenvalues (a dense eigvalsh) up to this many sites;
+#: beyond, no hint (the sliced path then cuts its segments at equal arg l)
+LINEAR_MU_MAX_SITES = 4096
+
+
+def linear_mu(params, lin) -> "np.ndarray | None":
+    """The mu = cos(w T) of the linear lattice's 2N modes over the period T of a half-period Linearization: where a
+    breather's multipliers lie, but for its few core modes (the sliced path cuts its segments by them). The chain
+    (``ChainParams``): fixed-end Bloch numbers j pi / (N + 1); a ``LatticeParams`` patch: its Laplacian's
+    eigenvalues (both branches at each), or None beyond ``LINEAR_MU_MAX_SITES`` sites."""
     period = 2.0 * lin.nsteps * lin.dt
-    return np.cos(np.concatenate(dispersion(q, params.M, params.K)) * period)
+    if isinstance(params, ChainParams):
+        q = np.arange(1, params.N + 1) * np.pi / (params.N + 1)
+        return np.cos(np.concatenate(dispersion(q, params.M, params.K)) * period)
+    if params.N > LINEAR_MU_MAX_SITES:
+        return None
+    from warpchain.lattice import _two_branches
+
+    lam = np.linalg.eigvalsh(params.lattice.laplacian_matrix().toarray())
+    return np.cos(np.concatenate(_two_branches(params.K * np.maximum(lam, 0.0), params.M)) * period)
 
 
 def reduced_analysis(
-    lin, M: float, state=None, tolerance=None, *, solver: str = "auto", window=None, hint=None
+    lin, M: float, state=None, tolerance=None, *, solver: str = "auto", window=None, params=None
 ) -> FloquetResult:
     """The reduced Floquet analysis of a reversible orbit from its half-period Linearization, on the path ``solver``
     names: every multiplier (``reduced_floquet`` on A's 4N columns, or ``slicing.sliced_floquet`` on the probed
     sparse Mu, counted) or the window near +1 and -1 (``krylov_floquet.window_floquet``; ``window``: its
-    ``FloquetWindow``). ``floquet`` and the continuation driver both analyse through here;
-    ``hint``: ``linear_mu``, for the sliced path's segments."""
+    ``FloquetWindow``). ``floquet`` and the continuation driver both analyse through here; ``params``: the orbit's
+    lattice, whose linear mu (``linear_mu``) cut the sliced path's segments (computed only on that path)."""
     path = floquet_path(solver, lin.x0.shape[1])
     if path == "window":
         from .krylov_floquet import window_floquet
@@ -224,6 +237,7 @@ def reduced_analysis(
     if path == "sliced":
         from .slicing import sliced_floquet
 
+        hint = linear_mu(params, lin) if params is not None else None
         return sliced_floquet(lin, M, state, tolerance, hint=hint)
     start = time.perf_counter()
     cols = lin.stats["tangent_columns"]
@@ -405,9 +419,7 @@ def floquet(
         raise ValueError(f"solver={solver!r} works on the reduced problem (reversible orbit, symplectic method)")
     if reduced:
         lin = breather.linearization(flow)
-        return reduced_analysis(
-            lin, params.M, breather.state, tolerance, solver=solver, window=window, hint=linear_mu(params, lin)
-        )
+        return reduced_analysis(lin, params.M, breather.state, tolerance, solver=solver, window=window, params=params)
     if window is not None:
         raise ValueError("window= chooses the window path's multipliers; the full path computes all of them")
     start = time.perf_counter()

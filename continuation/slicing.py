@@ -25,11 +25,13 @@ translation, which moves no velocity). The found eigenvalues (genuine: their res
 intervals) are all of them exactly when the three hold (n+ + n- + n0 = n; a Jordan block at an exact Krein
 collision, non-generic, would not close the count). P's inertia comes from a block LDL^T in the interleaved band
 order (``inertia``: dense diagonal blocks, Haynsworth's inertia additivity; a block whose eigenvalues come near zero
-is merged with the next), O(n b^2). A count that does not close makes the verdict incomplete (``stable=None``),
-never a guess: a missed eigenvalue, wherever it lies in the plane, shows. Checked against the dense eig
-(``tests/test_slicing.py``: the paper breather at N = 201 and 401, the K = 3 site breather, an off-centre one, a
-periodic ring: the same mu to 2e-14) and on an H100 machine at N = 1601 .. 3201 (``benchmarks/breather_scaling.py``:
-to 2.7e-14).
+is merged with the next), O(n b^2). A lattice's symmetry makes double real mu (the square patch's x <-> y), which
+Arnoldi returns as mu +- 1e-17 i: a pair whose Krein form is definite on its plane is a double real mu, and counts
+as one (``degenerate_reals``; a genuine pair's form is indefinite there). A count that does not close makes the
+verdict incomplete (``stable=None``), never a guess: a missed eigenvalue, wherever it lies in the plane, shows.
+Checked against the dense eig (``tests/test_slicing.py``: the paper breather at N = 201 and 401, the K = 3 site
+breather, an off-centre one, a periodic ring, square and triangular 11 x 11 patches: the same mu to 2e-14) and on an
+H100 machine at N = 1601 .. 3201 (``benchmarks/breather_scaling.py``: to 2.7e-14).
 """
 
 from __future__ import annotations
@@ -230,12 +232,13 @@ def slice_task(op, P, E, lo: float, hi: float, k: int, M: float, centre: float) 
 
 def outlier_task(op, P, E, sign: float, k: int, M: float, centre: float) -> dict:
     """The eigenvalues of ``op`` beyond +(1 + OUTER) (``sign`` 1) or -(1 + OUTER) (-1): every one in the outward disc
-    at 1 + ``OUTWARD_SHIFT`` (``krylov_floquet``'s, of ``OUTWARD_COUNT`` eigenvalues), and the converged ones of an
+    at 1 + ``OUTWARD_SHIFT`` (``krylov_floquet``'s, of ``OUTWARD_COUNT`` eigenvalues, fewer where its rim falls on a
+    lattice's double eigenvalue: ``_shift``), and the converged ones of an
     Arnoldi of largest (smallest) real part beyond it (strong real pairs, period doubling). Any that neither sees is
     left to the count."""
     start = time.perf_counter()
     op = sp.csc_matrix(sign * op)
-    vals, vectors, d, radius, sigma = _disc(op, BandedShifts.make(op), 1.0 + OUTWARD_SHIFT, min(OUTWARD_COUNT, k))
+    vals, vectors, d, radius, sigma = _shift(op, BandedShifts.make(op), 1.0 + OUTWARD_SHIFT, min(OUTWARD_COUNT, k))
     near = (d < radius) & (np.real(vals) > 1.0 + OUTER)
     far, far_vectors, residual, converged = _arnoldi(sp.csr_matrix(op), k)
     good = (residual < 1e-10) & (np.real(far) > 1.0 + OUTER) & (np.abs(far - sigma) >= radius)
@@ -244,7 +247,40 @@ def outlier_task(op, P, E, sign: float, k: int, M: float, centre: float) -> dict
     return _report(sign * mu, vectors, P, E, M, centre, converged=converged, seconds=time.perf_counter() - start)
 
 
+def degenerate_reals(mu, vectors, P) -> tuple:
+    """(mu, vectors) with each conjugate pair that is a double real eigenvalue written as two real ones.
+
+    A lattice's symmetries make some multipliers double (the square patch's x <-> y: 9 pairs in one parity block of
+    a 15 x 15 patch), and Arnoldi, whose arithmetic does not keep Mu's Krein symmetry, returns such a double as
+    mu +- i eps (eps ~ 1e-17). Which it is, the Krein form decides: a genuine pair's eigenvector a = x + i y has
+    a^H P a = x^T P x + y^T P y = 0, so P on span{x, y} is indefinite, while a double real eigenvalue whose two
+    modes have one Krein sign (the only kind that perturbations keep on the axis) has P definite there. A pair whose
+    2 x 2 form G = [x y]^T P [x y] is definite beyond ``neutral_form`` is replaced by its real part, twice, with the
+    real vectors that diagonalize G (their Krein forms are G's eigenvalues); every other pair stays a pair."""
+    mu, vectors = np.array(mu, complex), np.array(vectors, complex)
+    neutral = neutral_form(P)
+    for i in np.flatnonzero(mu.imag > 0):
+        partners = np.flatnonzero((mu.imag < 0) & (np.abs(mu - np.conj(mu[i])) <= 1e-12 * max(1.0, abs(mu[i]))))
+        if not len(partners):
+            continue
+        basis, _ = np.linalg.qr(np.column_stack([vectors[:, i].real, vectors[:, i].imag]))
+        lam, Q = np.linalg.eigh(basis.T @ (P @ basis))
+        if np.all(lam > neutral) or np.all(lam < -neutral):
+            j = partners[0]
+            mu[i] = mu[j] = mu[i].real
+            vectors[:, [i, j]] = basis @ Q
+    return mu, vectors
+
+
+def neutral_form(P) -> float:
+    """A Krein form a^T P a (unit a) at most this large is zero: ``PIVOT_RTOL`` of P's largest entry, as P's
+    inertia counts (``inertia``)."""
+    return PIVOT_RTOL * (float(np.max(np.abs(P.data))) if P.nnz else 1.0)
+
+
 def _report(mu, vectors, P, E, M, centre, **extra) -> dict:
+    if len(mu):
+        mu, vectors = degenerate_reals(mu, vectors, P)
     act, pr, weight = _measures(mu, vectors, P, E, M, centre) if len(mu) else (np.zeros(0),) * 3
     return {"mu": mu, "act": act, "participation": pr, "central_weight": weight, **extra}
 
@@ -308,7 +344,7 @@ def sliced_floquet(lin, M: float, state=None, tolerance=None, *, hint=None, proc
         mu, act = part["mu"], part["act"]
         # P's kernel (a ring's uniform translation: it moves no velocity, so P a = 0) is Mu-invariant, hence spanned
         # by eigenvectors of Mu whose Krein form vanishes: each such eigenvalue matches a zero of P's inertia
-        neutral = PIVOT_RTOL * (float(np.max(np.abs(forms[b].data))) if forms[b].nnz else 1.0)
+        neutral = neutral_form(forms[b])
         real = mu.imag == 0
         found = {
             "real_positive": int(np.sum(real & (act > neutral))),

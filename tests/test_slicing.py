@@ -455,3 +455,56 @@ def test_a_periodic_ring_closes_its_count_with_the_translation_in_p_kernel():
     assert all(c["inertia"]["zero"] == c["found"]["real_neutral"] == 1 for c in sliced.coverage["counts"])
     assert max(np.min(np.abs(dense.mu - m)) for m in sliced.mu) <= 1e-12 and len(sliced.mu) == len(dense.mu)
     assert abs(sliced.max_modulus - dense.max_modulus) <= 1e-9
+
+
+# ----------------------------------------------------------------------------- lattice patches
+
+
+PATCHES = {  # (lattice, family, w_b): an 11 x 11 patch at K = 1, fixed walls
+    "square-site": ("square", "site", 1.0140),  # stable; the x <-> y mirror makes double mu
+    "square-bond": ("square", "bond", 1.0150),  # one real pair
+    "triangular-site": ("triangular", "site", 1.0140),  # stable
+    "triangular-triangle": ("triangular", "triangle", 1.0140),  # two real pairs
+}
+
+
+@functools.lru_cache(maxsize=None)
+def _patch(name: str):
+    from scenarios.monolayer import _seed as family_seed
+    from warpchain.lattice import LatticeParams, square, triangular
+
+    lattice, family, omega = PATCHES[name]
+    params = LatticeParams(M, 1.0, {"square": square, "triangular": triangular}[lattice](11, 11, "fixed"))
+    b = ct.require(ct.find_breather(params, omega, family_seed(params, omega, family), device="cpu", solver="dense"))
+    return b, ct.floquet(b, solver="dense"), ct.floquet(b, solver="sliced")
+
+
+@pytest.mark.parametrize("name", list(PATCHES))
+def test_sliced_is_the_dense_spectrum_on_a_patch(name):
+    """Square and triangular patches: the sliced path's count closes, with the dense mu (to 1e-12), verdict and
+    largest modulus. The square patch's doubles (Arnoldi returns them as mu +- 1e-17 i) count as two real mu, not
+    as a pair (``slicing.degenerate_reals``): before, nine of them left the odd block's count open."""
+    b, dense, sliced = _patch(name)
+    assert sliced.complete is True and all(c["closed"] for c in sliced.coverage["counts"])
+    _assert_same_mu_sets(dense, sliced, 1e-12)
+    assert sliced.stable == dense.stable and abs(sliced.max_modulus - dense.max_modulus) <= 1e-9
+    assert [i.kind for i in sliced.instabilities] == [i.kind for i in dense.instabilities]
+    assert dense.stable is (name.endswith("site"))
+    assert sliced.unstable_counts == dense.unstable_counts
+    if name == "square-site":  # the doubles are there
+        assert np.sum(np.diff(np.sort(dense.mu.real)) < 1e-10) >= 5
+
+
+def test_a_double_real_mu_of_one_krein_sign_is_two_real_mu_and_a_pair_stays_a_pair():
+    """``degenerate_reals`` on P-self-adjoint examples: a double mu = 0.3 with P = -1 on its plane, returned as
+    0.3 +- 1e-17 i, becomes two real 0.3 whose Krein forms are -1; a genuine pair 0.5 +- 0.2 i (P = diag(1, -1),
+    Mu = [[0.5, 0.2], [-0.2, 0.5]], so P Mu is symmetric) stays complex."""
+    P = sp.csc_matrix(sp.diags([-1.0, -1.0, 1.0, -1.0]))
+    x, y = np.array([1.0, 1.0, 0, 0]) / np.sqrt(2), np.array([1.0, -1.0, 0, 0]) / np.sqrt(2)
+    mu = np.array([0.3 + 1e-17j, 0.3 - 1e-17j, 0.5 + 0.2j, 0.5 - 0.2j])
+    pair = np.array([0, 0, 1.0, 1j]) / np.sqrt(2)  # Mu's pair lives on the last two coordinates
+    vectors = np.column_stack([x + 1j * y, x - 1j * y, pair, np.conj(pair)])
+    out, vec = slicing.degenerate_reals(mu, vectors, P)
+    assert np.array_equal(out[:2], [0.3, 0.3]) and np.all(out[:2].imag == 0)
+    assert np.allclose(np.sum(vec[:, :2].real * (P @ vec[:, :2].real), axis=0), -1.0)
+    assert np.array_equal(out[2:], mu[2:]) and np.array_equal(vec[:, 2:], vectors[:, 2:])
