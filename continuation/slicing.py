@@ -170,6 +170,22 @@ TIE_RESTARTS = 6
 RESIDUAL_TOL = 1e-11
 
 
+def _residuals(op, vals, vectors) -> np.ndarray:
+    """|op a - mu a| / |a| per column, in real arithmetic: op times the real parts, and times the imaginary parts of
+    the complex mu's vectors only (a real mu's vector is real). A third of the complex product's time (N = 1601, one
+    process: the check took 1.3 s of the slices' 6.4 s)."""
+    x, y = vectors.real, vectors.imag
+    r = op @ x - x * vals.real[None, :]
+    complex_ = np.flatnonzero(vals.imag != 0)
+    out = np.sum(r * r, axis=0)
+    if len(complex_):
+        yc, lr, li = y[:, complex_], vals.real[complex_], vals.imag[complex_]
+        rr = r[:, complex_] + yc * li[None, :]
+        ri = op @ yc - yc * lr[None, :] - x[:, complex_] * li[None, :]
+        out[complex_] = np.sum(rr * rr, axis=0) + np.sum(ri * ri, axis=0)
+    return np.sqrt(out) / np.linalg.norm(vectors, axis=0)
+
+
 def _shift(op, banded, sigma: float, k: int) -> tuple:
     """One shift, ``_disc``'s tuple: k eigenvalues, or k / 8 (at least 4) when k does not converge in TIE_RESTARTS
     restarts, or k with twice the Arnoldi vectors and no limit when neither does (ARPACK's "no shifts could be
@@ -188,8 +204,7 @@ def _shift(op, banded, sigma: float, k: int) -> tuple:
             except (ArpackNoConvergence, ArpackError):  # the last, more Arnoldi vectors and no limit: raised
                 if i == len(attempts) - 1:
                     raise
-        vals, vectors = out[0], out[1]
-        residual = np.linalg.norm(op @ vectors - vectors * vals[None, :], axis=0) / np.linalg.norm(vectors, axis=0)
+        residual = _residuals(op, out[0], out[1])
         if float(np.max(residual)) <= RESIDUAL_TOL * max(1.0, abs(sigma)):
             return out
         sigma -= 1e-3 * out[3]
