@@ -9,8 +9,12 @@ mu (each mu to the nearest of the other set, both ways), the kinds. Each size is
 compile per shape on a GPU; the first sliced call also starts the worker processes). Per size: seconds of each
 step, energy, verdicts, the count per parity block.
 
-Command: ``python benchmarks/breather_scaling.py [--device cpu] [--sizes 201 ... 12801] [--dense-max 1601]
-[--solver auto] [--json FILE]``.
+With ``--lattice square`` or ``triangular`` the same for the monolayer's site breather (w_b = 1.014, K = 1, M = 30,
+fixed walls, the anti-continuum seed, dense Newton) on n x n patches, ``--sizes`` giving n and ``--dense-max``
+sites (issue #51: breather plus complete verdict on 51 x 51 <= 10 s).
+
+Command: ``python benchmarks/breather_scaling.py [--device cpu] [--lattice chain] [--sizes 201 ... 12801]
+[--dense-max 1601] [--solver auto] [--json FILE]``.
 """
 
 import argparse
@@ -22,6 +26,9 @@ import numpy as np
 
 import continuation as ct
 import warpchain as wc
+from warpchain.lattice import LatticeParams, square, triangular
+
+BUILDERS = {"square": square, "triangular": triangular}
 
 
 def distance(a: np.ndarray, b: np.ndarray) -> float:
@@ -45,19 +52,31 @@ def main():
     ap.add_argument("--sizes", type=int, nargs="+", default=[201, 401, 801, 1601, 3201, 6401, 12801])
     ap.add_argument("--dense-max", type=int, default=1601, help="largest N analysed densely too")
     ap.add_argument("--solver", default="auto", choices=("auto", "sliced", "dense"))
+    ap.add_argument("--lattice", default="chain", choices=("chain", "square", "triangular"))
     ap.add_argument("--json", default=None)
     args = ap.parse_args()
     rows = []
-    for N in args.sizes:
-        p = wc.ChainParams(30.0, 160.0, N)
-        seed = ct.nls_seed(p, 1.01)
-        ct.floquet(ct.require(ct.find_breather(p, 1.01, seed, device=args.device)), solver=args.solver)  # warm-up
+    for size in args.sizes:
+        if args.lattice == "chain":
+            p, omega, newton = wc.ChainParams(30.0, 160.0, size), 1.01, "auto"
+            seed = ct.nls_seed(p, omega)
+        else:
+            p, omega, newton = LatticeParams(30.0, 1.0, BUILDERS[args.lattice](size, size, "fixed")), 1.014, "dense"
+            seed = ct.anticontinuum_seed(p, omega)
+        N = p.N
+
+        def solve():
+            return ct.require(ct.find_breather(p, omega, seed, device=args.device, solver=newton))
+
+        ct.floquet(solve(), solver=args.solver)  # warm-up
         t0 = time.perf_counter()
-        b = ct.require(ct.find_breather(p, 1.01, seed, device=args.device))
+        b = solve()
         t1 = time.perf_counter()
         fl = ct.floquet(b, solver=args.solver)
         t2 = time.perf_counter()
         row = {
+            "lattice": args.lattice,
+            "size": size,
             "N": N,
             "newton_solver": b.stats["solver"],
             "newton_seconds": t1 - t0,

@@ -20,7 +20,8 @@ optical frequencies w of mode k. Its inverse, applied through an orthonormal sin
 preconditioner P. J P is then the identity plus a part of rank about twice the number of sites where the
 breather is nonlinear, which GMRES resolves in that many iterations, whatever N. Where w T / 2 is close to a
 multiple of pi (a mode in resonance with a harmonic of the breather: the optical band holds 2 w_b for the
-paper's chain) 1 / sin is replaced by sin / (sin^2 + eps^2), so that P stays bounded. Other boundaries use no
+paper's chain) 1 / sin is replaced by sin / (sin^2 + eps^2), so that P stays bounded. A square or triangular patch
+with fixed walls takes the 2-D sine modes (``LinearLatticePreconditioner``). Other boundaries use no
 preconditioner.
 
 **Inexact Newton.** Each GMRES solve stops at a relative residual eta = min(``eta_max``, ||R||) (a forcing term
@@ -73,11 +74,33 @@ def preconditioned(boundary: str, settings: "KrylovSettings") -> bool:
 
 class LinearLatticePreconditioner:
     """P ~ J^-1 from the linear lattice's half-period map in the sine basis (module docstring), as a
-    ``scipy.sparse.linalg.LinearOperator`` on vectors (u, v) of length 2N."""
+    ``scipy.sparse.linalg.LinearOperator`` on vectors (u, v) of length 2N.
 
-    def __init__(self, M: float, K: float, N: int, half_period: float, regularization: float = 1e-2):
-        k = np.arange(1, N + 1)
-        lam = 2.0 - 2.0 * np.cos(k * np.pi / (N + 1))
+    ``lattice`` (a ``warpchain.lattice.Lattice`` with fixed walls; None: the chain of N sites): on a patch the
+    sine modes are products over the axes (a 2-D DST-I over the grid), and a mode's l is the diagonal of the
+    Laplacian in that basis, sum_k 2 w_k (1 - prod_a cos(e_ka q_a)) over the bond directions e_k: the square
+    lattice's exact eigenvalues, and on the triangular lattice, whose diagonal bond couples sine modes, the part
+    that does not (GMRES resolves the rest). Site breather at w_b = 1.014, K = 1, 2-core CPU: 12 to 19 GMRES products
+    per Newton step on 15 x 15, 31 x 31 and 101 x 101 square patches, 12 to 21 on triangular ones, against 69 to 170
+    with the chain's transform along the site numbering."""
+
+    def __init__(self, M: float, K: float, N: int, half_period: float, regularization: float = 1e-2, lattice=None):
+        if lattice is None or len(lattice.shape) == 1:
+            k = np.arange(1, N + 1)
+            lam = 2.0 - 2.0 * np.cos(k * np.pi / (N + 1))
+            if lattice is not None:
+                lam = lam * lattice.direction_weights[0]
+            self.grid = (N,)
+        else:
+            nx, ny = lattice.shape
+            qx = np.arange(1, nx + 1) * np.pi / (nx + 1)
+            qy = np.arange(1, ny + 1) * np.pi / (ny + 1)
+            QY, QX = np.meshgrid(qy, qx, indexing="ij")  # (ny, nx): site i + nx j
+            lam = np.zeros((ny, nx))
+            for (e1, e2), w in zip(lattice.directions, lattice.direction_weights):
+                lam += 2.0 * w * (1.0 - np.cos(e1 * QX) * np.cos(e2 * QY))
+            lam = lam.ravel()
+            self.grid = (ny, nx)
         A = np.zeros((N, 2, 2))
         A[:, 0, 0] = (K * lam + 1.0) / M
         A[:, 0, 1] = -1.0 / M
@@ -93,12 +116,18 @@ class LinearLatticePreconditioner:
         self.N = N
         self.operator = spla.LinearOperator((2 * N, 2 * N), matvec=self.apply, dtype=np.float64)
 
+    def _sines(self, x: np.ndarray) -> np.ndarray:
+        """The orthonormal DST-I of (2, N) over the grid's axes (its own inverse)."""
+        if len(self.grid) == 1:
+            return scipy.fft.dst(x, type=1, norm="ortho", axis=1)
+        out = scipy.fft.dstn(x.reshape(2, *self.grid), type=1, norm="ortho", axes=(1, 2))
+        return out.reshape(2, self.N)
+
     def apply(self, r: np.ndarray) -> np.ndarray:
-        N = self.N
-        r = np.asarray(r, dtype=np.float64).reshape(2, N)
-        hat = scipy.fft.dst(r, type=1, norm="ortho", axis=1)  # (2, N): the sine modes of u and v
+        r = np.asarray(r, dtype=np.float64).reshape(2, self.N)
+        hat = self._sines(r)  # (2, N): the sine modes of u and v
         out = np.einsum("kij,jk->ik", self.P, hat)
-        return scipy.fft.dst(out, type=1, norm="ortho", axis=1).ravel()  # DST-I, orthonormal, is its own inverse
+        return self._sines(out).ravel()
 
 
 def gmres_step(jvp, r: np.ndarray, settings: KrylovSettings, preconditioner=None) -> tuple[np.ndarray, dict]:

@@ -31,6 +31,7 @@ import scipy.linalg
 
 from warpchain import ChainParams, Flow, band_edges, energy
 from warpchain.model import accelerations, as_batch, real_number
+from warpchain.lattice import neighbour_table
 
 from .krylov import KrylovSettings, LinearLatticePreconditioner, gmres_step, preconditioned
 from .newton import NewtonOutcome, NewtonSettings, ShootingStatus, newton, solve_linear
@@ -264,7 +265,7 @@ class PeriodMap:
             if solver == "krylov" and preconditioned(params.boundary, self.krylov):
                 half_period = self.nsteps * self.dt
                 self.preconditioner = LinearLatticePreconditioner(
-                    params.M, params.K, N, half_period, self.krylov.regularization
+                    params.M, params.K, N, half_period, self.krylov.regularization, lattice=neighbour_table(params)
                 )
         else:
             self.nsteps = 2 * n_half
