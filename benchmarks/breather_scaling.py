@@ -10,8 +10,9 @@ compile per shape on a GPU; the first sliced call also starts the worker process
 step, energy, verdicts, the count per parity block.
 
 With ``--lattice square`` or ``triangular`` the same for the monolayer's site breather (w_b = 1.014, K = 1, M = 30,
-fixed walls, the anti-continuum seed, dense Newton) on n x n patches, ``--sizes`` giving n and ``--dense-max``
-sites (issue #51: breather plus complete verdict on 51 x 51 <= 10 s).
+fixed walls, the anti-continuum seed, Newton ``auto``: matrix-free from 1024 sites) on n x n patches, ``--sizes``
+giving n and ``--dense-max`` sites (issue #51: breather plus complete verdict on 51 x 51 <= 10 s); ``--solver none``
+times the breather alone (201 x 201 <= 30 s).
 
 Command: ``python benchmarks/breather_scaling.py [--device cpu] [--lattice chain] [--sizes 201 ... 12801]
 [--dense-max 1601] [--solver auto] [--json FILE]``.
@@ -51,7 +52,7 @@ def main():
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--sizes", type=int, nargs="+", default=[201, 401, 801, 1601, 3201, 6401, 12801])
     ap.add_argument("--dense-max", type=int, default=1601, help="largest N analysed densely too")
-    ap.add_argument("--solver", default="auto", choices=("auto", "sliced", "dense"))
+    ap.add_argument("--solver", default="auto", choices=("auto", "sliced", "dense", "none"))
     ap.add_argument("--lattice", default="chain", choices=("chain", "square", "triangular"))
     ap.add_argument("--json", default=None)
     args = ap.parse_args()
@@ -61,17 +62,26 @@ def main():
             p, omega, newton = wc.ChainParams(30.0, 160.0, size), 1.01, "auto"
             seed = ct.nls_seed(p, omega)
         else:
-            p, omega, newton = LatticeParams(30.0, 1.0, BUILDERS[args.lattice](size, size, "fixed")), 1.014, "dense"
+            p, omega, newton = LatticeParams(30.0, 1.0, BUILDERS[args.lattice](size, size, "fixed")), 1.014, "auto"
             seed = ct.anticontinuum_seed(p, omega)
         N = p.N
 
         def solve():
             return ct.require(ct.find_breather(p, omega, seed, device=args.device, solver=newton))
 
-        ct.floquet(solve(), solver=args.solver)  # warm-up
+        warm = solve()  # warm-up
+        if args.solver != "none":
+            ct.floquet(warm, solver=args.solver)
         t0 = time.perf_counter()
         b = solve()
         t1 = time.perf_counter()
+        if args.solver == "none":
+            row = {"lattice": args.lattice, "size": size, "N": N, "newton_solver": b.stats["solver"]}
+            row |= {"newton_seconds": t1 - t0, "energy": b.energy, "residual": b.residual}
+            row |= {"gmres_products": b.stats.get("krylov_iterations")}
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+            continue
         fl = ct.floquet(b, solver=args.solver)
         t2 = time.perf_counter()
         row = {

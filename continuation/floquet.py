@@ -64,6 +64,7 @@ import warnings
 import numpy as np
 
 from warpchain import ChainParams, Flow, get_method, propagate_tangent
+from warpchain.lattice import neighbour_table
 from warpchain.model import dispersion, real_number
 
 from .spectrum import (  # noqa: F401 (the results and their measures: importable from here as before)
@@ -93,6 +94,7 @@ from .parity import (  # noqa: F401 (ParityBlock: importable from here as before
     _expand,
     mirror_symmetric,
     parity_blocks,
+    patch_mirror,
     vector_parity,
 )
 
@@ -135,6 +137,7 @@ def reduced_floquet(
     *,
     wall_seconds: float = 0.0,
     stats: dict | None = None,
+    lattice=None,
 ) -> FloquetResult:
     """Floquet analysis of a time-reversible orbit from its half-period map A (module docstring).
 
@@ -143,10 +146,13 @@ def reduced_floquet(
         M: the chain's mass ratio.
         state: the orbit's start (4, N), for the parity test (None: parity unknown).
         tolerance: override of the measured tolerance (in mu).
+        lattice: a patch's ``Lattice``: a mirror of it that the orbit keeps splits each parity block in two
+            (``parity_blocks``).
     """
     start = time.perf_counter()
     N = A.shape[0] // 4
-    blocks = parity_blocks(A, M) if state is not None and mirror_symmetric(state, SYMMETRIC_RTOL) else None
+    symmetric = state is not None and mirror_symmetric(state, SYMMETRIC_RTOL)
+    blocks = parity_blocks(A, M, patch_mirror(lattice, state)) if symmetric else None
     split = blocks is not None
     if not split:
         Mu, sympl, P = reduced_products(A, M)
@@ -249,6 +255,7 @@ def reduced_analysis(
         tolerance,
         wall_seconds=time.perf_counter() - start,
         stats={"tangent_columns": lin.stats["tangent_columns"] - cols},
+        lattice=None if params is None else neighbour_table(params),
     )
 
 

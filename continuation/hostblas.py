@@ -12,9 +12,9 @@ pay depends on what else wants the cores:
 - **On a GPU** the process's own setting (``None``): the kernels need no host cores, and on the H200
   machines' hosts one thread factors the 402 x 402 Newton Jacobian in 9 ms against 2-4 ms on several
   (``benchmarks/results/h200-2026-11-22g.json``).
-- **The two parity blocks' eigs** (``floquet.parity_blocks``) always run on one BLAS thread each, on two
-  host threads at once: LAPACK's ``dgeev`` is not threaded at these sizes, and two calls that each start
-  OpenBLAS threads contend (2-core CPU: 27.6 ms for both on 2 BLAS threads, 13.3 ms on 1).
+- **The parity blocks' eigs** (``floquet.parity_blocks``: two, or four on a patch with a mirror) always run on
+  one BLAS thread each, on host threads at once: LAPACK's ``dgeev`` is not threaded at these sizes, and two
+  calls that each start OpenBLAS threads contend (2-core CPU: 27.6 ms for both on 2 BLAS threads, 13.3 ms on 1).
 
 ``blas_threads(n)`` limits every loaded BLAS (numpy's and scipy's OpenBLAS, MKL, ...) to n threads for
 the duration of a ``with`` block, through one cached ``threadpoolctl.ThreadpoolController`` (11 us per

@@ -180,8 +180,8 @@ class SpectralData:
 
     Attributes:
         blocks: ``ParityBlock``s in the order of the result's ``mu``: the even (+1) and the odd (-1) block
-            of a mirror-symmetric orbit, or a single block of parity 0 and basis None (the whole Mu)
-            when the orbit is not mirror-symmetric.
+            of a mirror-symmetric orbit (on a patch that keeps a mirror too, two of each: ``parity_blocks``),
+            or a single block of parity 0 and basis None (the whole Mu) when the orbit is not mirror-symmetric.
     """
 
     blocks: tuple = dataclasses.field(repr=False)

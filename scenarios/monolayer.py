@@ -33,14 +33,14 @@ The linear waves beside them (``_monolayer_waves``): band edges, the dispersion 
 high-symmetry path and over the zone, the patch's lowest optical modes, and the chain's coupling with the same
 long-wave speed (``monolayer-waves.png``).
 
-How: Newton shooting on the time-reversible half-period map and the reduced Floquet analysis (every multiplier,
-even and odd blocks under the patch's 180-degree rotation) on the Warp ``Flow`` of ``--device``
+How: Newton shooting on the time-reversible half-period map and the reduced Floquet analysis (every multiplier, even
+and odd blocks under the patch's 180-degree rotation) on the Warp ``Flow`` of ``--device``
 (``warpchain.lattice.LatticeParams``: the sites layout reads the patch's neighbour table; on the CPU its bits are
-the numpy reference's). The Jacobians and the Floquet analysis are dense, so the patches are small (15 x 15 by
-default). The walls are fixed by default (``boundary``). Measured on the square lattice (2026-11-27): 15 x 15 and
-21 x 21 give the same energies to the 6 digits logged up to w_b = 1.0161 (past the threshold) and the same
-threshold and stability change; they part by 4e-6 at 1.0162 and 4e-5 at 1.0163, where the breather spreads over
-4 to 8 sites.
+the numpy reference's). Newton is dense up to 31 x 31 and on periodic patches, matrix-free beyond (the patch's sine
+modes precondition GMRES: ``continuation.krylov``); the Floquet analysis is dense, so the patches are small (15 x 15
+by default). The walls are fixed by default (``boundary``). Measured on the square lattice (2026-11-27): 15 x 15 and
+21 x 21 give the same energies to the 6 digits logged up to w_b = 1.0161 (past the threshold) and the same threshold
+and stability change; they part by 4e-6 at 1.0162 and 4e-5 at 1.0163, where the breather spreads over 4 to 8 sites.
 """
 
 from __future__ import annotations
@@ -145,9 +145,9 @@ QUICK = {"n": 9, "omega_start": 1.0130, "omega_step": 3e-4, "resolution": 1e-6}
 
 
 def _breather(params, omega, seed, flow):
-    """Newton from ``seed`` (dense): the breather, or None where Newton lost it (a residual above
-    1e-8, or the rest state)."""
-    r = ct.find_breather(params, omega, seed, flow=flow, solver="dense")
+    """Newton from ``seed`` (dense below ``KRYLOV_MIN_SITES`` sites, matrix-free from there: ``solver="auto"``): the
+    breather, or None where Newton lost it (a residual above 1e-8, or the rest state)."""
+    r = ct.find_breather(params, omega, seed, flow=flow, solver="auto")
     return None if r.residual > 1e-8 or r.energy <= 0 else r
 
 

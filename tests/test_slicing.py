@@ -508,3 +508,27 @@ def test_a_double_real_mu_of_one_krein_sign_is_two_real_mu_and_a_pair_stays_a_pa
     assert np.array_equal(out[:2], [0.3, 0.3]) and np.all(out[:2].imag == 0)
     assert np.allclose(np.sum(vec[:, :2].real * (P @ vec[:, :2].real), axis=0), -1.0)
     assert np.array_equal(out[2:], mu[2:]) and np.array_equal(vec[:, 2:], vectors[:, 2:])
+
+
+@pytest.mark.parametrize("name", list(PATCHES))
+def test_a_patch_mirror_splits_the_dense_blocks_in_four(name):
+    """A site breather keeps the patch's 180-degree rotation and a mirror: four blocks (two of each parity) whose mu
+    are the whole Mu's (to 1e-12) and whose Krein signatures are the two-block split's; a bond or triangle breather
+    keeps neither here (one block)."""
+    from warpchain.lattice import neighbour_table
+
+    b, dense, _ = _patch(name)
+    A = floquet_module.half_period_map(b.linearization())
+    whole = np.linalg.eigvals(floquet_module.reduced_products(A, M)[0])
+    _, _, dist = _match(whole, dense.mu)
+    assert dist.max() <= 1e-12
+    if name.endswith("site"):
+        assert dense.spectral.parities == (1, 1, -1, -1)
+        assert sum(bl.Mu.shape[0] for bl in dense.spectral.blocks) == 2 * b.params.N
+        two = floquet_module.reduced_floquet(A, M, b.state)  # no lattice: the reversal alone
+        assert two.spectral.parities == (1, -1)
+        i, j, dist = _match(two.mu, dense.mu)
+        assert dist.max() <= 1e-12 and np.array_equal(two.signature[i], dense.signature[j])
+        assert neighbour_table(b.params).symmetries()  # the mirror came from the lattice
+    else:
+        assert dense.spectral.parities == (0,)
