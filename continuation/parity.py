@@ -208,15 +208,14 @@ def parity_blocks(A: np.ndarray, M: float, mirror=None) -> "tuple[ParityBlock, .
         bases = symmetry_bases(N, mirror)
     parts = (A[:n2, :n2], A[:n2, n2:], A[n2:, :n2], A[n2:, n2:])
     scale = max(float(np.max(np.abs(A))), 1e-300)
-    right = [[_apply_right(X, basis) for _, basis in bases] for X in parts]
-    coupling = max(
-        float(np.max(np.abs(_apply_left(r[k], other)), initial=0.0))
-        for r in right
-        for k in range(len(bases))
-        for j, (_, other) in enumerate(bases)
-        if j != k
-    )
-    if coupling > PARITY_COUPLING_RTOL * scale:
+    pool = _block_pool()  # numpy's gathers let go of the GIL too: the four parts at once
+
+    def coupling_of(r):
+        others = [(k, other) for k in range(len(bases)) for j, (_, other) in enumerate(bases) if j != k]
+        return max(float(np.max(np.abs(_apply_left(r[k], other)), initial=0.0)) for k, other in others)
+
+    right = list(pool.map(lambda X: [_apply_right(X, basis) for _, basis in bases], parts))
+    if max(pool.map(coupling_of, right)) > PARITY_COUPLING_RTOL * scale:
         return None
     m = _masses(M, N)
 
@@ -226,7 +225,7 @@ def parity_blocks(A: np.ndarray, M: float, mirror=None) -> "tuple[ParityBlock, .
         return ParityBlock(sign, basis, Mu, P, sympl, mu, vec)
 
     with blas_threads(1):  # LAPACK calls at once, one BLAS thread each (hostblas)
-        jobs = [_block_pool().submit(block, sign, basis, k) for k, (sign, basis) in enumerate(bases)]
+        jobs = [pool.submit(block, sign, basis, k) for k, (sign, basis) in enumerate(bases)]
         return tuple(job.result() for job in jobs)
 
 
