@@ -244,7 +244,8 @@ def reduced_analysis(
         from .slicing import sliced_floquet
 
         hint = linear_mu(params, lin) if params is not None else None
-        return sliced_floquet(lin, M, state, tolerance, hint=hint)
+        lattice = None if params is None else neighbour_table(params)
+        return sliced_floquet(lin, M, state, tolerance, hint=hint, lattice=lattice)
     start = time.perf_counter()
     cols = lin.stats["tangent_columns"]
     A = half_period_map(lin)

@@ -409,13 +409,20 @@ def blocks_window(Mu, blocks, window: FloquetWindow, *, processes: bool | None =
     return mu[keep], vec[:, keep], parity[keep], coverage
 
 
-def probed_problem(lin, M: float, state=None) -> dict:
+def probed_problem(lin, M: float, state=None, lattice=None) -> dict:
     """The reduced problem of a reversible orbit from its half-period Linearization, sparse: A probed by colour
     groups, Mu (entries below ``MU_DROP`` dropped), the Krein form P and the symplecticity gauge (formed beside),
     and the parity blocks (``(parity, E, keep)``: ``parity_extensions`` when the orbit is mirror-symmetric and Mu
-    commutes with the reflection, else ``(0, None, None)``). ``window_floquet`` and ``slicing.sliced_floquet``
-    start here."""
-    from .parity import PARITY_COUPLING_RTOL, SYMMETRIC_RTOL, mirror_symmetric, parity_extensions
+    commutes with the reflection, else ``(0, None, None)``; on a patch (``lattice``) whose mirror the orbit keeps
+    too, ``symmetry_extensions``' four). ``window_floquet`` and ``slicing.sliced_floquet`` start here."""
+    from .parity import (
+        PARITY_COUPLING_RTOL,
+        SYMMETRIC_RTOL,
+        mirror_symmetric,
+        parity_extensions,
+        patch_mirror,
+        symmetry_extensions,
+    )
 
     N = lin.x0.shape[1]
     cols = lin.stats["tangent_columns"]
@@ -429,6 +436,12 @@ def probed_problem(lin, M: float, state=None) -> dict:
         asym = abs(Mu - Mu[flip][:, flip])
         if asym.nnz == 0 or asym.max() <= PARITY_COUPLING_RTOL * abs(Mu).max():
             blocks = parity_extensions(N)
+            mirror = patch_mirror(lattice, state)
+            if mirror is not None:
+                swap = np.r_[mirror, N + mirror]
+                asym = abs(Mu - Mu[swap][:, swap])
+                if asym.nnz == 0 or asym.max() <= PARITY_COUPLING_RTOL * abs(Mu).max():
+                    blocks = symmetry_extensions(N, mirror)
     side = ThreadPoolExecutor(1, thread_name_prefix="window-checks")
     checks = side.submit(_checks, X, Y, *blocks_of_A)  # beside the eigensolves: they need Mu alone
     side.shutdown(wait=False)

@@ -250,3 +250,38 @@ def parity_extensions(N: int) -> tuple:
         keep = np.r_[np.arange(m), N + np.arange(m)] if sign == 1 else np.r_[first, N + first]
         out.append((sign, E, keep))
     return tuple(out)
+
+
+def symmetry_extensions(N: int, mirror: np.ndarray) -> tuple:
+    """``parity_extensions`` for the group {1, R, m, R m} of ``symmetry_bases``: per character (in its order), the
+    sparse E (2N x 2m) from the values at one site of each orbit (its smallest; orbits where the character vanishes
+    left out) to the vectors of that character, x = E y (E is 1 at the orbit's own site), and those sites' rows
+    (``keep``): Mu E = E B with B = (Mu E)[keep]. Returns ((sign under R, E, keep), ...)."""
+    mirror = np.asarray(mirror)
+    sites = np.arange(N)
+    reverse = N - 1 - sites
+    images = np.stack([sites, reverse, mirror, reverse[mirror]], axis=1)  # (N, 4): e, R, m, R m
+    reps = sites[images.min(axis=1) == sites]
+    out = []
+    for sr in (1, -1):
+        for sm in (1, -1):
+            chi = np.array([1.0, sr, sm, sr * sm])
+            rows, cols, vals, kept = [], [], [], []
+            for s in reps:
+                coefficient = {}
+                for t, site in enumerate(images[s]):
+                    coefficient[int(site)] = coefficient.get(int(site), 0.0) + chi[t]
+                own = coefficient[int(s)]
+                if abs(own) < 0.5:  # the character vanishes on this orbit
+                    continue
+                k = len(kept)
+                kept.append(int(s))
+                for site, c in coefficient.items():
+                    if c != 0.0:
+                        rows.append(site), cols.append(k), vals.append(c / own)
+            m = len(kept)
+            r, c, v = np.array(rows, int), np.array(cols, int), np.array(vals, float)
+            E = sp.csc_matrix((np.r_[v, v], (np.r_[r, r + N], np.r_[c, c + m])), shape=(2 * N, 2 * m))
+            keep = np.r_[np.array(kept, int), N + np.array(kept, int)]
+            out.append((sr, E, keep))
+    return tuple(out)

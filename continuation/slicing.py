@@ -305,19 +305,22 @@ def _report(mu, vectors, P, E, M, centre, **extra) -> dict:
 PROCESS_MIN_ROWS = 600
 
 
-def sliced_floquet(lin, M: float, state=None, tolerance=None, *, hint=None, processes: bool | None = None):
+def sliced_floquet(
+    lin, M: float, state=None, tolerance=None, *, hint=None, processes: bool | None = None, lattice=None
+):
     """Every multiplier of a reversible orbit from its half-period Linearization, counted (module docstring): a
     ``FloquetResult`` with ``path="sliced"``, complete (a verdict) when the count closes in every parity block,
     else ``stable`` None with the counts in ``coverage``; no ``vectors`` (2N x 2N of them). ``hint``: the expected
     mu, to cut segments of equal work (``segments``). ``processes``: the slices in worker processes (default: from
-    ``PROCESS_MIN_ROWS`` rows of a block on)."""
+    ``PROCESS_MIN_ROWS`` rows of a block on). ``lattice``: a patch's, whose mirror splits the blocks once more
+    (``krylov_floquet.probed_problem``)."""
     from .hostblas import blas_threads
     from .krylov_floquet import probed_problem
     from .workers import Shared, Workers
 
     start = time.perf_counter()
     with blas_threads(1):
-        problem = probed_problem(lin, M, state)
+        problem = probed_problem(lin, M, state, lattice)
         Mu, blocks, N = problem["Mu"], problem["blocks"], problem["N"]
         sympl, P = problem["checks"].result()
         seconds = {"probe": time.perf_counter() - start}

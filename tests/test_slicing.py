@@ -481,9 +481,10 @@ def _patch(name: str):
 
 @pytest.mark.parametrize("name", list(PATCHES))
 def test_sliced_is_the_dense_spectrum_on_a_patch(name):
-    """Square and triangular patches: the sliced path's count closes, with the dense mu (to 1e-12), verdict and
-    largest modulus. The square patch's doubles (Arnoldi returns them as mu +- 1e-17 i) count as two real mu, not
-    as a pair (``slicing.degenerate_reals``): before, nine of them left the odd block's count open."""
+    """Square and triangular patches: the sliced path's count closes in every symmetry block, with the dense mu (to
+    1e-12), verdict and largest modulus. The square patch's doubles (Arnoldi returns them as mu +- 1e-17 i) count as
+    two real mu, not as a pair (``slicing.degenerate_reals``): before, nine of them left the odd block's count open
+    (with the mirror's four blocks they fall apart anyway; the bond breather keeps neither symmetry)."""
     b, dense, sliced = _patch(name)
     assert sliced.complete is True and all(c["closed"] for c in sliced.coverage["counts"])
     _assert_same_mu_sets(dense, sliced, 1e-12)
@@ -491,6 +492,8 @@ def test_sliced_is_the_dense_spectrum_on_a_patch(name):
     assert [i.kind for i in sliced.instabilities] == [i.kind for i in dense.instabilities]
     assert dense.stable is (name.endswith("site"))
     assert sliced.unstable_counts == dense.unstable_counts
+    # the site breathers keep the rotation and a mirror: four blocks (symmetry_extensions); the others neither
+    assert [c["parity"] for c in sliced.coverage["counts"]] == ([1, 1, -1, -1] if name.endswith("site") else [0])
     if name == "square-site":  # the doubles are there
         assert np.sum(np.diff(np.sort(dense.mu.real)) < 1e-10) >= 5
 
