@@ -494,8 +494,11 @@ def test_sliced_is_the_dense_spectrum_on_a_patch(name):
     assert sliced.unstable_counts == dense.unstable_counts
     # the site breathers keep the rotation and a mirror: four blocks (symmetry_extensions); the others neither
     assert [c["parity"] for c in sliced.coverage["counts"]] == ([1, 1, -1, -1] if name.endswith("site") else [0])
-    if name == "square-site":  # the doubles are there
+    if name == "square-site":  # the doubles are there; in the rotation's two blocks alone they meet in one block
         assert np.sum(np.diff(np.sort(dense.mu.real)) < 1e-10) >= 5
+        two = slicing.sliced_floquet(b.linearization(), M, b.state)  # no lattice: no mirror
+        assert [c["parity"] for c in two.coverage["counts"]] == [1, -1] and two.complete
+        _assert_same_mu_sets(dense, two, 1e-12)
 
 
 def test_a_double_real_mu_of_one_krein_sign_is_two_real_mu_and_a_pair_stays_a_pair():
