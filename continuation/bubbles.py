@@ -89,7 +89,7 @@ def predict(a, b, sa, sb) -> list:
     Returns:
         list of Bubble, sorted by centre (empty when either end has no spectral data).
     """
-    if sa is None or sb is None or a.signature is None or sa.parities != sb.parities:
+    if sa is None or sb is None or a.signature is None or not sa.same_blocks(sb):
         return []
     tol = max(float(a.tolerance), float(b.tolerance), FLOOR)
     out = []

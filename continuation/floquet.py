@@ -152,7 +152,10 @@ def reduced_floquet(
     start = time.perf_counter()
     N = A.shape[0] // 4
     symmetric = state is not None and mirror_symmetric(state, SYMMETRIC_RTOL)
-    blocks = parity_blocks(A, M, patch_mirror(lattice, state)) if symmetric else None
+    mirror = patch_mirror(lattice, state) if symmetric else None
+    blocks = parity_blocks(A, M, mirror) if symmetric else None
+    if blocks is None and mirror is not None:  # A does not keep the mirror as well as the state: the rotation alone
+        blocks = parity_blocks(A, M)
     split = blocks is not None
     if not split:
         Mu, sympl, P = reduced_products(A, M)

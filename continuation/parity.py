@@ -81,7 +81,8 @@ def symmetry_bases(n: int, mirror: np.ndarray) -> tuple:
     s -> n - 1 - s (a patch's 180-degree rotation about its centre, the chain's mirror), m a site permutation that
     is an involution commuting with R (a patch's mirror, ``Lattice.symmetries``). Basis vector k is
     sum_t w[k, t] e[i[k, t]] over the orbit of one site (sites fixed by an element: repeated with weight 0), the
-    characters in the order (R, m) = (+, +), (+, -), (-, +), (-, -). Returns ((sign under R, (i, w)), ...)."""
+    characters in the order (R, m) = (+, +), (+, -), (-, +), (-, -), those that no orbit carries left out. Returns
+    ((sign under R, (i, w)), ...)."""
     mirror = np.asarray(mirror)
     sites = np.arange(n)
     reverse = n - 1 - sites
@@ -104,6 +105,8 @@ def symmetry_bases(n: int, mirror: np.ndarray) -> tuple:
             row = entries + pad
             idx.append([site for site, _ in row])
             w.append([x / norm for _, x in row])
+        if not idx:  # no orbit carries this character (a 2 x 2 patch's diagonal mirror)
+            continue
         i, ww = np.array(idx, int).reshape(-1, 4), np.array(w, float).reshape(-1, 4)
         out.append((sr, (np.concatenate([i, i + n]), np.concatenate([ww, ww]))))
     return tuple(out)
@@ -280,6 +283,8 @@ def symmetry_extensions(N: int, mirror: np.ndarray) -> tuple:
                     if c != 0.0:
                         rows.append(site), cols.append(k), vals.append(c / own)
             m = len(kept)
+            if not m:  # no orbit carries this character
+                continue
             r, c, v = np.array(rows, int), np.array(cols, int), np.array(vals, float)
             E = sp.csc_matrix((np.r_[v, v], (np.r_[r, r + N], np.r_[c, c + m])), shape=(2 * N, 2 * m))
             keep = np.r_[np.array(kept, int), N + np.array(kept, int)]

@@ -189,12 +189,16 @@ def _residuals(op, vals, vectors) -> np.ndarray:
 def _shift(op, banded, sigma: float, k: int) -> tuple:
     """One shift, ``_disc``'s tuple: k eigenvalues, or k / 8 (at least 4) when k does not converge in TIE_RESTARTS
     restarts, or k with twice the Arnoldi vectors and no limit when neither does (ARPACK's "no shifts could be
-    applied" on a cluster larger than k included). A disc whose eigenpairs' residuals exceed RESIDUAL_TOL (a
-    shift within 1e-8 of an eigenvalue) is solved again a thousandth of its radius lower."""
+    applied" on a cluster larger than k included), or, failing that too, 4 k and 16 k (a cluster of equidistant
+    eigenvalues around the k-th: a triangular patch's outward disc at -1 met eight at one distance from rank 3 on; at
+    most op's order - 2). A disc whose eigenpairs' residuals exceed RESIDUAL_TOL (a shift within 1e-8 of an
+    eigenvalue) is solved again a thousandth of its radius lower."""
+    wider = sorted({min(c, op.shape[0] - 2) for c in (4 * k, 16 * k)} - {k})
     attempts = (  # (eigenvalues, Arnoldi vectors, restarts)
         (k, LANCZOS_FACTOR * k, TIE_RESTARTS),
         (max(4, k // 8), LANCZOS_FACTOR * max(4, k // 8), TIE_RESTARTS),
         (k, 2 * LANCZOS_FACTOR * k, None),
+        *((c, LANCZOS_FACTOR * c, 4 * TIE_RESTARTS) for c in wider),
     )
     for _ in range(4):
         for i, (count, ncv, restarts) in enumerate(attempts):
@@ -250,12 +254,19 @@ def outlier_task(op, P, E, sign: float, k: int, M: float, centre: float) -> dict
     at 1 + ``OUTWARD_SHIFT`` (``krylov_floquet``'s, of ``OUTWARD_COUNT`` eigenvalues, fewer where its rim falls on a
     lattice's double eigenvalue: ``_shift``), and the converged ones of an
     Arnoldi of largest (smallest) real part beyond it (strong real pairs, period doubling). Any that neither sees is
-    left to the count."""
+    left to the count: an outward disc that converges in none of ``_shift``'s attempts finds nothing (``converged``
+    False), and the verdict is incomplete unless the Arnoldi and the slices still account for every eigenvalue."""
     start = time.perf_counter()
     op = sp.csc_matrix(sign * op)
-    vals, vectors, d, radius, sigma = _shift(op, BandedShifts.make(op), 1.0 + OUTWARD_SHIFT, min(OUTWARD_COUNT, k))
+    try:
+        vals, vectors, d, radius, sigma = _shift(op, BandedShifts.make(op), 1.0 + OUTWARD_SHIFT, min(OUTWARD_COUNT, k))
+        disc = True
+    except (ArpackNoConvergence, ArpackError, np.linalg.LinAlgError):
+        vals, vectors, d, radius, sigma = np.zeros(0, complex), np.zeros((op.shape[0], 0)), np.zeros(0), 0.0, np.inf
+        disc = False
     near = (d < radius) & (np.real(vals) > 1.0 + OUTER)
     far, far_vectors, residual, converged = _arnoldi(sp.csr_matrix(op), k)
+    converged = converged and disc
     good = (residual < 1e-10) & (np.real(far) > 1.0 + OUTER) & (np.abs(far - sigma) >= radius)
     mu = np.concatenate([vals[near], far[good]])
     vectors = np.hstack([vectors[:, near], far_vectors[:, good]])
@@ -265,26 +276,36 @@ def outlier_task(op, P, E, sign: float, k: int, M: float, centre: float) -> dict
 def degenerate_reals(mu, vectors, P) -> tuple:
     """(mu, vectors) with each conjugate pair that is a double real eigenvalue written as two real ones.
 
-    A lattice's symmetries make some multipliers double (the square patch's x <-> y: 9 pairs in one parity block of
-    a 15 x 15 patch), and Arnoldi, whose arithmetic does not keep Mu's Krein symmetry, returns such a double as
-    mu +- i eps (eps ~ 1e-17). Which it is, the Krein form decides: a genuine pair's eigenvector a = x + i y has
-    a^H P a = x^T P x + y^T P y = 0, so P on span{x, y} is indefinite, while a double real eigenvalue whose two
-    modes have one Krein sign (the only kind that perturbations keep on the axis) has P definite there. A pair whose
-    2 x 2 form G = [x y]^T P [x y] is definite beyond ``neutral_form`` is replaced by its real part, twice, with the
-    real vectors that diagonalize G (their Krein forms are G's eigenvalues); every other pair stays a pair."""
+    A lattice's symmetries make some multipliers double (the square patch's x <-> y: 7 to 9 pairs in the odd block
+    of the rotation alone on a 15 x 15 patch), and Arnoldi, whose arithmetic does not keep Mu's Krein symmetry,
+    returns such a double as mu +- i eps (eps ~ 1e-17). Which it is, the Krein form decides: a genuine pair's
+    eigenvector a = x + i y has a^H P a = x^T P x + y^T P y = 0, so P on span{x, y} is indefinite, while a double
+    real eigenvalue whose two modes have one Krein sign (the only kind that perturbations keep on the axis) has P
+    definite there. A pair whose 2 x 2 form G = [x y]^T P [x y] is definite beyond ``neutral_form`` is replaced by
+    its real part, twice, with the real vectors that diagonalize G (their Krein forms are G's eigenvalues); every
+    other pair stays a pair, and so does one with |Im mu| above ``DOUBLE_IMAG`` or with x and y nearly parallel
+    (then span{x, y} is no plane of eigenvectors)."""
     mu, vectors = np.array(mu, complex), np.array(vectors, complex)
     neutral = neutral_form(P)
-    for i in np.flatnonzero(mu.imag > 0):
+    for i in np.flatnonzero((mu.imag > 0) & (mu.imag <= DOUBLE_IMAG * np.maximum(1.0, np.abs(mu)))):
         partners = np.flatnonzero((mu.imag < 0) & (np.abs(mu - np.conj(mu[i])) <= 1e-12 * max(1.0, abs(mu[i]))))
         if not len(partners):
             continue
-        basis, _ = np.linalg.qr(np.column_stack([vectors[:, i].real, vectors[:, i].imag]))
+        basis, R = np.linalg.qr(np.column_stack([vectors[:, i].real, vectors[:, i].imag]))
+        if abs(R[1, 1]) < 1e-6 * abs(R[0, 0]):
+            continue
         lam, Q = np.linalg.eigh(basis.T @ (P @ basis))
         if np.all(lam > neutral) or np.all(lam < -neutral):
             j = partners[0]
             mu[i] = mu[j] = mu[i].real
             vectors[:, [i, j]] = basis @ Q
     return mu, vectors
+
+
+#: ``degenerate_reals`` looks at pairs with |Im mu| at most this (relative to max(1, |mu|)): the doubles seen came
+#: with 1e-17 to 2e-16 (and a genuine pair, whose form is indefinite, is never converted at any |Im mu|: the limit is
+#: a second guard)
+DOUBLE_IMAG = 1e-12
 
 
 def neutral_form(P) -> float:

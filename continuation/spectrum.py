@@ -190,6 +190,18 @@ class SpectralData:
     def parities(self) -> tuple:
         return tuple(b.parity for b in self.blocks)
 
+    def same_blocks(self, other: "SpectralData") -> bool:
+        """Whether ``other`` has the same blocks in the same bases (a patch's four blocks of two different mirrors
+        have the same parities)."""
+        if self.parities != other.parities:
+            return False
+        for a, b in zip(self.blocks, other.blocks):
+            if (a.basis is None) != (b.basis is None):
+                return False
+            if a.basis is not None and not all(np.array_equal(x, y) for x, y in zip(a.basis, b.basis)):
+                return False
+        return True
+
     def block_matrix(self, k: int) -> np.ndarray:
         """Block k of Mu in block k's basis."""
         return self.blocks[k].Mu

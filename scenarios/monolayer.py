@@ -33,14 +33,15 @@ The linear waves beside them (``_monolayer_waves``): band edges, the dispersion 
 high-symmetry path and over the zone, the patch's lowest optical modes, and the chain's coupling with the same
 long-wave speed (``monolayer-waves.png``).
 
-How: Newton shooting on the time-reversible half-period map and the reduced Floquet analysis (every multiplier, even
-and odd blocks under the patch's 180-degree rotation) on the Warp ``Flow`` of ``--device``
+How: Newton shooting on the time-reversible half-period map and the reduced Floquet analysis (every multiplier, in
+blocks under the patch's 180-degree rotation and a mirror) on the Warp ``Flow`` of ``--device``
 (``warpchain.lattice.LatticeParams``: the sites layout reads the patch's neighbour table; on the CPU its bits are
-the numpy reference's). Newton is dense up to 31 x 31 and on periodic patches, matrix-free beyond (the patch's sine
-modes precondition GMRES: ``continuation.krylov``); the Floquet analysis is dense, so the patches are small (15 x 15
-by default). The walls are fixed by default (``boundary``). Measured on the square lattice (2026-11-27): 15 x 15 and
-21 x 21 give the same energies to the 6 digits logged up to w_b = 1.0161 (past the threshold) and the same threshold
-and stability change; they part by 4e-6 at 1.0162 and 4e-5 at 1.0163, where the breather spreads over 4 to 8 sites.
+the numpy reference's). Newton is dense up to 31 x 31 and on free or periodic patches, matrix-free beyond (the
+patch's sine modes precondition GMRES: ``continuation.krylov``); the Floquet analysis is dense, so the patches are
+small (15 x 15 by default). The walls are fixed by default (``boundary``). Measured on the square lattice
+(2026-11-27): 15 x 15 and 21 x 21 give the same energies to the 6 digits logged up to w_b = 1.0161 (past the
+threshold) and the same threshold and stability change; they part by 4e-6 at 1.0162 and 4e-5 at 1.0163, where the
+breather spreads over 4 to 8 sites.
 """
 
 from __future__ import annotations

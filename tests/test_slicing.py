@@ -538,3 +538,63 @@ def test_a_patch_mirror_splits_the_dense_blocks_in_four(name):
         assert neighbour_table(b.params).symmetries()  # the mirror came from the lattice
     else:
         assert dense.spectral.parities == (0,)
+
+
+def test_a_mirror_the_map_does_not_keep_falls_back_to_the_rotations_two_blocks():
+    """A 9 x 9 site breather moved off its mirror by 5e-10 of its size (rotation-even, mirror-odd): the state keeps
+    the mirror to SYMMETRIC_RTOL, the map does not to PARITY_COUPLING_RTOL, so the split is the rotation's two blocks
+    (not the whole Mu), with the whole Mu's mu."""
+    from continuation.parity import parity_blocks, patch_mirror
+    from warpchain.lattice import LatticeParams, square
+
+    lattice = square(9, 9, "fixed")
+    p = LatticeParams(M, 1.0, lattice)
+    b = ct.require(ct.find_breather(p, 1.014, ct.anticontinuum_seed(p, 1.014), device="cpu", solver="dense"))
+    m, R = lattice.symmetries()["mirror_0"], p.N - 1 - np.arange(p.N)
+    noise = np.random.default_rng(0).standard_normal((2, p.N))
+    noise = noise + noise[:, R]
+    noise = noise - noise[:, m]
+    state = b.state.copy()
+    state[:2] += 5e-10 * np.max(np.abs(b.state[:2])) * noise / np.max(np.abs(noise))
+    A = floquet_module.half_period_map(b.flow.linearize(p, state, b.nsteps, b.dt))
+    assert patch_mirror(lattice, state) is not None and parity_blocks(A, M, patch_mirror(lattice, state)) is None
+    fl = floquet_module.reduced_floquet(A, M, state, lattice=lattice)
+    assert fl.spectral.parities == (1, -1)
+    _, _, dist = _match(np.linalg.eigvals(floquet_module.reduced_products(A, M)[0]), fl.mu)
+    assert dist.max() <= 1e-12
+
+
+@pytest.mark.parametrize("build", ["square", "triangular"])
+def test_a_character_no_orbit_carries_is_left_out(build):
+    """On 2 x 2 patches a diagonal mirror leaves one of the four characters empty: three blocks, the whole Mu's mu
+    (an empty block crashed the products before)."""
+    from continuation.seeds import anticontinuum_orbit, state_from_positions
+    from warpchain.lattice import LatticeParams, square, triangular
+
+    lattice = {"square": square, "triangular": triangular}[build](2, 2, "fixed")
+    p = LatticeParams(M, 1.0, lattice)
+    z = np.zeros(p.N)
+    z[[0, 1, 2, 3] if build == "triangular" else [0, 3]] = anticontinuum_orbit(1.014, M).z_max
+    seed = state_from_positions(z / (M + 1.0), -M * z / (M + 1.0))
+    b = ct.require(ct.find_breather(p, 1.014, seed, device="cpu", solver="dense"))
+    fl = ct.floquet(b, solver="dense")
+    assert len(fl.spectral.parities) == 3 and len(fl.mu) == 2 * p.N
+    A = floquet_module.half_period_map(b.linearization())
+    _, _, dist = _match(np.linalg.eigvals(floquet_module.reduced_products(A, M)[0]), fl.mu)
+    assert dist.max() <= 1e-12
+
+
+def test_blocks_of_another_mirror_are_not_the_same_blocks():
+    """``SpectralData.same_blocks`` (what ``bubbles.predict`` asks before subtracting two points' blocks): the same
+    parities (1, 1, -1, -1) from two different mirrors are different bases."""
+    from continuation.parity import parity_blocks
+    from continuation.spectrum import SpectralData
+
+    b, dense, _ = _patch("square-site")
+    symmetries = b.params.lattice.symmetries()
+    A = floquet_module.half_period_map(b.linearization())
+    first = SpectralData(parity_blocks(A, M, symmetries["mirror_0"]))
+    other = SpectralData(parity_blocks(A, M, symmetries["mirror_45"]))
+    assert first.parities == other.parities == (1, 1, -1, -1)
+    assert first.same_blocks(dense.spectral) and dense.spectral.same_blocks(first)
+    assert not first.same_blocks(other)
