@@ -314,9 +314,44 @@ def neutral_form(P) -> float:
     return PIVOT_RTOL * (float(np.max(np.abs(P.data))) if P.nnz else 1.0)
 
 
+#: real mu this close (relative to max(1, |mu|)) form one cluster for ``hidden_neutral``
+CLUSTER_RTOL = 1e-9
+
+
+def hidden_neutral(mu, vectors, P):
+    """``vectors`` with each cluster of (nearly) equal real mu that hides a direction of P's kernel written in the
+    vectors that diagonalize the Krein form on its span. On a periodic or free lattice the uniform translation moves
+    no velocity (P t = 0) and shares mu = 1 with the phase mode; Arnoldi returns two mixtures of them, each with a
+    positive form, and the count (one positive, one zero) did not close (a 9 x 9 periodic patch, a periodic ring at
+    K = 3). Where the form on the cluster's span has an eigenvalue below ``neutral_form`` while every vector's own is
+    above it, the cluster's vectors become G's eigenvectors (G = B^T P B over an orthonormal basis B of the span):
+    their forms are G's eigenvalues, one of them neutral. Every other cluster is left as it is."""
+    real = np.flatnonzero(mu.imag == 0)
+    if len(real) < 2:
+        return vectors
+    vectors = np.array(vectors, copy=True)
+    neutral = neutral_form(P)
+    order = real[np.argsort(mu.real[real])]
+    values = mu.real[order]
+    breaks = np.flatnonzero(np.diff(values) > CLUSTER_RTOL * np.maximum(1.0, np.abs(values[1:]))) + 1
+    for cluster in np.split(order, breaks):
+        if len(cluster) < 2:
+            continue
+        x = real_phase(vectors[:, cluster], mu[cluster]).real
+        own = np.sum(x * (P @ x), axis=0)
+        basis, R = np.linalg.qr(x)
+        if np.min(np.abs(np.diag(R))) < 1e-6 * np.max(np.abs(np.diag(R))):
+            continue  # nearly parallel vectors: no basis of the span
+        lam, Q = np.linalg.eigh(basis.T @ (P @ basis))
+        if np.min(np.abs(lam)) <= neutral and np.all(np.abs(own) > neutral):
+            vectors[:, cluster] = basis @ Q
+    return vectors
+
+
 def _report(mu, vectors, P, E, M, centre, **extra) -> dict:
     if len(mu):
         mu, vectors = degenerate_reals(mu, vectors, P)
+        vectors = hidden_neutral(mu, vectors, P)
     act, pr, weight = _measures(mu, vectors, P, E, M, centre) if len(mu) else (np.zeros(0),) * 3
     return {"mu": mu, "act": act, "participation": pr, "central_weight": weight, **extra}
 
