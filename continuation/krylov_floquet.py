@@ -430,18 +430,18 @@ def probed_problem(lin, M: float, state=None, lattice=None) -> dict:
     blocks_of_A = _blocks(A, M)
     Mu, X, Y = _mu(*blocks_of_A)
     Mu = negligible_dropped(Mu)
+
+    def commutes(sites) -> bool:  # Mu with the site permutation (on u and v alike), to PARITY_COUPLING_RTOL
+        both = np.r_[sites, N + sites]
+        asym = abs(Mu - Mu[both][:, both])
+        return asym.nnz == 0 or asym.max() <= PARITY_COUPLING_RTOL * abs(Mu).max()
+
     blocks = [(0, None, None)]
-    if state is not None and mirror_symmetric(state, SYMMETRIC_RTOL):
-        flip = np.r_[np.arange(N)[::-1], N + np.arange(N)[::-1]]
-        asym = abs(Mu - Mu[flip][:, flip])
-        if asym.nnz == 0 or asym.max() <= PARITY_COUPLING_RTOL * abs(Mu).max():
-            blocks = parity_extensions(N)
-            mirror = patch_mirror(lattice, state)
-            if mirror is not None:
-                swap = np.r_[mirror, N + mirror]
-                asym = abs(Mu - Mu[swap][:, swap])
-                if asym.nnz == 0 or asym.max() <= PARITY_COUPLING_RTOL * abs(Mu).max():
-                    blocks = symmetry_extensions(N, mirror)
+    if state is not None and mirror_symmetric(state, SYMMETRIC_RTOL) and commutes(np.arange(N)[::-1]):
+        blocks = parity_extensions(N)
+        mirror = patch_mirror(lattice, state)
+        if mirror is not None and commutes(mirror):
+            blocks = symmetry_extensions(N, mirror)
     side = ThreadPoolExecutor(1, thread_name_prefix="window-checks")
     checks = side.submit(_checks, X, Y, *blocks_of_A)  # beside the eigensolves: they need Mu alone
     side.shutdown(wait=False)

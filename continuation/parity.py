@@ -18,11 +18,12 @@ from .hostblas import blas_threads
 from .spectrum import _masses, _products
 
 
-def mirror_symmetric(state: np.ndarray, rtol: float = 1e-6) -> bool:
-    """Whether positions equal their reflection j -> N + 1 - j (to rtol of their size)."""
+def mirror_symmetric(state: np.ndarray, rtol: float = 1e-6, sites=None) -> bool:
+    """Whether positions equal their reflection j -> N + 1 - j (or their image under the site permutation
+    ``sites``) to rtol of their size."""
     from .shooting import is_mirror_symmetric
 
-    return is_mirror_symmetric(state, rtol)
+    return is_mirror_symmetric(state, rtol, sites)
 
 
 def vector_parity(vectors: np.ndarray, threshold: float = 0.9) -> np.ndarray:
@@ -43,10 +44,8 @@ def patch_mirror(lattice, state) -> "np.ndarray | None":
     ``SYMMETRIC_RTOL``: ``parity_blocks``' second symmetry; None on a chain, without a lattice, or when none does."""
     if lattice is None or len(lattice.shape) == 1 or state is None:
         return None
-    q = np.asarray(state)[:2]
-    scale = max(float(np.max(np.abs(q))), 1e-300)
     for name, p in lattice.symmetries().items():
-        if name.startswith("mirror") and float(np.max(np.abs(q - q[:, p]))) <= SYMMETRIC_RTOL * scale:
+        if name.startswith("mirror") and mirror_symmetric(state, SYMMETRIC_RTOL, p):
             return p
     return None
 
@@ -76,37 +75,47 @@ def _parity_basis(n: int) -> tuple:
     return tuple(out)
 
 
+def _character_orbits(n: int, mirror) -> list:
+    """The group {1, R, m, R m} on n sites (R: s -> n - 1 - s; m: ``mirror``) per character, in the order (R, m) =
+    (+, +), (+, -), (-, +), (-, -): (sign under R, [(site, {site': coefficient})]) with one entry per orbit that
+    carries the character (its smallest site, and sum_g chi(g) e[g site] as a dict); characters no orbit carries
+    (a 2 x 2 patch's diagonal mirror) are left out. ``symmetry_bases`` and ``symmetry_extensions`` share it."""
+    mirror = np.asarray(mirror)
+    sites = np.arange(n)
+    reverse = n - 1 - sites
+    images = np.stack([sites, reverse, mirror, reverse[mirror]], axis=1)  # (n, 4): e, R, m, R m
+    reps = sites[images.min(axis=1) == sites]  # one site per orbit: its smallest
+    out = []
+    for sr, sm in ((1, 1), (1, -1), (-1, 1), (-1, -1)):
+        chi = np.array([1.0, sr, sm, sr * sm])
+        orbits = []
+        for s in reps:
+            coefficient: dict = {}
+            for t, site in enumerate(images[s]):
+                coefficient[int(site)] = coefficient.get(int(site), 0.0) + chi[t]
+            if abs(coefficient[int(s)]) >= 0.5:  # else the character vanishes on this orbit (every coefficient 0)
+                orbits.append((int(s), coefficient))
+        if orbits:
+            out.append((sr, orbits))
+    return out
+
+
 def symmetry_bases(n: int, mirror: np.ndarray) -> tuple:
     """Orthonormal bases of R^(2n) (u then v) per character of the group {1, R, m, R m}: R the reversal
     s -> n - 1 - s (a patch's 180-degree rotation about its centre, the chain's mirror), m a site permutation that
     is an involution commuting with R (a patch's mirror, ``Lattice.symmetries``). Basis vector k is
     sum_t w[k, t] e[i[k, t]] over the orbit of one site (sites fixed by an element: repeated with weight 0), the
-    characters in the order (R, m) = (+, +), (+, -), (-, +), (-, -), those that no orbit carries left out. Returns
+    characters in the order of ``_character_orbits``, those that no orbit carries left out. Returns
     ((sign under R, (i, w)), ...)."""
-    mirror = np.asarray(mirror)
-    sites = np.arange(n)
-    reverse = n - 1 - sites
-    images = np.stack([sites, reverse, mirror, reverse[mirror]], axis=1)  # (n, 4): e, R, m, R m
-    chars = [(sr, sm) for sr in (1, -1) for sm in (1, -1)]
     out = []
-    for sr, sm in chars:
-        weights_of = np.array([1.0, sr, sm, sr * sm])
+    for sr, orbits in _character_orbits(n, mirror):
         idx, w = [], []
-        for s in sites[images.min(axis=1) == sites]:  # one site per orbit: its smallest
-            orbit, first = images[s], {}
-            for t, site in enumerate(orbit):
-                first.setdefault(int(site), []).append(t)
-            vec = {site: float(np.sum(weights_of[ts])) for site, ts in first.items()}
+        for _, vec in orbits:
             norm = np.sqrt(sum(x * x for x in vec.values()))
-            if norm < 0.5:  # the character vanishes on this orbit
-                continue
             entries = sorted(vec.items())
-            pad = [(entries[0][0], 0.0)] * (4 - len(entries))
-            row = entries + pad
+            row = entries + [(entries[0][0], 0.0)] * (4 - len(entries))
             idx.append([site for site, _ in row])
             w.append([x / norm for _, x in row])
-        if not idx:  # no orbit carries this character (a 2 x 2 patch's diagonal mirror)
-            continue
         i, ww = np.array(idx, int).reshape(-1, 4), np.array(w, float).reshape(-1, 4)
         out.append((sr, (np.concatenate([i, i + n]), np.concatenate([ww, ww]))))
     return tuple(out)
@@ -260,33 +269,17 @@ def symmetry_extensions(N: int, mirror: np.ndarray) -> tuple:
     sparse E (2N x 2m) from the values at one site of each orbit (its smallest; orbits where the character vanishes
     left out) to the vectors of that character, x = E y (E is 1 at the orbit's own site), and those sites' rows
     (``keep``): Mu E = E B with B = (Mu E)[keep]. Returns ((sign under R, E, keep), ...)."""
-    mirror = np.asarray(mirror)
-    sites = np.arange(N)
-    reverse = N - 1 - sites
-    images = np.stack([sites, reverse, mirror, reverse[mirror]], axis=1)  # (N, 4): e, R, m, R m
-    reps = sites[images.min(axis=1) == sites]
     out = []
-    for sr in (1, -1):
-        for sm in (1, -1):
-            chi = np.array([1.0, sr, sm, sr * sm])
-            rows, cols, vals, kept = [], [], [], []
-            for s in reps:
-                coefficient = {}
-                for t, site in enumerate(images[s]):
-                    coefficient[int(site)] = coefficient.get(int(site), 0.0) + chi[t]
-                own = coefficient[int(s)]
-                if abs(own) < 0.5:  # the character vanishes on this orbit
-                    continue
-                k = len(kept)
-                kept.append(int(s))
-                for site, c in coefficient.items():
-                    if c != 0.0:
-                        rows.append(site), cols.append(k), vals.append(c / own)
-            m = len(kept)
-            if not m:  # no orbit carries this character
-                continue
-            r, c, v = np.array(rows, int), np.array(cols, int), np.array(vals, float)
-            E = sp.csc_matrix((np.r_[v, v], (np.r_[r, r + N], np.r_[c, c + m])), shape=(2 * N, 2 * m))
-            keep = np.r_[np.array(kept, int), N + np.array(kept, int)]
-            out.append((sr, E, keep))
+    for sr, orbits in _character_orbits(N, mirror):
+        rows, cols, vals = [], [], []
+        for k, (s, coefficient) in enumerate(orbits):
+            own = coefficient[s]
+            for site, c in coefficient.items():
+                if c != 0.0:
+                    rows.append(site), cols.append(k), vals.append(c / own)
+        m = len(orbits)
+        kept = np.array([s for s, _ in orbits], int)
+        r, c, v = np.array(rows, int), np.array(cols, int), np.array(vals, float)
+        E = sp.csc_matrix((np.r_[v, v], (np.r_[r, r + N], np.r_[c, c + m])), shape=(2 * N, 2 * m))
+        out.append((sr, E, np.r_[kept, N + kept]))
     return tuple(out)

@@ -364,10 +364,12 @@ def chord_solver(J0: np.ndarray):
     return lambda ev, r: scipy.linalg.lu_solve(lu, r, check_finite=False)
 
 
-def is_mirror_symmetric(state, rtol: float) -> bool:
-    """Whether the positions equal their reflection j -> N + 1 - j to rtol of their size."""
+def is_mirror_symmetric(state, rtol: float, sites=None) -> bool:
+    """Whether the positions equal their reflection j -> N + 1 - j (or their image under the site permutation
+    ``sites``) to rtol of their size."""
     q = np.asarray(state)[:2]
-    return bool(np.max(np.abs(q - q[:, ::-1])) <= rtol * max(float(np.max(np.abs(q))), 1e-300))
+    image = q[:, ::-1] if sites is None else q[:, sites]
+    return bool(np.max(np.abs(q - image)) <= rtol * max(float(np.max(np.abs(q))), 1e-300))
 
 
 #: an orbit whose max |u - v| is below this is the rest state, whatever its seed: the residual tolerance is

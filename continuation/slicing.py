@@ -273,6 +273,19 @@ def outlier_task(op, P, E, sign: float, k: int, M: float, centre: float) -> dict
     return _report(sign * mu, vectors, P, E, M, centre, converged=converged, seconds=time.perf_counter() - start)
 
 
+def _krein_plane(columns: np.ndarray, P) -> "tuple | None":
+    """(B, lam, Q): an orthonormal basis B of the span of real ``columns`` and the eigen-decomposition of the Krein
+    form on it, B^T P B = Q diag(lam) Q^T (so B Q are the form's eigenvectors, lam their forms); None when the
+    columns are nearly dependent (a diagonal entry of their QR below 1e-6 of the largest: no basis of the span).
+    ``degenerate_reals`` and ``hidden_neutral`` read a cluster's forms through it."""
+    basis, R = np.linalg.qr(columns)
+    diagonal = np.abs(np.diag(R))
+    if np.min(diagonal) < 1e-6 * np.max(diagonal):
+        return None
+    lam, Q = np.linalg.eigh(basis.T @ (P @ basis))
+    return basis, lam, Q
+
+
 def degenerate_reals(mu, vectors, P) -> tuple:
     """(mu, vectors) with each conjugate pair that is a double real eigenvalue written as two real ones.
 
@@ -291,10 +304,10 @@ def degenerate_reals(mu, vectors, P) -> tuple:
         partners = np.flatnonzero((mu.imag < 0) & (np.abs(mu - np.conj(mu[i])) <= 1e-12 * max(1.0, abs(mu[i]))))
         if not len(partners):
             continue
-        basis, R = np.linalg.qr(np.column_stack([vectors[:, i].real, vectors[:, i].imag]))
-        if abs(R[1, 1]) < 1e-6 * abs(R[0, 0]):
+        plane = _krein_plane(np.column_stack([vectors[:, i].real, vectors[:, i].imag]), P)
+        if plane is None:
             continue
-        lam, Q = np.linalg.eigh(basis.T @ (P @ basis))
+        basis, lam, Q = plane
         if np.all(lam > neutral) or np.all(lam < -neutral):
             j = partners[0]
             mu[i] = mu[j] = mu[i].real
@@ -339,10 +352,10 @@ def hidden_neutral(mu, vectors, P):
             continue
         x = real_phase(vectors[:, cluster], mu[cluster]).real
         own = np.sum(x * (P @ x), axis=0)
-        basis, R = np.linalg.qr(x)
-        if np.min(np.abs(np.diag(R))) < 1e-6 * np.max(np.abs(np.diag(R))):
-            continue  # nearly parallel vectors: no basis of the span
-        lam, Q = np.linalg.eigh(basis.T @ (P @ basis))
+        plane = _krein_plane(x, P)
+        if plane is None:
+            continue
+        basis, lam, Q = plane
         if np.min(np.abs(lam)) <= neutral and np.all(np.abs(own) > neutral):
             vectors[:, cluster] = basis @ Q
     return vectors
