@@ -48,7 +48,6 @@ from warpchain import (
 )
 from warpchain.engine.devices import cpu_threads
 from warpchain.engine.plans import sites_per_thread
-from warpchain.engine.tuning import active
 from warpchain.ensemble import time_steps
 from warpchain.integrators import SplittingMethod
 from warpchain.store import device_description, provenance, read_group, write_table
@@ -195,7 +194,8 @@ def _ensemble(ctx, P: Parameters, params, one, gpu):
             if not gpu and layout == "block" and batch > 64:
                 continue  # CPU fibers: a correctness path, not a fast one; one point shows it
             main = layout == ("block" if gpu else "thread")
-            names = sorted(METHODS) if main and (batch in all_methods_at or batch == batches[-1]) else ["verlet"]
+            every = main and (batch in all_methods_at or batch == batches[-1])
+            names = [n for n, m in sorted(METHODS.items()) if isinstance(m, SplittingMethod)] if every else ["verlet"]
             for name in names:
 
                 def warp_run(n, name=name, layout=layout):
@@ -205,7 +205,7 @@ def _ensemble(ctx, P: Parameters, params, one, gpu):
 
                 steps, sec = _measure(warp_run, seconds, P.max_steps)
                 sites = None
-                if layout == "block" and isinstance(METHODS[name], SplittingMethod):
+                if layout == "block":
                     sites = sites_per_thread(batch, params.N, METHODS[name].stages, ctx.device)
                 record(f"warp-{layout}", name, batch, steps, sec, METHODS[name].force_evaluations, sites)
         if batch <= P.numpy_max_batch:
@@ -418,18 +418,15 @@ def _kernel_properties(ctx, params):
 
     from warpchain.engine import block_kernels, site_group_kernels
     from warpchain.engine import thread_kernels as kernels
-    from warpchain.engine import thread_rk4_kernels
 
     block = block_kernels.block_size(params.N)
     rows = []
     built, blocks = {}, {}
     caps = {block_kernels.min_blocks_per_sm(method.stages) for method in METHODS.values()}
-    for min_blocks in sorted(caps | set(active().tangent_pair_min_blocks)):
+    for min_blocks in sorted(caps | {0}):
         for key, kernel in block_kernels.block_kernels(block, min_blocks).built().items():
             name = "/".join(str(part) for part in key) + f" (min blocks {min_blocks})"
-            # threads, shared bytes: two halves of a float64 row, or of (float64 x columns) for the tangents
-            columns = key[2] if key[0] == "splitting_tangent" else 1
-            built[name], blocks[name] = kernel, (block, 2 * block * 8 * columns)
+            built[name], blocks[name] = kernel, (block, 2 * block * 8)  # threads, shared: two halves of a row
     for (threads, sites, _, min_blocks), group in site_group_kernels.SITE_GROUPS.items():
         for key, kernel in group.built().items():
             name = "/".join(str(part) for part in key) + f" ({sites} sites/thread, min blocks {min_blocks})"
@@ -451,7 +448,7 @@ def _kernel_properties(ctx, params):
                 "occupancy": _occupancy(props["register_count"], block, smem),
             }
         )
-    for name, module in (("splitting_kernel", kernels), ("rk4_kernel", thread_rk4_kernels)):
+    for name, module in (("splitting_kernel", kernels),):
         try:
             props = wp.get_cuda_kernel_properties(getattr(module, name), ctx.device)
             rows.append(

@@ -410,13 +410,13 @@ def floquet(
             "use reduced=False"
         )
     if method is not None and method != breather.method:
+        flow = flow.replace(method=method)  # a method the flow cannot run fails here, before the warning
         warnings.warn(
             f"floquet(method={method!r}) on an orbit converged with {breather.method!r}: the orbit is "
             f"re-converged with {method!r} first (it is periodic only for the map it was solved with)",
             RuntimeWarning,
             stacklevel=2,
         )
-        flow = flow.replace(method=method)
         from .shooting import require
 
         breather = require(
@@ -435,7 +435,7 @@ def floquet(
         raise ValueError("window= chooses the window path's multipliers; the full path computes all of them")
     start = time.perf_counter()
     half = breather.nsteps if breather.formulation == "reversible" else breather.nsteps // 2
-    V = monodromy(params, breather.state, 2 * half, breather.dt, method=flow.method, device=flow.device)
+    V = flow.linearize(params, breather.state, 2 * half, breather.dt).unit_columns("all")  # the monodromy
     return full_floquet(
         V,
         params.M,

@@ -430,7 +430,7 @@ def _raised_by_us(exc: BaseException) -> bool:
         return True
     ours = Path(__file__).resolve().parents[1]
     where = Path(frames[-1].filename).resolve()
-    return any(where.is_relative_to(ours / package) for package in ("warpchain", "continuation", "scenarios"))
+    return any(where.is_relative_to(ours / package) for package in ("warpchain", "continuation", "sweep", "scenarios"))
 
 
 def failure_hint(exc: BaseException) -> str:
@@ -465,6 +465,26 @@ PAPER_M, PAPER_K, PAPER_N, PAPER_OMEGA = 30.0, 160.0, 201, 1.01
 BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD = "kahan8", 32
 
 _BREATHER_CACHE: dict = {}
+
+
+def reference_run(method: str, params, x0, t_end: float, dt: float, chunks: int) -> tuple:
+    """A run on the numpy reference (``warpchain.reference``) for the methods the Warp engine does not step (RK4),
+    with ``simulate``'s step (``steps_for``): the final state (4, N), and the times and energies at the start and
+    at the ends of ``chunks`` equal chunks (as ``simulate``'s ``energy_t`` and ``energy_trace``)."""
+    import numpy as np
+
+    from warpchain import energy, reference
+    from warpchain.integrators import steps_for
+
+    nsteps, dt_used = steps_for(t_end, dt)
+    ends = np.unique(np.round(np.linspace(0, nsteps, chunks + 1)).astype(int))
+    x = np.array(x0, dtype=np.float64)[None]
+    energies = [energy(params, x)[0]]
+    with np.errstate(over="ignore", invalid="ignore"):  # a run past its stability limit overflows
+        for lo, hi in zip(ends[:-1], ends[1:]):
+            x = reference.integrate(method, params, x, dt_used, int(hi - lo))["x"]
+            energies.append(energy(params, x)[0])
+    return x[0], ends * dt_used, np.array(energies)
 
 
 def paper_breather(device: str, log=None, *, params=None, omega: float = PAPER_OMEGA):

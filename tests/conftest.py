@@ -1,8 +1,12 @@
 import numpy as np
 import pytest
 
-from warpchain import ChainParams
+from warpchain import METHODS, ChainParams, SplittingMethod
 from warpchain.sweep import _environment_kept
+
+
+#: the methods the Warp engine steps (RK4 runs on the numpy reference only)
+SPLITTING = sorted(name for name, m in METHODS.items() if isinstance(m, SplittingMethod))
 
 
 def localized_state(N, amplitude=0.6, width=2.0, batch=1, centre=None, seed=None):

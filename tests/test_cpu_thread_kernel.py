@@ -1,5 +1,5 @@
-"""The thread-per-lattice kernels' fused sweeps (``kernels.fused_stage``, ``rk4_fused_stage``: a stage in one
-pass over contiguous rows) against the numpy reference, bit for bit, where their edges are: the shortest
+"""The thread-per-lattice kernel's fused sweeps (``kernels.fused_stage``: a stage in one pass over contiguous
+rows) against the numpy reference, bit for bit, where their edges are: the shortest
 lattices (the sites at both ends are taken out of the loop), every boundary, recorded frames and stiffness
 history, and the generic path they fall back to (strided rows, N = 1)."""
 
@@ -11,13 +11,12 @@ from conftest import localized_state
 from warpchain import Placement, Record
 from warpchain import ChainParams, propagate_tangent, reference, simulate
 from warpchain.engine import thread_kernels as K
-from warpchain.engine import thread_rk4_kernels as R
 from warpchain.reference import inverse_mass
 
 
 @pytest.mark.parametrize("boundary", ["fixed", "free", "periodic"])
 @pytest.mark.parametrize("n_sites", [1, 2, 3, 4, 11])
-@pytest.mark.parametrize("method", ["verlet", "yoshida4", "rk4"])
+@pytest.mark.parametrize("method", ["verlet", "yoshida4"])
 def test_short_lattices_every_boundary_bit_for_bit(method, n_sites, boundary):
     p = ChainParams(3.0, 4.0, n_sites, boundary)
     x0 = localized_state(n_sites, amplitude=0.9, batch=3, centre=n_sites // 3, seed=n_sites)
@@ -41,7 +40,7 @@ def test_short_lattices_every_boundary_bit_for_bit(method, n_sites, boundary):
 
 @pytest.mark.parametrize("boundary", ["fixed", "free", "periodic"])
 @pytest.mark.parametrize("n_sites", [1, 2, 3, 6])
-@pytest.mark.parametrize("method", ["yoshida4", "rk4"])
+@pytest.mark.parametrize("method", ["verlet", "yoshida4"])
 def test_tangent_columns_of_short_lattices_bit_for_bit(method, n_sites, boundary):
     """The base run records f'(z) in the fused sweep, the tangent kernel's own fused sweep reads it: the
     columns match the reference's bit for bit."""
@@ -67,8 +66,7 @@ def _strided(values: np.ndarray):
     return owner, view
 
 
-@pytest.mark.parametrize("method", ["verlet", "rk4"])
-def test_strided_rows_take_the_generic_path(method):
+def test_strided_rows_take_the_generic_path():
     """Rows that are not contiguous (never built by ``ensemble``) run the per-pass loops, same results."""
     p = ChainParams(3.0, 4.0, 9, "periodic")
     x0 = localized_state(p.N, amplitude=0.9, batch=2, seed=2)
@@ -81,23 +79,16 @@ def test_strided_rows_take_the_generic_path(method):
     no_base = [0, wp.zeros(1, dtype=wp.int32, device="cpu")]  # a base run (not a tangent column)
     record = K.Recording()  # nothing recorded
     record.u = record.v = record.hist = none
-    if method == "verlet":
-        acc = wp.zeros((2, 2, p.N), dtype=f64, device="cpu")
-        inputs = [
-            x,
-            acc,
-            *no_base,
-            lattice,
-            wp.array(np.array([1.0]), dtype=f64),
-            wp.array(np.array([0.5, 0.5]), dtype=f64),
-        ]
-        inputs += [f64(0.05), 40, record, K.Observer()]
-        wp.launch(K.splitting_kernel, dim=2, inputs=inputs, device="cpu")
-    else:
-        scratch = [wp.zeros((2, 4, p.N), dtype=f64, device="cpu") for _ in range(3)]
-        tableau = K.Tableau()  # the classical RK4
-        tableau.nodes, tableau.weights = wp.vec4d(0.5, 0.5, 1.0, 6.0), wp.vec4d(1.0, 2.0, 2.0, 1.0)
-        inputs = [x, *scratch, *no_base, lattice, tableau, f64(0.05), 40, record]
-        wp.launch(R.rk4_kernel, dim=2, inputs=inputs, device="cpu")
-    ref = reference.integrate(method, p, x0, 0.05, 40, M=M, K=K_)["x"]
+    acc = wp.zeros((2, 2, p.N), dtype=f64, device="cpu")
+    inputs = [
+        x,
+        acc,
+        *no_base,
+        lattice,
+        wp.array(np.array([1.0]), dtype=f64),
+        wp.array(np.array([0.5, 0.5]), dtype=f64),
+    ]
+    inputs += [f64(0.05), 40, record, K.Observer()]
+    wp.launch(K.splitting_kernel, dim=2, inputs=inputs, device="cpu")
+    ref = reference.integrate("verlet", p, x0, 0.05, 40, M=M, K=K_)["x"]
     assert np.array_equal(owner.numpy()[..., ::2], ref)

@@ -83,10 +83,13 @@ def test_instabilities_carry_kind_and_localization(breather):
 
 
 def test_a_non_symplectic_map_gives_no_verdict_unless_asked(breather):
+    with pytest.raises(ValueError, match="ReferenceFlow"):  # RK4 is not on the Warp engine: the error says where
+        ct.floquet(breather, method="rk4")
+    ref = ReferenceFlow(breather.method, breather.flow.steps_per_period)
     with pytest.warns(RuntimeWarning, match="re-converged"), pytest.raises(ValueError, match="far from symplectic"):
-        ct.floquet(breather, method="rk4")  # re-converged with rk4, then the full path: pairing error ~0.1
+        ct.floquet(breather, method="rk4", flow=ref)  # re-converged with rk4, then the full path: pairing error ~0.1
     with pytest.warns(RuntimeWarning, match="re-converged"):
-        coarse = ct.floquet(breather, method="rk4", tolerance=2.0)  # explicitly accepted
+        coarse = ct.floquet(breather, method="rk4", tolerance=2.0, flow=ref)  # explicitly accepted
     assert coarse.path == "full" and coarse.tolerance == 2.0
 
 

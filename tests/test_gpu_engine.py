@@ -2,15 +2,13 @@
 reduced on the device (energy, finite flag, min contact), frames written into preallocated results,
 the chunk count chosen from the work, and the arithmetic shared with the numpy reference (1/M)."""
 
-import warnings
-
 import numpy as np
 import pytest
 
-from conftest import localized_state
+from conftest import SPLITTING, localized_state
 from warpchain import BOUNDARIES, Guard, Placement, Record
-from warpchain import METHODS, ChainParams, IntegrationError, energy, propagate_tangent, reference, simulate
-from warpchain.engine import hostmem, plans, tuning
+from warpchain import ChainParams, IntegrationError, energy, propagate_tangent, reference, simulate
+from warpchain.engine import hostmem, tuning
 from warpchain.engine.devices import _warp
 from warpchain.engine.runner import _GuardReader, _Runner
 from warpchain.flow import Flow, ReferenceFlow
@@ -21,15 +19,11 @@ LAYOUTS = ["thread", "block", "sites"]
 
 
 @pytest.mark.parametrize("layout", LAYOUTS)
-@pytest.mark.parametrize("method", sorted(METHODS))
+@pytest.mark.parametrize("method", SPLITTING)
 def test_cpu_results_bit_for_bit_with_the_reference(method, layout):
     p = ChainParams(30.0, 160.0, 41)
     x0 = localized_state(p.N, amplitude=0.8, batch=3, seed=3)
     M, K = np.array([30.0, 10.0, 50.0]), np.array([160.0, 40.0, 100.0])
-    if layout == "sites" and method == "rk4":  # the sites layout runs the splitting methods only
-        with pytest.raises(ValueError, match="splitting methods"):
-            simulate(p, x0, 0.1, 0.02, method=method, device="cpu", placement=Placement(layout=layout))
-        return
     run = simulate(
         p,
         x0,
@@ -149,7 +143,7 @@ def test_flow_min_contact_reduced_on_the_device_matches_the_reference(layout):
 
 @pytest.mark.parametrize(
     "method,layout,threads",
-    [("kahan8", "block", "1"), ("rk4", "thread", "1"), ("verlet", "block", "1"), ("kahan6", "thread", "3")],
+    [("kahan8", "block", "1"), ("yoshida4", "thread", "1"), ("verlet", "block", "1"), ("kahan6", "thread", "3")],
 )
 def test_flow_replayed_as_a_graph_bit_for_bit(method, layout, threads, monkeypatch):
     """The Flow's base runs and unit columns are captured into a graph from their second call with the same
@@ -200,8 +194,8 @@ def test_host_copy_helpers_and_buffer_pool():
 
 @pytest.mark.parametrize("layout", LAYOUTS)
 def test_kernels_take_coefficients_from_the_method_type(layout):
-    """A Runge-Kutta tableau and a splitting not in METHODS run through the same launch plans: the
-    kernels read the coefficients the method owns (bit for bit with the reference on the CPU)."""
+    """A splitting not in METHODS runs through the same launch plans: the kernels read the coefficients the
+    method owns (bit for bit with the reference on the CPU). A Runge-Kutta tableau runs on the reference only."""
     from warpchain.integrators import RungeKuttaMethod, SplittingMethod, _composition
 
     p = ChainParams(3.0, 4.0, 13)
@@ -211,21 +205,10 @@ def test_kernels_take_coefficients_from_the_method_type(layout):
     )
     split = SplittingMethod("split-test", 2, True, "two half Verlet steps", *_composition((0.5, 0.5)))
     assert rk.force_evaluations == 4 and split.force_evaluations == 2 and rk.family == "rk4"
-    for method in (rk, split) if layout != "sites" else (split,):  # sites: splitting methods only
-        with warnings.catch_warnings():  # the made-up tableau is stable only for tiny steps: irrelevant here
-            warnings.simplefilter("ignore")
-            run = simulate(
-                p,
-                x0,
-                50 * 0.05,
-                0.05,
-                method=method,
-                device="cpu",
-                placement=Placement(layout=layout),
-                guard=Guard(max_energy_error=None, allow_unstable_step=True),
-            )
-        ref = reference.integrate(method, p, x0, 0.05, 50)
-        assert np.array_equal(run.x, ref["x"]), method.name
+    run = simulate(p, x0, 50 * 0.05, 0.05, method=split, device="cpu", placement=Placement(layout=layout))
+    assert np.array_equal(run.x, reference.integrate(split, p, x0, 0.05, 50)["x"])
+    with pytest.raises(ValueError, match="'rk-test' is not a splitting method"):
+        simulate(p, x0, 50 * 0.05, 0.05, method=rk, device="cpu", placement=Placement(layout=layout))
     assert not np.array_equal(
         reference.integrate(rk, p, x0, 0.05, 5)["x"], reference.integrate("rk4", p, x0, 0.05, 5)["x"]
     )
@@ -356,11 +339,10 @@ def test_frames_out_receives_the_recording(small_chain):
 
 
 @pytest.mark.parametrize("boundary", BOUNDARIES)
-def test_two_tangent_columns_per_block_bit_for_bit(boundary):
-    """The GPU's tangent kernel with two columns per block (the monodromy's 804 columns), forced on the CPU,
-    and one column per block with the history loaded one force evaluation ahead: an odd column count (the
-    last block carries one column), columns of two base lattices with their own M and K, a many-stage method
-    (its register-capped build) and Verlet; the same bits as the thread layout."""
+def test_block_tangent_columns_bit_for_bit(boundary):
+    """The block tangent kernel (a block per column, the history loaded one force evaluation ahead): an odd
+    column count, columns of two base lattices with their own M and K, a many-stage method (its register-capped
+    build) and Verlet; the same bits as the thread layout."""
     p = ChainParams(3.0, 4.0, 37, boundary)
     x0 = localized_state(p.N, amplitude=0.7, batch=2, seed=5)
     eye = np.eye(4 * p.N).reshape(4 * p.N, 4, p.N)
@@ -368,30 +350,16 @@ def test_two_tangent_columns_per_block_bit_for_bit(boundary):
     base = np.repeat([0, 1], [25, 24])
     M, K = np.array([3.0, 2.0]), np.array([4.0, 6.0])
     for method in ("verlet", "kahan8"):
-        runs = {}
-        for columns in (1, 2):
-            with tuning.override(tangent_columns=columns):
-                runs[columns] = propagate_tangent(
-                    p, x0, dx0, 5, 0.05, method=method, column_base=base, M=M, K=K, device="cpu", layout="block"
-                ).columns
-        thread = propagate_tangent(
-            p, x0, dx0, 5, 0.05, method=method, column_base=base, M=M, K=K, device="cpu", layout="thread"
-        ).columns
-        for key, cols in runs.items():
-            assert np.array_equal(cols, thread), (method, key)
+        cols = {
+            layout: propagate_tangent(
+                p, x0, dx0, 5, 0.05, method=method, column_base=base, M=M, K=K, device="cpu", layout=layout
+            ).columns
+            for layout in ("block", "thread")
+        }
+        assert np.array_equal(cols["block"], cols["thread"]), method
 
 
-def test_tangent_columns_per_block_policy():
-    assert plans.tangent_columns_per_block(804, 15, "cpu") == 1
-    assert plans.tangent_columns_per_block(804, 15, "cuda:0") == 2
-    assert plans.tangent_columns_per_block(tuning.active().tangent_pair_min_columns - 1, 1, "cuda:0") == 1
-    with pytest.raises(ValueError, match="1 or 2 columns"):
-        from warpchain.engine import block_kernels
-
-        block_kernels.block_kernels(64).splitting_tangent(1, columns=3)
-
-
-@pytest.mark.parametrize("method", ["verlet", "rk4"])
+@pytest.mark.parametrize("method", ["verlet", "kahan8"])
 def test_kept_launch_commands_match_plain_launches(method):
     """Launch commands kept per argument values (``_Runner.launch_kernel``: always on a GPU, forced here on
     the CPU) give the plain launches' bits; a changed argument (dt, steps, a slot) makes a new command, a

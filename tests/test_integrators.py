@@ -3,7 +3,7 @@ import warnings
 import numpy as np
 import pytest
 
-from conftest import localized_state
+from conftest import SPLITTING, localized_state
 from warpchain import BOUNDARIES, Guard, Placement, Record
 from warpchain import (
     METHODS,
@@ -22,7 +22,7 @@ LAYOUTS = ["thread", "block"]  # block: the GPU kernels, run here as CPU fibers
 
 
 @pytest.mark.parametrize("layout", LAYOUTS)
-@pytest.mark.parametrize("method", sorted(METHODS))
+@pytest.mark.parametrize("method", SPLITTING)
 def test_warp_matches_numpy_reference_per_lattice_parameters(method, layout):
     """1000 steps, a localized large-amplitude state, per-lattice (M, K): relative agreement <= 1e-12."""
     p = ChainParams(30.0, 160.0, 41)
@@ -58,7 +58,7 @@ def test_warp_matches_numpy_reference_per_lattice_parameters(method, layout):
 def test_warp_matches_numpy_reference_boundaries(boundary, layout):
     p = ChainParams(3.0, 4.0, 17, boundary)
     x0 = localized_state(p.N, amplitude=0.5, batch=2, centre=2, seed=4)
-    for method in METHODS:
+    for method in SPLITTING:
         warp = simulate(p, x0, 200 * 0.05, 0.05, method=method, device="cpu", placement=Placement(layout=layout))
         ref = reference.integrate(method, p, x0, 0.05, 200)
         assert np.max(np.abs(warp.x - ref["x"])) <= 1e-12 * np.max(np.abs(ref["x"]))
@@ -82,11 +82,18 @@ def smooth_reference():
     return p, x0, exact
 
 
+def _final(p, x0, t_final, dt, method):
+    """The state at t_final: the Warp engine for a splitting method, the numpy reference for RK4."""
+    if method in SPLITTING:
+        return simulate(p, x0, t_final, dt, method=method, device="cpu").x[0]
+    return reference.integrate(method, p, x0[None], dt, round(t_final / dt))["x"][0]
+
+
 @pytest.mark.parametrize("method", sorted(METHODS))
 def test_observed_order_of_convergence(method, smooth_reference):
     p, x0, exact = smooth_reference
     steps = ORDER_STEPS[method]
-    errors = [np.max(np.abs(simulate(p, x0, 4.0, dt, method=method, device="cpu").x[0] - exact)) for dt in steps]
+    errors = [np.max(np.abs(_final(p, x0, 4.0, dt, method) - exact)) for dt in steps]
     slope = np.polyfit(np.log(steps), np.log(errors), 1)[0]
     assert min(errors) > 1e-11, "errors must stay above the reference's own accuracy"
     assert abs(slope - METHODS[method].order) <= 0.3, (method, errors, slope)
@@ -109,9 +116,30 @@ def test_symplectic_energy_bounded_not_drifting(method):
 def test_rk4_energy_drifts_but_converges():
     p = ChainParams(30.0, 160.0, 41)
     x0 = localized_state(p.N, amplitude=0.5)
-    coarse = simulate(p, x0, 400.0, 0.1, method="rk4", device="cpu").energy_error[0]
-    fine = simulate(p, x0, 400.0, 0.05, method="rk4", device="cpu").energy_error[0]
+    E0 = energy(p, x0)[0]
+    coarse, fine = (abs(energy(p, _final(p, x0[0], 400.0, dt, "rk4"))[0] - E0) / E0 for dt in (0.1, 0.05))
     assert fine < coarse / 8
+
+
+def test_the_engine_refuses_rk4_and_names_the_reference():
+    """RK4 left the engine (``devices.engine_method``): simulate, propagate_tangent, time_steps and Flow say so and
+    where it runs; the numpy reference and ReferenceFlow keep it."""
+    from warpchain import Flow, ReferenceFlow
+    from warpchain.ensemble import time_steps
+
+    p = ChainParams(3.0, 4.0, 9)
+    x0 = localized_state(p.N, amplitude=0.5)
+    advice = r"not a splitting method.*warpchain\.reference\.integrate\('rk4'.*ReferenceFlow\(method='rk4'\)"
+    with pytest.raises(ValueError, match=advice):
+        simulate(p, x0, 1.0, 0.05, method="rk4", device="cpu")
+    with pytest.raises(ValueError, match=advice):
+        propagate_tangent(p, x0, np.eye(4 * p.N).reshape(-1, 4, p.N), 5, 0.05, method="rk4", device="cpu")
+    with pytest.raises(ValueError, match=advice):
+        time_steps(p, x0, 5, 0.05, method="rk4", device="cpu")
+    with pytest.raises(ValueError, match=advice):
+        Flow("rk4", 16, device="cpu")
+    lin = ReferenceFlow("rk4", 16).linearize(p, x0, 8, 0.05)
+    assert lin.unit_columns("all").shape == (4 * p.N, 4 * p.N)
 
 
 def test_stability_limit_values():
@@ -175,7 +203,7 @@ def test_energy_error_bound_triggers():
     p = ChainParams(30.0, 160.0, 21)
     x0 = localized_state(p.N, amplitude=0.9)
     with pytest.raises(IntegrationError, match="energy error"):
-        simulate(p, x0, 20.0, 0.4, method="rk4", device="cpu", guard=Guard(max_energy_error=1e-9))
+        simulate(p, x0, 20.0, 0.4, method="verlet", device="cpu", guard=Guard(max_energy_error=1e-9))
 
 
 def test_t_final_not_multiple_of_dt_shortens_step(small_chain):
@@ -206,7 +234,7 @@ def test_recording_and_callback(small_chain):
 
 
 @pytest.mark.parametrize("layout", LAYOUTS)
-@pytest.mark.parametrize("method", sorted(METHODS))
+@pytest.mark.parametrize("method", SPLITTING)
 def test_tangent_columns_match_reference_and_finite_differences(method, layout):
     p = ChainParams(3.0, 4.0, 9)
     x0 = localized_state(p.N, amplitude=0.7, batch=2, seed=5)

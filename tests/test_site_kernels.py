@@ -12,7 +12,7 @@ from warpchain import reference, simulate
 from warpchain.engine import tuning
 from warpchain.engine.devices import resolve_layout
 from warpchain.flow import Flow, ReferenceFlow
-from warpchain.integrators import SplittingMethod, get_method
+from warpchain.integrators import SplittingMethod
 from warpchain.losses import Damping
 
 SPLITTING = sorted(name for name, m in METHODS.items() if isinstance(m, SplittingMethod))
@@ -99,11 +99,9 @@ def test_guard_of_a_lattice_longer_than_a_block():
 
 
 def test_auto_picks_sites_for_long_lattices_on_a_gpu_only():
-    kahan8, rk4 = get_method("kahan8"), get_method("rk4")
-    assert resolve_layout("auto", "cuda:0", 3201, kahan8) == "sites"
-    assert resolve_layout("auto", "cuda:0", 1024, kahan8) == "block"
-    assert resolve_layout("auto", "cuda:0", 3201, rk4) == "thread"  # no Runge-Kutta on the sites layout
-    assert resolve_layout("auto", "cuda:0", 3201) == "thread"  # observe passes no method
-    assert resolve_layout("auto", "cpu", 3201, kahan8) == "thread"
-    with pytest.raises(ValueError, match="splitting methods"):
-        resolve_layout("sites", "cpu", 21, rk4)
+    assert resolve_layout("auto", "cuda:0", 3201) == "sites"
+    assert resolve_layout("auto", "cuda:0", 1024) == "block"
+    assert resolve_layout("auto", "cpu", 3201) == "thread"
+    assert resolve_layout("auto", "cpu", 21, table=True) == "sites"
+    with pytest.raises(ValueError, match="needs N <= 1024"):
+        resolve_layout("block", "cuda:0", 3201)

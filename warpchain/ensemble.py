@@ -15,9 +15,9 @@ import time
 
 import numpy as np
 
-from .integrators import SplittingMethod, get_method, steps_for
+from .integrators import steps_for
 from .lattice import neighbour_table
-from .losses import Damping, as_damping, require_splitting
+from .losses import Damping, as_damping
 from .model import ChainParams, _signed_energy_change, as_batch, per_lattice_parameters, real_number
 from .engine.tuning import active
 from .integrators import IntegrationError, StepSizeError, check_step, stability_limit  # noqa: F401  (re-exported)
@@ -28,6 +28,7 @@ from .engine.devices import (  # noqa: F401  (re-exported: the public face of th
     available_devices,
     cpu_threads,
     device_lock,
+    engine_method,
     on_one_thread,
     record_on,
     resolve_device,
@@ -135,7 +136,8 @@ def simulate(
         t_final: final time (>= 0). When it is not a whole multiple of ``dt`` the step is
             shortened slightly so that it is; the result reports the step used.
         dt: time step (> 0), below the method's linear stability limit.
-        method: a name in ``METHODS`` (``verlet``, ``yoshida4``, ``yoshida6``, ``kahan8``, ``rk4``, ...).
+        method: a splitting method's name in ``METHODS`` (``verlet``, ``yoshida4``, ``yoshida6``, ``kahan8``, ...;
+            RK4 runs on ``warpchain.reference`` only).
         device: ``"cpu"``, ``"cuda"`` or ``"cuda:N"``; None picks CUDA when Warp sees a GPU (or, for a
             ``DeviceState`` x0, the device it lives on).
         M, K: per-lattice parameters, shape (batch,), so that a sweep runs in one launch.
@@ -176,7 +178,7 @@ def simulate(
     max_energy_error, chunks = guard.max_energy_error, guard.chunks
     layout, keep_on_device = placement.layout, placement.keep_on_device
     start = time.perf_counter()
-    meth = get_method(method)
+    meth = engine_method(method)
     resident = isinstance(x0, DeviceState)  # x0 in device memory: no transfer at all
     if resident:
         device = x0.device_for(params.N, device)
@@ -187,7 +189,6 @@ def simulate(
     damping = as_damping(damping)
     if damping is not None:
         damping.per_lattice(batch)  # validated here, at the boundary
-        require_splitting(meth)
     t_final = real_number("t_final", t_final, nonnegative=True)
     checked = (M if M is None else Mb, K if K is None else Kb, guard.allow_unstable_step)
     if observe is None:
@@ -197,7 +198,6 @@ def simulate(
     nsteps, dt_used = steps_for(t_final, dt)
     frame_every = 0
     if observe is not None:
-        require_splitting(meth, "observe reduces its observables in the splitting kernels")
         if neighbour_table(params) is not None:
             raise ValueError(
                 "simulate(): observe reduces the chain's observables; a lattice given as a neighbour table "
@@ -213,7 +213,7 @@ def simulate(
         dt_used = t_final / nsteps
         limit = check_step(meth, params, dt_used, *checked)  # the step that runs
         lag_step = (n_frames - min(observe.lag_frames, n_frames)) * frame_every  # the envelope is also kept here
-        if resolve_layout(layout, device, params.N, meth) == "sites":
+        if resolve_layout(layout, device, params.N) == "sites":
             layout = "thread"  # the observables are reduced in the block and thread layouts
     if frames_out is not None:
         frames_out = _check_frames_out(frames_out, save_every, nsteps, batch, params.N, None if resident else x0)
@@ -359,7 +359,7 @@ def simulate(
     stats = {"chunks": len(plan), "runner": t_runner, "waiting": 0.0, "frames": 0.0, "final": 0.0}
     stats["slices"] = len(transfers.slices) if sliced else 1
     stats["x0_on_device"], stats["kept_on_device"] = resident, bool(keep_on_device)
-    if runner.layout == "block" and isinstance(meth, SplittingMethod):
+    if runner.layout == "block":
         lattices = transfers.slices[0][1] if sliced else batch
         stats["sites_per_thread"] = sites_per_thread(lattices, params.N, meth.stages, device)
     failed = False
@@ -524,7 +524,7 @@ def propagate_tangent(
         layout: kernel layout, as in ``simulate``.
     """
     start = time.perf_counter()
-    meth = get_method(method)
+    meth = engine_method(method)
     x0 = as_batch(x0, params.N, "x0")
     dx0 = as_batch(dx0, params.N, "dx0")
     n_base, ncols = x0.shape[0], dx0.shape[0]

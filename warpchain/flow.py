@@ -298,7 +298,7 @@ class Flow:
     """The discrete map of one integrator on the float64 Warp kernels.
 
     Attributes:
-        method: a name in ``warpchain.METHODS``.
+        method: a splitting method's name in ``warpchain.METHODS`` (``ReferenceFlow`` also runs ``rk4``).
         steps_per_period: steps in one period of the orbit (even: the half period is a whole
             number of steps).
         device: ``"cpu"``, ``"cuda"``, ``"cuda:N"`` or None (CUDA when Warp sees a GPU).
@@ -312,11 +312,16 @@ class Flow:
     _pool: dict = dataclasses.field(default_factory=dict, init=False, repr=False, compare=False, hash=False)
 
     def __post_init__(self):
-        get_method(self.method)  # raises on an unknown name
+        self._check_method()
         spp = self.steps_per_period
         if isinstance(spp, bool) or not isinstance(spp, (int, np.integer)) or spp < 2 or spp % 2:
             raise ValueError(f"steps_per_period must be an even integer >= 2, got {spp!r}")
         object.__setattr__(self, "steps_per_period", int(spp))
+
+    def _check_method(self) -> None:
+        from .engine.devices import engine_method
+
+        engine_method(self.method)  # an unknown name, or a method the Warp kernels do not step, raises
 
     # ------------------------------------------------------------------ the time grid
 
@@ -568,6 +573,9 @@ class ReferenceFlow(Flow):
 
     device: str | None = "numpy"
     layout: str = "reference"
+
+    def _check_method(self) -> None:
+        get_method(self.method)  # every method of warpchain.METHODS, RK4 included
 
     def run(self, params: ChainParams, x0, nsteps: int, dt: float) -> Trajectory:
         from . import reference

@@ -8,12 +8,14 @@ Two families:
   next step's first kick, so a step costs s force evaluations. Velocity Verlet and the symmetric
   compositions of it (Yoshida's triple jump, order 4; Yoshida's 7-stage solution A, order 6) are
   of this form and are symplectic.
-* **rk4**: the classical Runge-Kutta method (4 force evaluations, not symplectic).
+* **rk4**: the classical Runge-Kutta method (4 force evaluations, not symplectic), on the numpy reference only.
 
 Each family is a type that owns its coefficients (``SplittingMethod``: drifts and kicks;
-``RungeKuttaMethod``: nodes, weights, divisor). The Warp kernels (``kernels.py``,
-``block_kernels.py``) receive them as kernel arguments and the numpy reference (``reference.py``)
-reads them, so both integrate the same scheme step for step.
+``RungeKuttaMethod``: nodes, weights, divisor). The Warp kernels (``warpchain.engine``) receive a splitting
+method's coefficients as kernel arguments and the numpy reference (``reference.py``) reads them, so both integrate
+the same scheme step for step. The engine steps the splitting methods only (``engine.devices.engine_method``):
+RK4 is never cheaper than the best splitting method at any accuracy (the work-precision scene), so it runs on the reference
+(``reference.integrate``, ``ReferenceFlow``) as the contrast it is.
 """
 
 from __future__ import annotations

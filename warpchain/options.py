@@ -78,9 +78,9 @@ class Placement:
 
     Attributes:
         layout: ``"block"`` (a thread block per lattice: the GPU path), ``"sites"`` (a thread per site and a
-            launch per force evaluation: the GPU path for lattices longer than a block, splitting methods),
+            launch per force evaluation: the GPU path for lattices longer than a block),
             ``"thread"`` (a thread per lattice: the CPU path) or ``"auto"`` (on a GPU block when the lattice fits
-            one block, else sites for a splitting method; thread on the CPU and for Runge-Kutta beyond a block).
+            one block, else sites; thread on the CPU).
         keep_on_device: leave the final state on the device: the result's ``x`` is a ``DeviceState``, which
             the next call takes as its ``x0`` with no transfer either way. Only the guard's scalars (and
             recorded frames) reach the host.

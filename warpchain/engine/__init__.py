@@ -7,22 +7,26 @@ Modules:
 - ``devices``: Warp's import and initialisation, device names and locks, CPU threads.
 - ``hostmem``: pinned staging buffers, threaded host copies, the state moved in lattice slices
   (``_SlicedTransfers``), recorded frames on their way to the host.
-- ``plans``: what one (layout, method type) launches, and the rules choosing a kernel variant.
+- ``plans``: what one layout launches, and the rules choosing a kernel variant.
 - ``runner``: device buffers of one batch, launches replayed as CUDA graphs or kept commands, the guard.
-- ``thread_kernels`` and ``thread_rk4_kernels`` (a thread per lattice: the CPU path), ``block_kernels`` (a
+- ``thread_kernels`` (a thread per lattice: the CPU path), ``block_kernels`` (a
   thread block per lattice, a thread per site), ``site_group_kernels`` (a thread per run of sites: the GPU
   path for large batches) and ``site_kernels`` (the ``"sites"`` layout: a thread per site and a launch per
   force evaluation, for lattices longer than a block; its one kernel serves base runs and tangent columns)
   hold the kernels; ``warpchain.reference`` is their numpy oracle. Kernels take their arguments as a few
   structs passed whole: the lattices (``thread_kernels.Lattice``: M, 1/M, K, losses, boundary), the method
-  (``block_kernels.Scheme``: a splitting method's coefficients times dt; ``thread_kernels.Tableau``: a
-  Runge-Kutta method's), what a run records (``thread_kernels.Recording``) and, compiled ``observed``, the
-  observables of ``warpchain.observe`` (``thread_kernels.Observer``; hooks in the same step loop of the thread
-  and block layouts, launched by ``simulate(..., observe=...)``).
+  (``block_kernels.Scheme``: a splitting method's coefficients times dt), what a run records
+  (``thread_kernels.Recording``) and, compiled ``observed``, the observables of ``warpchain.observe``
+  (``thread_kernels.Observer``; hooks in the same step loop of the thread and block layouts, launched by
+  ``simulate(..., observe=...)``).
 
 How the state moves (measured on an H100, ``benchmarks/results/h100-2026-11-25/engine-split.json``): through pinned
 staging buffers (``hostmem``), in lattice slices overlapped with the first and last chunk for large batches,
 or not at all when the caller keeps it on the device (``DeviceState``, ``Placement(keep_on_device=True)``).
+
+The engine steps the splitting methods only (``devices.engine_method``); the classical RK4 runs on the numpy
+reference (``warpchain.reference``, ``ReferenceFlow``): a splitting method is as cheap or cheaper at every accuracy (the
+work-precision scene) and RK4 alone needed step loops of its own in two layouts.
 
 Adding a splitting method (a new family of coefficients), in 2 files:
 

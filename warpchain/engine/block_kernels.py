@@ -27,7 +27,6 @@ import warp as wp
 
 from .thread_kernels import (
     Lattice,
-    Tableau,
     Recording,
     F64,
     Array1,
@@ -175,20 +174,6 @@ def column_acceleration(
     )
 
 
-@wp.func
-def rk4_accumulate(stage: int, total: wp.vec4d, k: wp.vec4d, weights: wp.vec4d) -> wp.vec4d:
-    """The weighted sum of the stage derivatives after stage ``stage`` (as kernels.rk4_advance)."""
-    if stage == 0:
-        return weights[0] * k
-    return total + weights[stage] * k
-
-
-@wp.func
-def rk4_stage_state(stage: int, x: wp.vec4d, k: wp.vec4d, dt: F64, tableau: wp.vec4d) -> wp.vec4d:
-    """The state of the next stage, x + tableau[stage] dt k (classical RK4: 1/2, 1/2, 1)."""
-    return x + (tableau[stage] * dt) * k
-
-
 # ----------------------------------------------------------------------------- kernel factory
 
 
@@ -221,8 +206,8 @@ def pack_scheme(drifts, kicks, dt: float = 1.0) -> Scheme:
 
 class BlockKernels:
     """The block kernels for one block size, built (and compiled, each in its own Warp module) on
-    first use: ``splitting(stages, record, save)``, ``splitting_tangent(stages)``, ``rk4``,
-    ``rk4_tangent``. Launch each with ``dim=(lattices, block), block_dim=block``."""
+    first use: ``splitting(stages, record, save, damped, observed)``, ``splitting_tangent(stages)`` and ``guard``.
+    Launch each with ``dim=(lattices, block), block_dim=block``."""
 
     def __init__(self, makers: dict):
         self._makers = makers
@@ -243,28 +228,17 @@ class BlockKernels:
             raise ValueError(f"the block kernels support 1 to {MAX_STAGES} stages, got {stages}")
         return self._get("splitting", int(stages), bool(record), bool(save), bool(damped), bool(observed))
 
-    def splitting_tangent(self, stages: int, columns: int = 1):
-        """Tangent kernel for ``stages`` stages carrying ``columns`` tangent columns per block (1 or 2;
-        launch with ``dim=(ceil(ncols / columns), block)``). With one column each force evaluation's history
-        entry is loaded one evaluation ahead; with two the extra registers cost more than that saves."""
+    def splitting_tangent(self, stages: int):
+        """Tangent kernel for ``stages`` stages, a block per tangent column (launch with ``dim=(ncols, block)``);
+        each force evaluation's history entry is loaded one evaluation ahead."""
         if not 1 <= stages <= MAX_STAGES:
             raise ValueError(f"the block kernels support 1 to {MAX_STAGES} stages, got {stages}")
-        if columns not in (1, 2):
-            raise ValueError(f"the tangent kernel carries 1 or 2 columns per block, got {columns}")
-        return self._get("splitting_tangent", int(stages), int(columns))
-
-    @property
-    def rk4(self):
-        return self._get("rk4")
+        return self._get("splitting_tangent", int(stages))
 
     @property
     def guard(self):
         """Per-lattice energy, finite flag and running min contact (``kernels.guard_kernel``)."""
         return self._get("guard")
-
-    @property
-    def rk4_tangent(self):
-        return self._get("rk4_tangent")
 
     def built(self) -> dict:
         """The kernels built so far, by key."""
@@ -276,7 +250,7 @@ def min_blocks_per_sm(stages: int) -> int:
     evaluations per step (0: no register cap). Measured on the H200 (``benchmarks/kernel_variants.py``):
     the many-stage kernels hold ~110 registers uncapped; capped at 56 (5 blocks of 224 threads per
     SM, no spills) kahan8 runs 1.25x faster at 805 lattices and 1.3x at 32768 (a cap of 32 with
-    spills is no better); Verlet, the 3-stage methods and RK4 are fastest uncapped."""
+    spills is no better); Verlet and the 3-stage methods are fastest uncapped."""
     return 0 if stages <= 4 else 5
 
 
@@ -474,144 +448,59 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
 
         return splitting
 
-    def make_splitting_tangent(stages: int, columns: int = 1):
-        prefetch = columns == 1
-        cols = wp.types.vector(length=columns, dtype=wp.float64)
-        bases = wp.types.vector(length=columns, dtype=wp.int32)
-
+    def make_splitting_tangent(stages: int):
         @wp.kernel(**options)
         def splitting_tangent(
             dx: Array3, column_base: Indices, lat: Lattice, scheme: Scheme, nsteps: int, hist: Array3
         ):
-            """Tangent columns g * columns + q (q < ``columns``) of the splitting map along base trajectories
-            column_base[c]: block g, thread j = site; a thread carries its site of every column of its block
-            (independent chains: more work in flight per barrier and per history entry)."""
-            g, j = wp.tid()
+            """Tangent column c of the splitting map along base trajectory column_base[c]: block c, thread j = site.
+            Each force evaluation's f'(z) is loaded one evaluation ahead (issued before the barrier, its latency
+            hides behind it)."""
+            c, j = wp.tid()
             drifts = scheme.drifts
             kicks = scheme.kicks
             boundary = lat.boundary
             n = dx.shape[2]
-            ncols = dx.shape[0]
             last = hist.shape[0] - 1
             active = j < n
             jj = wp.min(j, n - 1)  # idle threads read a valid (unused) history entry
-            du = cols()
-            dv = cols()
-            dpu = cols()
-            dpv = cols()
-            m = cols()
-            k = cols()
-            base = bases()
-            for q in range(wp.static(columns)):
-                c = g * wp.static(columns) + q
-                b = column_base[wp.min(c, ncols - 1)]  # a column past the end (odd count) carries zeros
-                base[q] = b
-                m[q] = lat.inv_mass[b]
-                k[q] = lat.coupling[b]
-                start = load_site(dx, c, j, active and c < ncols)
-                du[q] = start[0]
-                dv[q] = start[1]
-                dpu[q] = start[2]
-                dpv[q] = start[3]
-            nbr = site_neighbours(j, n, boundary)
-            buf = wp.tile_zeros(shape=(halves,), dtype=cols, storage="shared")
-            parity = int(0)
-            au = cols()
-            av = cols()
-            stiff = cols()  # f'(z) of the base at the next force evaluation, loaded one evaluation ahead
-            wp.tile_assign(buf, wp.tile(du, preserve_type=True), offset=(parity * wp.static(threads),))
-            left = buf[parity * wp.static(threads) + nbr[0]]
-            right = buf[parity * wp.static(threads) + nbr[1]]
-            for q in range(wp.static(columns)):
-                if wp.static(prefetch):
-                    stiff[q] = hist[wp.min(1, last), base[q], jj]
-                a = column_acceleration(
-                    du[q], dv[q], left[q], right[q], nbr, boundary, m[q], k[q], hist[0, base[q], jj]
-                )
-                au[q] = a[0]
-                av[q] = a[1]
-            for step in range(nsteps):
-                h = kicks[0]  # times dt, as in the splitting kernel
-                for q in range(wp.static(columns)):
-                    dpu[q] = dpu[q] + h * au[q]
-                    dpv[q] = dpv[q] + h * av[q]
-                for s in range(wp.static(stages)):
-                    h = drifts[s]
-                    e = step * wp.static(stages) + s + 1  # this force evaluation's history slot
-                    now = cols(stiff)  # a copy: stiff is overwritten below
-                    for q in range(wp.static(columns)):
-                        du[q] = du[q] + h * dpu[q]
-                        dv[q] = dv[q] + h * dpv[q]
-                        if wp.static(prefetch):  # issued before the barrier: its latency hides behind it
-                            stiff[q] = hist[wp.min(e + 1, last), base[q], jj]
-                    parity = 1 - parity
-                    offset = parity * wp.static(threads)
-                    wp.tile_assign(buf, wp.tile(du, preserve_type=True), offset=(offset,))
-                    left = buf[offset + nbr[0]]
-                    right = buf[offset + nbr[1]]
-                    h = kicks[s + 1]
-                    for q in range(wp.static(columns)):
-                        if wp.static(not prefetch):
-                            now[q] = hist[e, base[q], jj]
-                        a = column_acceleration(du[q], dv[q], left[q], right[q], nbr, boundary, m[q], k[q], now[q])
-                        au[q] = a[0]
-                        av[q] = a[1]
-                        dpu[q] = dpu[q] + h * au[q]
-                        dpv[q] = dpv[q] + h * av[q]
-            for q in range(wp.static(columns)):
-                c = g * wp.static(columns) + q
-                store_site(dx, c, j, active and c < ncols, wp.vec4d(du[q], dv[q], dpu[q], dpv[q]))
-
-        return splitting_tangent
-
-    def make_rk4(tangent: bool):
-        @wp.kernel(**options)
-        def rk4(x: Array3, column_base: Indices, lat: Lattice, rk: Tableau, dt: F64, nsteps: int, out: Recording):
-            """``nsteps`` classical RK4 steps; block b = lattice; hist slot 4 step + stage. Compiled ``tangent``:
-            block b is a tangent column along base trajectory column_base[b], f'(z) read from hist."""
-            b, j = wp.tid()
-            boundary = lat.boundary
-            tableau = rk.nodes
-            weights = rk.weights
-            n = x.shape[2]
-            active = j < n
-            base = b
-            if wp.static(tangent):
-                base = column_base[b]
-            jj = wp.min(j, n - 1)  # idle threads read a valid (unused) history entry
-            state = load_site(x, b, j, active)  # (u, v, u', v') of site j
-            m = lat.inv_mass[base]
-            k = lat.coupling[base]
+            b = column_base[c]
+            m = lat.inv_mass[b]
+            k = lat.coupling[b]
+            start = load_site(dx, c, j, active)
+            du = start[0]
+            dv = start[1]
+            dpu = start[2]
+            dpv = start[3]
             nbr = site_neighbours(j, n, boundary)
             buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
             parity = int(0)
+            wp.tile_assign(buf, wp.tile(du), offset=(0,))
+            stiff = hist[wp.min(1, last), b, jj]  # f'(z) of the base at the next force evaluation
+            a = column_acceleration(du, dv, buf[nbr[0]], buf[nbr[1]], nbr, boundary, m, k, hist[0, b, jj])
             for step in range(nsteps):
-                y = state
-                total = wp.vec4d()
-                for stage in range(4):
+                h = kicks[0]  # times dt, as in the splitting kernel
+                dpu = dpu + h * a[0]
+                dpv = dpv + h * a[1]
+                for s in range(wp.static(stages)):
+                    h = drifts[s]
+                    e = step * wp.static(stages) + s + 1  # this force evaluation's history slot
+                    now = stiff
+                    du = du + h * dpu
+                    dv = dv + h * dpv
+                    stiff = hist[wp.min(e + 1, last), b, jj]
                     parity = 1 - parity
-                    nb = exchange(buf, y[0], parity, nbr, boundary)
-                    if wp.static(tangent):
-                        s = out.hist[4 * step + stage, base, jj]
-                        a = site_tangent_acceleration(y[0], y[1], nb[0], nb[1], m, k, s)
-                    else:
-                        a = site_acceleration(y[0], y[1], nb[0], nb[1], m, k)
-                        if out.stiffness != 0 and active:
-                            out.hist[4 * step + stage, b, j] = contact_stiffness(y[0] - y[1])
-                    slope = wp.vec4d(y[2], y[3], a[0], a[1])
-                    total = rk4_accumulate(stage, total, slope, weights)
-                    if stage < 3:
-                        y = rk4_stage_state(stage, state, slope, dt, tableau)
-                state = state + (dt / tableau[3]) * total
-                if wp.static(not tangent):
-                    if out.every > 0 and active:
-                        if (step + 1) % out.every == 0:
-                            r = (step + 1) / out.every - 1
-                            out.u[r, b, j] = state[0]
-                            out.v[r, b, j] = state[1]
-            store_site(x, b, j, active, state)
+                    offset = parity * wp.static(threads)
+                    wp.tile_assign(buf, wp.tile(du), offset=(offset,))
+                    a = column_acceleration(
+                        du, dv, buf[offset + nbr[0]], buf[offset + nbr[1]], nbr, boundary, m, k, now
+                    )
+                    h = kicks[s + 1]
+                    dpu = dpu + h * a[0]
+                    dpv = dpv + h * a[1]
+            store_site(dx, c, j, active, wp.vec4d(du, dv, dpu, dpv))
 
-        return rk4
+        return splitting_tangent
 
     @wp.kernel(**options)
     def guard(x: Array3, lat: Lattice, rec: Recording, n_rec: int, contact: Array1, out: Array2):
@@ -662,7 +551,5 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             "guard": lambda: guard,
             "splitting": make_splitting,
             "splitting_tangent": make_splitting_tangent,
-            "rk4": lambda: make_rk4(False),
-            "rk4_tangent": lambda: make_rk4(True),
         }
     )

@@ -231,42 +231,49 @@ def _in_parallel(tasks) -> None:
         raise errors[0]
 
 
-def resolve_layout(layout: str, device: str, n_sites: int, method=None, table: bool = False) -> str:
+def engine_method(method):
+    """``method`` (a name or a ``Method``) as a ``SplittingMethod``, or a ValueError that says where another
+    family runs: the engine's kernels step the splitting methods only. RK4 left the engine: at every accuracy
+    a splitting method is as cheap or cheaper (work-precision scene) and it was the one method that needed its own step loops
+    (``docs/performance.md``); ``warpchain.reference`` and ``ReferenceFlow`` keep it."""
+    from ..integrators import SplittingMethod, get_method
+
+    m = get_method(method) if isinstance(method, str) else method
+    if not isinstance(m, SplittingMethod):
+        raise ValueError(
+            f"{m.name!r} is not a splitting method: the Warp engine (simulate, propagate_tangent, Flow) runs "
+            "the splitting methods of warpchain.METHODS; run it on the numpy reference instead "
+            f"(warpchain.reference.integrate({m.name!r}, ...), or ReferenceFlow(method={m.name!r}) for Newton "
+            "and Floquet)"
+        )
+    return m
+
+
+def resolve_layout(layout: str, device: str, n_sites: int, table: bool = False) -> str:
     """Kernel layout: ``"block"`` (a thread block per lattice: the GPU path), ``"sites"`` (a thread per site, a
-    launch per force evaluation: the GPU path for lattices longer than a block, splitting methods) or
-    ``"thread"`` (a thread per lattice: the CPU path). ``"auto"`` picks block on a GPU when the lattice fits
-    one block, else sites on a GPU for a splitting ``method``, else thread (a None method: no sites). A lattice
-    given as a neighbour ``table`` (``warpchain.lattice.LatticeParams``) runs in the sites layout, on any device."""
-    from ..integrators import SplittingMethod
+    launch per force evaluation: the GPU path for lattices longer than a block) or ``"thread"`` (a thread per
+    lattice: the CPU path). ``"auto"`` picks block on a GPU when the lattice fits one block, else sites on a GPU,
+    else thread. A lattice given as a neighbour ``table`` (``warpchain.lattice.LatticeParams``) runs in the sites
+    layout, on any device."""
     from . import block_kernels
 
     if layout not in LAYOUTS:
         raise ValueError(f"layout must be one of {LAYOUTS}, got {layout!r}")
-    splitting = isinstance(method, SplittingMethod)
     if table:
         if layout not in ("auto", "sites"):
             raise ValueError(
                 f"a lattice given as a neighbour table (LatticeParams) runs in the 'sites' layout, got {layout!r}; "
                 "use layout='auto' or 'sites'"
             )
-        if method is not None and not splitting:
-            raise ValueError(
-                f"a lattice given as a neighbour table (LatticeParams) runs the splitting methods; {method.name!r} is "
-                "not one (see warpchain.METHODS)"
-            )
         return "sites"
     if layout == "auto":
         if device == "cpu":
             return "thread"
-        if block_kernels.supports(n_sites):
-            return "block"
-        return "sites" if splitting else "thread"
+        return "block" if block_kernels.supports(n_sites) else "sites"
     if layout == "block" and not block_kernels.supports(n_sites):
         raise ValueError(
             f"layout 'block' needs N <= {block_kernels.MAX_BLOCK} (one site per thread), got N = {n_sites}"
         )
-    if layout == "sites" and method is not None and not splitting:
-        raise ValueError(f"layout 'sites' runs the splitting methods; {method.name!r} is not one")
     return layout
 
 

@@ -1,5 +1,5 @@
-"""Launch plans: what one (kernel layout, method type) launches, with its arguments, and the rules that
-pick a kernel variant (sites per thread, tangent columns per block) from the batch and the device."""
+"""Launch plans: what one kernel layout launches, with its arguments, and the rules that
+pick a kernel variant (sites per thread, site groups) from the batch and the device."""
 
 from __future__ import annotations
 
@@ -7,7 +7,6 @@ import weakref
 
 import numpy as np
 
-from ..integrators import Method, RungeKuttaMethod, SplittingMethod
 from .devices import _part, _parts, held
 from .tuning import active
 
@@ -41,18 +40,9 @@ def site_group_launch(sites: int, stages: int, device: str) -> bool:
     return device != "cpu" and stages <= active().sites_max_stages
 
 
-def tangent_columns_per_block(ncols: int, stages: int, device: str) -> int:
-    """Tangent columns each block of a block splitting tangent launch carries: 2 on a GPU from
-    ``Tuning.tangent_pair_min_columns`` columns (each thread then runs two independent chains: more work in flight
-    per barrier and per history load, and half the blocks), else 1."""
-    if active().tangent_columns is not None:
-        return active().tangent_columns
-    return 2 if device != "cpu" and ncols >= active().tangent_pair_min_columns else 1
-
-
 class _Plan:
-    """What one (kernel layout, method type) launches: the kernels and, built beside each launch, their
-    arguments. ``_PLANS`` maps (layout, method type) to the plan; the runner holds the buffers."""
+    """What one kernel layout launches: the kernels and, built beside each launch, their arguments. ``PLANS``
+    maps the layout to the plan; the runner holds the buffers."""
 
     def __init__(self, runner):
         self.r = weakref.proxy(runner)  # the runner holds its plan: no cycle (the runner is freed by refcount)
@@ -122,45 +112,9 @@ class _BlockSplitting(_Plan):
 
     def tangent(self, dx, column_base, lo, hi, dt, nsteps):
         r = self.r
-        from . import block_kernels
-
         inputs = [*_parts(lo, hi, dx, column_base), r.lattice(), self.scheme(dt), int(nsteps), r.hist]
-        stages = r.method.stages
-        columns = tangent_columns_per_block(hi - lo, stages, r.device)
-        kernels = r.bk
-        if columns > 1:
-            cap = active().tangent_pair_min_blocks[stages > active().sites_max_stages]
-            kernels = block_kernels.block_kernels(r.block, cap)
-        kernel = kernels.splitting_tangent(stages, columns)
-        dim = (-(-(hi - lo) // columns), r.block)
-        r.wp.launch(kernel, dim=dim, block_dim=r.block, device=r.device, inputs=inputs)
-
-
-def _tableau(runner):
-    """The runner's Runge-Kutta method as the kernels' ``thread_kernels.Tableau``."""
-    m, rk = runner.method, runner.k.Tableau()
-    rk.nodes, rk.weights = runner.wp.vec4d(*m.nodes, m.divisor), runner.wp.vec4d(*m.weights)
-    return rk
-
-
-class _BlockRungeKutta(_Plan):
-    """A thread block per lattice, a four-stage Runge-Kutta method (its tableau as arguments)."""
-
-    def __init__(self, runner):
-        super().__init__(runner)
-        self.tableau = _tableau(runner)
-
-    def step(self, lo, hi, dt, nsteps, save_every, frames, record):
-        r = self.r
-        inputs = [_part(r.x, lo, hi), r.no_base, r.lattice(lo, hi), self.tableau, r.wp.float64(dt), int(nsteps)]
-        inputs.append(r.record(save_every, frames, record))
-        r.launch_kernel(r.bk.rk4, (hi - lo, r.block), inputs, r.block)
-
-    def tangent(self, dx, column_base, lo, hi, dt, nsteps):
-        r = self.r
-        inputs = [*_parts(lo, hi, dx, column_base), r.lattice(), self.tableau, r.wp.float64(dt), int(nsteps)]
-        inputs.append(r.record())
-        r.wp.launch(r.bk.rk4_tangent, dim=(hi - lo, r.block), block_dim=r.block, device=r.device, inputs=inputs)
+        kernel = r.bk.splitting_tangent(r.method.stages)
+        r.wp.launch(kernel, dim=(hi - lo, r.block), block_dim=r.block, device=r.device, inputs=inputs)
 
 
 class _ThreadSplitting(_Plan):
@@ -205,33 +159,6 @@ class _ThreadSplitting(_Plan):
         wp.launch(r.k.splitting_kernel, dim=hi - lo, device=r.device, inputs=inputs)
 
 
-class _ThreadRungeKutta(_Plan):
-    """A thread per lattice (the CPU path), a four-stage Runge-Kutta method; stage states in scratch arrays."""
-
-    def __init__(self, runner):
-        super().__init__(runner)
-        wp = runner.wp
-        shape = (runner.batch, 4, runner.N)
-        self.scratch = [wp.zeros(shape, dtype=wp.float64, device=runner.device) for _ in range(3)]
-        self.tableau = _tableau(runner)
-        from . import thread_rk4_kernels
-
-        self.kernels = thread_rk4_kernels
-
-    def step(self, lo, hi, dt, nsteps, save_every, frames, record):
-        r = self.r
-        inputs = [*_parts(lo, hi, r.x, *self.scratch), 0, r.no_base, r.lattice(lo, hi), self.tableau]
-        inputs += [r.wp.float64(dt), int(nsteps), r.record(save_every, frames, record)]
-        r.launch_kernel(self.kernels.rk4_kernel, hi - lo, inputs)
-
-    def tangent(self, dx, column_base, lo, hi, dt, nsteps):
-        r, wp = self.r, self.r.wp
-        scratch = [self.kept(f"stage{i}", (dx.shape[0], 4, r.N)) for i in range(3)]
-        inputs = [*_parts(lo, hi, dx, *scratch), 1, _part(column_base, lo, hi), r.lattice(), self.tableau]
-        inputs += [wp.float64(dt), int(nsteps), r.record()]
-        wp.launch(self.kernels.rk4_kernel, dim=hi - lo, device=r.device, inputs=inputs)
-
-
 class _SitesSplitting(_Plan):
     """A thread per site and one launch per force evaluation (``site_kernels``): lattices longer than a block,
     a splitting method. The u of the next evaluation goes to a scratch row and back (ping-pong)."""
@@ -273,17 +200,5 @@ class _SitesSplitting(_Plan):
         self.run(dx, lo, hi, dt, nsteps, 0, None, 1, _part(column_base, lo, hi), False, self.r.lattice())
 
 
-_PLANS = {
-    ("block", SplittingMethod): _BlockSplitting,
-    ("block", RungeKuttaMethod): _BlockRungeKutta,
-    ("thread", SplittingMethod): _ThreadSplitting,
-    ("thread", RungeKuttaMethod): _ThreadRungeKutta,
-    ("sites", SplittingMethod): _SitesSplitting,
-}
-
-
-def _plan_for(layout: str, method: Method):
-    for (plan_layout, kind), plan in _PLANS.items():
-        if plan_layout == layout and isinstance(method, kind):
-            return plan
-    raise ValueError(f"no launch plan for layout {layout!r} and method type {type(method).__name__}")
+#: The plan of each kernel layout (every layout steps the splitting methods: ``devices.engine_method``).
+PLANS = {"block": _BlockSplitting, "thread": _ThreadSplitting, "sites": _SitesSplitting}

@@ -10,7 +10,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..integrators import Method, check_step, get_method
+from ..integrators import Method, check_step
 from ..lattice import geometry_key, neighbour_table
 from ..losses import KICK_ENTRIES, Damping, kick_matrices, lossless
 from ..model import BOUNDARY_CODES, ChainParams, as_batch, per_lattice_parameters
@@ -22,6 +22,7 @@ from .devices import (
     _parts,
     _slices,
     _warp,
+    engine_method,
     held,
     on_one_thread,
     on_this_thread,
@@ -30,7 +31,7 @@ from .devices import (
     resolve_layout,
 )
 from .hostmem import _STAGING_LOCK, _copy, _give_buffer, _take_buffer
-from .plans import _plan_for
+from .plans import PLANS
 from .tuning import active
 
 
@@ -87,7 +88,7 @@ class _Runner:
         self.wp, self.k, self.method, self.device = wp, kernels, method, device
         self.batch, _, self.N = x0.shape
         table = neighbour_table(params)  # a lattice given as a neighbour table: the sites layout
-        self.layout = resolve_layout(layout, device, self.N, method, table=table is not None)
+        self.layout = resolve_layout(layout, device, self.N, table=table is not None)
         if self.layout in ("block", "sites"):
             # the sites layout's guard: the block guard of a full block, each thread summing several sites
             self.block = block_kernels.block_size(min(self.N, block_kernels.MAX_BLOCK))
@@ -116,7 +117,7 @@ class _Runner:
         self.inv_mass = wp.array(inverse_mass(M), dtype=f64, device=device)  # the kernels multiply by 1/M
         self.coupling = wp.array(K, dtype=f64, device=device)
         self._parameters_held = (np.array(M, dtype=np.float64), np.array(K, dtype=np.float64))  # what M, K hold
-        self.plan = _plan_for(self.layout, method)(self)
+        self.plan = PLANS[self.layout](self)
         self.no_record = wp.zeros((1, 1, 1), dtype=f64, device=device)
         self.no_base = wp.zeros(1, dtype=wp.int32, device=device)
         self.no_observer = kernels.Observer()  # the unobserved kernels' (unused) observables
@@ -396,7 +397,7 @@ def _pooled_runner(
     if device == "cpu":
         return _Runner(method, params, x0, M, K, device, layout=layout, upload=upload)
     table = neighbour_table(params) is not None
-    layout = resolve_layout(layout, device, params.N, method, table=table)
+    layout = resolve_layout(layout, device, params.N, table=table)
     key = (method, params.N, params.boundary, geometry_key(params), x0.shape[0], device, layout)
     with _STAGING_LOCK:
         free = _RUNNER_POOL.get(key)
@@ -502,7 +503,7 @@ def time_steps(
         x0: state, shape (4, N) or (batch, 4, N); it keeps evolving from one repeat to the next.
         method, device, layout, M, K: as ``simulate`` (``layout``: ``Placement.layout``).
     """
-    meth = get_method(method)
+    meth = engine_method(method)
     x0 = as_batch(x0, params.N, "x0")
     Mb, Kb = per_lattice_parameters(params, x0.shape[0], M, K)
     check_step(meth, params, dt, Mb, Kb, False)

@@ -6,9 +6,9 @@ long run costs one launch per chunk of many steps, never one per step. All per-s
 lives in ``@wp.func`` helpers that take (lattice, site) indices, so that a later kernel where a
 thread block owns a lattice (one thread per site) can reuse them unchanged.
 
-The splitting and Runge-Kutta kernels (and the splitting tangent kernel) take a fast path where a
-lattice's rows are contiguous (always, as ``ensemble`` allocates them): each stage is one pass over the
-sites (``fused_stage``, ``rk4_fused_stage``) through 1-D row views (``row``), whose compile-time unit
+The splitting kernel (base runs and tangent columns) takes a fast path where a lattice's rows are
+contiguous (always, as ``ensemble`` allocates them): each stage is one pass over the sites
+(``fused_stage``) through 1-D row views (``row``), whose compile-time unit
 stride lets the CPU compiler vectorise the pass. Every value is computed by the same operations in the
 same order as the per-pass helpers below, which remain the path for strided arrays and, in the splitting
 kernels, for lattices with losses, N = 1 and the observed kernel (``observed_splitting_kernel``: the hooks of
@@ -94,15 +94,6 @@ class Lattice:
     table: wp.array2d(dtype=wp.int32)
     #: (sites, D) float64: the bonds' weights
     weights: Array2
-
-
-@wp.struct
-class Tableau:
-    """A four-stage Runge-Kutta method as the kernels read it (``integrators.RungeKuttaMethod``): ``nodes``
-    (a_21, a_32, a_43, then the divisor) and ``weights`` (b_i times the divisor)."""
-
-    nodes: wp.vec4d
-    weights: wp.vec4d
 
 
 # ----------------------------------------------------------------------------- per-site helpers

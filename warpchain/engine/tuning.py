@@ -70,17 +70,6 @@ class Tuning:
     #: a recording launch of at most this many lattices (a tangent base run) drops the many-stage kernels'
     #: register cap (under it the held stiffnesses would spill): one block per SM of an H200
     record_uncapped_max_batch: int = 132
-    #: tangent columns per block of the block splitting tangent kernel forced (1 or 2; None: the rule below)
-    tangent_columns: int | None = None
-    #: from this many columns a GPU tangent launch carries two columns per block. H200, the paper breather's
-    #: 804-column monodromy (kahan8, 32 steps; ``benchmarks/tangent_variants.py``,
-    #: ``benchmarks/results/h200-2026-11-22i.json``):
-    #: 0.348 ms with one column per block, 0.305 ms with its history loaded one evaluation ahead, 0.303 ms
-    #: with two columns per block; 402 columns: 0.23-0.24 ms every way
-    tangent_pair_min_columns: int = 256
-    #: ``__launch_bounds__`` minimum blocks per SM of the two-column tangent kernel for few and for many
-    #: stages: the 804 columns of a monodromy are 402 blocks, one wave of the H200's 132 SMs at 4
-    tangent_pair_min_blocks: tuple[int, int] = (0, 4)
     #: operations issued again and again with the same arguments (a Flow's base run, a Newton iteration's
     #: columns) are captured into a CUDA graph at their ``graph_after``-th issue and replayed from then on:
     #: one launch from Python instead of several (~0.1 ms of host time each). None: never captured
