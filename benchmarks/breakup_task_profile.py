@@ -4,8 +4,8 @@ sweep's host allocator setting (one GPU).
 Command (on a GPU machine): ``python benchmarks/breakup_task_profile.py > profile.json``. Times four
 (A, damping) tasks of the full grid in each of four settings, after a warm-up task in each: initial
 states, ``observe`` (kernels and transfers), the host's peak tracking and the zarr write of the task's
-region (``warpchain.sweep_store._write_result`` into a scratch store of the full grid's layout). The settings:
-in-process, in-process after :func:`warpchain.sweep.host_allocator`, a one-worker ``LocalCluster``
+region (``sweep.store._write_result`` into a scratch store of the full grid's layout). The settings:
+in-process, in-process after :func:`sweep.host_allocator`, a one-worker ``LocalCluster``
 as Dask starts it (``MALLOC_TRIM_THRESHOLD_=65536``), and the same worker after ``host_allocator``.
 Prints the median of each phase per setting and the worker/in-process ratio of the totals.
 ``python benchmarks/breakup_task_profile.py cpu quick`` is a smoke test of the script on a CPU.
@@ -24,8 +24,8 @@ STORE = os.path.join(tempfile.gettempdir(), "breakup-profile.zarr")
 def timed_task(index: dict, device: str, config: dict, allocator: bool) -> dict:
     import numpy as np
 
-    from warpchain.sweep import host_allocator
-    from warpchain.sweep_store import _layout, _open_root, _write_result
+    from sweep import host_allocator
+    from sweep.store import _layout, _open_root, _write_result
     from scenarios.breakup_statistics import GROUP, grid, initial_states
     from scenarios.breakup_statistics import Parameters as P_
     from warpchain import ChainParams
@@ -90,7 +90,7 @@ def medians(runs: list[dict]) -> dict:
 def main() -> None:
     from distributed import Client, LocalCluster
 
-    from warpchain.sweep_store import open_sweep
+    from sweep import open_sweep
     from scenarios.breakup_statistics import Parameters, sweep_spec
 
     device, grid_name = (sys.argv[1:] + ["cuda:0", "full"][len(sys.argv) - 1 :])[:2]

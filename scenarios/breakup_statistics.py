@@ -52,6 +52,7 @@ import time
 
 import numpy as np
 
+from sweep import SweepSpec, Variable, run_sweep
 from warpchain import Record
 from warpchain import ChainParams, simulate
 from warpchain.losses import Damping, rhs_flat
@@ -72,7 +73,6 @@ from ._common import (
     save_figure,
 )
 from ._params import Rule, min_steps_per_period, number, param, splitting_methods, stability_dt
-from warpchain.sweep import SweepSpec, Variable, run_sweep
 
 GROUP = "observables"
 #: the zero-damping check's bound on |observe(damping=0) - simulate| (states of order 1; the GPU's two kernels
@@ -347,7 +347,7 @@ def run(ctx: Context) -> dict:
         workers=P.workers,
         scheduler=P.scheduler or None,
         gpus=gpus if ctx.device != "cpu" else 0,
-        processes=ctx.device == "cpu",  # GPU tasks: local workers as threads (warpchain.sweep.run_sweep)
+        processes=ctx.device == "cpu",  # GPU tasks: local workers as threads (sweep.run_sweep)
         progress=progress_bars(),
         log=ctx.log,
     )

@@ -5,7 +5,7 @@ For every K of a log-spaced grid (default 41 values in [1, 160]) the scene walks
 ``continuation-omega`` walks at K = 160 (``_continuation_common.frequency_problem``): pseudo-arclength in
 (positions, w_b) at M = 30, N = 201, from the lowest optical eigenmode down through the gap until a resonator
 loses contact (or w_b < ``omega_min``), every stability change bisected, predicted bubbles solved for and the
-narrower ones recorded as foam. Each K is one task of a ``warpchain.sweep`` sweep: the task walks its branch
+narrower ones recorded as foam. Each K is one task of a ``sweep`` sweep: the task walks its branch
 and writes it into its own chunks of the store, padded along ``point`` to ``max_points`` (NaN fill).
 
 The first point's mode amplitude is ``eigenmode_amplitude`` (0.03, continuation-omega's) at K = 160, scaled by
@@ -45,8 +45,8 @@ import numpy as np
 
 from continuation.events import StopReason, stability_signature
 from continuation.floquet import KINDS
+from sweep import SweepMismatchError, SweepSpec, Variable, run_sweep
 from warpchain import ChainParams, band_edges
-from warpchain.sweep import SweepMismatchError, SweepSpec, Variable, run_sweep
 
 from . import continuation_omega
 from ._common import Context, Refused, progress_bars, pyplot, read_summary, save_figure

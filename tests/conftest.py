@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from warpchain import METHODS, ChainParams, SplittingMethod
-from warpchain.sweep import _environment_kept
+from sweep.runner import _environment_kept
 
 
 #: the methods the Warp engine steps (RK4 runs on the numpy reference only)

@@ -5,8 +5,7 @@ import os
 
 import numpy as np
 
-from warpchain import sweep
-from warpchain.sweep import SweepSpec, Variable
+from sweep import SweepSpec, Variable, runner
 
 
 def _demo_task(index: dict, device: str, *, n_r: int = 4, n_f: int = 5, seed: int = 12345, fail_at=None) -> dict:
@@ -30,7 +29,7 @@ def _demo_warm_up(device: str, *, folder: str) -> None:
     that :func:`host_allocator` set in this process."""
     os.makedirs(folder, exist_ok=True)
     with open(os.path.join(folder, str(os.getpid())), "w") as fh:
-        fh.write(f"{device} {sweep._ALLOCATOR.get('mmap_threshold', 0) / 2**20:.1f} MiB")
+        fh.write(f"{device} {runner._ALLOCATOR.get('mmap_threshold', 0) / 2**20:.1f} MiB")
 
 
 def _demo_task_dying(index: dict, device: str, *, marker: str, at=(1, 0), **kwargs) -> dict:

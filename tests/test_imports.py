@@ -1,6 +1,7 @@
-"""The modules of ``warpchain`` and ``continuation`` import one another without a cycle, counting the imports inside
-functions too (a lazy import hides a cycle from Python, not from a reader: the issue of lattices as data found three,
-and the lattice module made a fourth). A package's ``__init__`` re-exports and is left out."""
+"""The modules of ``warpchain``, ``continuation`` and ``sweep`` import one another without a cycle, counting the
+imports inside functions too (a lazy import hides a cycle from Python, not from a reader: the issue of lattices as data
+found three, and the lattice module made a fourth). A package's ``__init__`` re-exports and is left out. The engine
+package does not depend on the orchestration over it: no ``warpchain`` module imports ``sweep`` at module level."""
 
 import ast
 import pathlib
@@ -10,7 +11,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 
 def _modules() -> dict:
     found = {}
-    for package in ("warpchain", "continuation"):
+    for package in ("warpchain", "continuation", "sweep"):
         for path in (ROOT / package).rglob("*.py"):
             name = ".".join(path.relative_to(ROOT).with_suffix("").parts)
             found[name.removesuffix(".__init__")] = path
@@ -56,3 +57,31 @@ def test_no_import_cycles():
             visit(node, [node])
     assert not cycles, "import cycles: " + "; ".join(" -> ".join(c) for c in cycles)
     assert graph["continuation.slicing"] >= {"continuation.spectrum"}  # the check sees imports at all
+
+
+def _run_at_import(tree: ast.Module):
+    """The nodes Python runs when it imports the module: everything but the bodies of functions."""
+    stack = list(tree.body)
+    while stack:
+        node = stack.pop()
+        if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
+            yield node
+            stack.extend(ast.iter_child_nodes(node))
+
+
+def test_warpchain_does_not_import_sweep_at_module_level():
+    """``sweep`` is orchestration over ``warpchain``: ``import warpchain`` never loads it (``warpchain.reader`` reads a
+    sweep group's checksums through a deferred import, as it reads branches through ``continuation``)."""
+    found = []
+    for name, path in _modules().items():
+        if name.split(".")[0] != "warpchain":
+            continue
+        for node in _run_at_import(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and not node.level:
+                targets = [node.module or ""]
+            elif isinstance(node, ast.Import):
+                targets = [alias.name for alias in node.names]
+            else:
+                continue
+            found += [f"{name}: {target}" for target in targets if target.split(".")[0] == "sweep"]
+    assert not found, "warpchain imports sweep at module level: " + "; ".join(found)

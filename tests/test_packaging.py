@@ -22,9 +22,9 @@ def test_the_package_list_covers_every_package_directory():
     )
     needed = {
         init.parent.relative_to(ROOT).as_posix().replace("/", ".")
-        for top in ("warpchain", "continuation", "scenarios")
+        for top in ("warpchain", "continuation", "scenarios", "sweep")
         for init in (ROOT / top).rglob("__init__.py")
     }
-    assert "warpchain.engine" in needed
+    assert {"warpchain.engine", "sweep"} <= needed
     assert needed <= shipped, f"not in the wheel: {sorted(needed - shipped)}"
     assert not {name for name in shipped if name.split(".")[0] in ("tests", "benchmarks", "docs")}

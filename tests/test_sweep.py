@@ -1,4 +1,4 @@
-"""The sweep runner (warpchain/sweep.py): in-process and Dask paths write the same bytes, resume after
+"""The sweep runner (sweep/runner.py): in-process and Dask paths write the same bytes, resume after
 a failure or a half-written task, and refuse to mix grids."""
 
 import dataclasses
@@ -12,7 +12,7 @@ import pytest
 import zarr
 
 from sweep_demo import _demo_spec, _demo_task, _demo_task_dying, _demo_warm_up
-from warpchain.sweep import (
+from sweep import (
     COMPLETED,
     SweepMismatchError,
     SweepTaskError,
@@ -239,7 +239,7 @@ def test_bad_task_result_and_spec(tmp_path):
 
 
 def test_dask_is_optional(tmp_path, monkeypatch):
-    code = "import sys, warpchain.sweep; sys.exit(any(m.split('.')[0] in ('dask', 'distributed') for m in sys.modules))"
+    code = "import sys, sweep; sys.exit(any(m.split('.')[0] in ('dask', 'distributed') for m in sys.modules))"
     assert subprocess.run([sys.executable, "-c", code]).returncode == 0
     monkeypatch.setitem(sys.modules, "distributed", None)  # as if not installed
     with pytest.raises(ImportError, match=r'pip install -e "\.\[dask\]"'):
@@ -326,7 +326,7 @@ def test_a_killed_worker_or_client_loses_nothing(tmp_path, clean_store):
         "import functools, sys\n"
         f"sys.path.insert(0, {os.path.dirname(__file__)!r})\n"  # this folder: the demo tasks
         "from sweep_demo import _demo_spec, _demo_task_dying\n"
-        "from warpchain.sweep import run_sweep\n"
+        "from sweep import run_sweep\n"
         f"task = functools.partial(_demo_task_dying, marker={str(tmp_path / 'client-died')!r}, at=(2, 0))\n"
         f"run_sweep({str(path)!r}, _demo_spec(), task, progress=False, tasks_per_worker=1)\n"
     )
@@ -360,7 +360,7 @@ def test_tasks_run_longest_first_with_a_cost_and_the_report_gives_idle_time_per_
 
     run_sweep(tmp_path / "order.zarr", spec, recording, progress=False, tasks_per_worker=1, cost=cost)
     assert seen == sorted(seen, key=lambda ab: -(ab[0] + 10 * ab[1]))
-    from warpchain.sweep import _idle
+    from sweep.runner import _idle
 
     # two overlapping spans and a gap: busy 0..3 and 5..6 of a 0..10 window, idle 6 s
     assert _idle({"w": [(0.0, 2.0), (1.0, 3.0), (5.0, 6.0)]}, 0.0, 10.0) == {"w": 6.0}

@@ -9,7 +9,7 @@
   chunk by chunk, a field group marked complete;
 * branches (``continuation.branch_store.load_branch``): every point's row of every array against its checksum,
   the flags, the multipliers, the count;
-* sweeps (``warpchain.sweep_store``): every completed task's region of every variable against its checksum.
+* sweeps (``sweep.store``): every completed task's region of every variable against its checksum.
 
 A damaged, half-written or edited store raises ``store.StoreError`` naming store, group, array and point; no
 data are returned from it. ``xarray.open_zarr`` reads the same arrays but checks none of this.
@@ -142,7 +142,7 @@ def _branch(path: Path, g, name: str, attrs: dict):
 def _sweep(path: Path, g, name: str, attrs: dict):
     import xarray as xr
 
-    from .sweep_store import CHECKSUM, COMPLETED, _crc
+    from sweep.store import CHECKSUM, COMPLETED, _crc  # deferred: the engine package does not depend on sweep
 
     where = f"store {path}, group '{name}'"
     check_attributes(where, attrs)

@@ -323,7 +323,7 @@ def describe(name: str, group: str | None = None, *, integer: bool = False, requ
 
     Raises:
         ValueError: the name has no entry (add one to ``VARIABLES`` or ``BY_GROUP``); with ``required=False``
-            (a user's own sweep variables, ``sweep_store``: their ``Variable.attrs`` describe them) ``{}`` instead.
+            (a user's own sweep variables, ``sweep.store``: their ``Variable.attrs`` describe them) ``{}`` instead.
     """
     leaf = str(group).rstrip("/").rsplit("/", 1)[-1] if group else None
     entry = BY_GROUP.get((leaf, name)) or VARIABLES.get(name)

@@ -1,8 +1,8 @@
-"""The zarr side of a sweep (``warpchain.sweep``): the grid's description (:class:`SweepSpec`, :class:`Variable`), the
+"""The zarr side of a sweep (``sweep.runner``): the grid's description (:class:`SweepSpec`, :class:`Variable`), the
 group that holds it, the per-task ``completed`` flags and CRC-32 checksums, and the writing of one task's result.
 
 The layout and the design (disjoint chunks, ``completed`` written last, resume, mismatch refused) are described in
-``warpchain.sweep``'s docstring.
+``sweep.runner``'s docstring.
 """
 
 from __future__ import annotations

@@ -43,8 +43,8 @@ Design:
   end; ``scheduler="tcp://host:8786"`` uses a running cluster instead (a scene passes it through, e.g.
   ``python -m scenarios run breakup-statistics --set scheduler=tcp://host:8786``). Workers of an
   external cluster must see the store at the same path (shared file system) and be able to import
-  ``scenarios`` and ``warpchain`` (an editable install does it; the client's ``sys.path`` entries are
-  also appended on every worker where they exist).
+  ``scenarios``, ``sweep`` and ``warpchain`` (an editable install does it; the client's ``sys.path`` entries
+  are also appended on every worker where they exist).
 * Tasks must be picklable top-level callables; ``functools.partial(module_level_function, **params)``
   is the expected form. The task is sent to each worker once (scattered), not once per task.
 * Consolidated metadata is written once, at the end of :func:`run_sweep`, by the client.
@@ -62,13 +62,8 @@ import traceback
 
 import numpy as np
 
-from warpchain.store import consolidate
-from warpchain.sweep_store import (  # noqa: F401 (the public names stay importable from here)
-    CHECKSUM,
-    COMPLETED,
-    SweepMismatchError,
+from sweep.store import (
     SweepSpec,
-    Variable,
     _layout,
     _open_root,
     _write_result,
@@ -76,6 +71,7 @@ from warpchain.sweep_store import (  # noqa: F401 (the public names stay importa
     damaged_tasks,
     open_sweep,
 )
+from warpchain.store import consolidate
 
 DASK_HINT = 'pip install -e ".[dask]"'
 
@@ -269,7 +265,7 @@ def _worker_plugin(paths: list[str], ordinals: dict, gpus: int, warm_up):
             for entry in self.entries:
                 if entry and entry not in _sys.path and _os.path.isdir(entry):
                     _sys.path.append(entry)
-            from warpchain.sweep import _worker_device, host_allocator
+            from sweep.runner import _worker_device, host_allocator
 
             host_allocator()
             if self.warm_up is not None:
@@ -572,13 +568,8 @@ def _dask_outcomes(
 
 
 __all__ = [
-    "SweepMismatchError",
     "SweepReport",
-    "SweepSpec",
     "SweepTaskError",
-    "Variable",
-    "completed",
-    "open_sweep",
     "host_allocator",
     "run_sweep",
 ]
