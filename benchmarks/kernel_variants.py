@@ -17,7 +17,7 @@ import warp as wp
 
 from warpchain import ChainParams, lowest_optical_mode
 from warpchain.engine import block_kernels as bk
-from warpchain.engine.thread_kernels import Lattice, Observer, Recording
+from warpchain.engine.site import Lattice, Observer, Recording
 from warpchain.engine.block_kernels import (
     load_site,
     neighbour_or_wall,

@@ -10,6 +10,7 @@ import warp as wp
 from conftest import localized_state
 from warpchain import Placement, Record
 from warpchain import ChainParams, propagate_tangent, reference, simulate
+from warpchain.engine import site as S
 from warpchain.engine import thread_kernels as K
 from warpchain.reference import inverse_mass
 
@@ -73,11 +74,11 @@ def test_strided_rows_take_the_generic_path():
     M, K_ = np.array([3.0, 5.0]), np.array([4.0, 1.0])
     owner, x = _strided(x0)
     f64, none = wp.float64, wp.zeros((1, 1, 1), dtype=wp.float64, device="cpu")
-    lattice = K.Lattice()  # the chains' parameters, no losses
+    lattice = S.Lattice()  # the chains' parameters, no losses
     lattice.mass, lattice.inv_mass, lattice.coupling = (wp.array(a, dtype=f64) for a in (M, inverse_mass(M), K_))
-    lattice.lossy, lattice.damp, lattice.boundary = wp.zeros(2, dtype=wp.int32), none, K.BOUNDARY_PERIODIC
+    lattice.lossy, lattice.damp, lattice.boundary = wp.zeros(2, dtype=wp.int32), none, S.BOUNDARY_PERIODIC
     no_base = [0, wp.zeros(1, dtype=wp.int32, device="cpu")]  # a base run (not a tangent column)
-    record = K.Recording()  # nothing recorded
+    record = S.Recording()  # nothing recorded
     record.u = record.v = record.hist = none
     acc = wp.zeros((2, 2, p.N), dtype=f64, device="cpu")
     inputs = [
@@ -88,7 +89,7 @@ def test_strided_rows_take_the_generic_path():
         wp.array(np.array([1.0]), dtype=f64),
         wp.array(np.array([0.5, 0.5]), dtype=f64),
     ]
-    inputs += [f64(0.05), 40, record, K.Observer()]
+    inputs += [f64(0.05), 40, record, S.Observer()]
     wp.launch(K.splitting_kernel, dim=2, inputs=inputs, device="cpu")
     ref = reference.integrate("verlet", p, x0, 0.05, 40, M=M, K=K_)["x"]
     assert np.array_equal(owner.numpy()[..., ::2], ref)

@@ -14,8 +14,8 @@ Each family is a type that owns its coefficients (``SplittingMethod``: drifts an
 ``RungeKuttaMethod``: nodes, weights, divisor). The Warp kernels (``warpchain.engine``) receive a splitting
 method's coefficients as kernel arguments and the numpy reference (``reference.py``) reads them, so both integrate
 the same scheme step for step. The engine steps the splitting methods only (``engine.devices.engine_method``):
-RK4 is never cheaper than the best splitting method at any accuracy (the work-precision scene), so it runs on the reference
-(``reference.integrate``, ``ReferenceFlow``) as the contrast it is.
+RK4 is never cheaper than the best splitting method at any accuracy (the work-precision scene), so it runs on the
+reference (``reference.integrate``, ``ReferenceFlow``) as the contrast it is.
 """
 
 from __future__ import annotations

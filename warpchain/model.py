@@ -111,7 +111,7 @@ def _per_lattice(value, batch: int) -> np.ndarray:
 def walls(u: np.ndarray, boundary: str) -> tuple[np.ndarray, np.ndarray]:
     """(the u left of site 0, the u right of site N - 1) along the last axis: 0 at a fixed wall, the site itself at
     a free end, the other end on a ring. The one place the host defines a boundary's values (the kernels':
-    ``thread_kernels.wall_values``); the Laplacian's ends and the energy's wall bonds follow from them."""
+    ``site.wall_values``); the Laplacian's ends and the energy's wall bonds follow from them."""
     first, last = u[..., 0], u[..., -1]
     if boundary == "fixed":
         return np.zeros_like(first), np.zeros_like(last)
@@ -239,7 +239,7 @@ def energy(params: ChainParams, x, M=None, K=None) -> np.ndarray:
 
 
 def site_energies(params: ChainParams, x, M, K) -> np.ndarray:
-    """The Hamiltonian site by site, e_j of ``thread_kernels.site_energy``, for a batch (batch, 4, N): kinetic
+    """The Hamiltonian site by site, e_j of ``site.site_energy``, for a batch (batch, 4, N): kinetic
     energy, the bond to the right (wall bonds at fixed ends, the bond to site 0 on a ring), the contact energy.
     Their sum is ``energy`` (summed in another order); observe's numpy oracle reduces them."""
     x = np.asarray(x, dtype=np.float64)

@@ -279,7 +279,7 @@ def peak_tracks(env_lag, env_end, dt_lag: float, observation: Observation, max_s
 
 class _Frames:
     """The device side of ``simulate(..., observe=...)``: one run's observables and tracking buffers on the device
-    (kept across its chunks) and the ``thread_kernels.Observer`` a chunk's launch hands the observed kernels."""
+    (kept across its chunks) and the ``site.Observer`` a chunk's launch hands the observed kernels."""
 
     def __init__(self, runner, observation: Observation, n_frames: int):
         wp, f64 = runner.wp, runner.wp.float64
@@ -308,7 +308,7 @@ class _Frames:
 
     def at(self, first_step: int):
         """The observers of a launch that starts at ``first_step``: a function of the lattices (lo, hi)."""
-        from .engine.thread_kernels import Observer
+        from .engine.site import Observer
 
         f64, observation = self.wp.float64, self.observation
 

@@ -9,15 +9,18 @@ Modules:
   (``_SlicedTransfers``), recorded frames on their way to the host.
 - ``plans``: what one layout launches, and the rules choosing a kernel variant.
 - ``runner``: device buffers of one batch, launches replayed as CUDA graphs or kept commands, the guard.
-- ``thread_kernels`` (a thread per lattice: the CPU path), ``block_kernels`` (a
-  thread block per lattice, a thread per site), ``site_group_kernels`` (a thread per run of sites: the GPU
+- ``site``: what every layout computes at one site, written once (the contact law, the neighbour rules of the
+  chain and of a neighbour table, the force and its tangent, the damped kick, the energy, the observables'
+  per-site tests) and the structs the kernels read.
+- the step loops, one module per layout: ``thread_kernels`` (a thread per lattice: the CPU path), ``block_kernels``
+  (a thread block per lattice, a thread per site), ``site_group_kernels`` (a thread per run of sites: the GPU
   path for large batches) and ``site_kernels`` (the ``"sites"`` layout: a thread per site and a launch per
-  force evaluation, for lattices longer than a block; its one kernel serves base runs and tangent columns)
-  hold the kernels; ``warpchain.reference`` is their numpy oracle. Kernels take their arguments as a few
-  structs passed whole: the lattices (``thread_kernels.Lattice``: M, 1/M, K, losses, boundary), the method
+  force evaluation, for lattices longer than a block; its one kernel serves base runs and tangent columns).
+  ``warpchain.reference`` is their numpy oracle. Kernels take their arguments as a few
+  structs passed whole: the lattices (``site.Lattice``: M, 1/M, K, losses, boundary), the method
   (``block_kernels.Scheme``: a splitting method's coefficients times dt), what a run records
-  (``thread_kernels.Recording``) and, compiled ``observed``, the observables of ``warpchain.observe``
-  (``thread_kernels.Observer``; hooks in the same step loop of the thread and block layouts, launched by
+  (``site.Recording``) and, compiled ``observed``, the observables of ``warpchain.observe``
+  (``site.Observer``; hooks in the same step loop of the thread and block layouts, launched by
   ``simulate(..., observe=...)``).
 
 How the state moves (measured on an H100, ``benchmarks/results/h100-2026-11-25/engine-split.json``): through pinned
@@ -42,7 +45,7 @@ Adding a boundary that changes the wall values (like fixed or free ends), in 3 e
 1. ``warpchain/model.py``: its name in ``BOUNDARIES`` (its code follows from the order) and its walls in
    ``walls``; the Laplacian and the energy's wall bonds (``wall_bonds``: ``energy``, ``site_energies``) follow
    from them on the host (the numpy reference, observe's oracle).
-2. ``warpchain/engine/thread_kernels.py``: its walls in ``wall_values`` (its code: ``BOUNDARY_CODES[name]``,
+2. ``warpchain/engine/site.py``: its walls in ``wall_values`` (its code: ``BOUNDARY_CODES[name]``,
    or a ``BOUNDARY_...`` constant made from it as the others are), which every layout reads (thread and sites
    layouts through ``neighbours_at``, the block kernels through ``block_kernels.neighbour_or_wall``, the
    site-group kernels in ``neighbour_values``) and from which the kernels' energies take their wall bonds
@@ -56,7 +59,7 @@ The tests over ``BOUNDARIES`` (``tests/test_gpu_engine.py``, ``tests/test_integr
 A 2-D lattice (the monolayer) is a new neighbour rule, not a new engine: a ``warpchain.lattice.LatticeParams``
 carries its neighbour table and bond weights in the ``Lattice`` struct every kernel already takes
 (``Lattice.degree`` > 0), and ``site_kernels.evaluate`` reads a site's neighbours from it
-(``thread_kernels.table_laplacian``) where the chain's read ``neighbours_at``; the launch sequence, the kicks and
+(``site.table_laplacian``) where the chain's read ``neighbours_at``; the launch sequence, the kicks and
 drifts, the tangent lanes and the guard (``table_bonds``) stay. Only the sites layout takes a table
 (``devices.resolve_layout(table=True)``); the thread, block and site-group kernels keep the chain's neighbours.
 """

@@ -25,7 +25,7 @@ import functools
 
 import warp as wp
 
-from .thread_kernels import (
+from .site import (
     Lattice,
     Recording,
     F64,
@@ -38,7 +38,6 @@ from .thread_kernels import (
     NO_CONTACT,
     ONE,
     ZERO,
-    contact_force,
     contact_stiffness,
     finite_state,
     kick_loss,
@@ -48,6 +47,7 @@ from .thread_kernels import (
     peak_verdict,
     site_acceleration,
     site_energy,
+    site_kick,
     held_energy,
     table_bonds,
     site_tangent_acceleration,
@@ -94,7 +94,7 @@ def right_index(j: int, n: int, boundary: int) -> int:
 @wp.func
 def neighbour_or_wall(value: F64, u: F64, has_neighbour: int, boundary: int, side: int) -> F64:
     """The neighbour's u, or at a chain end the wall value on that ``side`` (0 left, 1 right) of the end site u
-    (``thread_kernels.wall_values``: 0 at a fixed wall, u itself at a free end; a ring always has a neighbour)."""
+    (``site.wall_values``: 0 at a fixed wall, u itself at a free end; a ring always has a neighbour)."""
     if has_neighbour != 0:
         return value
     return wall_values(u, u, boundary)[side]
@@ -135,26 +135,6 @@ def store_site(x: Array3, b: int, j: int, active: bool, state: wp.vec4d):
     if active:
         for i in range(4):
             x[b, i, j] = state[i]
-
-
-@wp.func
-def site_acceleration_times(u: F64, v: F64, left: F64, right: F64, minus_inv_mass: F64, coupling: F64) -> wp.vec2d:
-    """``site_acceleration`` with -1/M given: (K lap + f) * (-1/M) has the same bits as -(K lap + f) * (1/M)
-    (rounding is symmetric in sign), and saves the negation (a dependent DADD on the GPU) in the time loop."""
-    force = contact_force(u - v)
-    au = (coupling * ((u - left) + (u - right)) + force) * minus_inv_mass
-    return wp.vec2d(au, force)
-
-
-@wp.func
-def site_kick(pu: F64, pv: F64, a: wp.vec2d, h: F64, lossy: int, damp: Array3, b: int, i: int) -> wp.vec2d:
-    """Kick i of one site: w + h a without losses, else the exact damped kick E w + F a (``losses``;
-    ``damp[b, i]`` = E00, E01, E10, E11, F00, F01, F10, F11, the reference's operation order)."""
-    if lossy != 0:
-        npu = damp[b, i, 0] * pu + damp[b, i, 1] * pv + (damp[b, i, 4] * a[0] + damp[b, i, 5] * a[1])
-        npv = damp[b, i, 2] * pu + damp[b, i, 3] * pv + (damp[b, i, 6] * a[0] + damp[b, i, 7] * a[1])
-        return wp.vec2d(npu, npv)
-    return wp.vec2d(pu + h * a[0], pv + h * a[1])
 
 
 @wp.func

@@ -233,9 +233,9 @@ def _in_parallel(tasks) -> None:
 
 def engine_method(method):
     """``method`` (a name or a ``Method``) as a ``SplittingMethod``, or a ValueError that says where another
-    family runs: the engine's kernels step the splitting methods only. RK4 left the engine: at every accuracy
-    a splitting method is as cheap or cheaper (work-precision scene) and it was the one method that needed its own step loops
-    (``docs/performance.md``); ``warpchain.reference`` and ``ReferenceFlow`` keep it."""
+    family runs: the engine's kernels step the splitting methods only. RK4 left the engine: at every accuracy a
+    splitting method is as cheap or cheaper (work-precision scene) and RK4 alone needed step loops of its own
+    (``docs/derivations/model.md``); ``warpchain.reference`` and ``ReferenceFlow`` keep it."""
     from ..integrators import SplittingMethod, get_method
 
     m = get_method(method) if isinstance(method, str) else method

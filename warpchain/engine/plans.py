@@ -52,7 +52,7 @@ class _Plan:
 
     def observe(self, lo: int, hi: int, dt: float, nsteps: int, observer) -> None:
         """``step`` compiled with the observables of ``warpchain.observe`` (``observer``: a
-        ``thread_kernels.Observer`` for lattices lo..hi)."""
+        ``site.Observer`` for lattices lo..hi)."""
         raise ValueError(f"observables are reduced in the block and thread layouts, not by {type(self).__name__}")
 
     def tangent(self, dx, column_base, lo: int, hi: int, dt: float, nsteps: int) -> None:

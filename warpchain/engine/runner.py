@@ -83,9 +83,10 @@ class _Runner:
     ):
         wp = _warp()
         from . import block_kernels
+        from . import site
         from . import thread_kernels as kernels
 
-        self.wp, self.k, self.method, self.device = wp, kernels, method, device
+        self.wp, self.k, self.site, self.method, self.device = wp, kernels, site, method, device
         self.batch, _, self.N = x0.shape
         table = neighbour_table(params)  # a lattice given as a neighbour table: the sites layout
         self.layout = resolve_layout(layout, device, self.N, table=table is not None)
@@ -120,7 +121,7 @@ class _Runner:
         self.plan = PLANS[self.layout](self)
         self.no_record = wp.zeros((1, 1, 1), dtype=f64, device=device)
         self.no_base = wp.zeros(1, dtype=wp.int32, device=device)
-        self.no_observer = kernels.Observer()  # the unobserved kernels' (unused) observables
+        self.no_observer = site.Observer()  # the unobserved kernels' (unused) observables
         if record_stiffness_steps:
             self.hist = wp.zeros(
                 (self.history_length(record_stiffness_steps), self.batch, self.N), dtype=f64, device=device
@@ -159,14 +160,14 @@ class _Runner:
             self._lattices = {}
 
     def lattice(self, lo: int = 0, hi: int | None = None):
-        """The kernels' ``thread_kernels.Lattice`` of lattices lo..hi (default all: what tangent columns index
+        """The kernels' ``site.Lattice`` of lattices lo..hi (default all: what tangent columns index
         through their base): views of this runner's parameters and losses, kept per slice (their values change in
         place; ``set_damping`` starts afresh when it swaps the losses' arrays), so that a repeated launch passes the
         same argument."""
         hi = self.batch if hi is None else hi
         kept = self.__dict__.setdefault("_lattices", {})
         if (lo, hi) not in kept:
-            lat = self.k.Lattice()
+            lat = self.site.Lattice()
             lat.mass, lat.inv_mass, lat.coupling, lat.lossy = _parts(
                 lo, hi, self.mass, self.inv_mass, self.coupling, self.lossy
             )
@@ -238,7 +239,7 @@ class _Runner:
         self.contact.fill_(1.0e300)
 
     def record(self, every: int = 0, frames=None, stiffness: bool = False):
-        """A launch's ``thread_kernels.Recording``: u and v into ``frames`` (u, v) every ``every`` steps (None: no
+        """A launch's ``site.Recording``: u and v into ``frames`` (u, v) every ``every`` steps (None: no
         frames), f'(z) into this runner's history when ``stiffness`` (tangent runs read the history from it). One
         without frames is kept per (every, stiffness): building a struct costs ~20 us of host time per launch."""
         if frames is None:
@@ -250,7 +251,7 @@ class _Runner:
         return self._recording(every, frames, stiffness)
 
     def _recording(self, every: int, frames, stiffness: bool):
-        out = self.k.Recording()
+        out = self.site.Recording()
         out.every, out.stiffness, out.hist = int(every), int(stiffness), self.hist
         out.u, out.v = frames if frames is not None else (self.no_record, self.no_record)
         return out
@@ -275,7 +276,7 @@ class _Runner:
     ):
         """Advance every lattice by nsteps; with ``rec`` (device (u, v) frame buffers from ``frames``)
         also record u and v every ``save_every`` steps into them; with ``observer`` (a function of (lo, hi)
-        giving the ``thread_kernels.Observer`` of lattices lo..hi) reduce the observables of
+        giving the ``site.Observer`` of lattices lo..hi) reduce the observables of
         ``warpchain.observe`` instead. Asynchronous on a GPU.
 
         On the CPU the batch is split into one slice per thread (launched concurrently); a run that

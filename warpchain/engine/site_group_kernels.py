@@ -13,10 +13,10 @@ from .block_kernels import (
     BlockKernels,
     block_size,
     Scheme,
+)
+from .site import (
     site_acceleration_times,
     site_kick,
-)
-from .thread_kernels import (
     Lattice,
     Recording,
     F64,
@@ -59,7 +59,7 @@ def site_group_kernels(threads: int, sites: int, boundary: int, min_blocks_per_s
     zeros and stay there, because their 1/M is 0 (so u'' = 0) and f(0 - 0) = 0 (so v'' = 0): no branch
     and no select is spent on them. The shared tile has a zero entry before thread 0's and after the last
     thread's, so fixed walls cost nothing; other ends (``boundary``, compiled in) replace the wall values of
-    site 0 and site n - 1 with a select of ``thread_kernels.wall_values``.
+    site 0 and site n - 1 with a select of ``site.wall_values``.
 
     The arithmetic is that of ``block_kernels`` and the numpy reference (same operations, same order), so
     the results are the same bit for bit on the CPU. The kick that ends one step and the kick that starts

@@ -10,7 +10,7 @@ synchronisation, the neighbours' u before a force evaluation, is the end of a la
 ``kahan8`` at 16 steps is 241 launches, replayed as one CUDA graph by the ``Flow``.
 
 One launch is one force evaluation ``e`` (``evaluate``): site j reads its u from ``src`` (drifted for this
-evaluation) and its neighbours' u from the same array (the chain's ``thread_kernels.neighbours_at``, or a
+evaluation) and its neighbours' u from the same array (the chain's ``site.neighbours_at``, or a
 lattice's neighbour table: ``table_laplacian``), computes the accelerations (``coupled_acceleration``: the base's
 contact law; ``coupled_tangent_acceleration`` for a tangent lane, with the base's recorded f'(z) of evaluation
 e), gives the kick
@@ -28,12 +28,14 @@ one layout that takes a table (a thread per site needs no neighbour within a blo
 
 import warp as wp
 
-from .block_kernels import site_kick
+
 from .thread_kernels import (
+    base_of,
+)
+from .site import (
     Lattice,
     Recording,
     F64,
-    base_of,
     Array3,
     Indices,
     ZERO,
@@ -41,6 +43,7 @@ from .thread_kernels import (
     coupled_acceleration,
     coupled_tangent_acceleration,
     neighbours_at,
+    site_kick,
     table_laplacian,
 )
 
