@@ -109,6 +109,7 @@ def main():
         lattice.lossy = wp.zeros(batch, dtype=wp.int32, device="cuda")
         lattice.damp = wp.zeros((1, 1, 8), dtype=f64, device="cuda")
         nothing = Recording()  # nothing recorded
+        no_base = wp.zeros(1, dtype=wp.int32, device="cuda")  # base runs: no tangent columns
         nothing.u, nothing.v, nothing.hist = rec, rec, hist
 
         def runner(kernel, m):
@@ -119,7 +120,7 @@ def main():
                 dim=(batch, BLOCK),
                 block_dim=BLOCK,
                 device="cuda",
-                inputs=[x, lattice, scheme, n, nothing, Observer()],
+                inputs=[x, no_base, lattice, scheme, n, nothing, Observer()],
             )
 
         def run_verlet(n):

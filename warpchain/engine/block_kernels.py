@@ -137,23 +137,6 @@ def store_site(x: Array3, b: int, j: int, active: bool, state: wp.vec4d):
             x[b, i, j] = state[i]
 
 
-@wp.func
-def column_acceleration(
-    du: F64, dv: F64, left: F64, right: F64, nbr: wp.vec4i, boundary: int, inv_mass: F64, coupling: F64, stiffness: F64
-) -> wp.vec2d:
-    """``site_tangent_acceleration`` of one tangent column at a site, from the shared tile's neighbour values
-    (replaced at a chain end by the wall's, as ``neighbour_or_wall``)."""
-    return site_tangent_acceleration(
-        du,
-        dv,
-        neighbour_or_wall(left, du, nbr[2], boundary, 0),
-        neighbour_or_wall(right, du, nbr[3], boundary, 1),
-        inv_mass,
-        coupling,
-        stiffness,
-    )
-
-
 # ----------------------------------------------------------------------------- kernel factory
 
 
@@ -186,7 +169,7 @@ def pack_scheme(drifts, kicks, dt: float = 1.0) -> Scheme:
 
 class BlockKernels:
     """The block kernels for one block size, built (and compiled, each in its own Warp module) on
-    first use: ``splitting(stages, record, save, damped, observed)``, ``splitting_tangent(stages)`` and ``guard``.
+    first use: ``splitting(stages, record, save, damped, observed, tangent)`` (one step loop) and ``guard``.
     Launch each with ``dim=(lattices, block), block_dim=block``."""
 
     def __init__(self, makers: dict):
@@ -199,21 +182,24 @@ class BlockKernels:
         return self._built[key]
 
     def splitting(
-        self, stages: int, record: bool = False, save: bool = False, damped: bool = False, observed: bool = False
+        self,
+        stages: int,
+        record: bool = False,
+        save: bool = False,
+        damped: bool = False,
+        observed: bool = False,
+        tangent: bool = False,
     ):
-        """Splitting kernel for ``stages`` stages; ``record``/``save``/``damped``/``observed`` compile in the
+        """The step loop for ``stages`` stages; ``record``/``save``/``damped``/``observed`` compile in the
         stiffness history, the field recording, the damped kicks and the observables of ``warpchain.observe``
-        (left out, they cost nothing)."""
+        (left out, they cost nothing); ``tangent`` compiles the linearised step of tangent columns instead (a block
+        per column, none of the others)."""
         if not 1 <= stages <= MAX_STAGES:
             raise ValueError(f"the block kernels support 1 to {MAX_STAGES} stages, got {stages}")
-        return self._get("splitting", int(stages), bool(record), bool(save), bool(damped), bool(observed))
-
-    def splitting_tangent(self, stages: int):
-        """Tangent kernel for ``stages`` stages, a block per tangent column (launch with ``dim=(ncols, block)``);
-        each force evaluation's history entry is loaded one evaluation ahead."""
-        if not 1 <= stages <= MAX_STAGES:
-            raise ValueError(f"the block kernels support 1 to {MAX_STAGES} stages, got {stages}")
-        return self._get("splitting_tangent", int(stages))
+        if tangent and (record or save or damped or observed):
+            raise ValueError("a tangent run records, saves, damps and observes nothing")
+        flags = (bool(record), bool(save), bool(damped), bool(observed), bool(tangent))
+        return self._get("splitting", int(stages), *flags)
 
     @property
     def guard(self):
@@ -319,13 +305,20 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
     bounds = (threads, min_blocks_per_sm) if min_blocks_per_sm else threads
     options = {"enable_backward": False, "module": "unique", "grid_stride": False, "launch_bounds": bounds}
 
-    def make_splitting(stages: int, record: bool, save: bool, damped: bool = False, observed: bool = False):
+    def make_splitting(
+        stages: int, record: bool, save: bool, damped: bool = False, observed: bool = False, tangent: bool = False
+    ):
         held_type = wp.types.vector(length=stages, dtype=wp.float64)
 
         @wp.kernel(**options)
-        def splitting(x: Array3, lat: Lattice, scheme: Scheme, nsteps: int, out: Recording, ob: Observer):
+        def splitting(
+            x: Array3, column_base: Indices, lat: Lattice, scheme: Scheme, nsteps: int, out: Recording, ob: Observer
+        ):
             """``nsteps`` steps of a kick-drift splitting method; lattice b, thread j = site. hist slot 0
-            holds f'(z) at the start, slot step*s + k + 1 after drift k of ``step``. Compiled ``damped``:
+            holds f'(z) at the start, slot step*s + k + 1 after drift k of ``step``. Compiled ``tangent``: block b
+            is tangent column b along base trajectory column_base[b], the linearised step with the base's f'(z) read
+            from ``out.hist`` one force evaluation ahead (the load is issued before the exchange's barrier, its latency
+            hides behind it); nothing else is compiled in. Compiled ``damped``:
             lattices with ``lat.lossy[b]`` set take the damped kicks of ``lat.damp`` (batch, stages + 1, 12: E, F,
             and H for the energy dissipated). Compiled ``observed`` (and ``damped``): the observables of ``ob``
             (``warpchain.observe``), each site's z extremes and dissipated energy in registers.
@@ -339,7 +332,11 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             n = x.shape[2]
             nbr = site_neighbours(j, n, boundary)
             active = j < n
-            b_read = b
+            b_read = b  # the lattice whose parameters (and, for a tangent column, history) this block reads
+            if wp.static(tangent):
+                b_read = column_base[b]
+            jj = wp.min(j, n - 1)  # idle threads read a valid (unused) history entry
+            last = out.hist.shape[0] - 1
             start = load_site(x, b, j, active)
             u = start[0]
             v = start[1]
@@ -353,7 +350,12 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
             buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
             parity = int(0)
             nb = exchange(buf, u, parity, nbr, boundary)
-            a = site_acceleration(u, v, nb[0], nb[1], m, k)
+            stiff = ZERO  # tangent: f'(z) of the base at the next force evaluation
+            if wp.static(tangent):
+                stiff = out.hist[wp.min(1, last), b_read, jj]
+                a = site_tangent_acceleration(u, v, nb[0], nb[1], m, k, out.hist[0, b_read, jj])
+            else:
+                a = site_acceleration(u, v, nb[0], nb[1], m, k)
             if wp.static(record):
                 if active:
                     out.hist[0, b, j] = contact_stiffness(u - v)
@@ -384,9 +386,15 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
                     h = drifts[s]
                     u = u + h * pu
                     v = v + h * pv
+                    now = stiff
+                    if wp.static(tangent):
+                        stiff = out.hist[wp.min(step * wp.static(stages) + s + 2, last), b_read, jj]
                     parity = 1 - parity
                     nb = exchange(buf, u, parity, nbr, boundary)
-                    a = site_acceleration(u, v, nb[0], nb[1], m, k)
+                    if wp.static(tangent):
+                        a = site_tangent_acceleration(u, v, nb[0], nb[1], m, k, now)
+                    else:
+                        a = site_acceleration(u, v, nb[0], nb[1], m, k)
                     if wp.static(record):
                         held[s] = contact_stiffness(u - v)
                     h = kicks[s + 1]
@@ -427,60 +435,6 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
                     ob.lost[b, j] = lost_site
 
         return splitting
-
-    def make_splitting_tangent(stages: int):
-        @wp.kernel(**options)
-        def splitting_tangent(
-            dx: Array3, column_base: Indices, lat: Lattice, scheme: Scheme, nsteps: int, hist: Array3
-        ):
-            """Tangent column c of the splitting map along base trajectory column_base[c]: block c, thread j = site.
-            Each force evaluation's f'(z) is loaded one evaluation ahead (issued before the barrier, its latency
-            hides behind it)."""
-            c, j = wp.tid()
-            drifts = scheme.drifts
-            kicks = scheme.kicks
-            boundary = lat.boundary
-            n = dx.shape[2]
-            last = hist.shape[0] - 1
-            active = j < n
-            jj = wp.min(j, n - 1)  # idle threads read a valid (unused) history entry
-            b = column_base[c]
-            m = lat.inv_mass[b]
-            k = lat.coupling[b]
-            start = load_site(dx, c, j, active)
-            du = start[0]
-            dv = start[1]
-            dpu = start[2]
-            dpv = start[3]
-            nbr = site_neighbours(j, n, boundary)
-            buf = wp.tile_zeros(shape=(halves,), dtype=wp.float64, storage="shared")
-            parity = int(0)
-            wp.tile_assign(buf, wp.tile(du), offset=(0,))
-            stiff = hist[wp.min(1, last), b, jj]  # f'(z) of the base at the next force evaluation
-            a = column_acceleration(du, dv, buf[nbr[0]], buf[nbr[1]], nbr, boundary, m, k, hist[0, b, jj])
-            for step in range(nsteps):
-                h = kicks[0]  # times dt, as in the splitting kernel
-                dpu = dpu + h * a[0]
-                dpv = dpv + h * a[1]
-                for s in range(wp.static(stages)):
-                    h = drifts[s]
-                    e = step * wp.static(stages) + s + 1  # this force evaluation's history slot
-                    now = stiff
-                    du = du + h * dpu
-                    dv = dv + h * dpv
-                    stiff = hist[wp.min(e + 1, last), b, jj]
-                    parity = 1 - parity
-                    offset = parity * wp.static(threads)
-                    wp.tile_assign(buf, wp.tile(du), offset=(offset,))
-                    a = column_acceleration(
-                        du, dv, buf[offset + nbr[0]], buf[offset + nbr[1]], nbr, boundary, m, k, now
-                    )
-                    h = kicks[s + 1]
-                    dpu = dpu + h * a[0]
-                    dpv = dpv + h * a[1]
-            store_site(dx, c, j, active, wp.vec4d(du, dv, dpu, dpv))
-
-        return splitting_tangent
 
     @wp.kernel(**options)
     def guard(x: Array3, lat: Lattice, rec: Recording, n_rec: int, contact: Array1, out: Array2):
@@ -530,6 +484,5 @@ def block_kernels(block: int, min_blocks_per_sm: int = 0) -> BlockKernels:
         {
             "guard": lambda: guard,
             "splitting": make_splitting,
-            "splitting_tangent": make_splitting_tangent,
         }
     )

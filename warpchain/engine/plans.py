@@ -100,20 +100,21 @@ class _BlockSplitting(_Plan):
         if record and hi - lo <= active().record_uncapped_max_batch:
             kernels = block_kernels.block_kernels(r.block, 0)  # the step's history in registers: no cap
         kernel = kernels.splitting(stages, record=record, save=save_every > 0, damped=damped)
-        r.launch_kernel(kernel, (hi - lo, r.block), inputs + [r.no_observer], r.block)
+        r.launch_kernel(kernel, (hi - lo, r.block), [inputs[0], r.no_base, *inputs[1:], r.no_observer], r.block)
 
     def observe(self, lo, hi, dt, nsteps, observer):
         r = self.r
         from . import block_kernels
 
-        inputs = [_part(r.x, lo, hi), r.lattice(lo, hi), self.scheme(dt), int(nsteps), r.record(), observer]
+        inputs = [_part(r.x, lo, hi), r.no_base, r.lattice(lo, hi), self.scheme(dt), int(nsteps), r.record(), observer]
         kernel = block_kernels.block_kernels(r.block, 0).splitting(r.method.stages, damped=True, observed=True)
         r.launch_kernel(kernel, (hi - lo, r.block), inputs, r.block)
 
     def tangent(self, dx, column_base, lo, hi, dt, nsteps):
         r = self.r
-        inputs = [*_parts(lo, hi, dx, column_base), r.lattice(), self.scheme(dt), int(nsteps), r.hist]
-        kernel = r.bk.splitting_tangent(r.method.stages)
+        inputs = [*_parts(lo, hi, dx, column_base), r.lattice(), self.scheme(dt), int(nsteps), r.record()]
+        inputs.append(r.no_observer)
+        kernel = r.bk.splitting(r.method.stages, tangent=True)
         r.wp.launch(kernel, dim=(hi - lo, r.block), block_dim=r.block, device=r.device, inputs=inputs)
 
 

@@ -144,9 +144,11 @@ def site_group_kernels(threads: int, sites: int, boundary: int, min_blocks_per_s
     bounds = (threads, min_blocks_per_sm) if min_blocks_per_sm else threads
     options = {"enable_backward": False, "module": "unique", "grid_stride": False, "launch_bounds": bounds}
 
-    def make_splitting(stages: int, record: bool, save: bool, damped: bool = False, observed: bool = False):
-        if observed:
-            raise ValueError("the site-group kernels do not reduce observables (``block_kernels`` do)")
+    def make_splitting(
+        stages: int, record: bool, save: bool, damped: bool = False, observed: bool = False, tangent: bool = False
+    ):
+        if observed or tangent:
+            raise ValueError("the site-group kernels step base runs: observables and tangents run in block_kernels")
 
         @wp.func
         def kick(pu: F64, pv: F64, au: F64, av: F64, h: F64, loss: int, damp: Array3, b: int, i: int) -> wp.vec2d:
