@@ -2,7 +2,7 @@
 
 Command (on a GPU machine): ``python benchmarks/breakup_gpu.py OUT_DIR``. Writes ``breakup-gpu.json``.
 
-1. Agreement on the GPU: ``observe`` (damped, block kernels) against ``reference_observe`` (numpy),
+1. Agreement on the GPU: ``observe`` (damped, block kernels) against ``reference.observe`` (numpy),
    and damped ``simulate`` against ``reference.integrate``; zero-damping ``observe`` against ``simulate``.
 2. Rates, site-steps per second, best of 3, the same batch: the plain Verlet block kernel
    (``time_steps``), ``observe`` without losses and with losses (one frame per 32 steps, end to end:
@@ -19,7 +19,7 @@ import numpy as np
 from warpchain import ChainParams, reference, simulate
 from warpchain.ensemble import time_steps
 from warpchain.losses import Damping
-from warpchain.observe import Observation, observe, reference_observe
+from warpchain.observe import Observation, observe
 
 N = 201
 PARAMS = ChainParams(30.0, 160.0, N)
@@ -47,7 +47,7 @@ def main(out: Path) -> None:
     damping = Damping(np.linspace(0.0, 0.01, 8), np.r_[np.zeros(4), np.full(4, 0.005)])
     ob = Observation(frame_every=32, threshold=0.1, radius=10, contrast=0.5, spot=20.0, lag_frames=2)
     run = observe(PARAMS, x0, 10 * T, DT, observation=ob, damping=damping, device="cuda:0")
-    values, env, x = reference_observe("verlet", PARAMS, x0, run.dt, run.nsteps, ob, damping=damping)
+    values, env, x = reference.observe("verlet", PARAMS, x0, run.dt, run.nsteps, ob, damping=damping)
     scale = np.abs(values).max(axis=(0, 1))
     result["observe_vs_reference"] = {
         "state_max_abs": float(np.abs(run.x - x).max()),

@@ -116,15 +116,15 @@ def on_device(p, x0, M, K, dt, device):
 
 def observed(p, x0, M, K, dt, device):
     """``observe`` (the observed splitting kernels, with losses on two of three lattices) against its numpy
-    oracle ``reference_observe``: the largest relative difference of the final state, of the observables and
+    oracle ``reference.observe``: the largest relative difference of the final state, of the observables and
     of the last envelope (a peak count that differs is reported as 1.0)."""
-    from warpchain.observe import Observation, observe, reference_observe
+    from warpchain.observe import Observation, observe
 
     obs = Observation(frame_every=50, threshold=0.05, radius=5, contrast=0.7, spot=np.array([3.0, 5.0, 8.0]))
     damping = (np.array([0.0, 0.02, 0.05]), np.array([0.0, 0.01, 0.0]))
     out = {}
     for method in ("verlet", "kahan8"):
-        values, env, x = reference_observe(method, p, x0, dt, 1000, obs, M=M, K=K, damping=damping)
+        values, env, x = reference.observe(method, p, x0, dt, 1000, obs, M=M, K=K, damping=damping)
         for layout in ("block", "thread"):
             run = observe(p, x0, 1000 * dt, dt, observation=obs, method=method, damping=damping, M=M, K=K,
                           device=device, layout=layout)  # fmt: skip

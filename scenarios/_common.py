@@ -469,22 +469,26 @@ _BREATHER_CACHE: dict = {}
 
 def reference_run(method: str, params, x0, t_end: float, dt: float, chunks: int) -> tuple:
     """A run on the numpy reference (``warpchain.reference``) for the methods the Warp engine does not step (RK4),
-    with ``simulate``'s step (``steps_for``): the final state (4, N), and the times and energies at the start and
-    at the ends of ``chunks`` equal chunks (as ``simulate``'s ``energy_t`` and ``energy_trace``)."""
+    with ``simulate``'s step and chunks (``steps_for``, ``ensemble.chunk_plan``): the final state (4, N), and the
+    times and energies at the start and at each chunk's end (as ``simulate``'s ``energy_t`` and ``energy_trace``).
+    A run that turns non-finite stops there (its last energy is not finite)."""
     import numpy as np
 
     from warpchain import energy, reference
+    from warpchain.ensemble import chunk_plan
     from warpchain.integrators import steps_for
 
     nsteps, dt_used = steps_for(t_end, dt)
-    ends = np.unique(np.round(np.linspace(0, nsteps, chunks + 1)).astype(int))
     x = np.array(x0, dtype=np.float64)[None]
-    energies = [energy(params, x)[0]]
+    times, energies = [0.0], [energy(params, x)[0]]
     with np.errstate(over="ignore", invalid="ignore"):  # a run past its stability limit overflows
-        for lo, hi in zip(ends[:-1], ends[1:]):
-            x = reference.integrate(method, params, x, dt_used, int(hi - lo))["x"]
-            energies.append(energy(params, x)[0])
-    return x[0], ends * dt_used, np.array(energies)
+        for first, steps, _ in chunk_plan(nsteps, 1, chunks, None, None):
+            x = reference.integrate(method, params, x, dt_used, steps)["x"]
+            times.append((first + steps) * dt_used)
+            energies.append(energy(params, x)[0] if np.all(np.isfinite(x)) else np.nan)
+            if not np.isfinite(energies[-1]):
+                break
+    return x[0], np.array(times), np.array(energies)
 
 
 def paper_breather(device: str, log=None, *, params=None, omega: float = PAPER_OMEGA):

@@ -26,6 +26,7 @@ import numpy as np
 from continuation import eigenmode_seed, find_breather
 from continuation.shooting import _solve
 from warpchain import Guard, Record
+from warpchain.model import _signed_energy_change
 from warpchain import (
     METHODS,
     ChainParams,
@@ -100,7 +101,7 @@ QUICK = {"bisections": 6, "newton_floor": 0.99, "float32_newton_iterations": 3}
 def _survives(params, x0, dt, method, device, limit_steps):
     if not isinstance(METHODS[method], SplittingMethod):  # RK4 runs on the numpy reference: simulate's guard
         _, _, E = reference_run(method, params, x0, limit_steps * dt, dt, chunks=10)
-        return bool(np.all(np.isfinite(E)) and np.max(np.abs(E - E[0])) <= 0.5 * abs(E[0]))
+        return bool(np.all(np.isfinite(E)) and np.max(np.abs(_signed_energy_change(E, E[0], params.N))) <= 0.5)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         try:

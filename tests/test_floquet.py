@@ -66,6 +66,18 @@ def test_floquet_refuses_misuse(breather):
         ct.floquet(breather, method="rk4", reduced=True)
 
 
+def test_the_full_path_takes_every_column_of_the_monodromy(breather, monkeypatch):
+    """The full path's monodromy is dense (one tangent run per unit direction), also where a linearization would
+    probe colour groups (``PROBE_MIN_SITES``, lowered here to the test's chain), and its count says so."""
+    import warpchain.flow
+
+    full = ct.floquet(breather, reduced=False)
+    monkeypatch.setattr(warpchain.flow, "PROBE_MIN_SITES", 10)
+    again = ct.floquet(breather, reduced=False)
+    assert again.stats["tangent_columns"] == full.stats["tangent_columns"] == 4 * breather.params.N
+    assert np.array_equal(again.multipliers, full.multipliers)
+
+
 def test_another_method_re_converges_the_orbit_with_a_warning(breather):
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

@@ -138,6 +138,9 @@ def test_the_engine_refuses_rk4_and_names_the_reference():
         time_steps(p, x0, 5, 0.05, method="rk4", device="cpu")
     with pytest.raises(ValueError, match=advice):
         Flow("rk4", 16, device="cpu")
+    for bad in (None, 3, ["verlet"]):  # neither a name nor a Method: the unknown-method error, not an AttributeError
+        with pytest.raises(ValueError, match="unknown method"):
+            simulate(p, x0, 1.0, 0.05, method=bad, device="cpu")
     lin = ReferenceFlow("rk4", 16).linearize(p, x0, 8, 0.05)
     assert lin.unit_columns("all").shape == (4 * p.N, 4 * p.N)
 
@@ -258,3 +261,17 @@ def test_tangent_columns_match_reference_and_finite_differences(method, layout):
         fm = reference.integrate(method, p, xm.reshape(1, 4, p.N), dt, nsteps)["x"]
         fd = ((fp - fm) / (2 * h)).ravel()
         assert np.max(np.abs(fd - J[1, c])) <= 1e-7 * max(1.0, np.max(np.abs(J[1, c])))
+
+
+def test_reference_runs_have_simulates_chunks():
+    """``scenarios._common.reference_run`` (RK4's rows in the method scenes) ends its chunks where ``simulate``
+    does, also when the steps do not divide evenly, and its energies there are simulate's (the same scheme)."""
+    from scenarios._common import reference_run
+
+    p = ChainParams(30.0, 160.0, 21)
+    x0 = localized_state(p.N, amplitude=0.4)[0]
+    run = simulate(p, x0, 10 * 0.05, 0.05, method="verlet", device="cpu", guard=Guard(chunks=4))
+    x, t, E = reference_run("verlet", p, x0, 10 * 0.05, 0.05, chunks=4)
+    assert np.array_equal(t, run.energy_t) and len(t) == 5
+    assert np.array_equal(x, run.x[0])
+    assert np.allclose(E, run.energy_trace[:, 0], rtol=1e-13, atol=0)

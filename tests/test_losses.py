@@ -6,7 +6,7 @@ import pytest
 from warpchain import Guard, Placement, Record
 from warpchain import ChainParams, IntegrationError, reference, simulate, stability_limit
 from warpchain.losses import Damping, damping_matrix, dissipation, kick_dissipation, kick_matrices, rhs_flat
-from warpchain.observe import Observation, observe, peak_mask, peak_tracks, reference_observe
+from warpchain.observe import Observation, observe, peak_mask, peak_tracks
 
 N = 41
 PARAMS = ChainParams(30.0, 160.0, N)
@@ -135,7 +135,7 @@ def test_observables_match_the_reference(layout):
     run = observe(
         PARAMS, x0, 12.0, 0.05, observation=obs, method="verlet", damping=DAMPING, device="cpu", layout=layout
     )
-    values, env, x = reference_observe("verlet", PARAMS, x0, run.dt, run.nsteps, obs, damping=DAMPING)
+    values, env, x = reference.observe("verlet", PARAMS, x0, run.dt, run.nsteps, obs, damping=DAMPING)
     assert np.array_equal(run.x, x)
     assert np.array_equal(run["peaks"], values[..., 0])
     np.testing.assert_allclose(run.values, values, rtol=1e-12, atol=1e-13)

@@ -150,17 +150,19 @@ class Linearization:
             self._cache[key] = cols
         return cols
 
-    def unit_columns(self, which: str) -> np.ndarray:
+    def unit_columns(self, which: str, probe: bool = True) -> np.ndarray:
         """Columns along the unit directions of the positions (``"positions"``: u then v, 2N) or the
         velocities (``"velocities"``: u' then v', 2N) or of the whole state (``"all"``, 4N).
 
         From ``PROBE_MIN_SITES`` sites on they come from colour groups (``probed_columns``: 2 (2 b + 1) tangent
-        runs per half of the state instead of 2N, the same columns to ~1e-33)."""
+        runs per half of the state instead of 2N, the same columns to ~1e-33, entries below 1e-16 of their run's
+        largest dropped); ``probe=False`` takes one tangent run per unit direction (a dense matrix, every entry).
+        Columns already cached under ``which`` are returned as they are."""
         if which in self._cache:
             return self._cache[which]
         if which == "all" and "positions" in self._cache and "velocities" in self._cache:
             return np.hstack([self._cache["positions"], self._cache["velocities"]])
-        if self.x0.shape[1] >= PROBE_MIN_SITES and (self.banded or self.lattice is not None):
+        if probe and self.x0.shape[1] >= PROBE_MIN_SITES and (self.banded or self.lattice is not None):
             cols = self.probed_columns(which)[0].toarray()
             self._cache[which] = cols
             return cols

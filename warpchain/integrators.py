@@ -136,7 +136,8 @@ class SplittingMethod(Method):
 class RungeKuttaMethod(Method):
     """An explicit Runge-Kutta method whose stage i + 1 is evaluated at x + nodes[i] dt k_i (a
     tableau with one nonzero entry per row, as the classical RK4), and whose step is
-    x + (dt / divisor) sum_i weights[i] k_i. The numpy reference and every kernel read these.
+    x + (dt / divisor) sum_i weights[i] k_i. The numpy reference reads these (the Warp engine steps splitting
+    methods only).
 
     Attributes:
         nodes: a_21, a_32, a_43 (classical RK4: 1/2, 1/2, 1).
@@ -151,7 +152,7 @@ class RungeKuttaMethod(Method):
 
     def __post_init__(self):
         if len(self.weights) != 4 or len(self.nodes) != 3:
-            raise ValueError("the kernels implement four-stage Runge-Kutta methods (3 nodes, 4 weights)")
+            raise ValueError("the reference implements four-stage Runge-Kutta methods (3 nodes, 4 weights)")
 
     @property
     def force_evaluations(self) -> int:

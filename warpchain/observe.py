@@ -29,7 +29,7 @@ since the last frame; at each frame (every ``frame_every`` steps) it reduces ove
 The envelope profile of the last frame is kept on the device, copied there ``lag_frames`` frames before
 the end (a chunk ends at that frame) and read with the one at the end; ``peak_tracks`` turns the two into
 peak positions, amplitudes and drift velocities on the host. Frame 0 (the initial state, envelope
-|z|) is reduced by the kernels too, at the start of the first launch. ``reference_observe`` is the
+|z|) is reduced by the kernels too, at the start of the first launch. ``reference.observe`` is the
 numpy oracle of all of this (the same steps, the same tracking), against which the kernels are tested.
 """
 
@@ -39,20 +39,15 @@ import numpy as np
 
 from .engine.devices import on_one_thread
 from .losses import Damping
+from .reference import N_OBSERVABLES, OBSERVABLES, peak_mask  # noqa: F401  (the observables' names, re-exported)
 from .model import (
     ChainParams,
     _signed_energy_change,
-    site_energies,
-    per_lattice_parameters,
     real_number,
     whole_number,
 )
 
-OBSERVABLES = ("peaks", "participation", "spot_energy", "max_envelope", "min_contact", "energy", "dissipated")
-N_OBSERVABLES = len(OBSERVABLES)
 _ENERGY, _DISSIPATED = OBSERVABLES.index("energy"), OBSERVABLES.index("dissipated")
-#: the tracked extremes of z start from these (any real displacement replaces them)
-_FAR = 1.0e300
 
 
 @dataclasses.dataclass(frozen=True)
@@ -137,84 +132,6 @@ class ObservedRun:
 
 
 # ----------------------------------------------------------------------------- numpy reference
-
-
-def peak_mask(env: np.ndarray, threshold: float, radius: int, contrast: float = 1.0) -> np.ndarray:
-    """Localized peaks of envelope profiles env (..., N): the rule of the kernels (module docstring).
-    Running extremes over ``radius`` sites on each side, in place (past the chain's ends: -inf for the
-    largest-value test, 0 for the localization test)."""
-    env = np.asarray(env, dtype=np.float64)
-    n = env.shape[-1]
-    r = min(int(radius), n)
-    j = np.arange(n)
-    left_max = np.full_like(env, -np.inf)
-    right_max = np.full_like(env, -np.inf)
-    left_min = np.broadcast_to(np.where(j < r, 0.0, np.inf), env.shape).copy()  # a window past an end holds 0
-    right_min = np.broadcast_to(np.where(j >= n - r, 0.0, np.inf), env.shape).copy()
-    for i in range(1, r + 1):
-        if i >= n:
-            break
-        np.maximum(left_max[..., i:], env[..., :-i], out=left_max[..., i:])
-        np.maximum(right_max[..., :-i], env[..., i:], out=right_max[..., :-i])
-        np.minimum(left_min[..., i:], env[..., :-i], out=left_min[..., i:])
-        np.minimum(right_min[..., :-i], env[..., i:], out=right_min[..., :-i])
-    mask = (env > threshold) & (env > left_max) & (env >= right_max)
-    return mask & (left_min <= contrast * env) & (right_min <= contrast * env)
-
-
-def frame_observables(
-    params, x, z_low, z_high, M, K, observation: Observation, dissipated=0.0
-) -> tuple[np.ndarray, np.ndarray]:
-    """The observables of one frame from the state x (batch, 4, N), the interval's z extremes
-    (batch, N) and the energy dissipated so far (batch,). Returns (values (batch, len(OBSERVABLES)),
-    envelope (batch, N))."""
-    env = np.maximum(z_high, -z_low)
-    e = site_energies(params, x, M, K)
-    n = x.shape[-1]
-    spot = np.broadcast_to(np.asarray(observation.spot, dtype=np.float64), (x.shape[0],))
-    inside = np.abs(np.arange(n)[None, :] - n // 2) <= spot[:, None]
-    total = e.sum(axis=-1)
-    squares = (e * e).sum(axis=-1)
-    out = np.empty((x.shape[0], N_OBSERVABLES))
-    out[:, 0] = peak_mask(env, observation.threshold, observation.radius, observation.contrast).sum(axis=-1)
-    out[:, 1] = np.where(squares > 0, total * total / np.where(squares > 0, squares, 1.0), 0.0)
-    out[:, 2] = np.where(inside, e, 0.0).sum(axis=-1)
-    out[:, 3] = env.max(axis=-1)
-    out[:, 4] = (1.0 + z_low).min(axis=-1)
-    out[:, 5] = total
-    out[:, 6] = dissipated
-    return out, env
-
-
-def reference_observe(
-    method, params: ChainParams, x0, dt: float, nsteps: int, observation: Observation, M=None, K=None, damping=None
-):
-    """``observe``'s numpy oracle: the same scheme (``reference.step``) and the same tracking.
-
-    Returns:
-        (values (n_frames, batch, len(OBSERVABLES)), envelope of the last frame (batch, N), final state).
-    """
-    from . import reference
-
-    x = np.array(x0, dtype=np.float64)
-    batch = x.shape[0]
-    Mb, Kb = per_lattice_parameters(params, batch, M, K)
-    lost = np.zeros(batch)
-    z = x[:, 0] - x[:, 1]
-    first, env = frame_observables(params, x, z, z, Mb, Kb, observation)
-    frames = [first]
-    low = np.full_like(z, _FAR)
-    high = np.full_like(z, -_FAR)
-    for n in range(nsteps):
-        x = reference.step(method, params, x, dt, Mb, Kb, damping=damping, dissipated=lost)
-        z = x[:, 0] - x[:, 1]
-        low, high = np.minimum(low, z), np.maximum(high, z)
-        if (n + 1) % observation.frame_every == 0:
-            values, env = frame_observables(params, x, low, high, Mb, Kb, observation, lost.copy())
-            frames.append(values)
-            low = np.full_like(z, _FAR)
-            high = np.full_like(z, -_FAR)
-    return np.stack(frames), env, x
 
 
 def peak_tracks(env_lag, env_end, dt_lag: float, observation: Observation, max_speed: float, max_peaks: int = 32):

@@ -2,7 +2,9 @@
 
 This is the oracle the Warp kernels are tested against: the same stages, the same coefficients,
 vectorised over lattices and sites instead of looped. It also propagates tangent vectors (the
-exact derivative of the discrete map), used to check the Warp tangent kernels.
+exact derivative of the discrete map), used to check the Warp tangent kernels, and runs the observables of
+``warpchain.observe`` frame by frame (``observe``: the peak rule ``peak_mask`` and ``frame_observables``, which the
+host's peak tracking reads too).
 
 Shapes: a batch state ``x`` is (batch, 4, N) ordered (u, v, u', v'); tangent columns ``dx`` are
 (batch, ncols, 4, N), each column attached to its lattice. ``dtype=np.float32`` runs the same
@@ -15,7 +17,14 @@ import numpy as np
 
 from . import losses, model
 from .integrators import Method, SplittingMethod, get_method
-from .model import ChainParams, contact_force, contact_stiffness, lattice_laplacian
+from .model import (
+    ChainParams,
+    contact_force,
+    contact_stiffness,
+    lattice_laplacian,
+    per_lattice_parameters,
+    site_energies,
+)
 
 
 def inverse_mass(M, dtype=np.float64):
@@ -240,3 +249,84 @@ def solve_ivp_reference(
     if not sol.success:
         raise RuntimeError(f"scipy {method} failed: {sol.message}")
     return sol.y[:, -1].reshape(4, params.N), sol
+
+
+# ----------------------------------------------------------------------------- the observables' oracle
+
+#: what ``warpchain.observe`` reduces per frame and lattice, in this order (the kernels' ``site.store_observables``)
+OBSERVABLES = ("peaks", "participation", "spot_energy", "max_envelope", "min_contact", "energy", "dissipated")
+N_OBSERVABLES = len(OBSERVABLES)
+#: the tracked extremes of z start from these (any real displacement replaces them)
+_FAR = 1.0e300
+
+
+def peak_mask(env: np.ndarray, threshold: float, radius: int, contrast: float = 1.0) -> np.ndarray:
+    """Localized peaks of envelope profiles env (..., N): the rule of the kernels (module docstring).
+    Running extremes over ``radius`` sites on each side, in place (past the chain's ends: -inf for the
+    largest-value test, 0 for the localization test)."""
+    env = np.asarray(env, dtype=np.float64)
+    n = env.shape[-1]
+    r = min(int(radius), n)
+    j = np.arange(n)
+    left_max = np.full_like(env, -np.inf)
+    right_max = np.full_like(env, -np.inf)
+    left_min = np.broadcast_to(np.where(j < r, 0.0, np.inf), env.shape).copy()  # a window past an end holds 0
+    right_min = np.broadcast_to(np.where(j >= n - r, 0.0, np.inf), env.shape).copy()
+    for i in range(1, r + 1):
+        if i >= n:
+            break
+        np.maximum(left_max[..., i:], env[..., :-i], out=left_max[..., i:])
+        np.maximum(right_max[..., :-i], env[..., i:], out=right_max[..., :-i])
+        np.minimum(left_min[..., i:], env[..., :-i], out=left_min[..., i:])
+        np.minimum(right_min[..., :-i], env[..., i:], out=right_min[..., :-i])
+    mask = (env > threshold) & (env > left_max) & (env >= right_max)
+    return mask & (left_min <= contrast * env) & (right_min <= contrast * env)
+
+
+def frame_observables(params, x, z_low, z_high, M, K, observation, dissipated=0.0) -> tuple[np.ndarray, np.ndarray]:
+    """The observables of one frame from the state x (batch, 4, N), the interval's z extremes (batch, N) and the
+    energy dissipated so far (batch,), for ``observation`` (a ``warpchain.Observation``). Returns (values (batch,
+    len(OBSERVABLES)), envelope (batch, N))."""
+    env = np.maximum(z_high, -z_low)
+    e = site_energies(params, x, M, K)
+    n = x.shape[-1]
+    spot = np.broadcast_to(np.asarray(observation.spot, dtype=np.float64), (x.shape[0],))
+    inside = np.abs(np.arange(n)[None, :] - n // 2) <= spot[:, None]
+    total = e.sum(axis=-1)
+    squares = (e * e).sum(axis=-1)
+    out = np.empty((x.shape[0], N_OBSERVABLES))
+    out[:, 0] = peak_mask(env, observation.threshold, observation.radius, observation.contrast).sum(axis=-1)
+    out[:, 1] = np.where(squares > 0, total * total / np.where(squares > 0, squares, 1.0), 0.0)
+    out[:, 2] = np.where(inside, e, 0.0).sum(axis=-1)
+    out[:, 3] = env.max(axis=-1)
+    out[:, 4] = (1.0 + z_low).min(axis=-1)
+    out[:, 5] = total
+    out[:, 6] = dissipated
+    return out, env
+
+
+def observe(method, params: ChainParams, x0, dt: float, nsteps: int, observation, M=None, K=None, damping=None):
+    """``warpchain.observe``'s numpy oracle: the same scheme (``step``) and the same tracking.
+
+    Returns:
+        (values (n_frames, batch, len(OBSERVABLES)), envelope of the last frame (batch, N), final state).
+    """
+    x = np.array(x0, dtype=np.float64)
+    batch = x.shape[0]
+    Mb, Kb = per_lattice_parameters(params, batch, M, K)
+    lost = np.zeros(batch)
+    z = x[:, 0] - x[:, 1]
+    first, env = frame_observables(params, x, z, z, Mb, Kb, observation)
+    frames = [first]
+    low = np.full_like(z, _FAR)
+    high = np.full_like(z, -_FAR)
+    for n in range(nsteps):
+        x = step(method, params, x, dt, Mb, Kb, damping=damping, dissipated=lost)
+        z = x[:, 0] - x[:, 1]
+        low, high = np.minimum(low, z), np.maximum(high, z)
+        if (n + 1) % observation.frame_every == 0:
+            values, env = frame_observables(params, x, low, high, Mb, Kb, observation, lost.copy())
+            frames.append(values)
+            low = np.full_like(z, _FAR)
+            high = np.full_like(z, -_FAR)
+    return np.stack(frames), env, x

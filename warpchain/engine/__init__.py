@@ -12,10 +12,12 @@ Modules:
 - ``site``: what every layout computes at one site, written once (the contact law, the neighbour rules of the
   chain and of a neighbour table, the force and its tangent, the damped kick, the energy, the observables'
   per-site tests) and the structs the kernels read.
-- the step loops, one module per layout: ``thread_kernels`` (a thread per lattice: the CPU path), ``block_kernels``
-  (a thread block per lattice, a thread per site), ``site_group_kernels`` (a thread per run of sites: the GPU
-  path for large batches) and ``site_kernels`` (the ``"sites"`` layout: a thread per site and a launch per
-  force evaluation, for lattices longer than a block; its one kernel serves base runs and tangent columns).
+- the step loops, one per layout, each serving base runs and tangent columns (compile-time flags: tangent,
+  record, save, damped, observed): ``thread_kernels`` (a thread per lattice: the CPU path), ``block_kernels`` (a
+  thread block per lattice, a thread per site) and ``site_kernels`` (the ``"sites"`` layout: a thread per site and a
+  launch per force evaluation, for lattices longer than a block, and for neighbour tables); beside them
+  ``site_group_kernels`` (a thread per run of sites), the chain's fast path for many short lattices on a GPU
+  (``plans.site_group_launch`` says where it pays).
   ``warpchain.reference`` is their numpy oracle. Kernels take their arguments as a few
   structs passed whole: the lattices (``site.Lattice``: M, 1/M, K, losses, boundary), the method
   (``block_kernels.Scheme``: a splitting method's coefficients times dt), what a run records

@@ -1,6 +1,6 @@
 """Block-per-lattice Warp kernels (float64): the GPU path.
 
-Layout and arithmetic match ``kernels.py`` (state (batch, 4, N) ordered (u, v, u', v'), the same
+Layout and arithmetic match ``thread_kernels`` (state (batch, 4, N) ordered (u, v, u', v'), the same
 ``@wp.func`` contact law, the same operation order as the numpy reference), but the work is laid
 out the way a GPU wants it:
 

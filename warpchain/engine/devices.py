@@ -236,15 +236,20 @@ def engine_method(method):
     family runs: the engine's kernels step the splitting methods only. RK4 left the engine: at every accuracy a
     splitting method is as cheap or cheaper (work-precision scene) and RK4 alone needed step loops of its own
     (``docs/derivations/model.md``); ``warpchain.reference`` and ``ReferenceFlow`` keep it."""
-    from ..integrators import SplittingMethod, get_method
+    from ..integrators import METHODS, SplittingMethod, get_method
 
-    m = get_method(method) if isinstance(method, str) else method
+    m = get_method(method)  # a name or a Method; anything else raises ValueError there
     if not isinstance(m, SplittingMethod):
+        named = METHODS.get(m.name) is m
+        where = (
+            f"warpchain.reference.integrate({m.name!r}, ...), or ReferenceFlow(method={m.name!r}) for Newton and "
+            "Floquet"
+            if named
+            else "warpchain.reference.integrate(method, ...) with the method object"
+        )
         raise ValueError(
             f"{m.name!r} is not a splitting method: the Warp engine (simulate, propagate_tangent, Flow) runs "
-            "the splitting methods of warpchain.METHODS; run it on the numpy reference instead "
-            f"(warpchain.reference.integrate({m.name!r}, ...), or ReferenceFlow(method={m.name!r}) for Newton "
-            "and Floquet)"
+            f"the splitting methods of warpchain.METHODS; run it on the numpy reference instead ({where})"
         )
     return m
 

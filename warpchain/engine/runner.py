@@ -86,6 +86,7 @@ class _Runner:
         from . import site
         from . import thread_kernels as kernels
 
+        method = engine_method(method)  # the plans step splitting methods only
         self.wp, self.k, self.site, self.method, self.device = wp, kernels, site, method, device
         self.batch, _, self.N = x0.shape
         table = neighbour_table(params)  # a lattice given as a neighbour table: the sites layout

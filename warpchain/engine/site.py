@@ -1,8 +1,9 @@
 """The site: what every kernel layout computes at one site, written once (float64).
 
 A batch state is a ``wp.array3d`` of shape (batch, 4, N) ordered (u, v, u', v'). This module holds the arithmetic of
-one site that the layouts' step loops (``thread_kernels``: a thread per lattice; ``block_kernels`` and
-``site_group_kernels``: a block per lattice; ``site_kernels``: a thread per site) share, and the structs they read:
+one site that the layouts' step loops (``thread_kernels``: a thread per lattice; ``block_kernels``: a block per
+lattice, a thread per site; ``site_group_kernels``: a block per lattice, a thread per run of sites;
+``site_kernels``: a thread per site, a launch per force evaluation) share, and the structs they read:
 
 - the contact law (``contact_force``, ``contact_potential``, ``contact_stiffness``: the Hertzian f(z), its potential
   and f'(z));

@@ -1,10 +1,10 @@
-"""NVIDIA Warp kernels (float64) for batches of mass-in-mass chains.
+"""The thread layout's Warp kernels (float64): a thread per lattice, the CPU path.
 
 Layout: a batch state is a ``wp.array3d`` of shape (batch, 4, N) ordered (u, v, u', v'). Each
 kernel thread owns one lattice (``b = wp.tid()``) and loops over time *inside* the kernel, so a
-long run costs one launch per chunk of many steps, never one per step. All per-site arithmetic
-lives in ``@wp.func`` helpers that take (lattice, site) indices, so that a later kernel where a
-thread block owns a lattice (one thread per site) can reuse them unchanged.
+long run costs one launch per chunk of many steps, never one per step. The arithmetic of one site (contact
+law, neighbour rules, force, energy) and the structs are ``engine.site``'s, shared with the other layouts;
+this module holds the per-pass helpers over a lattice's rows, the step loop and the guard.
 
 The splitting kernel (base runs and tangent columns) takes a fast path where a lattice's rows are
 contiguous (always, as ``ensemble`` allocates them): each stage is one pass over the sites
