@@ -11,15 +11,14 @@ from .ensemble import (
     IntegrationError,
     SimulationResult,
     StepSizeError,
-    TangentResult,
     available_devices,
     frame_buffers,
-    propagate_tangent,
     resolve_device,
     simulate,
     stability_limit,
 )
 from .observe import Observation, ObservedRun, observe
+from .tangent import TangentResult, propagate_tangent
 from .options import Guard, Placement, Record
 from .flow import Flow, Linearization, ReferenceFlow, Trajectory
 from .integrators import METHODS, Method, RungeKuttaMethod, SplittingMethod, get_method

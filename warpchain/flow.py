@@ -26,7 +26,6 @@ makes once on the device so that Newton's 2N columns cost no host-to-device copy
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 import weakref
 from typing import Callable
@@ -34,7 +33,7 @@ from typing import Callable
 import numpy as np
 
 from .integrators import get_method
-from .lattice import geometry_key, neighbour_table
+from .lattice import balls_of, geometry_key, kept_colouring, neighbour_table
 from .model import ChainParams, as_batch, min_contact
 
 
@@ -64,35 +63,6 @@ class Trajectory:
 
     x_end: np.ndarray
     min_contact: np.ndarray
-
-
-@functools.lru_cache(maxsize=8)
-def _colouring(lattice, distance: int) -> np.ndarray:
-    """``lattice.colouring(distance)``, kept (with ``_balls``): Newton asks for a patch's probed columns at every
-    iterate, and the greedy colouring of a 101 x 101 patch at distance 32 takes seconds."""
-    colours = lattice.colouring(distance)
-    colours.setflags(write=False)
-    return colours
-
-
-@functools.lru_cache(maxsize=8)
-def _balls(lattice, b: int) -> tuple:
-    """CSR (sites x sites) of the sites within b bonds (weight != 0) of each site, and of those exactly b away."""
-    import scipy.sparse as sp
-
-    n, nb = lattice.n_sites, lattice.neighbours
-    s, d = np.nonzero((nb >= 0) & (lattice.weights != 0))
-    eye = sp.identity(n, dtype=bool, format="csr")
-    step = sp.csr_matrix((np.ones(len(s), bool), (s, nb[s, d])), shape=(n, n)) + eye
-    inner = eye
-    for _ in range(b - 1):
-        inner = (inner @ step).astype(bool)
-    ball = (inner @ step).astype(bool).tocsr()
-    rim = (ball.astype(np.int8) - inner.astype(np.int8)).astype(bool).tocsr()
-    rim.eliminate_zeros()
-    ball.sort_indices()
-    rim.sort_indices()
-    return ball, rim
 
 
 class Linearization:
@@ -221,10 +191,10 @@ class Linearization:
         lat, N = self.lattice, self.x0.shape[1]
         b = LATTICE_HALFWIDTH
         while True:
-            colours = _colouring(lat, 2 * b)
+            colours = kept_colouring(lat, 2 * b)
             if colours.max() + 1 >= N:
                 return sp.csc_matrix(self._plain_columns(which)), N
-            balls = _balls(lat, b)
+            balls = balls_of(lat, b)
             A, edge = self._probe_groups(comps, colours, balls)
             if edge <= PROBE_TOLERANCE:
                 return A, b
