@@ -23,6 +23,7 @@ from warpchain.flow import Flow, ReferenceFlow
 from warpchain.integrators import stability_limit
 from warpchain.lattice import LatticeParams, chain, square, triangular
 from warpchain.losses import Damping
+from warpchain.observe import Observation
 
 BUILDERS = {"square": square, "triangular": triangular}
 
@@ -180,6 +181,79 @@ def test_2d_on_a_gpu_equals_the_reference(geometry):
         )
         np.testing.assert_allclose(a.x_end, b.x_end, rtol=0, atol=1e-13)
         np.testing.assert_allclose(a.unit_columns("all"), b.unit_columns("all"), rtol=0, atol=1e-12)
+
+
+@pytest.mark.skipif(not _cuda_devices(), reason="needs a GPU (CI has none: the CPU tests above hold the bits)")
+def test_observables_in_the_sites_layout_on_a_gpu():
+    """On a GPU the sites layout reduces the observables of a 21 x 21 triangular patch (with losses) and of a chain
+    longer than a block (N = 1201: auto picks the sites layout there) as the oracle does (rounding: 1e-11; the same
+    peaks)."""
+    device = _cuda_devices()[0]
+    cases = [(LatticeParams(3.0, 1.0, triangular(21, 21, "fixed")), 2.5), (ChainParams(3.0, 1.0, 1201), 5.0)]
+    for p, spot in cases:
+        x0 = np.zeros((2, 4, p.N))
+        x0[:, 1, p.N // 2] = 0.6
+        x0[:, 1] += 0.05 * np.random.default_rng(5).standard_normal((2, p.N))
+        obs = Observation(frame_every=10, threshold=0.05, radius=3, contrast=0.5, spot=spot)
+        damping = Damping(contact=np.array([0.0, 0.05]), substrate=0.0)
+        run = simulate(p, x0, 60 * 0.05, 0.05, device=device, observe=obs, damping=damping)
+        values, env, x = reference.observe("verlet", p, x0, run.dt, run.nsteps, obs, damping=damping)
+        assert run.layout == "sites"
+        np.testing.assert_allclose(run.x, x, rtol=0, atol=1e-12)
+        assert np.array_equal(run.observed["peaks"], values[..., 0])
+        np.testing.assert_allclose(run.observed.values, values, rtol=1e-11, atol=1e-13)
+        np.testing.assert_allclose(run.observed.envelope, env, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("boundary", BOUNDARIES)
+@pytest.mark.parametrize("geometry", sorted(BUILDERS))
+def test_2d_observables_on_the_device_equal_the_oracle(geometry, boundary):
+    """``simulate(..., observe=...)`` on a table (the sites layout): frame by frame the observables of
+    ``reference.observe`` (the table's peak rule, the disc of the spot, energies summed in another order: 1e-12),
+    the same peaks and envelopes, the state bit for bit; with losses on one lattice, over several chunks."""
+    p = LatticeParams(3.0, 1.0, BUILDERS[geometry](9, 8, boundary))
+    x0 = np.zeros((3, 4, p.N))
+    x0[:, 1, p.lattice.centre] = 0.6
+    x0[:, 1] += 0.05 * np.random.default_rng(3).standard_normal((3, p.N))
+    obs = Observation(frame_every=10, threshold=0.05, radius=2, contrast=0.5, spot=np.array([2.0, 0.0, 3.5]))
+    damping = Damping(contact=np.array([0.0, 0.05, 0.0]), substrate=0.0)
+    run = simulate(p, x0, 60 * 0.05, 0.05, device="cpu", observe=obs, damping=damping, guard=Guard(chunks=3))
+    values, env, x = reference.observe("verlet", p, x0, run.dt, run.nsteps, obs, damping=damping)
+    assert run.layout == "sites" and np.array_equal(run.x, x)
+    assert np.array_equal(run.observed["peaks"], values[..., 0]) and run.observed["peaks"].max() >= 1
+    assert np.array_equal(run.observed.envelope, env)
+    np.testing.assert_allclose(run.observed.values, values, rtol=1e-12, atol=1e-300)
+    assert run.observed["dissipated"][-1, 1] > 0 and run.observed["dissipated"][-1, 0] == 0
+
+
+def test_long_chain_observables_in_the_sites_layout():
+    """A chain in the sites layout (a GPU's for N > 1024; forced here) reduces the chain's observables: the windows
+    of ``peak_mask``, not the table's, so that a ring gives the thread layout's values."""
+    for boundary in ("fixed", "periodic"):
+        p = ChainParams(3.0, 1.0, 61, boundary)
+        x0 = np.zeros((2, 4, p.N))
+        x0[:, 1, [3, 30, 58]] = 0.6
+        obs = Observation(frame_every=8, threshold=0.05, radius=4, contrast=0.5, spot=5.0)
+        runs = {
+            layout: simulate(p, x0, 40 * 0.05, 0.05, device="cpu", observe=obs, placement=Placement(layout))
+            for layout in ("sites", "thread")
+        }
+        values, env, _ = reference.observe("verlet", p, x0, runs["sites"].dt, runs["sites"].nsteps, obs)
+        for run in runs.values():
+            assert np.array_equal(run.observed["peaks"], values[..., 0]) and np.array_equal(run.observed.envelope, env)
+            np.testing.assert_allclose(run.observed.values, values, rtol=1e-12, atol=1e-300)
+
+
+def test_the_table_peak_rule_is_the_chains_on_a_chain():
+    """``reference.table_peak_mask`` on a chain's table with fixed or free ends is ``peak_mask`` (ties included)."""
+    rng = np.random.default_rng(1)
+    for boundary in ("fixed", "free"):
+        table = chain(57, boundary)
+        for _ in range(20):
+            env = np.round(np.abs(rng.standard_normal((3, 57))) * (rng.random((3, 57)) < 0.5), 1)
+            for radius, contrast in ((1, 1.0), (2, 0.5), (5, 0.5)):
+                expected = reference.peak_mask(env, 0.1, radius, contrast)
+                assert np.array_equal(reference.table_peak_mask(table, env, 0.1, radius, contrast), expected)
 
 
 def test_spot_peaks_equal_the_full_disc_filter():

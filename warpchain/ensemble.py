@@ -16,7 +16,6 @@ import time
 import numpy as np
 
 from .integrators import steps_for
-from .lattice import neighbour_table
 from .losses import Damping, as_damping
 from .model import ChainParams, _signed_energy_change, as_batch, per_lattice_parameters, real_number
 from .engine.tuning import active
@@ -150,7 +149,8 @@ def simulate(
         placement: kernel layout and whether the final state stays on the device (``Placement``).
         observe: a ``warpchain.Observation``: reduce its observables on the device every ``frame_every`` steps
             (the step is shortened so that t_final > 0 is a whole number of frames; splitting methods, not with
-            ``record``; a lattice longer than a block runs in the thread layout), returned as ``result.observed``.
+            ``record``; every layout, a lattice given as a table in the sites layout with the table's peak rule),
+            returned as ``result.observed``.
             The guard then also bounds every frame's energy plus what the losses took.
         progress: show a tqdm progress bar.
         **deprecated: the flat keywords of earlier releases (``save_every``, ``frames_out``, ``on_chunk``,
@@ -233,11 +233,6 @@ class _Run:
         self.frame_every = 0
         lag_step = None
         if observe is not None:
-            if neighbour_table(params) is not None:
-                raise ValueError(
-                    "simulate(): observe reduces the chain's observables; a lattice given as a neighbour table "
-                    "(LatticeParams) runs without it: record frames (Record) and reduce them on the host"
-                )
             if record is not None:
                 raise ValueError("simulate(): observe and record are exclusive (observables replace the fields)")
             if t_final <= 0:
@@ -248,8 +243,6 @@ class _Run:
             self.dt_used = dt_used = t_final / nsteps
             self.limit = check_step(meth, params, dt_used, *checked)  # the step that runs
             lag_step = (n_frames - min(observe.lag_frames, n_frames)) * self.frame_every  # the envelope is kept here
-            if resolve_layout(layout, device, params.N) == "sites":
-                layout = "thread"  # the observables are reduced in the block and thread layouts
         self.layout = layout
         if frames_out is not None:
             frames_out = _check_frames_out(

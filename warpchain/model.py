@@ -240,19 +240,38 @@ def energy(params: ChainParams, x, M=None, K=None) -> np.ndarray:
 
 def site_energies(params: ChainParams, x, M, K) -> np.ndarray:
     """The Hamiltonian site by site, e_j of ``site.site_energy``, for a batch (batch, 4, N): kinetic
-    energy, the bond to the right (wall bonds at fixed ends, the bond to site 0 on a ring), the contact energy.
-    Their sum is ``energy`` (summed in another order); observe's numpy oracle reduces them."""
+    energy, the bond to the right (wall bonds at fixed ends, the bond to site 0 on a ring), the contact energy;
+    on a ``LatticeParams`` the bonds a site holds (``held_bonds``: ``site.table_bonds``). Their sum is ``energy``
+    (summed in another order); observe's numpy oracle reduces them."""
     x = np.asarray(x, dtype=np.float64)
     batch, _, n = x.shape
     M = np.broadcast_to(np.asarray(M, dtype=np.float64), (batch,))[:, None]
     K = np.broadcast_to(np.asarray(K, dtype=np.float64), (batch,))[:, None]
     u, v, pu, pv = x[:, 0], x[:, 1], x[:, 2], x[:, 3]
-    bonds = np.empty_like(u)
-    bonds[:, :-1] = (u[:, 1:] - u[:, :-1]) ** 2
-    first, bonds[:, -1] = wall_bonds(u, params.boundary)
-    bonds[:, 0] += first
+    if isinstance(params, ChainParams):
+        bonds = np.empty_like(u)
+        bonds[:, :-1] = (u[:, 1:] - u[:, :-1]) ** 2
+        first, bonds[:, -1] = wall_bonds(u, params.boundary)
+        bonds[:, 0] += first
+    else:
+        bonds = held_bonds(params.lattice, u)
     kinetic = 0.5 * M * (pu * pu) + 0.5 * (pv * pv)
     return kinetic + 0.5 * K * bonds + contact_potential(u - v)
+
+
+def held_bonds(lattice, u) -> np.ndarray:
+    """sum w (u_j - u_t)^2 over the bonds site j holds (``site.table_bonds``, operation for operation): its slots
+    along +e_k (odd slots: a bond between two sites is held once) and its walls (u_t = 0); u (batch, sites)."""
+    from .lattice import WALL
+
+    bonds = np.zeros_like(u)
+    for d in range(lattice.neighbours.shape[1]):
+        t = lattice.neighbours[:, d]
+        other = np.where(t >= 0, u[:, np.maximum(t, 0)], np.where(t == WALL, 0.0, u))
+        diff = u - other
+        held = (d % 2 == 1) | (t == WALL)
+        bonds = np.where(held, bonds + lattice.weights[:, d] * (diff * diff), bonds)
+    return bonds
 
 
 def min_contact(x) -> np.ndarray:

@@ -2,8 +2,9 @@
 
 ``simulate(..., observe=Observation(...))`` (or ``observe``, which returns just the observables) integrates a
 batch with the same splitting kernels, chunks and guard as any run (losses included) but, instead of fields,
-returns per lattice and frame a few numbers computed inside the kernel (hooks compiled into the engine's
-splitting kernels: ``thread_kernels.observed_splitting_kernel``, ``block_kernels`` ``observed``). Every
+returns per lattice and frame a few numbers computed on the device (hooks compiled into the engine's
+splitting kernels: ``thread_kernels.observed_splitting_kernel``, ``block_kernels`` ``observed``; in the sites
+layout ``site_kernels.evaluate`` tracks and ``site_kernels.observe_frame`` reduces). Every
 step the kernel tracks, per site, the lowest and highest relative displacement z_j = u_j - v_j
 since the last frame; at each frame (every ``frame_every`` steps) it reduces over the lattice:
 
@@ -18,6 +19,12 @@ since the last frame; at each frame (every ``frame_every`` steps) it reduces ove
   about the number of sites that carry the energy.
 * ``spot_energy``: sum of e_j over |j - c| <= ``spot`` (c = N // 2, the spot's centre; ``spot`` per
   lattice, in sites).
+
+On a lattice given as a table (``warpchain.lattice.LatticeParams``: the square and triangular monolayers) the same
+numbers with the table's neighbourhoods (``reference.table_peak_mask``): the window is the ball of ``radius`` bonds
+(lower-indexed sites strictly below, higher ones at most equal), the localization test runs along each bonded slot
+direction (a step past a wall or a free edge reads 0; a periodic patch's rays wrap), the site energies hold the bonds
+of ``site.table_bonds``, and the spot is the disc of radius ``spot`` (in lattice spacings) about the centre site.
 * ``max_envelope``: max_j env_j.
 * ``min_contact``: min over the interval's steps and the sites of 1 + z_j (<= 0: contact lost).
 * ``energy``: sum_j e_j at the frame.
@@ -207,9 +214,9 @@ class _Frames:
             "spot": wp.array(spot, dtype=f64, device=runner.device),
             "z_low": wp.empty(shape, dtype=f64, device=runner.device),  # the tracked z extremes (set at frame 0)
             "z_high": wp.empty(shape, dtype=f64, device=runner.device),
-            # the energy dissipated so far: per site (block layout) or per lattice (thread layout), across launches
+            # the energy dissipated so far: per site (block, sites layouts) or per lattice (thread), across launches
             "lost": wp.zeros(
-                (runner.batch, runner.N if runner.layout == "block" else 1), dtype=f64, device=runner.device
+                (runner.batch, runner.N if runner.layout in ("block", "sites") else 1), dtype=f64, device=runner.device
             ),
             "envelope": wp.zeros(shape, dtype=f64, device=runner.device),
         }

@@ -283,6 +283,36 @@ def peak_mask(env: np.ndarray, threshold: float, radius: int, contrast: float = 
     return mask & (left_min <= contrast * env) & (right_min <= contrast * env)
 
 
+def table_peak_mask(lattice, env: np.ndarray, threshold: float, radius: int, contrast: float = 1.0) -> np.ndarray:
+    """Localized peaks of envelope profiles env (..., sites) on a lattice given as a table (``warpchain.lattice``):
+    the chain's rule (``peak_mask``) with the table's neighbourhoods. A site is a peak when its envelope is above
+    ``threshold``, larger than every site's within ``radius`` bonds of a lower index and at least every higher one's
+    (the ball of ``lattice.balls_of``), and falls to ``contrast`` times its value along each bonded slot direction
+    within ``radius`` steps (a step past a wall or a free edge reads 0; a weightless slot tests nothing). On a
+    chain's table with fixed or free ends this is ``peak_mask``; on a ring the table's windows wrap."""
+    from .lattice import balls_of
+
+    env = np.asarray(env, dtype=np.float64)
+    n, r = lattice.n_sites, int(radius)
+    ball, _ = balls_of(lattice, r)
+    rows = np.repeat(np.arange(n), np.diff(ball.indptr))
+    cols = ball.indices
+    er, ec = env[..., rows], env[..., cols]
+    fails = ((cols < rows) & ~(er > ec)) | ((cols > rows) & ~(er >= ec))
+    count = np.zeros(env.shape)
+    np.add.at(count.reshape(-1, n), (slice(None), rows), fails.reshape(-1, rows.size).astype(float))
+    mask = (env > threshold) & (count == 0)
+    nb, w = lattice.neighbours, lattice.weights
+    for d in range(nb.shape[1]):
+        low = np.full(env.shape, np.inf)
+        t = np.arange(n)
+        for _ in range(r):
+            t = np.where(t >= 0, nb[np.maximum(t, 0), d], t)  # a negative slot (wall, edge) stays: the ray left
+            low = np.minimum(low, np.where(t >= 0, env[..., np.maximum(t, 0)], 0.0))
+        mask &= (w[:, d] == 0) | (low <= contrast * env)
+    return mask
+
+
 def frame_observables(params, x, z_low, z_high, M, K, observation, dissipated=0.0) -> tuple[np.ndarray, np.ndarray]:
     """The observables of one frame from the state x (batch, 4, N), the interval's z extremes (batch, N) and the
     energy dissipated so far (batch,), for ``observation`` (a ``warpchain.Observation``). Returns (values (batch,
@@ -291,11 +321,18 @@ def frame_observables(params, x, z_low, z_high, M, K, observation, dissipated=0.
     e = site_energies(params, x, M, K)
     n = x.shape[-1]
     spot = np.broadcast_to(np.asarray(observation.spot, dtype=np.float64), (x.shape[0],))
-    inside = np.abs(np.arange(n)[None, :] - n // 2) <= spot[:, None]
+    rule = (observation.threshold, observation.radius, observation.contrast)
+    if isinstance(params, ChainParams):
+        inside = np.abs(np.arange(n)[None, :] - n // 2) <= spot[:, None]
+        peaks = peak_mask(env, *rule)
+    else:  # a lattice: the spot is a disc about the centre site, peaks are the table's (``table_peak_mask``)
+        lattice = params.lattice
+        inside = lattice.distances(lattice.centre)[None, :] <= spot[:, None]
+        peaks = table_peak_mask(lattice, env, *rule)
     total = e.sum(axis=-1)
     squares = (e * e).sum(axis=-1)
     out = np.empty((x.shape[0], N_OBSERVABLES))
-    out[:, 0] = peak_mask(env, observation.threshold, observation.radius, observation.contrast).sum(axis=-1)
+    out[:, 0] = peaks.sum(axis=-1)
     out[:, 1] = np.where(squares > 0, total * total / np.where(squares > 0, squares, 1.0), 0.0)
     out[:, 2] = np.where(inside, e, 0.0).sum(axis=-1)
     out[:, 3] = env.max(axis=-1)

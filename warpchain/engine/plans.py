@@ -53,7 +53,7 @@ class _Plan:
     def observe(self, lo: int, hi: int, dt: float, nsteps: int, observer) -> None:
         """``step`` compiled with the observables of ``warpchain.observe`` (``observer``: a
         ``site.Observer`` for lattices lo..hi)."""
-        raise ValueError(f"observables are reduced in the block and thread layouts, not by {type(self).__name__}")
+        raise NotImplementedError
 
     def tangent(self, dx, column_base, lo: int, hi: int, dt: float, nsteps: int) -> None:
         raise NotImplementedError
@@ -178,8 +178,9 @@ class _SitesSplitting(_Plan):
             self.sequences = {key: self.kernels.evaluations(m.drifts, m.kicks, dt, nsteps, save_every)}
         return self.sequences[key]
 
-    def run(self, x, lo, hi, dt, nsteps, save_every, frames, tangent, column_base, record, lattice):
+    def run(self, x, lo, hi, dt, nsteps, save_every, frames, tangent, column_base, record, lattice, observer=None):
         r, sk = self.r, self.kernels
+        ob = r.no_observer if observer is None else observer
         out = r.record(0, frames, record)  # the frames' rows are given per evaluation (``save_row``)
         scratch = _parts(lo, hi, self.kept("u", (x.shape[0], 1, r.N)))[0]
         x = _parts(lo, hi, x)[0]
@@ -190,6 +191,7 @@ class _SitesSplitting(_Plan):
             slot = e["slot"] if record or tangent else 0  # unused otherwise: repeated launches share a kept command
             inputs = [x, src, src_row, dst, dst_row, column_base, lattice, int(tangent), slot, out]
             inputs += [e["kick"], e["h_kick"], e["pre"], e["h_pre"], drift, e["c"], e["save_row"]]
+            inputs += [e["ends"] if observer is not None else 0, int(observer is not None), ob]
             r.launch_kernel(sk.evaluate, (hi - lo, r.N), inputs)
             src, src_row = dst, dst_row
 
@@ -199,6 +201,55 @@ class _SitesSplitting(_Plan):
 
     def tangent(self, dx, column_base, lo, hi, dt, nsteps):
         self.run(dx, lo, hi, dt, nsteps, 0, None, 1, _part(column_base, lo, hi), False, self.r.lattice())
+
+    def observe(self, lo, hi, dt, nsteps, observer):
+        """``nsteps`` steps of lattices lo..hi with the observables of ``observer`` (``site.Observer``; frame 0 too
+        when it starts the run): each frame's steps track z and the losses in ``evaluate``, then ``observe_frame``
+        reduces the frame (``reference.frame_observables``, the table's peak rule on a lattice)."""
+        r, sk = self.r, self.kernels
+        x, lattice, fe = _parts(lo, hi, r.x)[0], r.lattice(lo, hi), observer.frame_every
+        nh = self.neighbourhoods(observer.radius)
+
+        def frame(index: int) -> None:
+            r.launch_kernel(sk.observe_envelope, (hi - lo, r.N), [x, observer, int(index == 0)])
+            inputs = [x, lattice, observer, nh, index]
+            r.launch_kernel(sk.observe_frame, (hi - lo, sk.FRAME_BLOCK), inputs, sk.FRAME_BLOCK)
+
+        done = observer.first_step
+        if done == 0:
+            frame(0)
+        while nsteps > 0:
+            steps = min(nsteps, fe - done % fe)
+            self.run(r.x, lo, hi, dt, steps, 0, None, 0, r.no_base, False, lattice, observer=observer)
+            done, nsteps = done + steps, nsteps - steps
+            if done % fe == 0:
+                frame(done // fe)
+
+    def neighbourhoods(self, radius: int):
+        """The peak rule's ``site_kernels.Neighbourhoods`` for ``radius`` (kept with the plan): the lattice's balls,
+        table and distances from its centre; the chain's rule (degree 0) on a chain."""
+        r = self.r
+
+        def make():
+            wp, f64 = r.wp, r.wp.float64
+            nh = self.kernels.Neighbourhoods()
+            lattice = r.table_lattice
+            if lattice is None:
+                nh.degree = 0
+                nh.ball_ptr = nh.ball_idx = r.no_base
+                nh.table, nh.weights, nh.dist = r.table, r.weights, wp.zeros(1, dtype=f64, device=r.device)
+                return nh
+            from ..lattice import balls_of
+
+            ball, _ = balls_of(lattice, int(radius))
+            nh.degree = lattice.degree
+            nh.ball_ptr = wp.array(ball.indptr.astype(np.int32), dtype=wp.int32, device=r.device)
+            nh.ball_idx = wp.array(ball.indices.astype(np.int32), dtype=wp.int32, device=r.device)
+            nh.table, nh.weights = r.table, r.weights
+            nh.dist = wp.array(lattice.distances(lattice.centre), dtype=f64, device=r.device)
+            return nh
+
+        return held(self, ("neighbourhoods", int(radius)), make)
 
 
 #: The plan of each kernel layout (every layout steps the splitting methods: ``devices.engine_method``).

@@ -90,6 +90,7 @@ class _Runner:
         self.wp, self.k, self.site, self.method, self.device = wp, kernels, site, method, device
         self.batch, _, self.N = x0.shape
         table = neighbour_table(params)  # a lattice given as a neighbour table: the sites layout
+        self.table_lattice = table
         self.layout = resolve_layout(layout, device, self.N, table=table is not None)
         if self.layout in ("block", "sites"):
             # the sites layout's guard: the block guard of a full block, each thread summing several sites

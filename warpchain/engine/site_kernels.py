@@ -34,7 +34,19 @@ from .thread_kernels import (
 )
 from .site import (
     Lattice,
+    Observer,
     Recording,
+    Array1,
+    Array2,
+    NO_CONTACT,
+    ONE,
+    held_energy,
+    kick_loss,
+    peak_test,
+    peak_verdict,
+    site_energy,
+    store_observables,
+    table_bonds,
     F64,
     Array3,
     Indices,
@@ -70,6 +82,9 @@ def evaluate(
     drift: int,
     c: F64,
     save_row: int,
+    ends: int,
+    observed: int,
+    ob: Observer,
 ):
     """Force evaluation ``slot`` of lattice (or tangent column) b at site j, and the kicks and drift around it.
 
@@ -82,6 +97,9 @@ def evaluate(
         drift, c: ``DRIFT`` (u + c u' into dst, v + c v'), ``COPY`` (u into dst: the run's end, u on the
             scratch row) or ``KEEP`` (the run's end, u already in the state's row 0).
         save_row: frame row of ``out.u``, ``out.v`` for (u, v) after this evaluation's kicks, -1 for none.
+        ends, observed, ob: with ``observed`` set, the energy each damped kick dissipates is added to
+            ``ob.lost[b, j]`` and, where a step ends (``ends``), z = u - v to the extremes ``ob.z_low``, ``ob.z_high``
+            (``observe_frame`` reduces them per frame).
     """
     b, j = wp.tid()
     n = x.shape[2]
@@ -108,13 +126,20 @@ def evaluate(
     pu = x[b, 2, j]
     pv = x[b, 3, j]
     if kick >= 0:
+        if observed != 0 and loss != 0:
+            ob.lost[b, j] = ob.lost[b, j] + kick_loss(pu, pv, a[0], a[1], lat.damp, b, kick, lat.mass[b])
         w = site_kick(pu, pv, a, h_kick, loss, lat.damp, b, kick)
         pu = w[0]
         pv = w[1]
     if save_row >= 0:
         out.u[save_row, b, j] = u
         out.v[save_row, b, j] = v
+    if observed != 0 and ends != 0:
+        ob.z_low[b, j] = wp.min(ob.z_low[b, j], u - v)
+        ob.z_high[b, j] = wp.max(ob.z_high[b, j], u - v)
     if pre != 0:
+        if observed != 0 and loss != 0:
+            ob.lost[b, j] = ob.lost[b, j] + kick_loss(pu, pv, a[0], a[1], lat.damp, b, 0, lat.mass[b])
         w = site_kick(pu, pv, a, h_pre, loss, lat.damp, b, 0)
         pu = w[0]
         pv = w[1]
@@ -154,7 +179,129 @@ def evaluations(drifts, kicks, dt: float, nsteps: int, save_every: int = 0):
                 h_pre=float(kicks[0]) * float(dt),
                 c=c,
                 save_row=save_row,
+                ends=int(ends_step),
                 last=e == total,
             )
         )
     return out
+
+
+# ----------------------------------------------------------------------------- observables (``warpchain.observe``)
+
+
+@wp.struct
+class Neighbourhoods:
+    """The peak rule's geometry on a lattice given as a table (``reference.table_peak_mask``): each site's ball of
+    ``radius`` bonds (CSR ``ball_ptr``, ``ball_idx``, the site itself included), the table and its weights (the rays
+    of the localization test) and each site's distance from the centre site (``dist``: the spot). ``degree`` 0: the
+    chain's rule (windows of sites, ``reference.peak_mask``), none of these read."""
+
+    degree: int
+    ball_ptr: Indices
+    ball_idx: Indices
+    table: wp.array2d(dtype=wp.int32)
+    weights: Array2
+    dist: Array1
+
+
+@wp.kernel
+def observe_envelope(x: Array3, ob: Observer, start: int):
+    """Site j's envelope of the frame that ends here: max |z| over the steps since the last frame (``start``: frame
+    0, the z of ``x`` itself, which also starts the extremes)."""
+    b, j = wp.tid()
+    if start != 0:
+        z = x[b, 0, j] - x[b, 1, j]
+        ob.z_low[b, j] = z
+        ob.z_high[b, j] = z
+    ob.envelope[b, j] = wp.max(ob.z_high[b, j], -ob.z_low[b, j])
+
+
+def _observe_frame(block: int):
+    @wp.kernel(enable_backward=False, module="unique")
+    def observe_frame(x: Array3, lat: Lattice, ob: Observer, nh: Neighbourhoods, r: int):
+        """Frame r of lattice b (``reference.frame_observables``), a block per lattice, thread j taking sites j,
+        j + block, ...: the envelopes (``observe_envelope``) tested for peaks, the site energies, the spot's, the
+        extremes and the dissipated energy reduced over the block; then the z extremes start again."""
+        b, j = wp.tid()
+        n = x.shape[2]
+        total = ZERO
+        squares = ZERO
+        inside = ZERO
+        top = ZERO
+        low = NO_CONTACT
+        peaks = ZERO
+        lost = ZERO
+        site = j
+        while site < n:
+            u = x[b, 0, site]
+            v = x[b, 1, site]
+            pu = x[b, 2, site]
+            pv = x[b, 3, site]
+            if lat.degree > 0:
+                e = held_energy(u, v, pu, pv, table_bonds(x, b, site, u, lat), lat.mass[b], lat.coupling[b])
+            else:
+                nb = neighbours_at(x, b, 0, site, n, lat.boundary)
+                e = site_energy(u, v, pu, pv, nb[0], nb[1], site, lat.boundary, lat.mass[b], lat.coupling[b])
+            env = ob.envelope[b, site]
+            total = total + e
+            squares = squares + e * e
+            here = wp.abs(wp.float64(site - n / 2))
+            if nh.degree > 0:
+                here = nh.dist[site]
+            if here <= ob.spot[b]:
+                inside = inside + e
+            top = wp.max(top, env)
+            low = wp.min(low, ONE + ob.z_low[b, site])
+            lost = lost + ob.lost[b, site]
+            if env > ob.threshold:
+                if nh.degree > 0:
+                    ok = ONE
+                    for k in range(nh.ball_ptr[site], nh.ball_ptr[site + 1]):
+                        t = nh.ball_idx[k]
+                        other = ob.envelope[b, t]
+                        if (t < site and not env > other) or (t > site and not env >= other):
+                            ok = ZERO
+                    for d in range(nh.degree):
+                        if nh.weights[site, d] != ZERO:
+                            ray = NO_CONTACT
+                            t = site
+                            for i in range(ob.radius):
+                                if t >= 0:
+                                    t = nh.table[t, d]
+                                if t >= 0:
+                                    ray = wp.min(ray, ob.envelope[b, t])
+                                else:
+                                    ray = ZERO
+                            if not ray <= ob.contrast * env:
+                                ok = ZERO
+                    peaks = peaks + ok
+                else:  # the chain's windows (``block_kernels.observe_frame``)
+                    test = wp.vec3d(ONE, env, env)
+                    for i in range(1, ob.radius + 1):
+                        left = ZERO  # past the chain's end
+                        right = ZERO
+                        if site - i >= 0:
+                            left = ob.envelope[b, site - i]
+                        if site + i < n:
+                            right = ob.envelope[b, site + i]
+                        test = peak_test(env, left, right, test)
+                    peaks = peaks + peak_verdict(env, test, ob.contrast)
+            ob.z_low[b, site] = NO_CONTACT  # the next frame's extremes
+            ob.z_high[b, site] = -NO_CONTACT
+            site += wp.static(block)
+        sums = wp.tile_sum(wp.tile(total))
+        sq = wp.tile_sum(wp.tile(squares))
+        spot = wp.tile_sum(wp.tile(inside))
+        most = wp.tile_max(wp.tile(top))
+        least = wp.tile_min(wp.tile(low))
+        count = wp.tile_sum(wp.tile(peaks))
+        gone = wp.tile_sum(wp.tile(lost))
+        if j == 0:
+            store_observables(ob, r, b, count[0], sums[0], sq[0], spot[0], most[0], least[0], gone[0])
+
+    return observe_frame
+
+
+#: threads per lattice of ``observe_frame``
+FRAME_BLOCK = 256
+observe_frame = _observe_frame(FRAME_BLOCK)
