@@ -24,7 +24,6 @@ from warpchain.integrators import stability_limit
 from warpchain.lattice import LatticeParams, chain, square, triangular
 from warpchain.losses import Damping
 from warpchain.observe import Observation
-from warpchain.engine.tile_kernels import tile_kernel as _TILE_KERNEL
 
 BUILDERS = {"square": square, "triangular": triangular}
 
@@ -167,9 +166,6 @@ def test_2d_on_a_gpu_equals_the_reference(geometry):
     p = LatticeParams(30.0, 2.0, BUILDERS[geometry](21, 21, "fixed"))
     x0 = _state(p.N, 3, seed=17)
     damping = Damping(contact=np.array([0.0, 0.02, 0.0]), substrate=np.array([0.0, 0.01, 0.0]))
-    tiled = simulate(p, x0, 50 * 0.05, 0.05, method="verlet", device=device, damping=damping)  # in tiles
-    ref = reference.integrate("verlet", p, x0, tiled.dt, tiled.nsteps, damping=damping)
-    np.testing.assert_allclose(tiled.x, ref["x"], rtol=0, atol=1e-12)
     run = simulate(p, x0, 50 * 0.05, 0.05, method="kahan8", device=device, record=Record(every=10), damping=damping)
     ref = reference.integrate("kahan8", p, x0, run.dt, run.nsteps, save_every=10, damping=damping)
     assert run.layout == "sites"
@@ -185,27 +181,6 @@ def test_2d_on_a_gpu_equals_the_reference(geometry):
         )
         np.testing.assert_allclose(a.x_end, b.x_end, rtol=0, atol=1e-13)
         np.testing.assert_allclose(a.unit_columns("all"), b.unit_columns("all"), rtol=0, atol=1e-12)
-
-
-@pytest.mark.parametrize("boundary", BOUNDARIES)
-@pytest.mark.parametrize("geometry", sorted(BUILDERS))
-def test_tiles_with_halos_bit_for_bit_with_the_reference(geometry, boundary, monkeypatch):
-    """A grid table's base runs step in tiles with halos (``tile_kernels``: several steps per launch; forced on the
-    CPU here, a GPU's default): the reference's bits with several tiles, a last launch of fewer steps, losses, a
-    three-stage method; recording and tangent runs keep the launch per force evaluation."""
-    from warpchain.engine import tile_kernels, tuning
-
-    launched = []
-    monkeypatch.setattr(tile_kernels, "tile_kernel", lambda *key: launched.append(key) or _TILE_KERNEL(*key))
-    p = LatticeParams(30.0, 4.0, BUILDERS[geometry](29, 23, boundary))
-    x0 = _state(p.N, 2, seed=7)
-    damping = Damping(contact=np.array([0.0, 0.05]), substrate=0.0)
-    for method in ("verlet", "yoshida4"):
-        with tuning.override(tiles_on_cpu=True):
-            run = simulate(p, x0, 11 * 0.05, 0.05, method=method, device="cpu", damping=damping)
-        assert np.array_equal(run.x, reference.integrate(method, p, x0, run.dt, run.nsteps, damping=damping)["x"])
-    most = {stages: max(k[2] for k in launched if k[1] == stages) for stages in (1, 3)}  # steps per launch
-    assert most == {1: 4, 3: 3} and min(k[2] for k in launched) < 3  # a shorter last launch too
 
 
 @pytest.mark.skipif(not _cuda_devices(), reason="needs a GPU (CI has none: the CPU tests above hold the bits)")

@@ -197,58 +197,7 @@ class _SitesSplitting(_Plan):
 
     def step(self, lo, hi, dt, nsteps, save_every, frames, record):
         r = self.r
-        if not record and not save_every and self.tile_steps():
-            self.run_tiles(lo, hi, dt, nsteps)
-            return
         self.run(r.x, lo, hi, dt, nsteps, save_every, frames, 0, r.no_base, record, r.lattice(lo, hi))
-
-    def tile_steps(self) -> int:
-        """Steps per launch of ``tile_kernels`` for this runner's base runs (0: the launch per force evaluation):
-        a lattice given as a grid table, on a GPU (``Tuning.tiles_on_cpu``: the tests), at most
-        ``Tuning.tile_steps`` steps, as many as leave owned tiles of ``tile_kernels.MIN_OWNED`` sites or more."""
-        from . import tile_kernels as tk
-
-        r = self.r
-        if r.table_lattice is None or (r.device == "cpu" and not active().tiles_on_cpu):
-            return 0
-        if tk.grid_offsets(r.table_lattice) is None:
-            return 0
-        steps = active().tile_steps
-        while steps > 0 and tk.owned_edge(r.method.stages, steps) < tk.MIN_OWNED:
-            steps -= 1
-        return steps
-
-    def run_tiles(self, lo, hi, dt, nsteps):
-        """``nsteps`` steps of lattices lo..hi in tiles with halos, ``tile_steps`` per launch, the state between
-        the runner's buffer and a kept one (a block's owned sites are its neighbours' halo)."""
-        from . import block_kernels
-        from . import tile_kernels as tk
-
-        r, wp = self.r, self.r.wp
-        lattice = r.table_lattice
-        x = _part(r.x, lo, hi)
-        other = _part(self.kept("tiles", r.x.shape), lo, hi)
-        offsets = held(
-            self, "tile offsets", lambda: wp.array(tk.grid_offsets(lattice), dtype=wp.int32, device=r.device)
-        )
-        if getattr(self, "_tile_scheme", (None,))[0] != dt:
-            self._tile_scheme = (dt, block_kernels.pack_scheme(r.method.drifts, r.method.kicks, dt))
-        scheme = self._tile_scheme[1]
-        nx, ny = (tuple(lattice.shape) + (1,))[:2]
-        most = self.tile_steps()
-        src, dst = x, other
-        while nsteps > 0:
-            steps = min(most, nsteps)
-            edge = tk.owned_edge(r.method.stages, steps)
-            tiles = (-(-nx // edge), -(-ny // edge))
-            kernel = tk.tile_kernel(lattice.degree, r.method.stages, steps, r.damped)
-            inputs = [src, dst, r.lattice(lo, hi), offsets, wp.vec4i(nx, ny, *tiles), scheme]
-            threads = tk.EDGE * tk.EDGE
-            r.launch_kernel(kernel, ((hi - lo) * tiles[0] * tiles[1], threads), inputs, threads)
-            src, dst = dst, src
-            nsteps -= steps
-        if src is not x:
-            wp.copy(x, src)
 
     def tangent(self, dx, column_base, lo, hi, dt, nsteps):
         self.run(dx, lo, hi, dt, nsteps, 0, None, 1, _part(column_base, lo, hi), False, self.r.lattice())

@@ -67,12 +67,6 @@ class Tuning:
     #: thread in the tile, walls compiled in: 118.6 ns per Verlet step of one lattice against 202 ns, H200,
     #: ``benchmarks/results/h200-2026-11-22k.json``); True/False force the choice (the tests run it on the CPU)
     group_one_site: bool | None = None
-    #: a lattice given as a grid table steps in tiles with halos on a GPU (``tile_kernels``), this many steps per
-    #: launch at most (fewer where the halo would leave owned tiles narrower than ``tile_kernels.MIN_OWNED``);
-    #: 0: never, the sites layout's launch per force evaluation
-    tile_steps: int = 4
-    #: the tiles on the CPU too (the tests), else GPU-only
-    tiles_on_cpu: bool = False
     #: a recording launch of at most this many lattices (a tangent base run) drops the many-stage kernels'
     #: register cap (under it the held stiffnesses would spill): one block per SM of an H200
     record_uncapped_max_batch: int = 132
