@@ -13,7 +13,8 @@ lattice, a thread per site; ``site_group_kernels``: a block per lattice, a threa
   ``site_acceleration_times``) and its tangent (``coupled_tangent_acceleration``, ``site_tangent_acceleration``);
 - the damped kick and the energy it dissipates (``site_kick``, ``kick_loss``; ``warpchain.losses``);
 - the energy and the guard's tests (``site_energy``, ``held_energy``, ``finite_state``);
-- the observables' per-site tests (``peak_test``, ``peak_verdict``) and their store (``store_observables``);
+- the observables' per-site tests (``peak_test``, ``peak_verdict``, the chain's windows ``window_peak``) and their store
+  (``store_observables``);
 - the structs passed whole: ``Lattice`` (M, 1/M, K, losses, boundary, neighbour table), ``Recording`` (frames and the
   f'(z) history) and ``Observer`` (``warpchain.observe``).
 
@@ -298,6 +299,22 @@ def peak_verdict(env: F64, state: wp.vec3d, contrast: F64) -> F64:
     if state[1] > contrast * env or state[2] > contrast * env:
         return ZERO
     return state[0]
+
+
+@wp.func
+def window_peak(envelope: Array2, b: int, j: int, n: int, env: F64, radius: int, contrast: F64) -> F64:
+    """1 when site j of lattice b (envelope ``env`` above the threshold, the caller's test) is a localized peak by the
+    chain's rule (``reference.peak_mask``): its windows of ``radius`` sites in ``envelope``, 0 past the chain's ends."""
+    test = wp.vec3d(ONE, env, env)
+    for i in range(1, radius + 1):
+        left = ZERO  # past the chain's end
+        right = ZERO
+        if j - i >= 0:
+            left = envelope[b, j - i]
+        if j + i < n:
+            right = envelope[b, j + i]
+        test = peak_test(env, left, right, test)
+    return peak_verdict(env, test, contrast)
 
 
 @wp.func

@@ -42,8 +42,7 @@ from .site import (
     ONE,
     held_energy,
     kick_loss,
-    peak_test,
-    peak_verdict,
+    window_peak,
     site_energy,
     store_observables,
     table_bonds,
@@ -275,17 +274,8 @@ def _observe_frame(block: int):
                             if not ray <= ob.contrast * env:
                                 ok = ZERO
                     peaks = peaks + ok
-                else:  # the chain's windows (``block_kernels.observe_frame``)
-                    test = wp.vec3d(ONE, env, env)
-                    for i in range(1, ob.radius + 1):
-                        left = ZERO  # past the chain's end
-                        right = ZERO
-                        if site - i >= 0:
-                            left = ob.envelope[b, site - i]
-                        if site + i < n:
-                            right = ob.envelope[b, site + i]
-                        test = peak_test(env, left, right, test)
-                    peaks = peaks + peak_verdict(env, test, ob.contrast)
+                else:  # the chain's windows
+                    peaks = peaks + window_peak(ob.envelope, b, site, n, env, ob.radius, ob.contrast)
             ob.z_low[b, site] = NO_CONTACT  # the next frame's extremes
             ob.z_high[b, site] = -NO_CONTACT
             site += wp.static(block)

@@ -52,8 +52,7 @@ from .site import (
     site_energy,
     finite_state,
     Observer,
-    peak_test,
-    peak_verdict,
+    window_peak,
     store_observables,
 )
 
@@ -435,16 +434,7 @@ def observe_frame(x: Array3, b: int, n: int, lat: Lattice, ob: Observer, r: int,
         top = wp.max(top, env)
         low = wp.min(low, ONE + ob.z_low[b, j])
         if env > ob.threshold:
-            test = wp.vec3d(ONE, env, env)
-            for i in range(1, ob.radius + 1):
-                left = ZERO  # past the chain's end
-                right = ZERO
-                if j - i >= 0:
-                    left = ob.envelope[b, j - i]
-                if j + i < n:
-                    right = ob.envelope[b, j + i]
-                test = peak_test(env, left, right, test)
-            peaks = peaks + peak_verdict(env, test, ob.contrast)
+            peaks = peaks + window_peak(ob.envelope, b, j, n, env, ob.radius, ob.contrast)
     for j in range(n):
         ob.z_low[b, j] = NO_CONTACT
         ob.z_high[b, j] = -NO_CONTACT
