@@ -342,3 +342,11 @@ def test_a_hand_built_table_is_not_served_its_builders_runner():
     flow, ref = Flow("verlet", 16, device="cpu"), ReferenceFlow("verlet", 16)
     for params in (LatticeParams(30.0, 2.0, intact),) * 2 + (LatticeParams(30.0, 2.0, cut),) * 2:
         assert np.array_equal(flow.run(params, x0, 8, 0.05).x_end, ref.run(params, x0, 8, 0.05).x_end)
+
+
+def test_peak_tracks_refuses_a_2d_lattices_envelopes():
+    from warpchain.observe import peak_tracks
+
+    env = np.zeros((1, 100))
+    with pytest.raises(ValueError, match="table_peak_mask"):
+        peak_tracks(env, env, 1.0, Observation(frame_every=10), 1.0, lattice=square(10, 10))

@@ -15,16 +15,10 @@ since the last frame; at each frame (every ``frame_every`` steps) it reduces ove
   below (sites past a chain end count as 0; the window does not wrap around a periodic chain). A
   breather narrower than the window is such a peak; a wide hump that has not broken up (or the
   ripples on it) is none; a filamented spot is several. ``contrast = 1`` drops the localization test.
-* ``participation``: (sum_j e_j)^2 / sum_j e_j^2 of the site energies e_j (``kernels.site_energy``):
+* ``participation``: (sum_j e_j)^2 / sum_j e_j^2 of the site energies e_j (``site.site_energy``):
   about the number of sites that carry the energy.
 * ``spot_energy``: sum of e_j over |j - c| <= ``spot`` (c = N // 2, the spot's centre; ``spot`` per
   lattice, in sites).
-
-On a lattice given as a table (``warpchain.lattice.LatticeParams``: the square and triangular monolayers) the same
-numbers with the table's neighbourhoods (``reference.table_peak_mask``): the window is the ball of ``radius`` bonds
-(lower-indexed sites strictly below, higher ones at most equal), the localization test runs along each bonded slot
-direction (a step past a wall or a free edge reads 0; a periodic patch's rays wrap), the site energies hold the bonds
-of ``site.table_bonds``, and the spot is the disc of radius ``spot`` (in lattice spacings) about the centre site.
 * ``max_envelope``: max_j env_j.
 * ``min_contact``: min over the interval's steps and the sites of 1 + z_j (<= 0: contact lost).
 * ``energy``: sum_j e_j at the frame.
@@ -33,9 +27,16 @@ of ``site.table_bonds``, and the spot is the disc of radius ``spot`` (in lattice
   the initial energy to the scheme's accuracy, at its order: that is what the guard checks for lattices
   with losses.
 
+On a lattice given as a table (``warpchain.lattice.LatticeParams``: the square and triangular monolayers) the same
+numbers with the table's neighbourhoods (``reference.table_peak_mask``): the window is the ball of ``radius`` bonds
+(lower-indexed sites strictly below, higher ones at most equal), the localization test runs along each bonded slot
+direction (a step past a wall or a free edge reads 0; a periodic patch's rays wrap), the site energies hold the bonds
+of ``site.table_bonds``, and the spot is the disc of radius ``spot`` (in lattice spacings) about the centre site.
+
 The envelope profile of the last frame is kept on the device, copied there ``lag_frames`` frames before
 the end (a chunk ends at that frame) and read with the one at the end; ``peak_tracks`` turns the two into
-peak positions, amplitudes and drift velocities on the host. Frame 0 (the initial state, envelope
+peak positions, amplitudes and drift velocities on the host (along a chain: on a 2-D lattice the envelopes are
+the table's sites, and ``reference.table_peak_mask`` finds their peaks). Frame 0 (the initial state, envelope
 |z|) is reduced by the kernels too, at the start of the first launch. ``reference.observe`` is the
 numpy oracle of all of this (the same steps, the same tracking), against which the kernels are tested.
 """
@@ -64,10 +65,11 @@ class Observation:
     Attributes:
         frame_every: steps between frames (the envelope's interval: about a period or more).
         threshold: envelope |z| above which a localized peak counts.
-        radius: a peak is the largest envelope value within this many sites, and falls to ``contrast``
-            times its value within them on both sides.
+        radius: a peak is the largest envelope value within this many sites (bonds on a lattice), and falls to
+            ``contrast`` times its value within them on both sides (along every bonded direction on a lattice).
         contrast: the localization test's fraction (1: no test).
-        spot: half-width in sites of the spot whose energy is reported (scalar or per lattice).
+        spot: half-width in sites of the spot whose energy is reported, about site N // 2 (on a lattice the radius
+            of a disc about the centre site, in lattice spacings); scalar or per lattice.
         lag_frames: the envelope profile is also read this many frames before the end (drift velocities).
     """
 
@@ -141,9 +143,12 @@ class ObservedRun:
 # ----------------------------------------------------------------------------- numpy reference
 
 
-def peak_tracks(env_lag, env_end, dt_lag: float, observation: Observation, max_speed: float, max_peaks: int = 32):
-    """Peaks at the end, their amplitudes and drift velocities from two envelope profiles (vectorised
-    over the batch: no Python loop per lattice).
+def peak_tracks(
+    env_lag, env_end, dt_lag: float, observation: Observation, max_speed: float, max_peaks: int = 32, lattice=None
+):
+    """Peaks at the end, their amplitudes and drift velocities from two envelope profiles along a chain (vectorised
+    over the batch: no Python loop per lattice). ``lattice``: the envelopes' geometry, when known; a 2-D one is
+    refused (its peaks are ``reference.table_peak_mask``'s, its positions the lattice's).
 
     Each peak of ``env_end`` (positions refined by a parabola through the peak and its neighbours) is
     matched with the nearest peak of ``env_lag`` when they are each other's nearest and at most
@@ -154,11 +159,19 @@ def peak_tracks(env_lag, env_end, dt_lag: float, observation: Observation, max_s
         env_lag, env_end: envelope profiles (batch, N), ``dt_lag`` apart in time.
         max_peaks: columns of the result; a lattice's peaks past it (in site order) are dropped. Peaks
             are ``radius`` sites apart or more, so N / radius + 1 columns always suffice.
+        lattice: a ``warpchain.lattice.Lattice`` (or None): anything but a chain raises ValueError.
 
     Returns:
         (position, amplitude, velocity), each (batch, max_peaks), peaks in site order, NaN padded;
         positions in sites (0-based).
     """
+
+    if lattice is not None and lattice.name != "chain":
+        raise ValueError(
+            f"peak_tracks follows peaks along a chain; these envelopes are a {lattice.name} lattice's sites: find "
+            "their peaks with warpchain.reference.table_peak_mask(lattice, envelope, ...), their places in "
+            "lattice.positions"
+        )
 
     def located(env):
         env = np.asarray(env, dtype=np.float64)

@@ -218,6 +218,8 @@ class _SitesSplitting(_Plan):
         done = observer.first_step
         if done == 0:
             frame(0)
+        # a run per frame: each starts with a force evaluation at the frame's state (the accelerations the last one
+        # gave, recomputed: one evaluation per frame more than a run of the whole chunk, the same bits)
         while nsteps > 0:
             steps = min(nsteps, fe - done % fe)
             self.run(r.x, lo, hi, dt, steps, 0, None, 0, r.no_base, False, lattice, observer=observer)

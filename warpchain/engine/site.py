@@ -262,11 +262,11 @@ def finite_state(u: F64, v: F64, pu: F64, pv: F64) -> F64:
 
 @wp.struct
 class Observer:
-    """What an ``observed`` splitting kernel reduces, and where (``warpchain.observe``; the unobserved thread
-    and block splitting kernels take an empty one). Per lattice: ``spot`` (half-width in sites),
-    the running z extremes ``z_low``/``z_high`` (batch, N), the energy dissipated so far ``lost`` (batch, 1;
-    per site in the block layout), the last frame's ``envelope`` (batch, N), and ``values`` (frames, batch, 7):
-    the observables."""
+    """What an ``observed`` step loop reduces, and where (``warpchain.observe``; the unobserved ones take an empty
+    one). Per lattice: ``spot`` (half-width in sites; on a lattice the radius of a disc, in lattice spacings), the
+    running z extremes ``z_low``/``z_high`` (batch, N), the energy dissipated so far ``lost`` (batch, 1 in the thread
+    layout; per site in the block and sites layouts), the last frame's ``envelope`` (batch, N), and ``values``
+    (frames, batch, 7): the observables."""
 
     first_step: int
     frame_every: int
