@@ -191,8 +191,8 @@ class _SitesSplitting(_Plan):
             slot = e["slot"] if record or tangent else 0  # unused otherwise: repeated launches share a kept command
             inputs = [x, src, src_row, dst, dst_row, column_base, lattice, int(tangent), slot, out]
             inputs += [e["kick"], e["h_kick"], e["pre"], e["h_pre"], drift, e["c"], e["save_row"]]
-            inputs += [e["ends"] if observer is not None else 0, int(observer is not None), ob]
-            r.launch_kernel(sk.evaluate, (hi - lo, r.N), inputs)
+            inputs += [e["ends"] if observer is not None else 0, ob]
+            r.launch_kernel(sk.evaluate if observer is None else sk.observed_evaluate, (hi - lo, r.N), inputs)
             src, src_row = dst, dst_row
 
     def step(self, lo, hi, dt, nsteps, save_every, frames, record):

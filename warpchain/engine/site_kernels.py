@@ -62,93 +62,105 @@ from .site import (
 DRIFT, COPY, KEEP = 1, 0, -1
 
 
-@wp.kernel
-def evaluate(
-    x: Array3,
-    src: Array3,
-    src_row: int,
-    dst: Array3,
-    dst_row: int,
-    column_base: Indices,
-    lat: Lattice,
-    tangent: int,
-    slot: int,
-    out: Recording,
-    kick: int,
-    h_kick: F64,
-    pre: int,
-    h_pre: F64,
-    drift: int,
-    c: F64,
-    save_row: int,
-    ends: int,
-    observed: int,
-    ob: Observer,
-):
-    """Force evaluation ``slot`` of lattice (or tangent column) b at site j, and the kicks and drift around it.
+def _evaluate(observed: bool):
+    """``evaluate``, or compiled ``observed`` (``observed_evaluate``): the observables' tracking in the same pass
+    (left out, it costs nothing: a run-time flag cost the CPU's sites layout 14 % per site)."""
 
-    Args (beyond the state ``x``, (lattices, 4, N): v, u', v' updated in place; u in ``src``/``dst``):
-        tangent: 1 for tangent columns (accelerations linear in the column, f'(z) read from
-            hist[slot, column_base[b]]; the parameters those of lattice column_base[b]), 0 for base runs
-            (f'(z) stored into ``out.hist[slot, b]`` when ``out.stiffness`` is set).
-        kick, h_kick: index of the kick after this evaluation (-1: none, the run's first evaluation).
-        pre, h_pre: 1 when a step begins after it: its kick 0 with the same accelerations.
-        drift, c: ``DRIFT`` (u + c u' into dst, v + c v'), ``COPY`` (u into dst: the run's end, u on the
-            scratch row) or ``KEEP`` (the run's end, u already in the state's row 0).
-        save_row: frame row of ``out.u``, ``out.v`` for (u, v) after this evaluation's kicks, -1 for none.
-        ends, observed, ob: with ``observed`` set, the energy each damped kick dissipates is added to
-            ``ob.lost[b, j]`` and, where a step ends (``ends``), z = u - v to the extremes ``ob.z_low``, ``ob.z_high``
-            (``observe_frame`` reduces them per frame).
-    """
-    b, j = wp.tid()
-    n = x.shape[2]
-    hist = out.hist
-    base = base_of(b, tangent, column_base)
-    m = lat.inv_mass[base]
-    k = lat.coupling[base]
-    u = src[b, src_row, j]
-    v = x[b, 1, j]
-    lap = ZERO
-    if lat.degree > 0:
-        lap = table_laplacian(src, b, src_row, j, u, lat)
-    else:
-        nb = neighbours_at(src, b, src_row, j, n, lat.boundary)
-        lap = (u - nb[0]) + (u - nb[1])
-    loss = int(0)
-    if tangent != 0:
-        a = coupled_tangent_acceleration(u, v, lap, m, k, hist[slot, base, j])
-    else:
-        a = coupled_acceleration(u, v, lap, m, k)
-        loss = lat.lossy[b]
-        if out.stiffness != 0:
-            hist[slot, b, j] = contact_stiffness(u - v)
-    pu = x[b, 2, j]
-    pv = x[b, 3, j]
-    if kick >= 0:
-        if observed != 0 and loss != 0:
-            ob.lost[b, j] = ob.lost[b, j] + kick_loss(pu, pv, a[0], a[1], lat.damp, b, kick, lat.mass[b])
-        w = site_kick(pu, pv, a, h_kick, loss, lat.damp, b, kick)
-        pu = w[0]
-        pv = w[1]
-    if save_row >= 0:
-        out.u[save_row, b, j] = u
-        out.v[save_row, b, j] = v
-    if observed != 0 and ends != 0:
-        ob.z_low[b, j] = wp.min(ob.z_low[b, j], u - v)
-        ob.z_high[b, j] = wp.max(ob.z_high[b, j], u - v)
-    if pre != 0:
-        if observed != 0 and loss != 0:
-            ob.lost[b, j] = ob.lost[b, j] + kick_loss(pu, pv, a[0], a[1], lat.damp, b, 0, lat.mass[b])
-        w = site_kick(pu, pv, a, h_pre, loss, lat.damp, b, 0)
-        pu = w[0]
-        pv = w[1]
-    if drift == DRIFT:
-        dst[b, dst_row, j] = u + c * pu
-        x[b, 1, j] = v + c * pv
-    elif drift == COPY:
-        dst[b, dst_row, j] = u
-    x[b, 2, j] = pu
-    x[b, 3, j] = pv
+    @wp.kernel(enable_backward=False)
+    def evaluate(
+        x: Array3,
+        src: Array3,
+        src_row: int,
+        dst: Array3,
+        dst_row: int,
+        column_base: Indices,
+        lat: Lattice,
+        tangent: int,
+        slot: int,
+        out: Recording,
+        kick: int,
+        h_kick: F64,
+        pre: int,
+        h_pre: F64,
+        drift: int,
+        c: F64,
+        save_row: int,
+        ends: int,
+        ob: Observer,
+    ):
+        """Force evaluation ``slot`` of lattice (or tangent column) b at site j, and the kicks and drift around it.
+
+        Args (beyond the state ``x``, (lattices, 4, N): v, u', v' updated in place; u in ``src``/``dst``):
+            tangent: 1 for tangent columns (accelerations linear in the column, f'(z) read from
+                hist[slot, column_base[b]]; the parameters those of lattice column_base[b]), 0 for base runs
+                (f'(z) stored into ``out.hist[slot, b]`` when ``out.stiffness`` is set).
+            kick, h_kick: index of the kick after this evaluation (-1: none, the run's first evaluation).
+            pre, h_pre: 1 when a step begins after it: its kick 0 with the same accelerations.
+            drift, c: ``DRIFT`` (u + c u' into dst, v + c v'), ``COPY`` (u into dst: the run's end, u on the
+                scratch row) or ``KEEP`` (the run's end, u already in the state's row 0).
+            save_row: frame row of ``out.u``, ``out.v`` for (u, v) after this evaluation's kicks, -1 for none.
+            ends, ob: compiled ``observed``, the energy each damped kick dissipates is added to ``ob.lost[b, j]``
+                and, where a step ends (``ends``), z = u - v to the extremes ``ob.z_low``, ``ob.z_high``
+                (``observe_frame`` reduces them per frame).
+        """
+        b, j = wp.tid()
+        n = x.shape[2]
+        hist = out.hist
+        base = base_of(b, tangent, column_base)
+        m = lat.inv_mass[base]
+        k = lat.coupling[base]
+        u = src[b, src_row, j]
+        v = x[b, 1, j]
+        lap = ZERO
+        if lat.degree > 0:
+            lap = table_laplacian(src, b, src_row, j, u, lat)
+        else:
+            nb = neighbours_at(src, b, src_row, j, n, lat.boundary)
+            lap = (u - nb[0]) + (u - nb[1])
+        loss = int(0)
+        if tangent != 0:
+            a = coupled_tangent_acceleration(u, v, lap, m, k, hist[slot, base, j])
+        else:
+            a = coupled_acceleration(u, v, lap, m, k)
+            loss = lat.lossy[b]
+            if out.stiffness != 0:
+                hist[slot, b, j] = contact_stiffness(u - v)
+        pu = x[b, 2, j]
+        pv = x[b, 3, j]
+        if kick >= 0:
+            if wp.static(observed):
+                if loss != 0:
+                    ob.lost[b, j] = ob.lost[b, j] + kick_loss(pu, pv, a[0], a[1], lat.damp, b, kick, lat.mass[b])
+            w = site_kick(pu, pv, a, h_kick, loss, lat.damp, b, kick)
+            pu = w[0]
+            pv = w[1]
+        if save_row >= 0:
+            out.u[save_row, b, j] = u
+            out.v[save_row, b, j] = v
+        if wp.static(observed):
+            if ends != 0:
+                ob.z_low[b, j] = wp.min(ob.z_low[b, j], u - v)
+                ob.z_high[b, j] = wp.max(ob.z_high[b, j], u - v)
+        if pre != 0:
+            if wp.static(observed):
+                if loss != 0:
+                    ob.lost[b, j] = ob.lost[b, j] + kick_loss(pu, pv, a[0], a[1], lat.damp, b, 0, lat.mass[b])
+            w = site_kick(pu, pv, a, h_pre, loss, lat.damp, b, 0)
+            pu = w[0]
+            pv = w[1]
+        if drift == DRIFT:
+            dst[b, dst_row, j] = u + c * pu
+            x[b, 1, j] = v + c * pv
+        elif drift == COPY:
+            dst[b, dst_row, j] = u
+        x[b, 2, j] = pu
+        x[b, 3, j] = pv
+
+    return evaluate
+
+
+evaluate = _evaluate(False)
+observed_evaluate = _evaluate(True)
 
 
 def evaluations(drifts, kicks, dt: float, nsteps: int, save_every: int = 0):
