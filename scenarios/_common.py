@@ -491,6 +491,19 @@ def reference_run(method: str, params, x0, t_end: float, dt: float, chunks: int)
     return x[0], np.array(times), np.array(energies)
 
 
+def method_run(method: str, params, x0, t_end: float, dt: float, chunks: int, device) -> tuple:
+    """A run of ``method`` without an energy bound, wherever it runs: on the Warp engine of ``device`` for a splitting
+    method, else (RK4) on the numpy reference (``reference_run``, the same steps and chunks). Returns the final state
+    (4, N) and the times and energies at the start and at each chunk's end."""
+    from warpchain import METHODS, Guard, SplittingMethod, simulate
+
+    if not isinstance(METHODS[method], SplittingMethod):
+        return reference_run(method, params, x0, t_end, dt, chunks)
+    guard = Guard(chunks=chunks, max_energy_error=None)
+    run = simulate(params, x0, t_end, dt, method=method, device=device, guard=guard)
+    return run.x[0], run.energy_t, run.energy_trace[:, 0]
+
+
 def paper_breather(device: str, log=None, *, params=None, omega: float = PAPER_OMEGA):
     """The w_b = 1.01, K = 160 breather (or that of ``params`` and ``omega``), computed from the NLS seed by
     Newton (cached per process)."""

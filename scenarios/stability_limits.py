@@ -47,6 +47,7 @@ from ._common import (
     PAPER_OMEGA,
     Context,
     paper_breather,
+    method_run,
     reference_run,
     pyplot,
     read_summary,
@@ -132,19 +133,10 @@ def measured_limit(params, x0, method, device, bisections, limit_steps):
     return lo
 
 
-def _final_state(params, x0, t_end, dt, method, device):
-    """The state at t_end: on the Warp engine, or for RK4 on the numpy reference (the same steps)."""
-    if not isinstance(METHODS[method], SplittingMethod):
-        return reference_run(method, params, x0, t_end, dt, chunks=1)[0]
-    return simulate(
-        params, x0, t_end, dt, method=method, device=device, guard=Guard(max_energy_error=None, chunks=1)
-    ).x[0]
-
-
 def observed_order(params, x0, periods, period, method, device, ref):
     dts = np.array([period / spp for spp in ORDER_STEPS_PER_PERIOD[method]])
     errs = np.array(
-        [np.max(np.abs(_final_state(params, x0, periods * period, dt, method, device) - ref)) for dt in dts]
+        [np.max(np.abs(method_run(method, params, x0, periods * period, dt, 1, device)[0] - ref)) for dt in dts]
     )
     return float(np.polyfit(np.log(dts), np.log(errs), 1)[0]), errs.tolist(), dts.tolist()
 

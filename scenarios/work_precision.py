@@ -32,7 +32,7 @@ from ._common import (
     paper_breather,
     pyplot,
     read_summary,
-    reference_run,
+    method_run,
     save_figure,
 )
 from ._params import Rule, min_steps_per_period, param
@@ -42,18 +42,6 @@ def _numpy_steps() -> int:
     """The fewest steps per breather period below every method's linear stability limit: the numpy
     reference runs every method at each of ``numpy_steps_per_period`` (the Warp runs skip unstable steps)."""
     return max(min_steps_per_period(name, PAPER_M, PAPER_K, PAPER_OMEGA) for name in METHODS)
-
-
-def _energy_trace(name: str, params, x0, t_end: float, dt: float, chunks: int, device) -> tuple:
-    """Times and energies at the ends of ``chunks`` chunks of a run of method ``name``: on the Warp engine for a
-    splitting method, else (RK4) on the numpy reference chunk by chunk, with the same steps."""
-    if isinstance(METHODS[name], SplittingMethod):
-        run = simulate(
-            params, x0, t_end, dt, method=name, device=device, guard=Guard(chunks=chunks, max_energy_error=None)
-        )
-        return run.energy_t, run.energy_trace[:, 0]
-    _, t, E = reference_run(name, params, x0, t_end, dt, chunks)
-    return t, E
 
 
 @dataclasses.dataclass(frozen=True)
@@ -206,7 +194,7 @@ def run(ctx: Context) -> dict:
             )
         # energy error vs time for the symplectic methods (128 steps per period), and RK4 for contrast
         for name in METHODS:
-            t, E = _energy_trace(name, params, x0, t_end, b.period / 128, spec["periods"] * 4, ctx.device)
+            _, t, E = method_run(name, params, x0, t_end, b.period / 128, spec["periods"] * 4, ctx.device)
             energy_traces[(case, name)] = (t, np.abs(E - E[0]) / abs(E[0]))
         ctx.log("%s: %d points", case, sum(p["case"] == case for p in points))
 
