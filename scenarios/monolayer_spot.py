@@ -26,8 +26,9 @@ the spheres moving together), which run away at the speed of sound; what can mak
 the spheres' motion relative to the substrate, with energy E_opt = sum (1/2) (M / (M + 1)) u'_s^2 = E0 / (M + 1) at
 t = 0 (the reduced mass). Each spot's E_opt is stated against E*_DNLS.
 
-Observables, once per period, from ``FRAMES_PER_PERIOD`` frames of the period and its end state, reduced on the
-host (``observables``): the envelope e_s = max |v_s - u_s| over the period's frames; *peaks*, sites whose envelope
+Observables, once per period: the envelope e_s = max |v_s - u_s| over every step of the period and the energy are
+reduced on the device (``simulate(..., observe=...)``, ``warpchain.observe``), and only the envelope and the end state
+come to the host, where ``observables`` finds the rest: *peaks*, sites whose envelope
 is above ``threshold``, the largest within ``radius`` lattice spacings, and falls to ``contrast`` of it at that
 distance; the energy within ``radius`` of a peak (the breathers' share); the r.m.s. distance from the centre
 weighted by the envelope squared (the spread of the resonators' motion: the acoustic waves the impulse also
@@ -53,7 +54,7 @@ import time
 import numpy as np
 
 import continuation as ct
-from warpchain import Guard, Record, frame_buffers, simulate
+from warpchain import Guard, Observation, simulate
 from warpchain.lattice import BOUNDARIES, LatticeParams, chain, square, triangular
 from warpchain.losses import Damping
 from warpchain.physical import monolayer_coupling
@@ -64,9 +65,6 @@ from ._common import PAPER_K, PAPER_M, Context, pyplot, read_summary, save_figur
 from ._params import Rule, param
 
 BUILDERS = {"square": square, "triangular": triangular}
-#: frames recorded per period for the envelope (every 4 steps of 32: a carrier's maximum is caught to cos(pi / 8),
-#: 8 %)
-FRAMES_PER_PERIOD = 8
 #: the frequency that sets the period, as the chain's Fig. 9 and breakup study
 OMEGA_PERIOD = 1.01
 #: the side of the patch on which the discrete NLS's threshold is computed
@@ -191,15 +189,16 @@ def _centre_distance2(lattice) -> np.ndarray:
     return r2
 
 
-def site_energies(params: LatticeParams, x: np.ndarray) -> np.ndarray:
+def site_energies(params: LatticeParams, x: np.ndarray, sites=None) -> np.ndarray:
     """The Hamiltonian's density (batch, sites): kinetic, contact, and the bonds shared out
-    (``Lattice.site_bond_energy``); it sums to ``model.energy``."""
-    u, v, pu, pv = x[:, 0], x[:, 1], x[:, 2], x[:, 3]
+    (``Lattice.site_bond_energy``); it sums to ``model.energy``. ``sites``: at those sites only."""
+    at = slice(None) if sites is None else np.asarray(sites, dtype=np.intp)
+    u, v, pu, pv = x[:, 0, at], x[:, 1, at], x[:, 2, at], x[:, 3, at]
     return (
         0.5 * params.M * pu * pu
         + 0.5 * pv * pv
         + contact_potential(u - v)
-        + params.K * params.lattice.site_bond_energy(u)
+        + params.K * params.lattice.site_bond_energy(x[:, 0], sites)
     )
 
 
@@ -245,9 +244,11 @@ def _peaks(e: np.ndarray, floor: float, disc, rim, contrast: float, wrap: bool):
     return peaks, covered
 
 
-def observables(params: LatticeParams, envelope: np.ndarray, x: np.ndarray, P: Parameters, scale) -> dict:
-    """One period's observables of each lattice (see the module docstring), from its envelope (batch, sites) and
-    end state (batch, 4, sites); a lattice's peaks count above ``threshold`` times its ``scale`` (batch,)."""
+def observables(params: LatticeParams, envelope: np.ndarray, x: np.ndarray, energy: np.ndarray, P: Parameters,
+                scale) -> dict:
+    """One period's observables of each lattice (see the module docstring), from its envelope (batch, sites), end
+    state (batch, 4, sites) and energy (batch,: the device's); a lattice's peaks count above ``threshold`` times its
+    ``scale`` (batch,). The site energies are summed only over the breathers' discs, on the lattices that have any."""
     lat = params.lattice
     grid = lat.shape[::-1]  # (ny, nx): site i + nx j
     disc, rim = _footprints(lat, P.radius)
@@ -257,14 +258,15 @@ def observables(params: LatticeParams, envelope: np.ndarray, x: np.ndarray, P: P
     ]
     peaks = np.array([f[0] for f in found])
     covered = np.array([f[1] for f in found])
-    density = site_energies(params, x)
-    total = density.sum(axis=1)
+    breather = np.zeros(len(x))
+    for b in np.flatnonzero(covered.any(axis=1)):
+        breather[b] = site_energies(params, x[b : b + 1], np.flatnonzero(covered[b])).sum()
     r2 = _centre_distance2(lat)
     weight = envelope * envelope  # the resonators' (optical) part: the acoustic waves carry most of the energy away
     return {
         "peaks": peaks.sum(axis=1),
-        "energy": total,
-        "breather_energy": np.where(covered, density, 0.0).sum(axis=1),
+        "energy": np.asarray(energy, dtype=float),
+        "breather_energy": breather,
         "spread": np.sqrt(weight @ r2 / np.maximum(weight.sum(axis=1), 1e-300)),
         "max_envelope": envelope.max(axis=1),
     }
@@ -279,9 +281,10 @@ LINEAR = 1e-3
 
 def _run_spots(ctx: Context, params: LatticeParams, P: Parameters, label: str, movie: int | None):
     """Every spot on one lattice, and its linear control (the same spot times ``LINEAR``, peaks counted above the
-    threshold times ``LINEAR``), in one batch for ``periods`` periods, a period per ``simulate`` call (its frames give
-    the envelope). Returns the series of the spots and of the controls (name -> (periods + 1, spots)) and the movie
-    spot's envelope per period."""
+    threshold times ``LINEAR``), in one batch for ``periods`` periods, a period per ``simulate`` call whose
+    observation (every step's |z| reduced on the device) gives the period's envelope and energy. Returns the series
+    of the spots and of the controls (name -> (periods + 1, spots)), the movie spot's envelope per period and the
+    seconds spent stepping and on the host's observables."""
     x = spots(params.lattice, P)
     n_spots = len(x)
     x = np.concatenate([x, LINEAR * x])
@@ -290,34 +293,36 @@ def _run_spots(ctx: Context, params: LatticeParams, P: Parameters, label: str, m
     if P.contact_damping or P.substrate_damping:
         damping = Damping(contact=P.contact_damping, substrate=P.substrate_damping)
     period = 2.0 * math.pi / OMEGA_PERIOD
-    dt = period / 32
+    # the device's own observables (its peak rule, participation, the spot's energy) are not the scene's; its envelope
+    # and energy are: one frame per period, its peak rule at its smallest ball (a ball of 10 bonds about each of 512^2
+    # sites, made on the host, took 11 s)
+    watch = Observation(frame_every=32, threshold=P.threshold, radius=1, contrast=P.contrast)
     series = {k: [] for k in SERIES}
-    first = observables(params, np.abs(x[:, 1] - x[:, 0]), x, P, scale)
-    for k in SERIES:
-        series[k].append(first[k])
-    frames = [np.abs(x[movie, 1] - x[movie, 0])] if movie is not None else []
-    every = 32 // FRAMES_PER_PERIOD
-    into = frame_buffers(params, len(x), period, dt, every, device=ctx.device)  # page-locked on a GPU, reused
-    z = np.empty(into[0][1:].shape)
+    frames = []
     start, last_log = time.perf_counter(), time.perf_counter()
     seconds = {"simulate": 0.0, "observables": 0.0}
     for p in range(P.periods):
         t0 = time.perf_counter()
+        x0 = x
         run = simulate(
-            params, x, period, dt, method="kahan6", device=ctx.device, damping=damping,
-            record=Record(every=every, into=into), guard=Guard(chunks=1),
+            params, x0, period, period / 32, method="kahan6", device=ctx.device, damping=damping, observe=watch,
+            guard=Guard(chunks=1),
         )  # fmt: skip
-        x = run.x
-        np.subtract(into[1][1:], into[0][1:], out=z)
-        envelope = np.abs(z, out=z).max(axis=0)  # (lattices, sites)
+        x, seen = run.x, run.observed
         t1 = time.perf_counter()
-        obs = observables(params, envelope, x, P, scale)
+        if p == 0:  # frame 0: the initial state (its envelope |z|, its energy from the same reduction)
+            first = observables(params, np.abs(x0[:, 1] - x0[:, 0]), x0, seen["energy"][0], P, scale)
+            for k in SERIES:
+                series[k].append(first[k])
+            if movie is not None:
+                frames.append(np.abs(x0[movie, 1] - x0[movie, 0]))
+        obs = observables(params, seen.envelope, x, seen["energy"][-1], P, scale)
         seconds["simulate"] += t1 - t0
         seconds["observables"] += time.perf_counter() - t1
         for k in SERIES:
             series[k].append(obs[k])
         if movie is not None:
-            frames.append(envelope[movie])
+            frames.append(seen.envelope[movie])
         if time.perf_counter() - last_log > 20 or p == P.periods - 1:
             last_log = time.perf_counter()
             ctx.log(
@@ -468,7 +473,7 @@ def plot(out) -> None:
     for ax in axes[:2]:
         ax.axvline(1.0, color="0.4", ls="--", lw=0.8)
         ax.set_xscale("log")
-        ax.set_xlabel(r"optical energy $E_{opt} / E^*_{DNLS}$ (dashed: the patch's threshold)")
+        ax.set_xlabel("optical energy E_opt / E*_DNLS (dashed: the patch's threshold)")  # no mathtext: slow on some hosts
     axes[0].set(
         ylabel="breathers at the end (median peak count)",
         title=f"{s['lattice']}, M = {s['M']:g}, K = {s['K_patch']:.4g} (chain: {s['K']:g})\n"
@@ -476,7 +481,7 @@ def plot(out) -> None:
     )
     axes[1].axhline(1.0, color="0.4", lw=0.8)
     axes[1].set(ylabel="r.m.s. spread at the end / the linear control's", title="below 1: self-localized")
-    axes[2].set(xlabel="t", ylabel="r.m.s. distance from the centre (weight: envelope$^2$)",
+    axes[2].set(xlabel="t", ylabel="r.m.s. distance from the centre (weight: envelope²)",
                 title="the patch's spread (dotted: linear controls)")  # fmt: skip
     axes[0].legend(fontsize=6, ncols=2)
     axes[2].legend(fontsize=6, ncols=2)

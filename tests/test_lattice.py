@@ -156,6 +156,17 @@ def test_bond_energy_is_half_the_quadratic_form(lat):
     assert lat.bond_energy(u).shape == (3,) and lat.bond_energy(u[0]).shape == ()
 
 
+@pytest.mark.parametrize("lat", LATTICES, ids=IDS)
+def test_site_bond_energy_sums_to_the_bond_energy_and_picks_sites(lat):
+    """The density sums to ``bond_energy``; at given sites (monolayer-spot's breather discs) it is the density's
+    columns, the same bits."""
+    u = fields(lat.n_sites, seed=8)[0]
+    density = lat.site_bond_energy(u)
+    np.testing.assert_allclose(density.sum(axis=-1), lat.bond_energy(u), rtol=1e-12)
+    at = np.unique(np.random.default_rng(3).integers(0, lat.n_sites, size=5))
+    assert np.array_equal(lat.site_bond_energy(u, at), density[:, at])
+
+
 @pytest.mark.parametrize(
     "lat",
     [chain(7, "periodic"), chain(2, "periodic"), chain(1, "periodic")]

@@ -233,14 +233,17 @@ class Lattice:
         digest = hashlib.sha1(self.neighbours.tobytes() + self.weights.tobytes()).hexdigest()
         return (self.n_sites, self.degree, digest)
 
-    def site_bond_energy(self, u) -> np.ndarray:
+    def site_bond_energy(self, u, sites=None) -> np.ndarray:
         """``bond_energy`` shared out to the sites, shape u.shape: half of each bond between two sites to each, a
-        wall bond to its site. Summed over the sites it is ``bond_energy`` (to rounding): an energy density."""
+        wall bond to its site. Summed over the sites it is ``bond_energy`` (to rounding): an energy density.
+        ``sites`` (indices): the density at those sites only, shape u.shape[:-1] + (len(sites),)."""
         u, padded = self._field(u)
-        out = np.zeros(u.shape)
+        at = np.arange(self.n_sites) if sites is None else np.asarray(sites, dtype=np.intp)
+        here = u[..., at]
+        out = np.zeros(here.shape)
         for d in range(self.degree):
-            share = np.where(self.neighbours[:, d] == WALL, 0.5, 0.25) * self.weights[:, d]
-            diff = u - padded[..., self._gather[:, d]]
+            share = np.where(self.neighbours[at, d] == WALL, 0.5, 0.25) * self.weights[at, d]
+            diff = here - padded[..., self._gather[at, d]]
             out = out + share * diff * diff
         return out
 
