@@ -473,7 +473,8 @@ def plot(out) -> None:
     for ax in axes[:2]:
         ax.axvline(1.0, color="0.4", ls="--", lw=0.8)
         ax.set_xscale("log")
-        ax.set_xlabel("optical energy E_opt / E*_DNLS (dashed: the patch's threshold)")  # no mathtext: slow on some hosts
+        # no mathtext: its parser took tens of seconds on a GPU host's matplotlib
+        ax.set_xlabel("optical energy E_opt / E*_DNLS (dashed: the patch's threshold)")
     axes[0].set(
         ylabel="breathers at the end (median peak count)",
         title=f"{s['lattice']}, M = {s['M']:g}, K = {s['K_patch']:.4g} (chain: {s['K']:g})\n"
