@@ -244,8 +244,9 @@ def _peaks(e: np.ndarray, floor: float, disc, rim, contrast: float, wrap: bool):
     return peaks, covered
 
 
-def observables(params: LatticeParams, envelope: np.ndarray, x: np.ndarray, energy: np.ndarray, P: Parameters,
-                scale) -> dict:
+def observables(
+    params: LatticeParams, envelope: np.ndarray, x: np.ndarray, energy: np.ndarray, P: Parameters, scale
+) -> dict:
     """One period's observables of each lattice (see the module docstring), from its envelope (batch, sites), end
     state (batch, 4, sites) and energy (batch,: the device's); a lattice's peaks count above ``threshold`` times its
     ``scale`` (batch,). The site energies are summed only over the breathers' discs, on the lattices that have any."""
