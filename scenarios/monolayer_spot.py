@@ -491,66 +491,87 @@ def plot(out) -> None:
     _snapshots(out, s)
 
 
-#: the drawings show at most this many sites along a side (every k-th site of a larger patch)
-DRAWN_SITES = 256
-
-
 def _movie(out):
-    """The stored movie, every k-th site along each axis where the patch is larger than ``DRAWN_SITES``."""
+    """The stored movie as images on the patch's grid: ``images`` (periods, ny, nx), the affine map from grid
+    indices (i, j) to positions (fitted to the stored x, y: exact for a Bravais patch), and ``view``, the half-side
+    in sites of the square about the centre that the drawings show: the whole patch, or four times the movie
+    spot's largest spread where that is smaller (a localized spot on a large patch)."""
     frames, attrs = read_group(out / "data.zarr", "movie")
-    stride = max(1, math.ceil((int(frames["i"].max()) + 1) / DRAWN_SITES))
-    keep = (frames["i"] % stride == 0) & (frames["j"] % stride == 0)
-    frames = {k: (v[..., keep] if k in ("envelope", "x", "y", "i", "j") else v) for k, v in frames.items()}
-    return frames, {**attrs, "stride": stride}
+    i, j = frames["i"].astype(int), frames["j"].astype(int)
+    nx, ny = int(i.max()) + 1, int(j.max()) + 1
+    images = np.full((len(frames["t"]), ny, nx), np.nan)
+    images[:, j, i] = frames["envelope"]
+    grid = np.column_stack([i, j, np.ones(len(i))])
+    coef = np.linalg.lstsq(grid, np.column_stack([frames["x"], frames["y"]]), rcond=None)[0]
+    matrix = np.vstack([coef.T, [0.0, 0.0, 1.0]])
+    series, _ = read_group(out / "data.zarr", "monolayer_series")
+    spread = float(np.nanmax(series["spread"][:, int(attrs["spot"])]))
+    view = min(max(nx, ny) // 2, max(int(math.ceil(4 * spread)), 10))
+    return {"t": frames["t"], "images": images, "matrix": matrix, "view": view}, attrs
 
 
-def _draw(ax, frames, k, scale):
-    """Envelope k of the movie on the true geometry (a triangulation of the site positions)."""
-    import matplotlib.tri as mtri
+def _draw(ax, movie, k, scale):
+    """Envelope k of the movie on the true geometry: the grid's image under the affine map (a triangular patch's
+    pixels are rhombi), limited to the view about the centre."""
+    from matplotlib.transforms import Affine2D
 
-    triangulation = mtri.Triangulation(frames["x"], frames["y"])
-    return ax.tripcolor(triangulation, frames["envelope"][k], shading="gouraud", cmap="magma", vmin=0, vmax=scale)
+    ny, nx = movie["images"].shape[1:]
+    im = ax.imshow(
+        movie["images"][k], origin="lower", extent=(-0.5, nx - 0.5, -0.5, ny - 0.5), interpolation="nearest",
+        transform=Affine2D(movie["matrix"]) + ax.transData, cmap="magma", vmin=0, vmax=scale,
+    )  # fmt: skip
+    h, c = movie["view"] + 0.5, ((nx - 1) / 2, (ny - 1) / 2)
+    corners = np.array([[c[0] + a, c[1] + b, 1.0] for a in (-h, h) for b in (-h, h)]) @ movie["matrix"].T
+    ax.set_xlim(corners[:, 0].min(), corners[:, 0].max())
+    ax.set_ylim(corners[:, 1].min(), corners[:, 1].max())
+    ax.set_aspect("equal")
+    ax.set(xticks=[], yticks=[])
+    return im
+
+
+def _shown(movie) -> str:
+    """What the drawings show, for their titles."""
+    ny, nx = movie["images"].shape[1:]
+    return "" if 2 * movie["view"] >= max(nx, ny) - 1 else f" (the centre +- {movie['view']} sites shown)"
 
 
 def _snapshots(out, s) -> None:
-    frames, attrs = _movie(out)
+    movie, attrs = _movie(out)
     plt = pyplot()
-    n = len(frames["t"])
+    n = len(movie["t"])
     picks = sorted({0, n // 4, n // 2, (3 * n) // 4, n - 1})
-    scale = float(np.quantile(frames["envelope"][1:], 0.999)) if n > 1 else float(frames["envelope"].max())
+    images = movie["images"]
+    scale = float(np.nanquantile(images[1:], 0.999)) if n > 1 else float(np.nanmax(images))
     fig, axes = plt.subplots(1, len(picks), figsize=(3.6 * len(picks), 3.6), layout="constrained")
     for ax, k in zip(axes, picks):
-        im = _draw(ax, frames, k, scale)
-        ax.set_aspect("equal")
-        ax.set(xticks=[], yticks=[], title=f"t = {frames['t'][k]:.0f} ({k} periods)")
+        im = _draw(ax, movie, k, scale)
+        ax.set_title(f"t = {movie['t'][k]:.0f} ({k} periods)")
     fig.colorbar(im, ax=axes, shrink=0.8, label="envelope max |v - u| over the period")
-    every = f" (every {attrs['stride']}th site drawn)" if attrs["stride"] > 1 else ""
-    fig.suptitle(f"{s['lattice']}: the spot A = {attrs['A']:g}, W = {attrs['W']:g}{every}")
+    fig.suptitle(f"{s['lattice']}: the spot A = {attrs['A']:g}, W = {attrs['W']:g}{_shown(movie)}")
     save_figure(fig, out, "monolayer-spot-snapshots")
-    _animation(out, frames, attrs, s, scale)
+    _animation(out, movie, attrs, s, scale)
 
 
 #: frames of the animation at most (the stored periods subsampled evenly)
 ANIMATION_FRAMES = 100
 
 
-def _animation(out, frames, attrs, s, scale) -> None:
+def _animation(out, movie, attrs, s, scale) -> None:
     """``monolayer-spot.gif``: the movie's envelope, period by period (Pillow, written whole)."""
     from matplotlib.animation import FuncAnimation, PillowWriter
 
     plt = pyplot()
-    n = len(frames["t"])
+    n = len(movie["t"])
     picks = np.unique(np.linspace(0, n - 1, min(n, ANIMATION_FRAMES)).round().astype(int))
     fig, ax = plt.subplots(figsize=(5, 4.4), layout="constrained")
-    ax.set_aspect("equal")
-    ax.set(xticks=[], yticks=[])
-    im = _draw(ax, frames, 0, scale)
+    im = _draw(ax, movie, 0, scale)
     fig.colorbar(im, ax=ax, shrink=0.8, label="max |v - u| over the period")
     title = ax.set_title("")
+    shown = _shown(movie)
 
     def update(k):
-        im.set_array(frames["envelope"][picks[k]])
-        title.set_text(f"{s['lattice']}: A = {attrs['A']:g}, W = {attrs['W']:g}, t = {frames['t'][picks[k]]:.0f}")
+        im.set_data(movie["images"][picks[k]])
+        title.set_text(f"A = {attrs['A']:g}, W = {attrs['W']:g}, t = {movie['t'][picks[k]]:.0f}{shown}")
         return im, title
 
     animation = FuncAnimation(fig, update, frames=len(picks), blit=False)
