@@ -447,6 +447,8 @@ def run(ctx: Context) -> dict:
 
 
 def plot(out) -> None:
+    from matplotlib.ticker import FuncFormatter
+
     s = read_summary(out)
     store = out / "data.zarr"
     plt = pyplot()
@@ -474,7 +476,7 @@ def plot(out) -> None:
     for ax in axes[:2]:
         ax.axvline(1.0, color="0.4", ls="--", lw=0.8)
         ax.set_xscale("log")
-        # no mathtext: its parser took tens of seconds on a GPU host's matplotlib
+        ax.xaxis.set_major_formatter(FuncFormatter(lambda value, _: f"{value:g}"))  # plain text: no mathtext
         ax.set_xlabel("optical energy E_opt / E*_DNLS (dashed: the patch's threshold)")
     axes[0].set(
         ylabel="breathers at the end (median peak count)",
@@ -491,11 +493,16 @@ def plot(out) -> None:
     _snapshots(out, s)
 
 
+#: the drawings show the sites whose envelope ever passes this fraction of the colour scale (and their surroundings)
+VISIBLE = 0.05
+
+
 def _movie(out):
     """The stored movie as images on the patch's grid: ``images`` (periods, ny, nx), the affine map from grid
     indices (i, j) to positions (fitted to the stored x, y: exact for a Bravais patch), and ``view``, the half-side
-    in sites of the square about the centre that the drawings show: the whole patch, or four times the movie
-    spot's largest spread where that is smaller (a localized spot on a large patch)."""
+    in sites of the square about the centre that the drawings show: the whole patch, or 1.5 times the reach of the
+    sites whose envelope ever passes ``VISIBLE`` of the colour scale where that is smaller (a localized spot on a
+    large patch); ``scale``, the colour scale (the envelope's largest value after t = 0)."""
     frames, attrs = read_group(out / "data.zarr", "movie")
     i, j = frames["i"].astype(int), frames["j"].astype(int)
     nx, ny = int(i.max()) + 1, int(j.max()) + 1
@@ -504,10 +511,12 @@ def _movie(out):
     grid = np.column_stack([i, j, np.ones(len(i))])
     coef = np.linalg.lstsq(grid, np.column_stack([frames["x"], frames["y"]]), rcond=None)[0]
     matrix = np.vstack([coef.T, [0.0, 0.0, 1.0]])
-    series, _ = read_group(out / "data.zarr", "monolayer_series")
-    spread = float(np.nanmax(series["spread"][:, int(attrs["spot"])]))
-    view = min(max(nx, ny) // 2, max(int(math.ceil(4 * spread)), 10))
-    return {"t": frames["t"], "images": images, "matrix": matrix, "view": view}, attrs
+    env = frames["envelope"]
+    scale = float(env[1:].max()) if len(env) > 1 else float(env.max())
+    seen = (env > VISIBLE * scale).any(axis=0)
+    reach = np.max(np.maximum(np.abs(i - (nx - 1) / 2), np.abs(j - (ny - 1) / 2))[seen], initial=0.0)
+    view = min(max(nx, ny) // 2, max(int(math.ceil(1.5 * reach)), 10))
+    return {"t": frames["t"], "images": images, "matrix": matrix, "view": view, "scale": scale}, attrs
 
 
 def _draw(ax, movie, k, scale):
@@ -532,7 +541,7 @@ def _draw(ax, movie, k, scale):
 def _shown(movie) -> str:
     """What the drawings show, for their titles."""
     ny, nx = movie["images"].shape[1:]
-    return "" if 2 * movie["view"] >= max(nx, ny) - 1 else f" (the centre +- {movie['view']} sites shown)"
+    return "" if 2 * movie["view"] >= max(nx, ny) - 1 else f"the centre +- {movie['view']} sites shown"
 
 
 def _snapshots(out, s) -> None:
@@ -540,14 +549,14 @@ def _snapshots(out, s) -> None:
     plt = pyplot()
     n = len(movie["t"])
     picks = sorted({0, n // 4, n // 2, (3 * n) // 4, n - 1})
-    images = movie["images"]
-    scale = float(np.nanquantile(images[1:], 0.999)) if n > 1 else float(np.nanmax(images))
+    scale = movie["scale"]
     fig, axes = plt.subplots(1, len(picks), figsize=(3.6 * len(picks), 3.6), layout="constrained")
     for ax, k in zip(axes, picks):
         im = _draw(ax, movie, k, scale)
         ax.set_title(f"t = {movie['t'][k]:.0f} ({k} periods)")
     fig.colorbar(im, ax=axes, shrink=0.8, label="envelope max |v - u| over the period")
-    fig.suptitle(f"{s['lattice']}: the spot A = {attrs['A']:g}, W = {attrs['W']:g}{_shown(movie)}")
+    shown = f" ({_shown(movie)})" if _shown(movie) else ""
+    fig.suptitle(f"{s['lattice']}: the spot A = {attrs['A']:g}, W = {attrs['W']:g}{shown}")
     save_figure(fig, out, "monolayer-spot-snapshots")
     _animation(out, movie, attrs, s, scale)
 
@@ -567,7 +576,7 @@ def _animation(out, movie, attrs, s, scale) -> None:
     im = _draw(ax, movie, 0, scale)
     fig.colorbar(im, ax=ax, shrink=0.8, label="max |v - u| over the period")
     title = ax.set_title("")
-    shown = _shown(movie)
+    shown = f"\n{_shown(movie)}" if _shown(movie) else ""
 
     def update(k):
         im.set_data(movie["images"][picks[k]])
