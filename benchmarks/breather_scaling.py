@@ -2,12 +2,12 @@
 
 The paper breather (w_b = 1.01, K = 160, M = 30, kahan8, 32 steps per period) at each N: Newton
 (``find_breather(solver="auto")``: matrix-free from 1025 sites), then every multiplier (``floquet(solver=...)``,
-default ``auto``: dense below 1601 sites, from there the probed sparse Mu by shift-invert slices, certified by a
-count: ``continuation.slicing``), and up to ``--dense-max`` the dense Floquet analysis of the same orbit (4N tangent
-columns), which it is checked against: the largest modulus of each, the largest distance between the two sets of
-mu (each mu to the nearest of the other set, both ways), the kinds. Each size is solved once untimed first (kernels
-compile per shape on a GPU; the first sliced call also starts the worker processes). Per size: seconds of each
-step, energy, verdicts, the count per parity block.
+default ``auto``: dense below 1601 sites, from there the probed sparse Mu by a dense eig per block on a GPU with
+CuPy, else by shift-invert slices, either certified by a count: ``continuation.slicing``), and up to ``--dense-max``
+the dense Floquet analysis of the same orbit (4N tangent columns), which it is checked against: the largest modulus
+of each, the largest distance between the two sets of mu (each mu to the nearest of the other set, both ways), the
+kinds. Each size is solved once untimed first (kernels compile per shape on a GPU; the first sliced call also starts
+the worker processes). Per size: seconds of each step, energy, verdicts, the count per parity block.
 
 With ``--lattice square`` or ``triangular`` the same for the monolayer's site breather (w_b = 1.014, K = 1, M = 30,
 fixed walls, the anti-continuum seed, Newton ``auto``: matrix-free from 1024 sites) on n x n patches, ``--sizes``
@@ -15,7 +15,7 @@ giving n and ``--dense-max`` sites (issue #51: breather plus complete verdict on
 times the breather alone (201 x 201 <= 30 s).
 
 Command: ``python benchmarks/breather_scaling.py [--device cpu] [--lattice chain] [--sizes 201 ... 12801]
-[--dense-max 1601] [--solver auto] [--json FILE]``.
+[--dense-max 1601] [--solver auto] [--warm all|newton] [--json FILE]``.
 """
 
 import argparse
@@ -52,7 +52,12 @@ def main():
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--sizes", type=int, nargs="+", default=[201, 401, 801, 1601, 3201, 6401, 12801])
     ap.add_argument("--dense-max", type=int, default=1601, help="largest N analysed densely too")
-    ap.add_argument("--solver", default="auto", choices=("auto", "sliced", "dense", "none"))
+    ap.add_argument("--solver", default="auto", choices=("auto", "sliced", "probed", "dense", "none"))
+    ap.add_argument(
+        "--warm", default="all", choices=("all", "newton"),
+        help="untimed first solve per size: Newton and Floquet (all), or Newton alone (a long lattice's Floquet twice "
+        "costs a minute on a GPU)",
+    )  # fmt: skip
     ap.add_argument("--lattice", default="chain", choices=("chain", "square", "triangular"))
     ap.add_argument("--json", default=None)
     args = ap.parse_args()
@@ -70,7 +75,7 @@ def main():
             return ct.require(ct.find_breather(p, omega, seed, device=args.device, solver=newton))
 
         warm = solve()  # warm-up
-        if args.solver != "none":
+        if args.solver != "none" and args.warm == "all":
             ct.floquet(warm, solver=args.solver)
         t0 = time.perf_counter()
         b = solve()
@@ -102,7 +107,9 @@ def main():
             "tangent_runs": fl.stats["tangent_columns"],
         }
         if fl.coverage is not None:
-            row |= {k: fl.coverage[k] for k in ("segments", "shifts", "strip_half_height", "closed", "counts")}
+            keys = ("method", "eig", "segments", "shifts", "strip_half_height", "closed", "counts")
+            row |= {k: fl.coverage[k] for k in keys if k in fl.coverage}
+            row["floquet_parts"] = fl.stats.get("seconds")
         if N <= args.dense_max and fl.path != "reduced":
             t3 = time.perf_counter()
             fd = ct.floquet(b, solver="dense")

@@ -73,7 +73,7 @@ from .results import Branch, BranchPoint, Failure, Solution, WalkState
 from .shooting import frequency_report
 
 #: the Floquet paths a walk may take: those that give every point a complete verdict
-COMPLETE_SOLVERS = ("dense", "sliced", "auto")
+COMPLETE_SOLVERS = ("dense", "sliced", "probed", "auto")
 
 
 class IncompleteVerdict(RuntimeError):
@@ -126,9 +126,11 @@ class ContinuationSettings:
             Floquet analysis), forming true Jacobians only when they converge slowly.
         floquet: compute multipliers at every point (False: energies only, no stability).
         floquet_solver: ``"dense"`` (every multiplier from A's 4N tangent columns: the reference), ``"sliced"``
-            (every multiplier from the probed sparse Mu, counted: ``continuation.slicing``) or ``"auto"`` (sliced
-            from ``SLICED_MIN_SITES`` sites on). Every point's verdict is complete: a sliced analysis whose count
-            does not close fails the walk (``IncompleteVerdict``) rather than record a guess. The window near +-1
+            (every multiplier from the probed sparse Mu by slices, counted: ``continuation.slicing``), ``"probed"``
+            (the same Mu by a dense eig per parity block, on the GPU with CuPy, counted) or ``"auto"`` (from
+            ``SLICED_MIN_SITES`` sites on: probed on a GPU with CuPy, else sliced). Every point's verdict is
+            complete: a sliced or probed analysis whose count does not close fails the walk (``IncompleteVerdict``)
+            rather than record a guess. The window near +-1
             (``floquet(solver="window")``) gives no verdict and is not offered here. On the sliced path the
             bubble predictor, which needs Mu's dense eigenvectors, is off (no predicted bubbles).
         max_seconds: opt-in time budget (None: stop only on physics or max_points).

@@ -187,13 +187,14 @@ def reduced_floquet(
     )
 
 
-#: the reduced analysis' paths (``floquet(solver=...)``): three complete ones and the partial window
-SOLVERS = ("dense", "sliced", "auto", "window")
+#: the reduced analysis' paths (``floquet(solver=...)``): four complete ones and the partial window
+SOLVERS = ("dense", "sliced", "probed", "auto", "window")
 
 
-def floquet_path(solver: str, N: int) -> str:
-    """``"dense"``, ``"sliced"`` or ``"window"``: the path ``solver`` names on N sites (``"auto"``: sliced from
-    ``SLICED_MIN_SITES`` sites on, dense below)."""
+def floquet_path(solver: str, N: int, device: str | None = None) -> str:
+    """``"dense"``, ``"sliced"``, ``"probed"`` or ``"window"``: the path ``solver`` names on N sites (``"auto"``:
+    dense below ``SLICED_MIN_SITES`` sites; from there probed where ``device`` is a GPU and CuPy imports (the blocks'
+    dense eig there), else sliced)."""
     if solver == "krylov":
         raise ValueError(
             "solver='krylov' is now 'window' (the multipliers near +1 and -1 only: no stability verdict); "
@@ -202,7 +203,11 @@ def floquet_path(solver: str, N: int) -> str:
     if solver not in SOLVERS:
         raise ValueError(f"solver must be one of {', '.join(map(repr, SOLVERS))}, got {solver!r}")
     if solver == "auto":
-        return "sliced" if N >= SLICED_MIN_SITES else "dense"
+        if N < SLICED_MIN_SITES:
+            return "dense"
+        from .slicing import has_gpu_eig
+
+        return "probed" if has_gpu_eig(device) else "sliced"
     return solver
 
 
@@ -236,13 +241,19 @@ def reduced_analysis(
     sparse Mu, counted) or the window near +1 and -1 (``krylov_floquet.window_floquet``; ``window``: its
     ``FloquetWindow``). ``floquet`` and the continuation driver both analyse through here; ``params``: the orbit's
     lattice, whose linear mu (``linear_mu``) cut the sliced path's segments (computed only on that path)."""
-    path = floquet_path(solver, lin.x0.shape[1])
+    device = getattr(lin, "device", None)
+    path = floquet_path(solver, lin.x0.shape[1], device)
     if path == "window":
         from .krylov_floquet import window_floquet
 
         return window_floquet(lin, M, state, tolerance, window)
     if window is not None:
         raise ValueError("window= chooses the window path's multipliers; the complete paths compute all of them")
+    if path == "probed":
+        from .slicing import probed_floquet
+
+        lattice = None if params is None else neighbour_table(params)
+        return probed_floquet(lin, M, state, tolerance, lattice=lattice, device=device)
     if path == "sliced":
         from .slicing import sliced_floquet
 
@@ -379,8 +390,10 @@ def floquet(
         flow: the Flow to use (default: the breather's own).
         solver: ``"dense"`` (every multiplier: 4N tangent columns and the eig of Mu, the reference),
             ``"sliced"`` (every multiplier from the probed sparse Mu by shift-invert slices, with a count that
-            proves none was missed: ``continuation.slicing``), ``"auto"`` (sliced from ``SLICED_MIN_SITES`` sites
-            on, dense below) or ``"window"`` (the multipliers near +1 and -1 only, ``continuation.krylov_floquet``:
+            proves none was missed: ``continuation.slicing``), ``"probed"`` (every multiplier from the probed sparse
+            Mu by a dense eig per parity block, on the GPU with CuPy where the flow runs on one, counted the same
+            way), ``"auto"`` (dense below ``SLICED_MIN_SITES`` sites; from there probed on a GPU with CuPy, else
+            sliced) or ``"window"`` (the multipliers near +1 and -1 only, ``continuation.krylov_floquet``:
             a partial analysis, ``stable`` None, what it saw in ``partial_stable``). The reduced paths need a
             reversible orbit; the full path is always dense.
         window: the window path's ``FloquetWindow`` (default: the 60 mu nearest each end).
@@ -426,7 +439,7 @@ def floquet(
         reduced = breather.formulation == "reversible" and _is_reversible_method(flow.method)
     params = breather.params
     floquet_path(solver, params.N)  # a bad name fails before any work
-    if solver in ("sliced", "window") and not reduced:
+    if solver in ("sliced", "probed", "window") and not reduced:
         raise ValueError(f"solver={solver!r} works on the reduced problem (reversible orbit, symplectic method)")
     if reduced:
         lin = breather.linearization(flow)

@@ -150,11 +150,27 @@ def _measures(mu, vectors, P, E, M: float, centre: float) -> tuple:
     participation and central weight of eigenvectors in a block's coordinates (E: the block's extension to 2N, None
     for the whole Mu)."""
     vec = real_phase(vectors, mu)
-    real = np.real(vec)
-    act = np.sum(real * (P @ real), axis=0)
+    act = krein_forms(np.real(vec), P)
     x = vec if E is None else E @ vec
     weight = central_weight(x, M, centre) if np.isfinite(centre) else np.full(vec.shape[1], np.nan)
     return act, participation(x, M), weight
+
+
+#: ``krein_forms`` splits more columns than this into chunks on host threads
+FORM_CHUNK = 256
+
+
+def krein_forms(real: np.ndarray, P) -> np.ndarray:
+    """a^T P a for each column a of ``real``: column chunks on host threads where there are many (a dense block's
+    thousands of vectors; scipy's sparse products let go of the GIL), each column's arithmetic the same either way."""
+    n = real.shape[1]
+    if n <= FORM_CHUNK:
+        return np.sum(real * (P @ real), axis=0)
+    from .parity import _block_pool
+
+    P = sp.csr_matrix(P)
+    chunks = [slice(k, min(n, k + FORM_CHUNK)) for k in range(0, n, FORM_CHUNK)]
+    return np.concatenate(list(_block_pool().map(lambda c: np.sum(real[:, c] * (P @ real[:, c]), axis=0), chunks)))
 
 
 #: a disc whose rim falls inside a dense cluster (the acoustic band's flat top: 110 of the paper chain's 6402 mu within
@@ -298,8 +314,9 @@ def degenerate_reals(mu, vectors, P) -> tuple:
     its real part, twice, with the real vectors that diagonalize G (their Krein forms are G's eigenvalues); every
     other pair stays a pair, and so does one with |Im mu| above ``DOUBLE_IMAG`` or with x and y nearly parallel
     (then span{x, y} is no plane of eigenvectors)."""
-    mu, vectors = np.array(mu, complex), np.array(vectors, complex)
+    mu, vectors = np.array(mu, complex), np.asarray(vectors, complex)
     neutral = neutral_form(P)
+    copied = False  # the vectors are copied before the first change (a dense block's are 2.6 GB)
     for i in np.flatnonzero((mu.imag > 0) & (mu.imag <= DOUBLE_IMAG * np.maximum(1.0, np.abs(mu)))):
         partners = np.flatnonzero((mu.imag < 0) & (np.abs(mu - np.conj(mu[i])) <= 1e-12 * max(1.0, abs(mu[i]))))
         if not len(partners):
@@ -311,6 +328,8 @@ def degenerate_reals(mu, vectors, P) -> tuple:
         if np.all(lam > neutral) or np.all(lam < -neutral):
             j = partners[0]
             mu[i] = mu[j] = mu[i].real
+            if not copied:
+                vectors, copied = vectors.copy(), True
             vectors[:, [i, j]] = basis @ Q
     return mu, vectors
 
@@ -342,7 +361,7 @@ def hidden_neutral(mu, vectors, P):
     real = np.flatnonzero(mu.imag == 0)
     if len(real) < 2:
         return vectors
-    vectors = np.array(vectors, copy=True)
+    copied = False  # the vectors are copied before the first change
     neutral = neutral_form(P)
     order = real[np.argsort(mu.real[real])]
     values = mu.real[order]
@@ -357,6 +376,8 @@ def hidden_neutral(mu, vectors, P):
             continue
         basis, lam, Q = plane
         if np.min(np.abs(lam)) <= neutral and np.all(np.abs(own) > neutral):
+            if not copied:
+                vectors, copied = np.array(vectors, copy=True), True
             vectors[:, cluster] = basis @ Q
     return vectors
 
@@ -374,57 +395,34 @@ def _report(mu, vectors, P, E, M, centre, **extra) -> dict:
 PROCESS_MIN_ROWS = 600
 
 
-def sliced_floquet(
-    lin, M: float, state=None, tolerance=None, *, hint=None, processes: bool | None = None, lattice=None
-):
-    """Every multiplier of a reversible orbit from its half-period Linearization, counted (module docstring): a
-    ``FloquetResult`` with ``path="sliced"``, complete (a verdict) when the count closes in every parity block,
-    else ``stable`` None with the counts in ``coverage``; no ``vectors`` (2N x 2N of them). ``hint``: the expected
-    mu, to cut segments of equal work (``segments``). ``processes``: the slices in worker processes (default: from
-    ``PROCESS_MIN_ROWS`` rows of a block on). ``lattice``: a patch's, whose mirror splits the blocks once more
-    (``krylov_floquet.probed_problem``)."""
-    from .hostblas import blas_threads
+def _probed_blocks(lin, M: float, state, lattice) -> dict:
+    """The probed problem (``krylov_floquet.probed_problem``) as per-block operators: ``ops`` (B = (Mu E)[keep], or
+    Mu), their Krein forms ``forms`` (E^T P E) and extensions, the symplecticity gauge and the energy centre. Runs
+    under ``blas_threads(1)`` (the caller's)."""
     from .krylov_floquet import probed_problem
-    from .workers import Shared, Workers
 
-    start = time.perf_counter()
-    with blas_threads(1):
-        problem = probed_problem(lin, M, state, lattice)
-        Mu, blocks, N = problem["Mu"], problem["blocks"], problem["N"]
-        sympl, P = problem["checks"].result()
-        seconds = {"probe": time.perf_counter() - start}
-        P = sp.csc_matrix(0.5 * (P + P.T))
-        centre = energy_centre(state) if state is not None else float("nan")
-        ops, forms, extensions = [], [], []
-        for _, E, keep in blocks:
-            ops.append(Mu if E is None else sp.csc_matrix((Mu @ E)[keep]))
-            forms.append(P if E is None else sp.csc_matrix(E.T @ P @ E))
-            extensions.append(E)
-        if processes is None:
-            processes = max(op.shape[0] for op in ops) >= PROCESS_MIN_ROWS
-        workers = Workers.shared() if processes else None
-        count = max(1, (workers.count if workers else 1) * SEGMENTS_PER_WORKER // len(ops))
-        tasks, owner = [], []
-        for b, (op, form, E) in enumerate(zip(ops, forms, extensions)):
-            shared = (Shared(op), Shared(form), Shared(E)) if processes else (op, form, E)
-            k = int(min(SLICE_COUNT, op.shape[0] - 2))
-            for lo, hi in segments(count, hint):
-                tasks.append(("slice_task", (*shared, lo, hi, k, M, centre)))
-                owner.append(b)
-            for sign in (1.0, -1.0):
-                tasks.append(("outlier_task", (*shared, sign, int(min(OUTLIERS, k)), M, centre)))
-                owner.append(b)
-        mark = time.perf_counter()
-        if processes:
-            reports = workers.map("continuation.slicing", tasks, what="Floquet slice")
-        else:
-            reports = [globals()[f](*args) for f, args in tasks]
-        seconds["slices"] = time.perf_counter() - mark
-        mark = time.perf_counter()
-        counts = [inertia(form) for form in forms]
-        seconds["count"] = time.perf_counter() - mark
+    problem = probed_problem(lin, M, state, lattice)
+    Mu = problem["Mu"]
+    sympl, P = problem["checks"].result()
+    P = sp.csc_matrix(0.5 * (P + P.T))
+    ops, forms, extensions = [], [], []
+    for _, E, keep in problem["blocks"]:
+        ops.append(Mu if E is None else sp.csc_matrix((Mu @ E)[keep]))
+        forms.append(P if E is None else sp.csc_matrix(E.T @ P @ E))
+        extensions.append(E)
+    centre = energy_centre(state) if state is not None else float("nan")
+    return {**problem, "ops": ops, "forms": forms, "extensions": extensions, "symplecticity": sympl, "centre": centre}
+
+
+def _counted(problem: dict, reports: list, owner: list, coverage: dict, tolerance, *, path: str, start, seconds):
+    """The result of a path that found eigenvalues per block (``reports``, each of block ``owner[i]``): each block's
+    count against P's inertia (module docstring), complete when every one closes."""
+    mark = time.perf_counter()
+    forms = problem["forms"]
+    counts = [inertia(form) for form in forms]
+    seconds["count"] = time.perf_counter() - mark
     parts, coverage_blocks = [], []
-    for b, (parity, _, _) in enumerate(blocks):
+    for b, (parity, _, _) in enumerate(problem["blocks"]):
         mine = [r for r, o in zip(reports, owner) if o == b]
         part = {key: np.concatenate([r[key] for r in mine]) for key in ("mu", "act", "participation", "central_weight")}
         part["parity"] = np.full(len(part["mu"]), parity, int)
@@ -450,7 +448,7 @@ def sliced_floquet(
         coverage_blocks.append(
             {
                 "parity": int(parity),
-                "rows": int(ops[b].shape[0]),
+                "rows": int(problem["ops"][b].shape[0]),
                 "inertia": {k: c[k] for k in ("positive", "negative", "zero")},
                 "inertia_worst_condition": c["worst_condition"],
                 "found": found,
@@ -458,18 +456,11 @@ def sliced_floquet(
             }
         )
         parts.append(part)
-    slices = [r for r in reports if "strip" in r]
     closed = all(b["closed"] for b in coverage_blocks)
     coverage = {
-        "method": "sliced",
-        "interval": [-1.0 - OUTER, 1.0 + OUTER],
-        "segments": len(slices),
-        "shifts": int(sum(r["shifts"] for r in slices)),
-        "strip_half_height": float(min(r["strip"] for r in slices)),
-        "outliers_converged": all(r["converged"] for r in reports if "strip" not in r),
+        **coverage,
         "counts": coverage_blocks,
         "closed": closed,
-        "processes": bool(processes),
         "unseen": "nothing when closed (P's inertia equals what was found in every block); otherwise the missing "
         "count per block is in counts: solver='dense' sees every one",
     }
@@ -479,13 +470,128 @@ def sliced_floquet(
         np.concatenate([p["act"] for p in parts]),
         np.concatenate([p["participation"] for p in parts]),
         np.concatenate([p["central_weight"] for p in parts]),
-        N,
-        {"symplecticity": sympl, "probe_halfwidth": problem["halfwidth"]},
+        problem["N"],
+        {"symplecticity": problem["symplecticity"], "probe_halfwidth": problem["halfwidth"]},
         tolerance,
-        path="sliced",
+        path=path,
         vectors=None,
         coverage=coverage,
         complete=closed,
         wall_seconds=time.perf_counter() - start,
-        stats={"tangent_columns": problem["tangent_columns"], "shifts": coverage["shifts"], "seconds": seconds},
+        stats={"tangent_columns": problem["tangent_columns"], "shifts": coverage.get("shifts", 0), "seconds": seconds},
     )
+
+
+def sliced_floquet(
+    lin, M: float, state=None, tolerance=None, *, hint=None, processes: bool | None = None, lattice=None
+):
+    """Every multiplier of a reversible orbit from its half-period Linearization, counted (module docstring): a
+    ``FloquetResult`` with ``path="sliced"``, complete (a verdict) when the count closes in every parity block,
+    else ``stable`` None with the counts in ``coverage``; no ``vectors`` (2N x 2N of them). ``hint``: the expected
+    mu, to cut segments of equal work (``segments``). ``processes``: the slices in worker processes (default: from
+    ``PROCESS_MIN_ROWS`` rows of a block on). ``lattice``: a patch's, whose mirror splits the blocks once more
+    (``krylov_floquet.probed_problem``)."""
+    from .hostblas import blas_threads
+    from .workers import Shared, Workers
+
+    start = time.perf_counter()
+    with blas_threads(1):
+        problem = _probed_blocks(lin, M, state, lattice)
+        seconds = {"probe": time.perf_counter() - start}
+        ops, forms, extensions, centre = problem["ops"], problem["forms"], problem["extensions"], problem["centre"]
+        if processes is None:
+            processes = max(op.shape[0] for op in ops) >= PROCESS_MIN_ROWS
+        workers = Workers.shared() if processes else None
+        count = max(1, (workers.count if workers else 1) * SEGMENTS_PER_WORKER // len(ops))
+        tasks, owner = [], []
+        for b, (op, form, E) in enumerate(zip(ops, forms, extensions)):
+            shared = (Shared(op), Shared(form), Shared(E)) if processes else (op, form, E)
+            k = int(min(SLICE_COUNT, op.shape[0] - 2))
+            for lo, hi in segments(count, hint):
+                tasks.append(("slice_task", (*shared, lo, hi, k, M, centre)))
+                owner.append(b)
+            for sign in (1.0, -1.0):
+                tasks.append(("outlier_task", (*shared, sign, int(min(OUTLIERS, k)), M, centre)))
+                owner.append(b)
+        mark = time.perf_counter()
+        if processes:
+            reports = workers.map("continuation.slicing", tasks, what="Floquet slice")
+        else:
+            reports = [globals()[f](*args) for f, args in tasks]
+        seconds["slices"] = time.perf_counter() - mark
+        slices = [r for r in reports if "strip" in r]
+        coverage = {
+            "method": "sliced",
+            "interval": [-1.0 - OUTER, 1.0 + OUTER],
+            "segments": len(slices),
+            "shifts": int(sum(r["shifts"] for r in slices)),
+            "strip_half_height": float(min(r["strip"] for r in slices)),
+            "outliers_converged": all(r["converged"] for r in reports if "strip" not in r),
+            "processes": bool(processes),
+        }
+        return _counted(problem, reports, owner, coverage, tolerance, path="sliced", start=start, seconds=seconds)
+
+
+def dense_eig(matrix: np.ndarray, device=None) -> tuple:
+    """Eigenvalues and right eigenvectors of a dense real matrix: with CuPy on ``device``'s GPU when ``device`` names
+    one (``cupy.linalg.eig``, cuSOLVER's geev: 7.6 s for the eigenvalues of a 12800-square matrix on an H200, against
+    5.6 s for a 3200-square one by the host's LAPACK on 16 cores), else LAPACK's on the host."""
+    gpu = gpu_index(device)
+    if gpu is None:
+        return np.linalg.eig(matrix)
+    import cupy
+
+    with cupy.cuda.Device(gpu):
+        mu, vectors = cupy.linalg.eig(cupy.asarray(matrix))
+        return cupy.asnumpy(mu), cupy.asnumpy(vectors)
+
+
+def gpu_index(device) -> "int | None":
+    """The CUDA ordinal ``device`` names (``"cuda"``, ``"cuda:1"``), or None for the CPU (or no device)."""
+    if device is None or not str(device).startswith("cuda"):
+        return None
+    name = str(device)
+    return int(name.split(":", 1)[1]) if ":" in name else 0
+
+
+def has_gpu_eig(device) -> bool:
+    """Whether ``dense_eig`` would run on a GPU for ``device``: it names one and CuPy imports."""
+    if gpu_index(device) is None:
+        return False
+    try:
+        import cupy  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def dense_task(op, P, E, M: float, centre: float, device=None) -> dict:
+    """One block's eigenvalues all at once, by a dense eig of its probed operator (``dense_eig``), with their Krein
+    forms, participations and central weights."""
+    start = time.perf_counter()
+    mu, vectors = dense_eig(op.toarray(), device)
+    return _report(mu, vectors, P, E, M, centre, seconds=time.perf_counter() - start)
+
+
+def probed_floquet(lin, M: float, state=None, tolerance=None, *, lattice=None, device=None):
+    """Every multiplier of a reversible orbit from the probed sparse Mu (no 4N tangent columns), by a dense eig of
+    each parity block (``dense_eig``: on the GPU with CuPy where ``device`` is one), then counted against P's inertia
+    as the slices are (module docstring): ``path="probed"``, complete when every block's count closes."""
+    from .hostblas import blas_threads
+
+    start = time.perf_counter()
+    with blas_threads(1 if gpu_index(device) is None else None):
+        problem = _probed_blocks(lin, M, state, lattice)
+    seconds = {"probe": time.perf_counter() - start}
+    mark = time.perf_counter()
+    reports = [
+        dense_task(op, form, E, M, problem["centre"], device)
+        for op, form, E in zip(problem["ops"], problem["forms"], problem["extensions"])
+    ]
+    seconds["eig"] = time.perf_counter() - mark
+    coverage = {"method": "probed", "eig": "gpu" if gpu_index(device) is not None else "host"}
+    with blas_threads(1):
+        return _counted(
+            problem, reports, list(range(len(reports))), coverage, tolerance, path="probed", start=start,
+            seconds=seconds,
+        )  # fmt: skip

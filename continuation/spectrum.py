@@ -110,14 +110,16 @@ class FloquetResult:
             between two analysed orbits (``continuation.bubbles``).
         accuracy: the measured gauges (``trivial_deviation``, ``symplecticity`` or ``pairing_error``; the
             probe's ``probe_halfwidth`` on the sliced and window paths).
-        path: ``"reduced"`` (dense), ``"full"``, ``"sliced"`` (every multiplier from the probed Mu, counted:
-            ``continuation.slicing``) or ``"window"`` (the multipliers near +1 and -1 only: every array above then
+        path: ``"reduced"`` (dense), ``"full"``, ``"sliced"`` (every multiplier from the probed Mu by slices,
+            counted: ``continuation.slicing``), ``"probed"`` (the probed Mu by a dense eig per block, counted) or
+            ``"window"`` (the multipliers near +1 and -1 only: every array above then
             holds that subset).
         coverage: what the sliced and window paths searched: the segments or mu intervals swept, the half-height
             of the strip around the real axis they cover, the shifts, and on the sliced path the count per
             parity block (``counts``: P's inertia against what was found) and whether it closed; None on the dense
             paths.
-        complete: every multiplier accounted for (dense paths; the sliced path when its count closed).
+        complete: every multiplier accounted for (dense paths; the sliced and probed paths when their count
+            closed).
         partial_stable: on a partial analysis (``complete`` False), whether the multipliers it found hold no
             instability (a window: "none near +-1"); None on a complete one.
         partial_max_modulus: on a partial analysis, the largest |l| among those found; NaN on a complete one.

@@ -55,8 +55,9 @@ class BranchParameters:
     floquet_solver: str = param(
         "auto",
         "every multiplier at each point: dense (4N tangent columns), sliced (the probed sparse Mu by shift-invert "
-        "slices, counted: continuation.slicing) or auto (sliced from 1601 sites)",
-        choices=("auto", "dense", "sliced"),
+        "slices, counted: continuation.slicing), probed (the same Mu by a dense eig per parity block, on the GPU "
+        "with CuPy, counted) or auto (from 1601 sites: probed on a GPU with CuPy, else sliced)",
+        choices=("auto", "dense", "sliced", "probed"),
     )
 
     def settings(self) -> ContinuationSettings:

@@ -3,8 +3,8 @@ breathers, and how does that compare with the chain and with the monolayer's ene
 the paper)
 
 Command: ``python -m scenarios run monolayer-spot --device cpu`` (81 x 81 triangular patch, 9 spots, 100 periods:
-about 2 min on a 2-core CPU; ``--quick`` about 25 s, drawings included). On a GPU: ``--device cuda --set n=201 --set periods=200``
-(or ``n=512``). Options: ``--set KEY=VALUE`` (fields of ``Parameters``).
+about 2 min on a 2-core CPU; ``--quick`` about 25 s, drawings included). On a GPU: ``--device cuda --set n=201
+--set periods=200`` (or ``n=512``). Options: ``--set KEY=VALUE`` (fields of ``Parameters``).
 
 The paper closes by proposing to see breathers by "impulsively exciting a large spot on the substrate surface";
 ``breakup-statistics`` ran that on the chain. Here the spot is two-dimensional: every lattice starts at rest in

@@ -359,6 +359,73 @@ def test_auto_takes_the_sliced_path_from_sliced_min_sites(monkeypatch):
     assert ct.floquet(b).path == "reduced"
 
 
+# ----------------------------------------------------------------------------- the probed path (dense eig per block)
+
+
+@pytest.mark.parametrize("name", list(ORBITS))
+def test_probed_is_the_dense_spectrum(name):
+    """``solver="probed"``: the probed sparse Mu's blocks by a dense eig (the host's LAPACK here), counted as the
+    slices are: the dense mu (to 1e-11 per parity), verdict, largest modulus, signatures and kinds; every count
+    closes."""
+    b, dense, _ = _results(name)
+    fl = ct.floquet(b, solver="probed")
+    assert fl.path == "probed" and fl.complete is True and fl.coverage["method"] == "probed"
+    assert fl.coverage["eig"] == "host" and all(c["closed"] for c in fl.coverage["counts"])
+    assert len(fl.mu) == 2 * b.params.N
+    _assert_same_mu_sets(dense, fl, 1e-11)
+    assert fl.stable is dense.stable and abs(fl.max_modulus - dense.max_modulus) <= 1e-9
+    assert sorted(fl.signature) == sorted(dense.signature)
+    assert [i.kind for i in fl.instabilities] == [i.kind for i in dense.instabilities]
+
+
+@pytest.mark.parametrize("name", ["square-site", "triangular-triangle"])
+def test_probed_is_the_dense_spectrum_on_a_patch(name):
+    """On a patch (the mirror's four blocks, or one block) the probed path's counts close with the dense mu."""
+    b, dense, _ = _patch(name)
+    fl = ct.floquet(b, solver="probed")
+    assert fl.complete is True and all(c["closed"] for c in fl.coverage["counts"])
+    _assert_same_mu_sets(dense, fl, 1e-12)
+    assert fl.stable is dense.stable and abs(fl.max_modulus - dense.max_modulus) <= 1e-9
+
+
+def test_auto_takes_the_probed_path_where_a_gpu_eig_is_there(monkeypatch):
+    """From ``SLICED_MIN_SITES`` sites on, ``auto`` is the probed path where the flow's device is a GPU and CuPy
+    imports (``slicing.has_gpu_eig``), the sliced path elsewhere; below, dense either way."""
+    assert floquet_module.floquet_path("auto", 1601, "cpu") == "sliced"
+    assert floquet_module.floquet_path("auto", 1601, "numpy") == "sliced"
+    assert slicing.gpu_index("cuda") == 0 and slicing.gpu_index("cuda:1") == 1 and slicing.gpu_index("cpu") is None
+    monkeypatch.setattr(slicing, "has_gpu_eig", lambda device: str(device).startswith("cuda"))
+    assert floquet_module.floquet_path("auto", 1601, "cuda:0") == "probed"
+    assert floquet_module.floquet_path("auto", 1601, "cpu") == "sliced"
+    assert floquet_module.floquet_path("auto", 1600, "cuda:0") == "dense"
+
+
+def _cuda_with_cupy() -> bool:
+    try:
+        import cupy  # noqa: F401
+        import warp as wp
+
+        wp.init()
+        return wp.get_cuda_device_count() > 0
+    except Exception:
+        return False
+
+
+@pytest.mark.skipif(not _cuda_with_cupy(), reason="needs a CUDA device and CuPy")
+def test_probed_on_the_gpu_is_the_hosts():
+    """The probed path with its eig on the GPU (CuPy, cuSOLVER's geev) gives the host's mu (to 1e-11), verdict and
+    closed counts, on the paper breather and the off-centre site breather (one block of parity 0)."""
+    for name in ("paper201", "offsite401"):
+        b = _breather(name)
+        lin = b.linearization(b.flow.replace(device="cuda:0"))
+        assert lin.device == "cuda:0"
+        gpu = slicing.probed_floquet(lin, M, b.state, device=lin.device)
+        host = slicing.probed_floquet(lin, M, b.state)
+        assert gpu.coverage["eig"] == "gpu" and gpu.complete is True
+        _assert_same_mu_sets(host, gpu, 1e-11)
+        assert gpu.stable is host.stable and abs(gpu.max_modulus - host.max_modulus) <= 1e-9
+
+
 # ----------------------------------------------------------------------------- multiple eigenvalues
 
 

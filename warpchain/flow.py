@@ -74,6 +74,7 @@ class Linearization:
         min_contact: min over sites and step boundaries of 1 + u - v.
         nsteps, dt: the time grid.
         stats: counters (``tangent_columns`` propagated so far).
+        device: the device of the flow that made it (``"cpu"``, ``"cuda:0"``, ..., ``"numpy"`` for the reference).
     """
 
     def __init__(
@@ -87,8 +88,10 @@ class Linearization:
         unit: Callable[[int, int], np.ndarray] | None = None,
         banded: bool = True,
         lattice=None,
+        device: str = "numpy",
     ):
         self.x0, self.x_end, self.min_contact = x0, x_end, float(min_contact_value)
+        self.device = device  # where the columns are computed (a Warp device, or "numpy"): the host's eig or a GPU's
         self.nsteps, self.dt = int(nsteps), float(dt)
         self._columns = columns
         # optional: (first, count) -> the end-state derivatives along unit directions first .. first + count - 1
@@ -451,8 +454,9 @@ class Flow:
 
         banded = _banded(params)
         return Linearization(
-            x0[0], x_end[0], contact[0], nsteps, dt, columns, unit=unit, banded=banded, lattice=_probed(params)
-        )
+            x0[0], x_end[0], contact[0], nsteps, dt, columns, unit=unit, banded=banded, lattice=_probed(params),
+            device=runner.device,
+        )  # fmt: skip
 
 
 def _column_buffers(runner, count: int):
