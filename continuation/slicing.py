@@ -37,6 +37,7 @@ H100 machine at N = 1601 .. 3201 (``benchmarks/breather_scaling.py``: to 2.7e-14
 from __future__ import annotations
 
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import scipy.sparse as sp
@@ -584,10 +585,12 @@ def probed_floquet(lin, M: float, state=None, tolerance=None, *, lattice=None, d
         problem = _probed_blocks(lin, M, state, lattice)
     seconds = {"probe": time.perf_counter() - start}
     mark = time.perf_counter()
-    reports = [
-        dense_task(op, form, E, M, problem["centre"], device)
-        for op, form, E in zip(problem["ops"], problem["forms"], problem["extensions"])
-    ]
+    # the blocks on threads of their own: one block's host work (Krein forms, participations) beside the next one's
+    # eig on the GPU (N = 12801 on an H200: 60 s for the two blocks one after the other); on the host one BLAS
+    # thread each, as ``parity.parity_blocks``
+    blocks = list(zip(problem["ops"], problem["forms"], problem["extensions"]))
+    with blas_threads(1 if gpu_index(device) is None else None), ThreadPoolExecutor(len(blocks)) as pool:
+        reports = list(pool.map(lambda b: dense_task(*b, M, problem["centre"], device), blocks))
     seconds["eig"] = time.perf_counter() - mark
     coverage = {"method": "probed", "eig": "gpu" if gpu_index(device) is not None else "host"}
     with blas_threads(1):
