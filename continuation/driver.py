@@ -131,8 +131,8 @@ class ContinuationSettings:
             ``SLICED_MIN_SITES`` sites on: probed on a GPU with CuPy, else sliced). Every point's verdict is
             complete: a sliced or probed analysis whose count does not close fails the walk (``IncompleteVerdict``)
             rather than record a guess. The window near +-1
-            (``floquet(solver="window")``) gives no verdict and is not offered here. On the sliced path the
-            bubble predictor, which needs Mu's dense eigenvectors, is off (no predicted bubbles).
+            (``floquet(solver="window")``) gives no verdict and is not offered here. On the sliced and probed
+            paths the bubble predictor, which needs Mu's dense eigenvectors, is off (no predicted bubbles).
         max_seconds: opt-in time budget (None: stop only on physics or max_points).
         blas_threads: threads of the host BLAS during the walk: ``"auto"`` (default: one on the CPU
             device, the process's setting on a GPU; ``continuation.hostblas``), a whole number, or None
@@ -197,7 +197,7 @@ class ContinuationSettings:
 
 
 def analyse(solution: Solution, with_floquet: bool = True, spectra: dict | None = None, settings=None) -> BranchPoint:
-    """Energy, multipliers (reduced Floquet on the solution's own linearization: dense or sliced as
+    """Energy, multipliers (reduced Floquet on the solution's own linearization: dense, sliced or probed as
     ``settings.floquet_solver`` says: ``floquet.reduced_analysis``), harmonics.
 
     ``spectra``: where to keep the point's reduced matrix and eigenvectors (``floquet.SpectralData``, dense path

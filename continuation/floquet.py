@@ -237,10 +237,11 @@ def reduced_analysis(
     lin, M: float, state=None, tolerance=None, *, solver: str = "auto", window=None, params=None
 ) -> FloquetResult:
     """The reduced Floquet analysis of a reversible orbit from its half-period Linearization, on the path ``solver``
-    names: every multiplier (``reduced_floquet`` on A's 4N columns, or ``slicing.sliced_floquet`` on the probed
-    sparse Mu, counted) or the window near +1 and -1 (``krylov_floquet.window_floquet``; ``window``: its
-    ``FloquetWindow``). ``floquet`` and the continuation driver both analyse through here; ``params``: the orbit's
-    lattice, whose linear mu (``linear_mu``) cut the sliced path's segments (computed only on that path)."""
+    names (``floquet_path``, with the Linearization's device): every multiplier (``reduced_floquet`` on A's 4N
+    columns, or ``slicing.sliced_floquet`` / ``slicing.probed_floquet`` on the probed sparse Mu, counted) or the
+    window near +1 and -1 (``krylov_floquet.window_floquet``; ``window``: its ``FloquetWindow``). ``floquet`` and
+    the continuation driver both analyse through here; ``params``: the orbit's lattice, whose linear mu
+    (``linear_mu``) cut the sliced path's segments (computed only on that path)."""
     device = getattr(lin, "device", None)
     path = floquet_path(solver, lin.x0.shape[1], device)
     if path == "window":

@@ -36,6 +36,7 @@ H100 machine at N = 1601 .. 3201 (``benchmarks/breather_scaling.py``: to 2.7e-14
 
 from __future__ import annotations
 
+import re
 import time
 from concurrent.futures import ThreadPoolExecutor
 
@@ -534,36 +535,46 @@ def sliced_floquet(
 
 
 def dense_eig(matrix: np.ndarray, device=None) -> tuple:
-    """Eigenvalues and right eigenvectors of a dense real matrix: with CuPy on ``device``'s GPU when ``device`` names
-    one (``cupy.linalg.eig``, cuSOLVER's geev: 7.6 s for the eigenvalues of a 12800-square matrix on an H200, against
-    5.6 s for a 3200-square one by the host's LAPACK on 16 cores), else LAPACK's on the host."""
-    gpu = gpu_index(device)
-    if gpu is None:
+    """Eigenvalues and right eigenvectors of a dense real matrix: with CuPy on ``device``'s GPU where ``has_gpu_eig``
+    (``cupy.linalg.eig``, cuSOLVER's geev: 7.6 s for the eigenvalues of a 12800-square matrix on an H200, against
+    5.6 s for a 3200-square one by the host's LAPACK on 16 cores), else LAPACK's on the host. The GPU's part runs
+    under the device's lock (``warpchain.engine.devices.device_lock``: no allocation or sync while another thread
+    captures a Warp graph there), and CuPy's pool gives its memory back after."""
+    if not has_gpu_eig(device):
         return np.linalg.eig(matrix)
     import cupy
 
-    with cupy.cuda.Device(gpu):
-        mu, vectors = cupy.linalg.eig(cupy.asarray(matrix))
-        return cupy.asnumpy(mu), cupy.asnumpy(vectors)
+    from warpchain.engine.devices import device_lock
+
+    with device_lock(str(device)), cupy.cuda.Device(gpu_index(device)):
+        try:
+            mu, vectors = cupy.linalg.eig(cupy.asarray(matrix))
+            return cupy.asnumpy(mu), cupy.asnumpy(vectors)
+        finally:
+            mu = vectors = None
+            cupy.get_default_memory_pool().free_all_blocks()
 
 
 def gpu_index(device) -> "int | None":
-    """The CUDA ordinal ``device`` names (``"cuda"``, ``"cuda:1"``), or None for the CPU (or no device)."""
-    if device is None or not str(device).startswith("cuda"):
-        return None
-    name = str(device)
-    return int(name.split(":", 1)[1]) if ":" in name else 0
+    """The CUDA ordinal ``device`` names (``"cuda"``, ``"cuda:1"``), or None for anything else (the CPU, numpy)."""
+    match = re.fullmatch(r"cuda(?::(\d+))?", str(device).strip().lower()) if device is not None else None
+    return None if match is None else int(match.group(1) or 0)
 
 
 def has_gpu_eig(device) -> bool:
-    """Whether ``dense_eig`` would run on a GPU for ``device``: it names one and CuPy imports."""
+    """Whether ``dense_eig`` runs on a GPU for ``device``: it names one, CuPy imports, and its ``linalg.eig`` is there
+    with cuSOLVER's geev (CuPy 14 on CUDA 12.6 or later); otherwise the host's LAPACK does the work."""
     if gpu_index(device) is None:
         return False
     try:
-        import cupy  # noqa: F401
+        import cupy
+        from cupyx import cusolver
     except ImportError:
         return False
-    return True
+    try:
+        return hasattr(cupy.linalg, "eig") and bool(cusolver.check_availability("geev"))
+    except Exception:  # an older cupyx without the name, or no driver: the host's eig
+        return False
 
 
 def dense_task(op, P, E, M: float, centre: float, device=None) -> dict:
@@ -581,7 +592,7 @@ def probed_floquet(lin, M: float, state=None, tolerance=None, *, lattice=None, d
     from .hostblas import blas_threads
 
     start = time.perf_counter()
-    with blas_threads(1 if gpu_index(device) is None else None):
+    with blas_threads(None if has_gpu_eig(device) else 1):
         problem = _probed_blocks(lin, M, state, lattice)
     seconds = {"probe": time.perf_counter() - start}
     mark = time.perf_counter()
@@ -589,10 +600,11 @@ def probed_floquet(lin, M: float, state=None, tolerance=None, *, lattice=None, d
     # eig on the GPU (N = 12801 on an H200: 60 s for the two blocks one after the other); on the host one BLAS
     # thread each, as ``parity.parity_blocks``
     blocks = list(zip(problem["ops"], problem["forms"], problem["extensions"]))
-    with blas_threads(1 if gpu_index(device) is None else None), ThreadPoolExecutor(len(blocks)) as pool:
+    # (their own executor: ``krein_forms`` hands its chunks to ``parity._block_pool``, which must never wait on itself)
+    with blas_threads(None if has_gpu_eig(device) else 1), ThreadPoolExecutor(len(blocks)) as pool:
         reports = list(pool.map(lambda b: dense_task(*b, M, problem["centre"], device), blocks))
     seconds["eig"] = time.perf_counter() - mark
-    coverage = {"method": "probed", "eig": "gpu" if gpu_index(device) is not None else "host"}
+    coverage = {"method": "probed", "eig": "gpu" if has_gpu_eig(device) else "host"}
     with blas_threads(1):
         return _counted(
             problem, reports, list(range(len(reports))), coverage, tolerance, path="probed", start=start,

@@ -498,7 +498,7 @@ VISIBLE = 0.05
 
 
 def _movie(out):
-    """The stored movie as images on the patch's grid: ``images`` (periods, ny, nx), the affine map from grid
+    """The stored movie as images on the patch's grid: ``images`` (periods + 1, ny, nx), the affine map from grid
     indices (i, j) to positions (fitted to the stored x, y: exact for a Bravais patch), and ``view``, the half-side
     in sites of the square about the centre that the drawings show: the whole patch, or 1.5 times the reach of the
     sites whose envelope ever passes ``VISIBLE`` of the colour scale where that is smaller (a localized spot on a

@@ -238,7 +238,9 @@ class Lattice:
         wall bond to its site. Summed over the sites it is ``bond_energy`` (to rounding): an energy density.
         ``sites`` (indices): the density at those sites only, shape u.shape[:-1] + (len(sites),)."""
         u, padded = self._field(u)
-        at = np.arange(self.n_sites) if sites is None else np.asarray(sites, dtype=np.intp)
+        at = np.arange(self.n_sites) if sites is None else np.asarray(sites)
+        if at.dtype.kind not in "iu":
+            raise ValueError(f"sites must be site indices (integers), got an array of {at.dtype}")
         here = u[..., at]
         out = np.zeros(here.shape)
         for d in range(self.degree):
