@@ -565,6 +565,18 @@ def test_monolayer_spot_quick_localizes_above_the_threshold_only(tmp_path):
         wc.read_store(folder / "data.zarr", group)
     for name in ("monolayer-spot.png", "monolayer-spot-snapshots.png", "monolayer-spot.gif"):
         assert (folder / name).stat().st_size > 0
+    # the drawings' images are the stored envelopes on the patch's grid, under the affine map to the positions
+    from scenarios.monolayer_spot import _movie
+    from warpchain.store import read_group
+
+    movie, _ = _movie(folder)
+    frames, _ = read_group(folder / "data.zarr", "movie")
+    i, j = frames["i"].astype(int), frames["j"].astype(int)
+    assert movie["images"].shape == (len(frames["t"]), 41, 41) and len(frames["t"]) == 60 + 1  # periods + t = 0
+    assert np.array_equal(movie["images"][:, j, i], frames["envelope"])
+    mapped = np.column_stack([i, j, np.ones(len(i))]) @ movie["matrix"].T
+    np.testing.assert_allclose(mapped[:, :2], np.column_stack([frames["x"], frames["y"]]), atol=1e-12)
+    assert 10 <= movie["view"] <= 20 and movie["scale"] == frames["envelope"][1:].max()
 
 
 def test_every_scene_keeps_its_rules_on_its_parameters():
