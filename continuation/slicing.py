@@ -36,7 +36,9 @@ H100 machine at N = 1601 .. 3201 (``benchmarks/breather_scaling.py``: to 2.7e-14
 
 from __future__ import annotations
 
+import os
 import re
+import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 
@@ -150,29 +152,41 @@ def segments(count: int, hint=None) -> list:
 def _measures(mu, vectors, P, E, M: float, centre: float) -> tuple:
     """Krein form a^T P a (of the real vectors of real mu: ``krylov_floquet.real_phase``, as the window takes it),
     participation and central weight of eigenvectors in a block's coordinates (E: the block's extension to 2N, None
-    for the whole Mu)."""
+    for the whole Mu). Each column's numbers depend on that column alone: more than ``MEASURE_CHUNK`` columns (a
+    dense block's thousands) are taken in chunks on host threads (numpy and scipy's sparse products let go of the
+    GIL), each column's arithmetic the same either way."""
+    n = vectors.shape[1]
+    if n <= MEASURE_CHUNK:
+        return _column_measures(mu, vectors, P, E, M, centre)
+    chunks = [slice(k, min(n, k + MEASURE_CHUNK)) for k in range(0, n, MEASURE_CHUNK)]
+    parts = list(_measure_pool().map(lambda c: _column_measures(mu[c], vectors[:, c], P, E, M, centre), chunks))
+    return tuple(np.concatenate(column) for column in zip(*parts))
+
+
+def _column_measures(mu, vectors, P, E, M: float, centre: float) -> tuple:
     vec = real_phase(vectors, mu)
-    act = krein_forms(np.real(vec), P)
+    real = np.real(vec)
+    act = np.sum(real * (P @ real), axis=0)
     x = vec if E is None else E @ vec
     weight = central_weight(x, M, centre) if np.isfinite(centre) else np.full(vec.shape[1], np.nan)
     return act, participation(x, M), weight
 
 
-#: ``krein_forms`` splits more columns than this into chunks on host threads
-FORM_CHUNK = 256
+#: ``_measures`` takes more columns than this in chunks of this many, on ``_measure_pool``'s threads
+MEASURE_CHUNK = 256
+
+_MEASURE_POOL = None
+_MEASURE_POOL_LOCK = threading.Lock()
 
 
-def krein_forms(real: np.ndarray, P) -> np.ndarray:
-    """a^T P a for each column a of ``real``: column chunks on host threads where there are many (a dense block's
-    thousands of vectors; scipy's sparse products let go of the GIL), each column's arithmetic the same either way."""
-    n = real.shape[1]
-    if n <= FORM_CHUNK:
-        return np.sum(real * (P @ real), axis=0)
-    from .parity import _block_pool
-
-    P = sp.csr_matrix(P)
-    chunks = [slice(k, min(n, k + FORM_CHUNK)) for k in range(0, n, FORM_CHUNK)]
-    return np.concatenate(list(_block_pool().map(lambda c: np.sum(real[:, c] * (P @ real[:, c]), axis=0), chunks)))
+def _measure_pool():
+    """Host threads for ``_measures``' column chunks, one per core (at most 16): made once. Only ``_measures`` hands
+    work to it, and its tasks hand none on, so it never waits on itself."""
+    global _MEASURE_POOL
+    with _MEASURE_POOL_LOCK:
+        if _MEASURE_POOL is None:
+            _MEASURE_POOL = ThreadPoolExecutor(min(16, os.cpu_count() or 1), thread_name_prefix="warpchain-measures")
+    return _MEASURE_POOL
 
 
 #: a disc whose rim falls inside a dense cluster (the acoustic band's flat top: 110 of the paper chain's 6402 mu within
@@ -600,7 +614,6 @@ def probed_floquet(lin, M: float, state=None, tolerance=None, *, lattice=None, d
     # eig on the GPU (N = 12801 on an H200: 60 s for the two blocks one after the other); on the host one BLAS
     # thread each, as ``parity.parity_blocks``
     blocks = list(zip(problem["ops"], problem["forms"], problem["extensions"]))
-    # (their own executor: ``krein_forms`` hands its chunks to ``parity._block_pool``, which must never wait on itself)
     with blas_threads(None if has_gpu_eig(device) else 1), ThreadPoolExecutor(len(blocks)) as pool:
         reports = list(pool.map(lambda b: dense_task(*b, M, problem["centre"], device), blocks))
     seconds["eig"] = time.perf_counter() - mark

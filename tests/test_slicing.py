@@ -388,6 +388,26 @@ def test_probed_is_the_dense_spectrum_on_a_patch(name):
     assert fl.stable is dense.stable and abs(fl.max_modulus - dense.max_modulus) <= 1e-9
 
 
+def test_measures_in_column_chunks_are_the_whole_ones(monkeypatch):
+    """``_measures`` of many columns (a dense block's) runs in column chunks on threads: the same Krein forms,
+    participations and central weights, bit for bit, as in one piece."""
+    from continuation.parity import parity_extensions
+
+    rng = np.random.default_rng(5)
+    _, E, _ = parity_extensions(101)[0]
+    n = E.shape[1]
+    vectors = rng.standard_normal((n, 700)) + 1j * rng.standard_normal((n, 700))
+    mu = rng.uniform(-1, 1, 700) + 1j * np.where(rng.uniform(size=700) < 0.2, rng.uniform(size=700), 0.0)
+    P = sp.random(n, n, density=0.05, random_state=6, format="csc")
+    P = sp.csc_matrix(P + P.T)
+    monkeypatch.setattr(slicing, "MEASURE_CHUNK", 10_000)
+    whole = slicing._measures(mu, vectors, P, E, M, 50.0)
+    monkeypatch.setattr(slicing, "MEASURE_CHUNK", 64)
+    chunked = slicing._measures(mu, vectors, P, E, M, 50.0)
+    for a, b in zip(whole, chunked):
+        assert a.shape == (700,) and np.array_equal(a, b)
+
+
 def test_auto_takes_the_probed_path_where_a_gpu_eig_is_there(monkeypatch):
     """From ``SLICED_MIN_SITES`` sites on, ``auto`` is the probed path where the flow's device is a GPU and CuPy
     imports (``slicing.has_gpu_eig``), the sliced path elsewhere; below, dense either way."""
