@@ -128,7 +128,8 @@ class ContinuationSettings:
         floquet_solver: ``"dense"`` (every multiplier from A's 4N tangent columns: the reference), ``"sliced"``
             (every multiplier from the probed sparse Mu by slices, counted: ``continuation.slicing``), ``"probed"``
             (the same Mu by a dense eig per parity block, on the GPU with CuPy, counted) or ``"auto"`` (from
-            ``SLICED_MIN_SITES`` sites on: probed on a GPU with CuPy, else sliced). Every point's verdict is
+            ``SLICED_MIN_SITES`` sites on: probed on a GPU with CuPy or below ``PROBED_HOST_MAX_SITES`` sites, else
+            sliced). Every point's verdict is
             complete: a sliced or probed analysis whose count does not close fails the walk (``IncompleteVerdict``)
             rather than record a guess. The window near +-1
             (``floquet(solver="window")``) gives no verdict and is not offered here. On the sliced and probed

@@ -32,6 +32,12 @@ verdict incomplete (``stable=None``), never a guess: a missed eigenvalue, wherev
 Checked against the dense eig (``tests/test_slicing.py``: the paper breather at N = 201 and 401, the K = 3 site
 breather, an off-centre one, a periodic ring, square and triangular 11 x 11 patches: the same mu to 2e-14) and on an
 H100 machine at N = 1601 .. 3201 (``benchmarks/breather_scaling.py``: to 2.7e-14).
+
+**The probed path** (``floquet(solver="probed")``, ``probed_floquet``) finds each block's eigenvalues by one dense eig
+of the block instead of slices (``dense_eig``: CuPy's, cuSOLVER's geev, on the flow's GPU where CuPy has it; LAPACK's
+on the host otherwise), the blocks on threads of their own, and closes the same count. ``floquet(solver="auto")``
+takes it from ``SLICED_MIN_SITES`` sites on a GPU with CuPy, and on the host below ``PROBED_HOST_MAX_SITES`` sites
+(``continuation.floquet``).
 """
 
 from __future__ import annotations

@@ -56,7 +56,7 @@ class BranchParameters:
         "auto",
         "every multiplier at each point: dense (4N tangent columns), sliced (the probed sparse Mu by shift-invert "
         "slices, counted: continuation.slicing), probed (the same Mu by a dense eig per parity block, on the GPU "
-        "with CuPy, counted) or auto (from 1601 sites: probed on a GPU with CuPy, else sliced)",
+        "with CuPy, counted) or auto (from 1601 sites: probed on a GPU with CuPy or below 2000 sites, else sliced)",
         choices=("auto", "dense", "sliced", "probed"),
     )
 

@@ -73,8 +73,8 @@ class Parameters:
     )
     floquet_solver: str = param(
         "auto",
-        "every multiplier at every size: auto (dense below 1601 sites; from there probed on a GPU with CuPy, else "
-        "sliced, both counted), dense, sliced or probed",
+        "every multiplier at every size: auto (dense below 1601 sites; from there probed on a GPU with CuPy or below "
+        "2000 sites, else sliced, both counted), dense, sliced or probed",
         choices=("auto", "dense", "sliced", "probed"),
     )
     tail_distance: int = param(60, "the tail: sites further than this from the centre", ge=1, le=MAX_SITES)

@@ -351,6 +351,7 @@ def test_auto_takes_the_sliced_path_from_sliced_min_sites(monkeypatch):
     assert floquet_module.floquet_path("auto", 201) == "dense"
     assert ct.floquet(b).path == "reduced"  # below SLICED_MIN_SITES: dense
     monkeypatch.setattr(floquet_module, "SLICED_MIN_SITES", 201)
+    monkeypatch.setattr(floquet_module, "PROBED_HOST_MAX_SITES", 201)  # the host's probed path below this
     assert floquet_module.floquet_path("auto", 201) == "sliced"
     fl = ct.floquet(b)
     assert fl.path == "sliced" and fl.complete and fl.coverage["method"] == "sliced"
@@ -378,16 +379,6 @@ def test_probed_is_the_dense_spectrum(name):
     assert [i.kind for i in fl.instabilities] == [i.kind for i in dense.instabilities]
 
 
-@pytest.mark.parametrize("name", ["square-site", "triangular-triangle"])
-def test_probed_is_the_dense_spectrum_on_a_patch(name):
-    """On a patch (the mirror's four blocks, or one block) the probed path's counts close with the dense mu."""
-    b, dense, _ = _patch(name)
-    fl = ct.floquet(b, solver="probed")
-    assert fl.complete is True and all(c["closed"] for c in fl.coverage["counts"])
-    _assert_same_mu_sets(dense, fl, 1e-12)
-    assert fl.stable is dense.stable and abs(fl.max_modulus - dense.max_modulus) <= 1e-9
-
-
 def test_measures_in_column_chunks_are_the_whole_ones(monkeypatch):
     """``_measures`` of many columns (a dense block's) runs in column chunks on threads: the same Krein forms,
     participations and central weights, bit for bit, as in one piece."""
@@ -410,13 +401,15 @@ def test_measures_in_column_chunks_are_the_whole_ones(monkeypatch):
 
 def test_auto_takes_the_probed_path_where_a_gpu_eig_is_there(monkeypatch):
     """From ``SLICED_MIN_SITES`` sites on, ``auto`` is the probed path where the flow's device is a GPU and CuPy
-    imports (``slicing.has_gpu_eig``), the sliced path elsewhere; below, dense either way."""
-    assert floquet_module.floquet_path("auto", 1601, "cpu") == "sliced"
-    assert floquet_module.floquet_path("auto", 1601, "numpy") == "sliced"
+    imports (``slicing.has_gpu_eig``) or below ``PROBED_HOST_MAX_SITES`` sites, the sliced path elsewhere; below,
+    dense either way."""
+    assert floquet_module.floquet_path("auto", 1601, "cpu") == "probed"
+    assert floquet_module.floquet_path("auto", 3201, "cpu") == "sliced"
+    assert floquet_module.floquet_path("auto", 3201, "numpy") == "sliced"
     assert slicing.gpu_index("cuda") == 0 and slicing.gpu_index("cuda:1") == 1 and slicing.gpu_index("cpu") is None
     monkeypatch.setattr(slicing, "has_gpu_eig", lambda device: str(device).startswith("cuda"))
-    assert floquet_module.floquet_path("auto", 1601, "cuda:0") == "probed"
-    assert floquet_module.floquet_path("auto", 1601, "cpu") == "sliced"
+    assert floquet_module.floquet_path("auto", 3201, "cuda:0") == "probed"
+    assert floquet_module.floquet_path("auto", 3201, "cpu") == "sliced"
     assert floquet_module.floquet_path("auto", 1600, "cuda:0") == "dense"
 
 
@@ -537,11 +530,12 @@ def test_a_periodic_ring_closes_its_count_with_the_translation_in_p_kernel():
     neutral real mu and closes; the verdict and the mu are the dense ones."""
     p = ChainParams(30.0, 160.0, 101, boundary="periodic")
     b = ct.require(ct.find_breather(p, 1.01, ct.nls_seed(p, 1.01), device="cpu"))
-    dense, sliced = ct.floquet(b, solver="dense"), ct.floquet(b, solver="sliced")
-    assert sliced.complete and sliced.stable is dense.stable is False
-    assert all(c["inertia"]["zero"] == c["found"]["real_neutral"] == 1 for c in sliced.coverage["counts"])
-    assert max(np.min(np.abs(dense.mu - m)) for m in sliced.mu) <= 1e-12 and len(sliced.mu) == len(dense.mu)
-    assert abs(sliced.max_modulus - dense.max_modulus) <= 1e-9
+    dense = ct.floquet(b, solver="dense")
+    for sliced in (ct.floquet(b, solver="sliced"), ct.floquet(b, solver="probed")):
+        assert sliced.complete and sliced.stable is dense.stable is False
+        assert all(c["inertia"]["zero"] == c["found"]["real_neutral"] == 1 for c in sliced.coverage["counts"])
+        assert max(np.min(np.abs(dense.mu - m)) for m in sliced.mu) <= 1e-12 and len(sliced.mu) == len(dense.mu)
+        assert abs(sliced.max_modulus - dense.max_modulus) <= 1e-9
 
 
 # ----------------------------------------------------------------------------- lattice patches
@@ -586,6 +580,16 @@ def test_sliced_is_the_dense_spectrum_on_a_patch(name):
         two = slicing.sliced_floquet(b.linearization(), M, b.state)  # no lattice: no mirror
         assert [c["parity"] for c in two.coverage["counts"]] == [1, -1] and two.complete
         _assert_same_mu_sets(dense, two, 1e-12)
+
+
+@pytest.mark.parametrize("name", list(PATCHES))
+def test_probed_is_the_dense_spectrum_on_a_patch(name):
+    """On a patch (the mirror's four blocks, or one block) the probed path's counts close with the dense mu."""
+    b, dense, _ = _patch(name)
+    fl = ct.floquet(b, solver="probed")
+    assert fl.complete is True and all(c["closed"] for c in fl.coverage["counts"])
+    _assert_same_mu_sets(dense, fl, 1e-12)
+    assert fl.stable is dense.stable and abs(fl.max_modulus - dense.max_modulus) <= 1e-9
 
 
 def test_a_double_real_mu_of_one_krein_sign_is_two_real_mu_and_a_pair_stays_a_pair():
