@@ -164,7 +164,10 @@ def _measures(mu, vectors, P, E, M: float, centre: float) -> tuple:
     n = vectors.shape[1]
     if n <= MEASURE_CHUNK:
         return _column_measures(mu, vectors, P, E, M, centre)
-    chunks = [slice(k, min(n, k + MEASURE_CHUNK)) for k in range(0, n, MEASURE_CHUNK)]
+    # near-equal chunks, none of one column: numpy sums a lone (contiguous) column pairwise, a wider slice row by
+    # row, as the whole array
+    edges = np.linspace(0, n, -(-n // MEASURE_CHUNK) + 1).round().astype(int)
+    chunks = [slice(a, b) for a, b in zip(edges[:-1], edges[1:])]
     parts = list(_measure_pool().map(lambda c: _column_measures(mu[c], vectors[:, c], P, E, M, centre), chunks))
     return tuple(np.concatenate(column) for column in zip(*parts))
 
@@ -183,6 +186,17 @@ MEASURE_CHUNK = 256
 
 _MEASURE_POOL = None
 _MEASURE_POOL_LOCK = threading.Lock()
+
+
+def _after_fork_in_child() -> None:
+    """A forked child has none of its parent's threads: start the measures' pool and its lock afresh there (as
+    ``warpchain.engine.hostmem``'s copy pool)."""
+    global _MEASURE_POOL, _MEASURE_POOL_LOCK
+    _MEASURE_POOL, _MEASURE_POOL_LOCK = None, threading.Lock()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_after_fork_in_child)
 
 
 def _measure_pool():

@@ -8,8 +8,9 @@ each size seeded with the previous solution padded with zeros at both ends. Newt
 lattice's preconditioner), dense below. Per size: the energy, the tail amplitude (max |u - v| further than
 ``tail_distance`` sites from the centre, and over the outer quarter of the chain on each side), and the complete
 Floquet verdict with every instability's kind, modulus, participation and parity: dense (4N tangent columns) below
-``continuation.floquet.SLICED_MIN_SITES`` sites, and from there every multiplier of the probed sparse Mu by
-shift-invert slices, certified by a count (``floquet(solver="auto")``, ``continuation.slicing``). Each row says
+``continuation.floquet.SLICED_MIN_SITES`` sites, and from there every multiplier of the probed sparse Mu, by a dense
+eig per parity block (on a GPU with CuPy, or on the host below ``PROBED_HOST_MAX_SITES`` sites) or by shift-invert
+slices, certified by a count (``floquet(solver="auto")``, ``continuation.slicing``). Each row says
 whether its verdict is complete (it always is unless a count fails to close, which the log and figure show).
 
 The figure's question: the extended instabilities (Krein quadruplets of the breather with the chain's phonons)

@@ -3,8 +3,8 @@
 1e-11 (a bijection per parity), the same verdict, kinds, Krein signatures and participations, and the count per
 parity block equals the one read off the dense eigenvectors; the same mu in process and in worker processes;
 ``inertia`` against numpy's eigenvalues; a sweep that skips a segment is caught by the count (no verdict, and the
-continuation driver refuses the point); ``solver="auto"`` takes the sliced path from ``SLICED_MIN_SITES`` sites on;
-and ``sweep`` finds every copy of a multiple eigenvalue."""
+continuation driver refuses the point); ``solver="auto"`` takes the probed or the sliced path from
+``SLICED_MIN_SITES`` sites on; and ``sweep`` finds every copy of a multiple eigenvalue."""
 
 import functools
 import importlib
@@ -391,12 +391,43 @@ def test_measures_in_column_chunks_are_the_whole_ones(monkeypatch):
     mu = rng.uniform(-1, 1, 700) + 1j * np.where(rng.uniform(size=700) < 0.2, rng.uniform(size=700), 0.0)
     P = sp.random(n, n, density=0.05, random_state=6, format="csc")
     P = sp.csc_matrix(P + P.T)
-    monkeypatch.setattr(slicing, "MEASURE_CHUNK", 10_000)
-    whole = slicing._measures(mu, vectors, P, E, M, 50.0)
-    monkeypatch.setattr(slicing, "MEASURE_CHUNK", 64)
-    chunked = slicing._measures(mu, vectors, P, E, M, 50.0)
-    for a, b in zip(whole, chunked):
-        assert a.shape == (700,) and np.array_equal(a, b)
+    for columns, chunk in ((700, 64), (257, 256), (513, 256)):  # no chunk of one column (summed otherwise)
+        monkeypatch.setattr(slicing, "MEASURE_CHUNK", 10_000)
+        whole = slicing._measures(mu[:columns], vectors[:, :columns], P, E, M, 50.0)
+        monkeypatch.setattr(slicing, "MEASURE_CHUNK", chunk)
+        chunked = slicing._measures(mu[:columns], vectors[:, :columns], P, E, M, 50.0)
+        for a, b in zip(whole, chunked):
+            assert a.shape == (columns,) and np.array_equal(a, b), (columns, chunk)
+
+
+def test_the_measures_pool_starts_afresh_in_a_forked_child():
+    """A forked child has none of its parent's threads: its ``_measures`` must not wait for the parent's pool."""
+    import os
+
+    rng = np.random.default_rng(1)
+    n = 40
+    vectors = rng.standard_normal((n, 600)) + 0j
+    P = sp.csc_matrix(sp.identity(n))
+    want = slicing._measures(np.zeros(600), vectors, P, None, M, np.nan)  # the parent's pool now exists
+    read, write = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # the child: exit 0 if the measures come out, the same
+        got = slicing._measures(np.zeros(600), vectors, P, None, M, np.nan)
+        os._exit(0 if all(np.array_equal(a, b, equal_nan=True) for a, b in zip(want, got)) else 1)
+    os.close(write)
+    for _ in range(200):  # up to 20 s
+        done, status = os.waitpid(pid, os.WNOHANG)
+        if done:
+            break
+        import time
+
+        time.sleep(0.1)
+    else:
+        os.kill(pid, 9)
+        os.waitpid(pid, 0)
+        raise AssertionError("the forked child's _measures hung")
+    os.close(read)
+    assert os.waitstatus_to_exitcode(status) == 0
 
 
 def test_auto_takes_the_probed_path_where_a_gpu_eig_is_there(monkeypatch):
