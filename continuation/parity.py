@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import os
 import threading
 
 import numpy as np
@@ -176,6 +177,16 @@ class ParityBlock:
 
 _BLOCK_POOL = None
 _BLOCK_POOL_LOCK = threading.Lock()
+
+
+def _after_fork_in_child() -> None:
+    """A forked child has none of its parent's threads: the blocks' pool and its lock start afresh there."""
+    global _BLOCK_POOL, _BLOCK_POOL_LOCK
+    _BLOCK_POOL, _BLOCK_POOL_LOCK = None, threading.Lock()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_after_fork_in_child)
 
 
 def _block_pool():
