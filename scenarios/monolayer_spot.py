@@ -566,25 +566,33 @@ ANIMATION_FRAMES = 100
 
 
 def _animation(out, movie, attrs, s, scale) -> None:
-    """``monolayer-spot.gif``: the movie's envelope, period by period (Pillow, written whole)."""
-    from matplotlib.animation import FuncAnimation, PillowWriter
+    """``monolayer-spot.gif``: the movie's envelope, period by period. The figure is drawn once; each frame restores
+    its background and draws the image and the title alone (blitting: the colour bar's and axes' text is not laid
+    out again), and Pillow writes the frames whole."""
+    from PIL import Image
 
     plt = pyplot()
     n = len(movie["t"])
     picks = np.unique(np.linspace(0, n - 1, min(n, ANIMATION_FRAMES)).round().astype(int))
-    fig, ax = plt.subplots(figsize=(5, 4.4), layout="constrained")
+    fig, ax = plt.subplots(figsize=(5, 4.4), layout="constrained", dpi=80)
     im = _draw(ax, movie, 0, scale)
     fig.colorbar(im, ax=ax, shrink=0.8, label="max |v - u| over the period")
-    title = ax.set_title("")
     shown = f"\n{_shown(movie)}" if _shown(movie) else ""
-
-    def update(k):
-        im.set_data(movie["images"][picks[k]])
-        title.set_text(f"A = {attrs['A']:g}, W = {attrs['W']:g}, t = {movie['t'][picks[k]]:.0f}{shown}")
-        return im, title
-
-    animation = FuncAnimation(fig, update, frames=len(picks), blit=False)
-    tmp = out / "monolayer-spot.part.gif"
-    animation.save(tmp, writer=PillowWriter(fps=10), dpi=80)
-    tmp.replace(out / "monolayer-spot.gif")
+    # the label is the figure's, above the equal-aspect axes (an axes title moves when it is hidden for the background)
+    label = fig.text(0.5, 0.98, "", ha="center", va="top")
+    im.set_visible(False)
+    fig.canvas.draw()
+    background = fig.canvas.copy_from_bbox(fig.bbox)
+    im.set_visible(True)
+    frames = []
+    for k in picks:
+        im.set_data(movie["images"][k])
+        label.set_text(f"A = {attrs['A']:g}, W = {attrs['W']:g}, t = {movie['t'][k]:.0f}{shown}")
+        fig.canvas.restore_region(background)
+        ax.draw_artist(im)
+        fig.draw_artist(label)
+        frames.append(Image.fromarray(np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()))
     plt.close(fig)
+    tmp = out / "monolayer-spot.part.gif"
+    frames[0].save(tmp, format="GIF", save_all=True, append_images=frames[1:], duration=100, loop=0)
+    tmp.replace(out / "monolayer-spot.gif")
