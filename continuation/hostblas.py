@@ -27,7 +27,9 @@ from before the first come back when the last one ends, whichever order they end
 from __future__ import annotations
 
 import contextlib
+import os
 import threading
+import weakref
 
 _CONTROLLER = None
 _LOCK = threading.Lock()
@@ -100,3 +102,37 @@ def _set(libraries, limits) -> None:
         library.set_num_threads(limit)
     if clear is not None:
         clear(force=True)
+
+
+class HostPool:
+    """Host threads for one kind of work (``ThreadPoolExecutor`` of ``size`` threads named ``name``), made on the first
+    call and kept; made afresh in a forked child, which has none of its parent's threads (a pool carried over would
+    wait for them for ever). Work handed to a pool must never wait on the same pool."""
+
+    def __init__(self, size: int, name: str):
+        self.size, self.name = int(size), name
+        self._pool, self._lock = None, threading.Lock()
+        _POOLS.add(self)
+
+    def __call__(self):
+        with self._lock:
+            if self._pool is None:
+                from concurrent.futures import ThreadPoolExecutor
+
+                self._pool = ThreadPoolExecutor(max_workers=self.size, thread_name_prefix=self.name)
+        return self._pool
+
+    def _forget(self) -> None:
+        self._pool, self._lock = None, threading.Lock()
+
+
+_POOLS: "weakref.WeakSet[HostPool]" = weakref.WeakSet()
+
+
+def _after_fork_in_child() -> None:
+    for pool in list(_POOLS):
+        pool._forget()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_after_fork_in_child)

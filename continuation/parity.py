@@ -9,13 +9,11 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import os
-import threading
 
 import numpy as np
 import scipy.sparse as sp
 
-from .hostblas import blas_threads
+from .hostblas import HostPool, blas_threads
 from .spectrum import _masses, _products
 
 
@@ -175,30 +173,9 @@ class ParityBlock:
     vectors: np.ndarray
 
 
-_BLOCK_POOL = None
-_BLOCK_POOL_LOCK = threading.Lock()
-
-
-def _after_fork_in_child() -> None:
-    """A forked child has none of its parent's threads: the blocks' pool and its lock start afresh there."""
-    global _BLOCK_POOL, _BLOCK_POOL_LOCK
-    _BLOCK_POOL, _BLOCK_POOL_LOCK = None, threading.Lock()
-
-
-if hasattr(os, "register_at_fork"):
-    os.register_at_fork(after_in_child=_after_fork_in_child)
-
-
-def _block_pool():
-    """Four host threads for the parity blocks (LAPACK releases the GIL; with one BLAS thread per call,
-    ``hostblas``, the blocks' eigs take the time of one where there are cores for them)."""
-    global _BLOCK_POOL
-    with _BLOCK_POOL_LOCK:
-        if _BLOCK_POOL is None:
-            from concurrent.futures import ThreadPoolExecutor
-
-            _BLOCK_POOL = ThreadPoolExecutor(max_workers=4, thread_name_prefix="warpchain-floquet")
-    return _BLOCK_POOL
+#: four host threads for the parity blocks (LAPACK releases the GIL; with one BLAS thread per call, ``hostblas``, the
+#: blocks' eigs take the time of one where there are cores for them)
+_block_pool = HostPool(4, "warpchain-floquet")
 
 
 def parity_blocks(A: np.ndarray, M: float, mirror=None) -> "tuple[ParityBlock, ...] | None":

@@ -44,7 +44,6 @@ from __future__ import annotations
 
 import os
 import re
-import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 
@@ -52,6 +51,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import ArpackError, ArpackNoConvergence
 
+from .hostblas import HostPool
 from .krylov_floquet import OUTWARD_COUNT, OUTWARD_SHIFT, BandedShifts, _arnoldi, _disc, real_phase
 from .spectrum import assemble, central_weight, energy_centre, participation
 
@@ -184,29 +184,8 @@ def _column_measures(mu, vectors, P, E, M: float, centre: float) -> tuple:
 #: ``_measures`` takes more columns than this in chunks of this many, on ``_measure_pool``'s threads
 MEASURE_CHUNK = 256
 
-_MEASURE_POOL = None
-_MEASURE_POOL_LOCK = threading.Lock()
-
-
-def _after_fork_in_child() -> None:
-    """A forked child has none of its parent's threads: start the measures' pool and its lock afresh there (as
-    ``warpchain.engine.hostmem``'s copy pool)."""
-    global _MEASURE_POOL, _MEASURE_POOL_LOCK
-    _MEASURE_POOL, _MEASURE_POOL_LOCK = None, threading.Lock()
-
-
-if hasattr(os, "register_at_fork"):
-    os.register_at_fork(after_in_child=_after_fork_in_child)
-
-
-def _measure_pool():
-    """Host threads for ``_measures``' column chunks, one per core (at most 16): made once. Only ``_measures`` hands
-    work to it, and its tasks hand none on, so it never waits on itself."""
-    global _MEASURE_POOL
-    with _MEASURE_POOL_LOCK:
-        if _MEASURE_POOL is None:
-            _MEASURE_POOL = ThreadPoolExecutor(min(16, os.cpu_count() or 1), thread_name_prefix="warpchain-measures")
-    return _MEASURE_POOL
+#: host threads for ``_measures``' column chunks, one per core (at most 16); its tasks hand no work on
+_measure_pool = HostPool(min(16, os.cpu_count() or 1), "warpchain-measures")
 
 
 #: a disc whose rim falls inside a dense cluster (the acoustic band's flat top: 110 of the paper chain's 6402 mu within
