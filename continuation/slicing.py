@@ -605,18 +605,19 @@ def probed_floquet(lin, M: float, state=None, tolerance=None, *, lattice=None, d
     from .hostblas import blas_threads
 
     start = time.perf_counter()
-    with blas_threads(None if has_gpu_eig(device) else 1):
+    gpu = has_gpu_eig(device)  # else the host's eig: one BLAS thread per block, as ``parity.parity_blocks``
+    eig_device = device if gpu else None
+    with blas_threads(None if gpu else 1):
         problem = _probed_blocks(lin, M, state, lattice)
     seconds = {"probe": time.perf_counter() - start}
     mark = time.perf_counter()
     # the blocks on threads of their own: one block's host work (Krein forms, participations) beside the next one's
-    # eig on the GPU (N = 12801 on an H200: 60 s for the two blocks one after the other); on the host one BLAS
-    # thread each, as ``parity.parity_blocks``
+    # eig on the GPU (N = 12801 on an H200: 60 s for the two blocks one after the other)
     blocks = list(zip(problem["ops"], problem["forms"], problem["extensions"]))
-    with blas_threads(None if has_gpu_eig(device) else 1), ThreadPoolExecutor(len(blocks)) as pool:
-        reports = list(pool.map(lambda b: dense_task(*b, M, problem["centre"], device), blocks))
+    with blas_threads(None if gpu else 1), ThreadPoolExecutor(len(blocks)) as pool:
+        reports = list(pool.map(lambda b: dense_task(*b, M, problem["centre"], eig_device), blocks))
     seconds["eig"] = time.perf_counter() - mark
-    coverage = {"method": "probed", "eig": "gpu" if has_gpu_eig(device) else "host"}
+    coverage = {"method": "probed", "eig": "gpu" if gpu else "host"}
     with blas_threads(1):
         return _counted(
             problem, reports, list(range(len(reports))), coverage, tolerance, path="probed", start=start,
