@@ -502,7 +502,8 @@ def _movie(out):
     indices (i, j) to positions (fitted to the stored x, y: exact for a Bravais patch), and ``view``, the half-side
     in sites of the square about the centre that the drawings show: the whole patch, or 1.5 times the reach of the
     sites whose envelope ever passes ``VISIBLE`` of the colour scale where that is smaller (a localized spot on a
-    large patch); ``scale``, the colour scale (the envelope's largest value after t = 0)."""
+    large patch), and ``shown``, which the titles say where it is smaller; ``scale``, the colour scale (the
+    envelope's largest value after t = 0)."""
     frames, attrs = read_group(out / "data.zarr", "movie")
     i, j = frames["i"].astype(int), frames["j"].astype(int)
     nx, ny = int(i.max()) + 1, int(j.max()) + 1
@@ -516,10 +517,11 @@ def _movie(out):
     seen = (env > VISIBLE * scale).any(axis=0)
     reach = np.max(np.maximum(np.abs(i - (nx - 1) / 2), np.abs(j - (ny - 1) / 2))[seen], initial=0.0)
     view = min(max(nx, ny) // 2, max(int(math.ceil(1.5 * reach)), 10))
-    return {"t": frames["t"], "images": images, "matrix": matrix, "view": view, "scale": scale}, attrs
+    shown = "" if 2 * view >= max(nx, ny) - 1 else f"the centre +- {view} sites shown"
+    return {"t": frames["t"], "images": images, "matrix": matrix, "view": view, "scale": scale, "shown": shown}, attrs
 
 
-def _draw(ax, movie, k, scale):
+def _draw(ax, movie, k):
     """Envelope k of the movie on the true geometry: the grid's image under the affine map (a triangular patch's
     pixels are rhombi), limited to the view about the centre."""
     from matplotlib.transforms import Affine2D
@@ -527,7 +529,7 @@ def _draw(ax, movie, k, scale):
     ny, nx = movie["images"].shape[1:]
     im = ax.imshow(
         movie["images"][k], origin="lower", extent=(-0.5, nx - 0.5, -0.5, ny - 0.5), interpolation="nearest",
-        transform=Affine2D(movie["matrix"]) + ax.transData, cmap="magma", vmin=0, vmax=scale,
+        transform=Affine2D(movie["matrix"]) + ax.transData, cmap="magma", vmin=0, vmax=movie["scale"],
     )  # fmt: skip
     h, c = movie["view"] + 0.5, ((nx - 1) / 2, (ny - 1) / 2)
     corners = np.array([[c[0] + a, c[1] + b, 1.0] for a in (-h, h) for b in (-h, h)]) @ movie["matrix"].T
@@ -538,36 +540,29 @@ def _draw(ax, movie, k, scale):
     return im
 
 
-def _shown(movie) -> str:
-    """What the drawings show, for their titles."""
-    ny, nx = movie["images"].shape[1:]
-    return "" if 2 * movie["view"] >= max(nx, ny) - 1 else f"the centre +- {movie['view']} sites shown"
-
-
 def _snapshots(out, s) -> None:
     movie, attrs = _movie(out)
     plt = pyplot()
     n = len(movie["t"])
     picks = sorted({0, n // 4, n // 2, (3 * n) // 4, n - 1})
-    scale = movie["scale"]
     fig, axes = plt.subplots(1, len(picks), figsize=(3.6 * len(picks), 3.6), layout="constrained")
     for ax, k in zip(axes, picks):
-        im = _draw(ax, movie, k, scale)
+        im = _draw(ax, movie, k)
         ax.set_title(f"t = {movie['t'][k]:.0f} ({k} periods)")
     fig.colorbar(im, ax=axes, shrink=0.8, label="envelope max |v - u| over the period")
-    shown = f" ({_shown(movie)})" if _shown(movie) else ""
+    shown = f" ({movie['shown']})" if movie["shown"] else ""
     fig.suptitle(f"{s['lattice']}: the spot A = {attrs['A']:g}, W = {attrs['W']:g}{shown}")
     save_figure(fig, out, "monolayer-spot-snapshots")
-    _animation(out, movie, attrs, s, scale)
+    _animation(out, movie, attrs)
 
 
 #: frames of the animation at most (the stored periods subsampled evenly)
 ANIMATION_FRAMES = 100
 
 
-def _animation(out, movie, attrs, s, scale) -> None:
+def _animation(out, movie, attrs) -> None:
     """``monolayer-spot.gif``: the movie's envelope, period by period. The figure is drawn once; each frame restores
-    its background and draws the image and the title alone (blitting: the colour bar's and axes' text is not laid
+    its background and draws the image and the label alone (blitting: the colour bar's and axes' text is not laid
     out again), and Pillow writes the frames whole."""
     from PIL import Image
 
@@ -575,9 +570,9 @@ def _animation(out, movie, attrs, s, scale) -> None:
     n = len(movie["t"])
     picks = np.unique(np.linspace(0, n - 1, min(n, ANIMATION_FRAMES)).round().astype(int))
     fig, ax = plt.subplots(figsize=(5, 4.4), layout="constrained", dpi=80)
-    im = _draw(ax, movie, 0, scale)
+    im = _draw(ax, movie, 0)
     fig.colorbar(im, ax=ax, shrink=0.8, label="max |v - u| over the period")
-    shown = f"\n{_shown(movie)}" if _shown(movie) else ""
+    shown = f"\n{movie['shown']}" if movie["shown"] else ""
     # the label is the figure's, above the equal-aspect axes (an axes title moves when it is hidden for the background)
     label = fig.text(0.5, 0.98, "", ha="center", va="top")
     im.set_visible(False)
