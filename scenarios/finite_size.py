@@ -30,12 +30,14 @@ complete verdicts take a few minutes. Options: ``--set KEY=VALUE`` (fields of ``
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 
 from continuation import anticontinuum_seed, find_breather, floquet, nls_seed, require
 from continuation.branch import NaturalParameter
 from continuation.driver import ContinuationSettings, continuation
+from continuation.hostblas import blas_threads
 from warpchain import ChainParams, Flow
 from warpchain.store import read_group, write_table
 
@@ -51,6 +53,7 @@ from ._common import (
     save_figure,
 )
 from ._params import MAX_SITES, Rule, param
+from ._workers import Workers
 
 
 @dataclasses.dataclass(frozen=True)
@@ -91,6 +94,10 @@ class Parameters:
     foam_points: int = param(
         200, "couplings of the scan, log-spaced over foam_K (the same at every N)", ge=2, le=100_000
     )
+    workers: int = param(
+        0, "host threads for the Floquet analyses (beside one per family and foam size for the solves); 0: one per "
+        "2 cores, at most 8", ge=0, le=1024,
+    )  # fmt: skip
 
     RULES = (
         Rule(
@@ -125,26 +132,19 @@ def _pad(state: np.ndarray, N: int) -> np.ndarray:
     return np.pad(state, ((0, 0), (pad, pad)))
 
 
-def _solve(params: ChainParams, seed, device: str, solver: str = "auto"):
-    """The breather at w_b = 1.01 from ``seed``, with the scene's integrator (Newton's linear solves as
-    ``find_breather(solver=...)``)."""
-    return require(
-        find_breather(
-            params,
-            PAPER_OMEGA,
-            seed,
-            method=BREATHER_METHOD,
-            steps_per_period=BREATHER_STEPS_PER_PERIOD,
-            device=device,
-            solver=solver,
-        )
-    )
+def _flow(device: str) -> Flow:
+    """A Flow of the scene's integrator (each worker thread makes its own: ``_workers``)."""
+    return Flow(BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD, device=device)
 
 
-def _site_breather(K: float, N: int, device: str, ctx) -> np.ndarray:
+def _solve(params: ChainParams, seed, flow: Flow, solver: str = "auto"):
+    """The breather at w_b = 1.01 from ``seed`` on ``flow`` (Newton's solves: ``find_breather(solver=...)``)."""
+    return require(find_breather(params, PAPER_OMEGA, seed, flow=flow, solver=solver))
+
+
+def _site_breather(K: float, N: int, flow: Flow, ctx) -> np.ndarray:
     """The site family's breather at coupling K on N sites, continued in K from the anti-continuum limit."""
     p = ChainParams(PAPER_M, 0.01, N)
-    flow = Flow(BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD, device=device)
     problem = NaturalParameter(p, PAPER_OMEGA, anticontinuum_seed(p, PAPER_OMEGA), K_end=K, flow=flow)
     branch = continuation(problem, ContinuationSettings(ds=0.15, ds_max=0.3, floquet=False))
     last = branch.points[-1]
@@ -154,25 +154,103 @@ def _site_breather(K: float, N: int, device: str, ctx) -> np.ndarray:
     return last.state
 
 
-def _foam(P: Parameters, N: int, ctx) -> dict:
-    """The site family's K-branch over ``foam_K`` on N sites, sampled at ``foam_points`` log-spaced couplings
-    (each solved from the previous one, then the complete Floquet path, ``floquet_solver``): whether each point is
-    stable, its largest modulus and how many of its instabilities are extended (finite-size) or localized. A
-    fixed grid, the same at every N, rather than the continuation driver's adaptive steps: the unstable fraction
-    is then a sample mean that no step control biases (a step can cross a bubble narrower than itself)."""
-    grid = np.geomspace(P.foam_K[0], P.foam_K[1], P.foam_points)
-    state = _site_breather(float(grid[0]), N, ctx.device, ctx)
-    stable, modulus, extended, localized = [], [], [], []
-    for K in grid:
-        b = _solve(ChainParams(PAPER_M, float(K), N), state, ctx.device)
+def _size_row(flow: Flow, b, P: "Parameters", family: str, ctx) -> dict:
+    """One size's row: the solve's energy, tail and Newton record, and its complete Floquet verdict (on a worker)."""
+    N = b.params.N
+    tail, outer = _tails(b.state, P.tail_distance)
+    row = {
+        "N": N,
+        "energy": b.energy,
+        "residual": b.residual,
+        "newton_iterations": b.iterations,
+        "solver": b.stats["solver"],
+        "gmres_products": sum(b.stats.get("krylov_iterations", [])),
+        "newton_seconds": b.wall_seconds,
+        "tail_amplitude": tail,
+        "outer_amplitude": outer,
+        "min_contact": b.min_contact,
+    }
+    fl = floquet(b, solver=P.floquet_solver, flow=flow)
+    row.update(
+        max_modulus=fl.max_modulus if fl.complete else None,
+        stable=fl.stable,
+        complete=fl.complete,
+        instabilities=[i.as_dict() for i in fl.instabilities],
+        floquet_seconds=fl.wall_seconds,
+        floquet_path=fl.path,
+        floquet_counts=None if fl.coverage is None else fl.coverage["counts"],
+        localized_max_modulus=max((i.modulus for i in fl.instabilities if i.localized), default=1.0),
+        extended_max_modulus=max((i.modulus for i in fl.instabilities if not i.localized), default=1.0),
+    )
+    ctx.log(
+        "%s N = %5d: E = %.10f (%s Newton, %d its, %.2f s), tail %.3e, outer quarter %.3e, %s, max |l| %.9f, "
+        "%d instabilities (%s Floquet, %s, %.2f s)",
+        family, N, b.energy, row["solver"], b.iterations, b.wall_seconds, tail, outer, fl.verdict, fl.max_modulus,
+        len(row["instabilities"]), row["floquet_path"], "complete" if fl.complete else "INCOMPLETE", fl.wall_seconds,
+    )  # fmt: skip
+    return row
+
+
+def _family(flow: Flow, P: "Parameters", family: str, analyses: Workers, ctx) -> list:
+    """One family's solves at every size, in order (each seeded by the previous one, padded); each size's Floquet
+    analysis goes to ``analyses`` as soon as its orbit is solved. Returns the analyses' Futures (rows) and the
+    largest chain's state."""
+    K = PAPER_K if family == "paper" else P.site_K
+    state, rows = None, []
+    for N in P.sizes:
+        if analyses.stopping.is_set():  # the scene is closing (an error or Ctrl-C elsewhere)
+            break
+        params = ChainParams(PAPER_M, K, N)
+        if state is None:
+            seed = nls_seed(params, PAPER_OMEGA) if family == "paper" else _site_breather(P.site_K, N, flow, ctx)
+        else:
+            seed = _pad(state, N)
+        b = _solve(params, seed, flow, P.solver)
         state = b.state
-        fl = floquet(b, solver=P.floquet_solver)
-        if not fl.complete:  # never counted as stable or unstable: the scene fails with what the count found
-            raise RuntimeError(f"foam N = {N}, K = {K:.6g}: the Floquet count did not close ({fl.coverage['counts']})")
-        stable.append(bool(fl.stable))
-        modulus.append(float(fl.max_modulus))
-        extended.append(sum(not i.localized for i in fl.instabilities))
-        localized.append(sum(bool(i.localized) for i in fl.instabilities))
+        what = f"the {family} breather's Floquet analysis at N = {N}"
+        rows.append(analyses.submit(what, _size_row, b, P, family, ctx))
+    return rows, state
+
+
+def _foam_point(flow: Flow, b, solver: str) -> tuple:
+    """One foam point's verdict, reduced to what the foam keeps: (complete, stable, max |l|, extended and localized
+    instabilities, counts)."""
+    fl = floquet(b, solver=solver, flow=flow)
+    extended = sum(not i.localized for i in fl.instabilities)
+    counts = None if fl.coverage is None else fl.coverage.get("counts")
+    return fl.complete, bool(fl.stable), float(fl.max_modulus), extended, len(fl.instabilities) - extended, counts
+
+
+def _foam_chain(flow: Flow, P: "Parameters", N: int, analyses: Workers, ctx) -> tuple:
+    """The site family's K-branch over ``foam_K`` on N sites at ``foam_points`` log-spaced couplings, each solved
+    from the previous one; each point's Floquet analysis (the complete path, ``floquet_solver``) goes to
+    ``analyses``. A fixed grid, the same at every N, rather than the continuation driver's adaptive steps: the
+    unstable fraction is then a sample mean that no step control biases (a step can cross a bubble narrower than
+    itself). Returns the grid and the analyses' Futures."""
+    grid = np.geomspace(P.foam_K[0], P.foam_K[1], P.foam_points)
+    state = _site_breather(float(grid[0]), N, flow, ctx)
+    points = []
+    for K in grid:
+        if analyses.stopping.is_set():  # the scene is closing (an error or Ctrl-C elsewhere)
+            break
+        b = _solve(ChainParams(PAPER_M, float(K), N), state, flow)
+        state = b.state
+        what = f"foam N = {N}, K = {K:.6g}: the Floquet analysis"
+        points.append(analyses.submit(what, _foam_point, b, P.floquet_solver))
+    return grid, points
+
+
+def _foam(P: "Parameters", N: int, grid: np.ndarray, points: list, ctx) -> tuple:
+    """The foam row and columns of N from its points' verdicts: whether each is stable, its largest modulus and
+    how many of its instabilities are extended (finite-size) or localized."""
+    stable, modulus, extended, localized = [], [], [], []
+    for K, (complete, is_stable, largest, n_extended, n_localized, counts) in zip(grid, points):
+        if not complete:  # never counted as stable or unstable: the scene fails with what the count found
+            raise RuntimeError(f"foam N = {N}, K = {K:.6g}: the Floquet count did not close ({counts})")
+        stable.append(is_stable)
+        modulus.append(largest)
+        extended.append(n_extended)
+        localized.append(n_localized)
     stable = np.array(stable)
     unstable_moduli = np.array(modulus)[~stable] - 1.0
     row = {
@@ -202,66 +280,29 @@ def _tails(state: np.ndarray, distance: int) -> tuple[float, float]:
 
 def run(ctx: Context) -> dict:
     P: Parameters = ctx.params
-    families = {}
-    profiles = {}
-    for family in FAMILIES:
-        K = PAPER_K if family == "paper" else P.site_K
-        rows = []
-        state = None
-        for N in P.sizes:
-            params = ChainParams(PAPER_M, K, N)
-            if state is None:
-                seed = (
-                    nls_seed(params, PAPER_OMEGA) if family == "paper" else _site_breather(P.site_K, N, ctx.device, ctx)
-                )
-            else:
-                seed = _pad(state, N)
-            b = _solve(params, seed, ctx.device, P.solver)
-            state = b.state
-            tail, outer = _tails(state, P.tail_distance)
-            row = {
-                "N": N,
-                "energy": b.energy,
-                "residual": b.residual,
-                "newton_iterations": b.iterations,
-                "solver": b.stats["solver"],
-                "gmres_products": sum(b.stats.get("krylov_iterations", [])),
-                "newton_seconds": b.wall_seconds,
-                "tail_amplitude": tail,
-                "outer_amplitude": outer,
-                "min_contact": b.min_contact,
-            }
-            fl = floquet(b, solver=P.floquet_solver)
-            row.update(
-                max_modulus=fl.max_modulus if fl.complete else None,
-                stable=fl.stable,
-                complete=fl.complete,
-                instabilities=[i.as_dict() for i in fl.instabilities],
-                floquet_seconds=fl.wall_seconds,
-                floquet_path=fl.path,
-                floquet_counts=None if fl.coverage is None else fl.coverage["counts"],
-                localized_max_modulus=max((i.modulus for i in fl.instabilities if i.localized), default=1.0),
-                extended_max_modulus=max((i.modulus for i in fl.instabilities if not i.localized), default=1.0),
-            )
-            rows.append(row)
-            ctx.log(
-                "%s N = %5d: E = %.10f (%s Newton, %d its, %.2f s), tail %.3e, outer quarter %.3e%s",
-                family,
-                N,
-                b.energy,
-                row["solver"],
-                b.iterations,
-                b.wall_seconds,
-                tail,
-                outer,
-                f", {fl.verdict}, max |l| {fl.max_modulus:.9f}, {len(row['instabilities'])} instabilities "
-                f"({row['floquet_path']} Floquet, {'complete' if fl.complete else 'INCOMPLETE'}, "
-                f"{fl.wall_seconds:.2f} s)",
-            )
-        families[family] = rows
-        profiles[family] = state
-
-    foam = [_foam(P, N, ctx) for N in P.foam_sizes]
+    make_flow = functools.partial(_flow, ctx.device)
+    # The sequential solves (each family's sizes, each foam's couplings: every orbit seeded by the previous one) on
+    # one thread per chain; every Floquet analysis, independent of the others, on ``workers`` more. All of them with
+    # one BLAS thread (``_workers``), so the results do not depend on how many run at once. An error or Ctrl-C
+    # closes both pools: the solve loops stop at their next orbit, what is queued is cancelled.
+    chains = len(FAMILIES) + len(P.foam_sizes)
+    with (
+        blas_threads(1),
+        Workers(P.workers, make_flow, ctx.log, name="finite-size-floquet", most=8) as analyses,
+        Workers(chains, make_flow, ctx.log, name="finite-size-chain", stopping=analyses.stopping) as solves,
+    ):
+        family_jobs = {f: solves.submit(f"the {f} family's solves", _family, P, f, analyses, ctx) for f in FAMILIES}
+        foam_jobs = [
+            solves.submit(f"the foam's solves at N = {N}", _foam_chain, P, N, analyses, ctx) for N in P.foam_sizes
+        ]
+        families, profiles = {}, {}
+        for family, job in family_jobs.items():
+            rows, profiles[family] = job.result()
+            families[family] = [row.result() for row in rows]
+        foam = []
+        for N, job in zip(P.foam_sizes, foam_jobs):
+            grid, points = job.result()
+            foam.append(_foam(P, N, grid, [p.result() for p in points], ctx))
 
     root = ctx.store(ChainParams(PAPER_M, PAPER_K, P.sizes[-1]))
     for row, columns in foam:

@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import threading
 
 import numpy as np
 
@@ -41,7 +40,6 @@ from continuation.branch import CouplingAxis, NaturalParameter, PseudoArclength
 from continuation.driver import KREIN_MODES
 from continuation.floquet import KINDS, energy_centre
 from warpchain import ChainParams
-from warpchain.engine.devices import usable_cores
 from warpchain.reference import solve_ivp_reference
 from warpchain.store import StoreError, open_store, write_table
 
@@ -62,6 +60,7 @@ from ._continuation_common import (
 )
 from ._params import DENSE_MAX_SITES, Rule, anticontinuum_rule, param
 from ._site_bond_figures import draw_figures
+from ._workers import Workers
 
 FAMILIES = ("site", "bond-in-phase", "bond-out-of-phase", "asymmetric")
 BIFURCATION_KINDS = ("symmetry_breaking_pitchfork", "branch_point", "period_doubling", "krein_collision")
@@ -268,81 +267,6 @@ def _finite_size(flow, P: Parameters, K: float, site_points):
     return None if site is None else bf.finite_size_check(ChainParams(P.M, K, P.N), P.omega, site.state, flow)
 
 
-class TaskError(RuntimeError):
-    """A branch-point or finite-size task that raised twice: the scene fails (it is never a log line)."""
-
-
-class _Workers:
-    """Independent solves on a few host threads, each with its own Flow (a Flow keeps device buffers
-    between calls, so threads do not share one). The solves spend most of their time in LAPACK and in
-    waits for the device, which release the GIL. ``P.workers`` threads (0: one per two usable cores, at
-    most 4); even with one, that thread's solves run beside the main thread's later steps (the
-    asymmetric family, the barrier), which use the main Flow."""
-
-    def __init__(self, P: Parameters, device: str, log=None):
-        from concurrent.futures import ThreadPoolExecutor
-
-        self.P, self.device, self.log = P, device, log
-        self.blas = None  # the one-thread BLAS limit while tasks run (``_one_blas_thread``)
-        self.local = threading.local()
-        if P.workers < 0:
-            raise ValueError(f"workers must be >= 0 (0: one per two CPU cores), got {P.workers}")
-        count = P.workers or max(1, min(4, usable_cores() // 2))
-        self.pool = ThreadPoolExecutor(max_workers=count, thread_name_prefix="site-bond")
-
-    def _flow(self):
-        if getattr(self.local, "flow", None) is None:
-            self.local.flow = self.P.flow(self.device)
-        return self.local.flow
-
-    def _one_blas_thread(self) -> None:
-        """From the first task to ``close``, the host BLAS on one thread: its thread limit is the process's
-        (``continuation.hostblas``), and with several threads in LAPACK at once, each changing the limit
-        around its Floquet blocks, how many BLAS threads a factorisation got, hence its rounding, depended on
-        which thread ran when (``benchmarks/thread_check.py``). One thread per solve gives every solve the
-        bits it has alone, on every device; the workers keep the cores busy instead."""
-        if self.blas is None:
-            import contextlib
-
-            from continuation.hostblas import blas_threads
-
-            self.blas = contextlib.ExitStack()
-            self.blas.enter_context(blas_threads(1))
-
-    def submit(self, what: str, fn, *args):
-        """fn(flow, *args) on a worker thread; returns its Future. A task that raises (anything but
-        ``bf.NotLocated``, a mathematical outcome) is retried once on a fresh Flow; a second failure is raised
-        by the Future's ``result()`` as a ``TaskError`` naming ``what``, so that it fails the scene."""
-
-        def attempt():
-            try:
-                return fn(self._flow(), *args)
-            except bf.NotLocated:
-                raise
-            except Exception as first:
-                if self.log:
-                    self.log("%s raised %s: %s; retrying once", what, type(first).__name__, first)
-                self.local.flow = None  # new buffers and graphs for the retry
-                try:
-                    return fn(self._flow(), *args)
-                except bf.NotLocated:
-                    raise
-                except Exception as exc:
-                    raise TaskError(f"{what} failed twice: {type(exc).__name__}: {exc}") from exc
-
-        self._one_blas_thread()
-        return self.pool.submit(attempt)
-
-    def close(self) -> None:
-        """Cancel what has not started (after success nothing is left), let a running solve finish, then give
-        the host BLAS its thread count back (a solve still running would otherwise restore the one-thread
-        limit it found, after this, for the rest of the process)."""
-        self.pool.shutdown(wait=True, cancel_futures=True)
-        if self.blas is not None:
-            self.blas.close()
-            self.blas = None
-
-
 def _folds(family: str, points) -> list:
     """Turning points in K of an arclength family: K maxima or minima of three consecutive points,
     placed at the vertex of the parabola through them in (arclength, log10 K)."""
@@ -397,14 +321,14 @@ def _other_events(family: str, points) -> list:
 
 
 def run(ctx: Context) -> dict:
-    workers = _Workers(ctx.params, ctx.device, ctx.log)
-    try:
-        return _run(ctx, workers)
-    finally:
-        workers.close()  # an error or Ctrl-C stops here: the queued solves are cancelled, not run first
+    P: Parameters = ctx.params
+    # branch points and finite-size checks on host threads (``_workers``); an error or Ctrl-C closes the pool,
+    # cancelling the queued solves rather than running them first
+    with Workers(P.workers, lambda: P.flow(ctx.device), ctx.log, name="site-bond", outcomes=(bf.NotLocated,)) as w:
+        return _run(ctx, w)
 
 
-def _run(ctx: Context, workers: "_Workers") -> dict:
+def _run(ctx: Context, workers: Workers) -> dict:
     P: Parameters = ctx.params
     flow = P.flow(ctx.device)
     branches, bifurcations, folds, unlocated = {}, [], [], []

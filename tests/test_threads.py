@@ -61,13 +61,16 @@ def test_four_threads_give_the_bits_of_one(layout, monkeypatch):
 
 
 def test_a_task_that_raises_is_retried_once_then_fails_the_scene():
-    """site-bond's worker tasks: an engine error is retried once on a fresh Flow, a second one is raised (the
-    scene fails); a mathematical outcome (``NotLocated``) is never retried."""
+    """The scenes' worker tasks (``scenarios._workers``, site-bond's and finite-size's): an engine error is retried
+    once on a fresh Flow, a second one is raised (the scene fails); a mathematical outcome (``NotLocated``) is never
+    retried; closing sets the ``stopping`` event long tasks poll."""
     from continuation.bifurcation import NotLocated
     from scenarios import site_bond
+    from scenarios._workers import TaskError, Workers
 
     lines, calls = [], []
-    workers = site_bond._Workers(site_bond.Parameters(workers=2), "cpu", lambda *a: lines.append(a[0] % a[1:]))
+    P = site_bond.Parameters(workers=2)
+    workers = Workers(P.workers, lambda: P.flow("cpu"), lambda *a: lines.append(a[0] % a[1:]), outcomes=(NotLocated,))
     try:
 
         def flaky(flow, fails):
@@ -80,7 +83,7 @@ def test_a_task_that_raises_is_retried_once_then_fails_the_scene():
         assert len(calls) == 2 and calls[0] is not calls[1]  # the retry ran on a new Flow
         assert any("task A raised RuntimeError" in line and "retrying once" in line for line in lines)
         calls.clear()
-        with pytest.raises(site_bond.TaskError, match="task B failed twice: RuntimeError: Warp copy error"):
+        with pytest.raises(TaskError, match="task B failed twice: RuntimeError: Warp copy error"):
             workers.submit("task B", flaky, 2).result()
 
         def no_crossing(flow):
@@ -91,8 +94,10 @@ def test_a_task_that_raises_is_retried_once_then_fails_the_scene():
         with pytest.raises(NotLocated):
             workers.submit("task C", no_crossing).result()
         assert len(calls) == 1
+        assert workers.count == 2 and not workers.stopping.is_set()
     finally:
         workers.close()
+    assert workers.stopping.is_set()
 
 
 def test_paper_in_order_counts_a_failed_scene_and_runs_the_rest(tmp_path, monkeypatch, capsys):
