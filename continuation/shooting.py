@@ -110,9 +110,10 @@ class ShootingResult:
 
     def linearization(self, flow: Flow | None = None):
         """The Linearization of the shooting interval at ``state`` (the one Newton ended on when the
-        flow is the same; computed afresh otherwise)."""
+        flow is the very Flow it ran on; computed afresh otherwise: a Linearization replays its Flow's buffers, so
+        another Flow, e.g. another thread's, gets its own)."""
         flow = flow or self.flow
-        if self._linearization is not None and flow == self.flow:
+        if self._linearization is not None and flow is self.flow:
             return self._linearization
         return flow.linearize(self.params, self.state, self.nsteps, self.dt)
 

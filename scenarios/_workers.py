@@ -19,6 +19,7 @@ from __future__ import annotations
 import contextlib
 import threading
 from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import TimeoutError as FutureTimeout
 
 from warpchain.engine.devices import usable_cores
 
@@ -37,17 +38,22 @@ def default_workers(count: int, most: int = 4) -> int:
 class Workers:
     """``count`` host threads (``default_workers``) running ``fn(flow, *args)`` tasks, each thread with its own
     Flow from ``make_flow()`` (``count`` 0: one per two usable cores, at most ``most``); ``name`` prefixes the
-    threads' names; ``log(message, *args)`` hears retries. ``stopping`` (an Event, shareable between pools) is set
-    when ``close`` begins: a task that loops over many solves polls it, so that an error or Ctrl-C elsewhere does
-    not wait for the loop's end."""
+    threads' names; ``log(message, *args)`` hears retries; ``retry=False``: a failure is not retried (a long task
+    whose errors are the mathematics', e.g. a chain of solves). ``stopping`` is set when ``close`` begins or a task
+    fails: a task that loops over many solves polls it, so that an error or Ctrl-C elsewhere does not wait for the
+    loop's end."""
 
     def __init__(
         self, count: int, make_flow, log=None, *, name: str = "scene", outcomes: tuple = (), most: int = 4,
-        stopping: threading.Event | None = None,
+        retry: bool = True, shared: "Workers | None" = None,
     ):  # fmt: skip
-        self.make_flow, self.log, self.outcomes = make_flow, log, tuple(outcomes)
-        self.stopping = stopping or threading.Event()  # set by ``close``: long tasks poll it and return early
+        self.make_flow, self.log, self.outcomes, self.retry = make_flow, log, tuple(outcomes), retry
+        # set by ``close`` or by the first task that fails: long tasks poll it; ``shared``: another pool's, so that
+        # a failure in either stops both
+        self.stopping = shared.stopping if shared is not None else threading.Event()
+        self.errors = shared.errors if shared is not None else []  # the failures, first first
         self.blas = None  # the one-thread BLAS limit while tasks run
+        self._lock = threading.Lock()
         self.local = threading.local()
         self.count = default_workers(count, most)
         self.pool = ThreadPoolExecutor(max_workers=self.count, thread_name_prefix=name)
@@ -58,7 +64,9 @@ class Workers:
         return self.local.flow
 
     def submit(self, what: str, fn, *args):
-        """fn(flow, *args) on a worker thread; returns its Future (``what`` names the task in a ``TaskError``)."""
+        """fn(flow, *args) on a worker thread; returns its Future (``what`` names the task in a ``TaskError``). A
+        task that raises (an outcome too) sets ``stopping`` and is kept in ``errors``, so that ``result`` raises it
+        at once, whatever else is awaited."""
 
         def attempt():
             try:
@@ -66,9 +74,12 @@ class Workers:
             except self.outcomes:
                 raise
             except Exception as first:
+                if not self.retry:
+                    raise TaskError(f"{what} failed: {type(first).__name__}: {first}") from first
                 if self.log:
                     self.log("%s raised %s: %s; retrying once", what, type(first).__name__, first)
                 self.local.flow = None  # new buffers and graphs for the retry
+                del first  # not kept alive (with the failed attempt's frames and Flow) through the retry
                 try:
                     return fn(self._flow(), *args)
                 except self.outcomes:
@@ -76,22 +87,44 @@ class Workers:
                 except Exception as exc:
                     raise TaskError(f"{what} failed twice: {type(exc).__name__}: {exc}") from exc
 
-        if self.blas is None:
-            from continuation.hostblas import blas_threads
+        def failed(future) -> None:
+            if not future.cancelled() and future.exception() is not None:
+                self.errors.append(future.exception())
+                self.stopping.set()
 
-            self.blas = contextlib.ExitStack()
-            self.blas.enter_context(blas_threads(1))
-        return self.pool.submit(attempt)
+        with self._lock:  # submitted from several threads at once (a chain thread hands its analyses here)
+            if self.blas is None:
+                from continuation.hostblas import blas_threads
+
+                self.blas = contextlib.ExitStack()
+                self.blas.enter_context(blas_threads(1))
+            future = self.pool.submit(attempt)
+        future.add_done_callback(failed)
+        return future
+
+    def result(self, future):
+        """``future.result()``, or the first failure of any task of this pool (or the pool it shares), as soon as
+        there is one: an error elsewhere does not wait for this task's end."""
+        while True:
+            if self.errors:
+                raise self.errors[0]
+            try:
+                return future.result(timeout=0.25)
+            except FutureTimeout:
+                continue
 
     def close(self) -> None:
-        """Cancel what has not started (after success nothing is left), let a running solve finish, then give
-        the host BLAS its thread count back (a solve still running would otherwise restore the one-thread
-        limit it found, after this, for the rest of the process)."""
+        """Set ``stopping``, cancel what has not started (after success nothing is left), let a running solve finish,
+        then give the host BLAS its thread count back (a solve still running would otherwise restore the one-thread
+        limit it found, after this, for the rest of the process; given back even when a second Ctrl-C interrupts
+        the wait)."""
         self.stopping.set()
-        self.pool.shutdown(wait=True, cancel_futures=True)
-        if self.blas is not None:
-            self.blas.close()
-            self.blas = None
+        try:
+            self.pool.shutdown(wait=True, cancel_futures=True)
+        finally:
+            if self.blas is not None:
+                self.blas.close()
+                self.blas = None
 
     def __enter__(self):
         return self

@@ -191,7 +191,7 @@ def _size_row(flow: Flow, b, P: "Parameters", family: str, ctx) -> dict:
     return row
 
 
-def _family(flow: Flow, P: "Parameters", family: str, analyses: Workers, ctx) -> list:
+def _family(flow: Flow, P: "Parameters", family: str, analyses: Workers, ctx) -> tuple:
     """One family's solves at every size, in order (each seeded by the previous one, padded); each size's Floquet
     analysis goes to ``analyses`` as soon as its orbit is solved. Returns the analyses' Futures (rows) and the
     largest chain's state."""
@@ -212,13 +212,20 @@ def _family(flow: Flow, P: "Parameters", family: str, analyses: Workers, ctx) ->
     return rows, state
 
 
+class IncompleteVerdict(RuntimeError):
+    """A foam point whose Floquet count did not close: never counted as stable or unstable, the scene fails."""
+
+
 def _foam_point(flow: Flow, b, solver: str) -> tuple:
-    """One foam point's verdict, reduced to what the foam keeps: (complete, stable, max |l|, extended and localized
-    instabilities, counts)."""
+    """One foam point's verdict, reduced to what the foam keeps: (stable, max |l|, extended and localized
+    instabilities); ``IncompleteVerdict`` where the count did not close."""
     fl = floquet(b, solver=solver, flow=flow)
+    if not fl.complete:
+        counts = None if fl.coverage is None else fl.coverage.get("counts")
+        where = f"foam N = {b.params.N}, K = {b.params.K:.6g}"
+        raise IncompleteVerdict(f"{where}: the Floquet count did not close ({counts})")
     extended = sum(not i.localized for i in fl.instabilities)
-    counts = None if fl.coverage is None else fl.coverage.get("counts")
-    return fl.complete, bool(fl.stable), float(fl.max_modulus), extended, len(fl.instabilities) - extended, counts
+    return bool(fl.stable), float(fl.max_modulus), extended, len(fl.instabilities) - extended
 
 
 def _foam_chain(flow: Flow, P: "Parameters", N: int, analyses: Workers, ctx) -> tuple:
@@ -244,9 +251,7 @@ def _foam(P: "Parameters", N: int, grid: np.ndarray, points: list, ctx) -> tuple
     """The foam row and columns of N from its points' verdicts: whether each is stable, its largest modulus and
     how many of its instabilities are extended (finite-size) or localized."""
     stable, modulus, extended, localized = [], [], [], []
-    for K, (complete, is_stable, largest, n_extended, n_localized, counts) in zip(grid, points):
-        if not complete:  # never counted as stable or unstable: the scene fails with what the count found
-            raise RuntimeError(f"foam N = {N}, K = {K:.6g}: the Floquet count did not close ({counts})")
+    for is_stable, largest, n_extended, n_localized in points:
         stable.append(is_stable)
         modulus.append(largest)
         extended.append(n_extended)
@@ -283,26 +288,29 @@ def run(ctx: Context) -> dict:
     make_flow = functools.partial(_flow, ctx.device)
     # The sequential solves (each family's sizes, each foam's couplings: every orbit seeded by the previous one) on
     # one thread per chain; every Floquet analysis, independent of the others, on ``workers`` more. All of them with
-    # one BLAS thread (``_workers``), so the results do not depend on how many run at once. An error or Ctrl-C
-    # closes both pools: the solve loops stop at their next orbit, what is queued is cancelled.
+    # one BLAS thread (``_workers``), so the results do not depend on how many run at once. A failure anywhere is
+    # raised at once and, like Ctrl-C, closes both pools: the solve loops stop at their next orbit, what is queued
+    # is cancelled. A chain is not retried (its errors are the mathematics'); an analysis is, once, on a new Flow.
     chains = len(FAMILIES) + len(P.foam_sizes)
     with (
         blas_threads(1),
-        Workers(P.workers, make_flow, ctx.log, name="finite-size-floquet", most=8) as analyses,
-        Workers(chains, make_flow, ctx.log, name="finite-size-chain", stopping=analyses.stopping) as solves,
+        Workers(
+            P.workers, make_flow, ctx.log, name="finite-size-floquet", most=8, outcomes=(IncompleteVerdict,)
+        ) as analyses,
+        Workers(chains, make_flow, ctx.log, name="finite-size-chain", retry=False, shared=analyses) as solves,
     ):
         family_jobs = {f: solves.submit(f"the {f} family's solves", _family, P, f, analyses, ctx) for f in FAMILIES}
         foam_jobs = [
             solves.submit(f"the foam's solves at N = {N}", _foam_chain, P, N, analyses, ctx) for N in P.foam_sizes
         ]
         families, profiles = {}, {}
-        for family, job in family_jobs.items():
-            rows, profiles[family] = job.result()
-            families[family] = [row.result() for row in rows]
+        for family, job in family_jobs.items():  # the first failure anywhere is raised at once (``Workers.result``)
+            rows, profiles[family] = solves.result(job)
+            families[family] = [analyses.result(row) for row in rows]
         foam = []
         for N, job in zip(P.foam_sizes, foam_jobs):
-            grid, points = job.result()
-            foam.append(_foam(P, N, grid, [p.result() for p in points], ctx))
+            grid, points = solves.result(job)
+            foam.append(_foam(P, N, grid, [analyses.result(p) for p in points], ctx))
 
     root = ctx.store(ChainParams(PAPER_M, PAPER_K, P.sizes[-1]))
     for row, columns in foam:

@@ -296,7 +296,7 @@ def test_finite_size_quick(tmp_path):
     """The finite-size scene: the site breather (exponentially localized) keeps its energy and its localized
     real pair at every N, its tail at round-off; the paper breather's tail does not decay; the store reads. Its
     Floquet analyses on one worker thread or three give the same summary, bit for bit."""
-    out = _run("run", "finite-size", "--quick", "--out", str(tmp_path), "--device", "cpu")
+    out = _run("run", "finite-size", "--quick", "--out", str(tmp_path), "--device", "cpu", "--set", "workers=1")
     assert out.returncode == 0, out.stderr[-3000:]
     s = json.loads((tmp_path / "finite-size" / "summary.json").read_text())
     three = tmp_path / "three"

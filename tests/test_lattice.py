@@ -341,6 +341,25 @@ def test_colouring_is_valid(lat, distance):
         assert all(colours[t] != colours[s] for t in near)
 
 
+@pytest.mark.parametrize(
+    "builder, tiles", [(square, lambda b: 2 * b * b + 2 * b + 1), (triangular, lambda b: 3 * b * b + 3 * b + 1)]
+)
+def test_wide_colourings_take_as_many_colours_as_a_tiling_ball(builder, tiles):
+    """The probe's colourings (distance 2 b: no two sites within 2 b bonds share a colour) on patches without wrapped
+    axes: valid, and with as many colours as a ball of b bonds has sites, the least any colouring can have (the
+    greedy one took 256 and 464 at b = 10)."""
+    from warpchain.lattice import balls_of
+
+    lat = builder(23, 19, "fixed")
+    for b in (2, 4, 6):
+        colours = lat.colouring(2 * b)
+        assert colours.max() + 1 == tiles(b)
+        ball, _ = balls_of(lat, 2 * b)
+        for s in range(lat.n_sites):
+            near = ball.indices[ball.indptr[s] : ball.indptr[s + 1]]
+            assert np.count_nonzero(colours[near] == colours[s]) == 1  # itself only
+
+
 def test_chain_colouring_is_s_mod_3():
     for boundary in ("fixed", "free"):
         assert np.array_equal(chain(10, boundary).colouring(), np.arange(10) % 3)

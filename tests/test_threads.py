@@ -63,7 +63,7 @@ def test_four_threads_give_the_bits_of_one(layout, monkeypatch):
 def test_a_task_that_raises_is_retried_once_then_fails_the_scene():
     """The scenes' worker tasks (``scenarios._workers``, site-bond's and finite-size's): an engine error is retried
     once on a fresh Flow, a second one is raised (the scene fails); a mathematical outcome (``NotLocated``) is never
-    retried; closing sets the ``stopping`` event long tasks poll."""
+    retried; a pool without retries raises the first failure; every failure sets ``stopping``, and so does close."""
     from continuation.bifurcation import NotLocated
     from scenarios import site_bond
     from scenarios._workers import TaskError, Workers
@@ -82,9 +82,11 @@ def test_a_task_that_raises_is_retried_once_then_fails_the_scene():
         assert workers.submit("task A", flaky, 1).result() == "found"
         assert len(calls) == 2 and calls[0] is not calls[1]  # the retry ran on a new Flow
         assert any("task A raised RuntimeError" in line and "retrying once" in line for line in lines)
+        assert workers.count == 2 and not workers.stopping.is_set() and not workers.errors
         calls.clear()
         with pytest.raises(TaskError, match="task B failed twice: RuntimeError: Warp copy error"):
             workers.submit("task B", flaky, 2).result()
+        assert workers.stopping.is_set() and isinstance(workers.errors[0], TaskError)
 
         def no_crossing(flow):
             calls.append(flow)
@@ -94,10 +96,53 @@ def test_a_task_that_raises_is_retried_once_then_fails_the_scene():
         with pytest.raises(NotLocated):
             workers.submit("task C", no_crossing).result()
         assert len(calls) == 1
-        assert workers.count == 2 and not workers.stopping.is_set()
     finally:
         workers.close()
     assert workers.stopping.is_set()
+    once = Workers(1, lambda: P.flow("cpu"), retry=False)
+    try:
+        calls.clear()
+        with pytest.raises(TaskError, match="task D failed: RuntimeError"):
+            once.result(once.submit("task D", flaky, 1))
+        assert len(calls) == 1
+    finally:
+        once.close()
+
+
+def test_the_first_failure_is_raised_while_other_tasks_still_run():
+    """``Workers.result`` raises the first failure of either of two shared pools at once, without waiting for the
+    task it was asked about (finite-size's family chains wait on their analyses this way); the polling chain then
+    sees ``stopping`` and returns early, and closing restores the host BLAS threads."""
+    import threading
+
+    from threadpoolctl import threadpool_info
+
+    from scenarios._workers import TaskError, Workers
+
+    before = [p["num_threads"] for p in threadpool_info()]
+    release, steps = threading.Event(), []
+    analyses = Workers(2, lambda: None, name="test-analyses")
+    chains = Workers(1, lambda: None, retry=False, shared=analyses, name="test-chains")
+    try:
+
+        def chain(flow):
+            while not analyses.stopping.is_set():  # a long loop of solves, polling between them
+                steps.append(1)
+                release.wait(0.01)
+            return "stopped early"
+
+        def bad(flow):
+            raise ValueError("the count did not close")
+
+        long = chains.submit("the chain", chain)
+        analyses.submit("an analysis", bad)
+        with pytest.raises(TaskError, match="an analysis failed twice: ValueError: the count did not close"):
+            chains.result(long)  # the chain has not ended: the analysis' failure is raised
+        assert long.result(timeout=10) == "stopped early"
+    finally:
+        chains.close()
+        analyses.close()
+    assert [p["num_threads"] for p in threadpool_info()] == before
 
 
 def test_paper_in_order_counts_a_failed_scene_and_runs_the_rest(tmp_path, monkeypatch, capsys):

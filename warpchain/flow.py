@@ -189,14 +189,16 @@ class Linearization:
         sites, and site j's column is its entries within b bonds of j (its ball). Checked as on the chain: the
         entries on each ball's rim (exactly b bonds away) must be below ``PROBE_TOLERANCE`` of their run's largest.
         From ``LATTICE_HALFWIDTH`` on, a b that fails is followed by the b the measured decay asks for
-        (``_next_halfwidth``), until the colours are no fewer than the sites (plain columns)."""
+        (``_next_halfwidth``), until the balls span the patch or the colours are no fewer than the sites (plain
+        columns)."""
         import scipy.sparse as sp
 
         lat, N = self.lattice, self.x0.shape[1]
+        span = sum(n - 1 for n in lat.shape)  # every two sites are within this many bonds (axial steps)
         b = LATTICE_HALFWIDTH
         while True:
-            colours = kept_colouring(lat, 2 * b)
-            if colours.max() + 1 >= N:
+            colours = None if 2 * b >= span else kept_colouring(lat, 2 * b)
+            if colours is None or colours.max() + 1 >= N:
                 return sp.csc_matrix(self._plain_columns(which)), N
             A, edge, inner = self._probe_groups(comps, colours, balls_of(lat, b), balls_of(lat, b - 1)[1])
             if edge <= PROBE_TOLERANCE:
@@ -272,10 +274,11 @@ def _next_halfwidth(b: int, edge: float, inner: float) -> int:
     b - 1 and b bonds, would reach a tenth of ``PROBE_TOLERANCE`` at that rate. Beyond its light cone a tangent
     perturbation falls faster than any fixed rate, so the guess errs on the wide side (a 41 x 41 square patch's
     breather, M = 30, K = 1: 1e-4, 2e-6, 2e-8, 9e-11, ..., 2e-18 at 0 .. 9 bonds: from b = 4 the guess is 11, where
-    the doubling it replaces took 8, failed there, then 16). Doubling where the entries did not fall."""
+    the doubling it replaces took 8, failed there, then 16). Doubling where the entries did not fall; at most 4 b (a
+    slow decay would ask for radii whose colouring alone does not fit in memory)."""
     if not 0.0 < edge < inner:
         return 2 * b
-    return b + max(1, math.ceil(math.log(0.1 * PROBE_TOLERANCE / edge) / math.log(edge / inner)))
+    return min(4 * b, b + max(1, math.ceil(math.log(0.1 * PROBE_TOLERANCE / edge) / math.log(edge / inner))))
 
 
 #: (N, boundary, table, batch, steps) keys whose runners a Flow keeps (two each, handed out in turn); a Flow that walks

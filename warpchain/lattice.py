@@ -374,12 +374,17 @@ class Lattice:
         return found
 
     def colouring(self, distance: int = 2) -> np.ndarray:
-        """A greedy colouring (site order) in which no two sites within ``distance`` bonds (of weight != 0) share
-        a colour, e.g. to probe Jacobian columns together. Returns int colours 0, 1, ..., shape (n_sites,);
-        the chain with distance 2 gets s mod 3 (fixed and free ends)."""
+        """A colouring in which no two sites within ``distance`` bonds (of weight != 0) share a colour, e.g. to probe
+        Jacobian columns together. Returns int colours 0, 1, ..., shape (n_sites,); the chain with distance 2 gets
+        s mod 3 (fixed and free ends). Without wrapped axes, a modular one (``_modular_colouring``: as few colours
+        as a ball of distance / 2 bonds has sites where the ball tiles the plane); else, or where none is found, a
+        greedy one (site order)."""
         import scipy.sparse as sp
 
         distance = whole_number("distance", distance, minimum=1)
+        modular = self._modular_colouring(distance)
+        if modular is not None:
+            return modular
         n, nb = self.n_sites, self.neighbours
         s, d = np.nonzero((nb >= 0) & (self.weights != 0))
         keep = nb[s, d] != s
@@ -395,6 +400,39 @@ class Lattice:
                 colour += 1
             colours[site] = colour
         return colours
+
+    def _modular_colouring(self, distance: int) -> "np.ndarray | None":
+        """Colours c = (i + k j) mod m on the axial coordinates (i, j), with the smallest m (from the number of sites
+        of a ball of distance // 2 bonds: its sites are pairwise within distance, so no colouring has fewer) and a k
+        for which no step of at most ``distance`` bonds of the infinite lattice is a multiple of the colour period;
+        on a patch without wrapped axes two sites within ``distance`` bonds are so on the infinite lattice too. The
+        balls of distance / 2 bonds tile the square (2 b^2 + 2 b + 1 sites) and triangular (3 b^2 + 3 b + 1)
+        lattices, where the greedy colouring takes about 15 % and 30 % more colours. None on wrapped axes, where
+        bonds of weight 0 would be read as steps, or when no m up to twice the ball's size works."""
+        if any(self._wraps):
+            return None
+        steps = [tuple(e) for e, w in zip(self.directions.tolist(), self.direction_weights) if w != 0]
+        bonded = (self.neighbours >= 0) & (self.weights != 0)
+        if not steps or np.any((self.weights != 0) & (self.neighbours == MISSING)):
+            return None
+        if np.any(self.weights[bonded] != np.repeat(self.direction_weights, 2)[np.nonzero(bonded)[1]]):
+            return None  # weights other than the directions' (a bond of weight 0 would not be a step)
+        steps += [(-a, -b) for a, b in steps]
+        balls, frontier, seen = [1], {(0, 0)}, {(0, 0)}
+        for _ in range(distance):
+            frontier = {(a + da, b + db) for a, b in frontier for da, db in steps} - seen
+            seen |= frontier
+            balls.append(len(seen))
+        offsets = np.array(sorted(seen - {(0, 0)}), dtype=np.int64)
+        lowest = balls[distance // 2]
+        coords = self._coords
+        for m in range(lowest, 2 * lowest + 1):
+            k = np.arange(m, dtype=np.int64)[:, None]
+            ok = ~np.any((offsets[None, :, 0] + k * offsets[None, :, 1]) % m == 0, axis=1)
+            if ok.any():
+                colours = (coords[:, 0] + int(np.argmax(ok)) * coords[:, 1]) % m
+                return np.unique(colours, return_inverse=True)[1].astype(np.int64)
+        return None
 
     def describe(self) -> str:
         """A one-line summary, e.g. ``square 6x6 periodic: 36 sites, degree 4``."""
