@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
+import os
 import time
 from concurrent.futures import ThreadPoolExecutor
 
@@ -53,6 +54,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.linalg.lapack import dgbtrf, dgbtrs
 
+from .hostblas import HostPool
 from .spectrum import assemble, central_weight, energy_centre, participation
 
 
@@ -65,11 +67,32 @@ def _blocks(A, M: float) -> tuple:
     return A[:n2, :n2], A[:n2, n2:], A[n2:, :n2], A[n2:, n2:], sp.diags(m)
 
 
+#: host threads for the sparse products of the probed problem (``_products``)
+_product_pool = HostPool(min(16, os.cpu_count() or 1), "warpchain-products")
+
+#: rows of a product's left factor per task of ``_products``
+PRODUCT_ROWS = 512
+
+
+def _products(pairs, rows: int = PRODUCT_ROWS) -> list:
+    """[L @ R for (L, R) in pairs], sparse, each in chunks of ``rows`` rows of L on host threads (scipy's sparse
+    products let go of the GIL). A row of L @ R (CSR) is summed over L's row in its stored order whatever rows go
+    with it, so the result is the one-call product bit for bit, on any number of threads. A 101 x 101 patch's four
+    products (``_mu``, ``_checks``) were most of its probe's host time on one thread each."""
+    tasks = []
+    for index, (L, R) in enumerate(pairs):
+        L, R = sp.csr_matrix(L), sp.csr_matrix(R)
+        for start in range(0, L.shape[0], rows):
+            tasks.append((index, L[start : start + rows], R))
+    parts = list(_product_pool().map(lambda t: t[1] @ t[2], tasks))
+    return [
+        sp.vstack([p for (i, _, _), p in zip(tasks, parts) if i == index], format="csr") for index in range(len(pairs))
+    ]
+
+
 def _mu(A11, A12, A21, A22, Dm) -> tuple:
-    """(Mu, X, Y): Mu = Mm^-1 (X + Y), X = A22^T Mm A11, Y = A12^T Mm A21, the two products on two threads
-    (scipy's sparse products let go of the GIL)."""
-    with ThreadPoolExecutor(2, thread_name_prefix="window-products") as pool:
-        X, Y = pool.map(lambda pair: pair[0] @ pair[1], ((A22.T @ Dm, A11), (A12.T @ Dm, A21)))
+    """(Mu, X, Y): Mu = Mm^-1 (X + Y), X = A22^T Mm A11, Y = A12^T Mm A21 (``_products``)."""
+    X, Y = _products([(A22.T @ Dm, A11), (A12.T @ Dm, A21)])
     return sp.csc_matrix(sp.diags(1.0 / Dm.diagonal()) @ (X + Y)), X, Y
 
 
@@ -78,8 +101,7 @@ def _checks(X, Y, A11, A12, A21, A22, Dm) -> tuple:
     (Z = A12^T Mm A22), as ``floquet.reduced_products``, and the Krein form P = A11^T Mm A21. ``krylov_floquet``
     runs it beside the eigensolves, which need Mu alone."""
     Dinv = sp.diags(1.0 / Dm.diagonal())
-    with ThreadPoolExecutor(2, thread_name_prefix="window-krein") as pool:  # scipy's products let go of the GIL
-        P, Z = pool.map(lambda pair: (pair[0].T @ Dm) @ pair[1], ((A11, A21), (A12, A22)))
+    P, Z = _products([(A11.T @ Dm, A21), (A12.T @ Dm, A22)])
     S12 = Dinv @ (X - Y) - sp.identity(X.shape[0])
     S22 = Dinv @ (Z - Z.T) @ Dinv
 
