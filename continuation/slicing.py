@@ -304,14 +304,23 @@ def outlier_task(op, P, E, sign: float, k: int, M: float, centre: float) -> dict
     return _report(sign * mu, vectors, P, E, M, centre, converged=converged, seconds=time.perf_counter() - start)
 
 
-def _krein_plane(columns: np.ndarray, P) -> "tuple | None":
-    """(B, lam, Q): an orthonormal basis B of the span of real ``columns`` and the eigen-decomposition of the Krein
-    form on it, B^T P B = Q diag(lam) Q^T (so B Q are the form's eigenvectors, lam their forms); None when the
-    columns are nearly dependent (a diagonal entry of their QR below 1e-6 of the largest: no basis of the span).
-    ``degenerate_reals`` and ``hidden_neutral`` read a cluster's forms through it."""
+def _plane_basis(columns: np.ndarray) -> "np.ndarray | None":
+    """An orthonormal basis of the span of real ``columns`` (QR), or None when they are nearly dependent (a diagonal
+    entry of R below 1e-6 of the largest: no basis of the span)."""
     basis, R = np.linalg.qr(columns)
     diagonal = np.abs(np.diag(R))
     if np.min(diagonal) < 1e-6 * np.max(diagonal):
+        return None
+    return basis
+
+
+def _krein_plane(columns: np.ndarray, P) -> "tuple | None":
+    """(B, lam, Q): an orthonormal basis B of the span of real ``columns`` (``_plane_basis``) and the
+    eigen-decomposition of the Krein form on it, B^T P B = Q diag(lam) Q^T (so B Q are the form's eigenvectors, lam
+    their forms); None when the columns have no basis. ``degenerate_reals`` reads a pair's forms through it
+    (``hidden_neutral`` the same, for many clusters at once)."""
+    basis = _plane_basis(columns)
+    if basis is None:
         return None
     lam, Q = np.linalg.eigh(basis.T @ (P @ basis))
     return basis, lam, Q
@@ -365,6 +374,10 @@ def neutral_form(P) -> float:
 CLUSTER_RTOL = 1e-9
 
 
+#: ``hidden_neutral`` forms P x for this many clusters' columns at a time (one sparse product for all of them)
+CLUSTER_BATCH = 1024
+
+
 def hidden_neutral(mu, vectors, P):
     """``vectors`` with each cluster of (nearly) equal real mu that hides a direction of P's kernel written in the
     vectors that diagonalize the Krein form on its span. On a periodic or free lattice the uniform translation moves
@@ -372,7 +385,11 @@ def hidden_neutral(mu, vectors, P):
     positive form, and the count (one positive, one zero) did not close (a 9 x 9 periodic patch, a periodic ring at
     K = 3). Where the form on the cluster's span has an eigenvalue below ``neutral_form`` while every vector's own is
     above it, the cluster's vectors become G's eigenvectors (G = B^T P B over an orthonormal basis B of the span):
-    their forms are G's eigenvalues, one of them neutral. Every other cluster is left as it is."""
+    their forms are G's eigenvalues, one of them neutral. Every other cluster is left as it is.
+
+    The products with P are formed for many clusters at once (``CLUSTER_BATCH`` columns: a square patch's x <-> y
+    symmetry makes thousands of doubles, and P was read once per cluster); each column's product is the one it has
+    alone, so the result is the same bit for bit."""
     real = np.flatnonzero(mu.imag == 0)
     if len(real) < 2:
         return vectors
@@ -381,19 +398,29 @@ def hidden_neutral(mu, vectors, P):
     order = real[np.argsort(mu.real[real])]
     values = mu.real[order]
     breaks = np.flatnonzero(np.diff(values) > CLUSTER_RTOL * np.maximum(1.0, np.abs(values[1:]))) + 1
-    for cluster in np.split(order, breaks):
-        if len(cluster) < 2:
-            continue
-        x = real_phase(vectors[:, cluster], mu[cluster]).real
-        own = np.sum(x * (P @ x), axis=0)
-        plane = _krein_plane(x, P)
-        if plane is None:
-            continue
-        basis, lam, Q = plane
-        if np.min(np.abs(lam)) <= neutral and np.all(np.abs(own) > neutral):
-            if not copied:
-                vectors, copied = np.array(vectors, copy=True), True
-            vectors[:, cluster] = basis @ Q
+    clusters = [c for c in np.split(order, breaks) if len(c) >= 2]
+    while clusters:
+        batch, width = [], 0
+        while clusters and (not batch or width + len(clusters[0]) <= CLUSTER_BATCH):
+            batch.append(clusters.pop(0))
+            width += len(batch[-1])
+        xs = [real_phase(vectors[:, c], mu[c]).real for c in batch]
+        edges = np.cumsum([0] + [x.shape[1] for x in xs])
+        PX = P @ np.hstack(xs)
+        bases = [_plane_basis(x) for x in xs]
+        kept = [b for b in bases if b is not None]
+        PB = P @ np.hstack(kept) if kept else None
+        at = 0
+        for cluster, x, basis, lo, hi in zip(batch, xs, bases, edges[:-1], edges[1:]):
+            if basis is None:
+                continue
+            lam, Q = np.linalg.eigh(basis.T @ PB[:, at : at + basis.shape[1]])
+            at += basis.shape[1]
+            own = np.sum(x * PX[:, lo:hi], axis=0)
+            if np.min(np.abs(lam)) <= neutral and np.all(np.abs(own) > neutral):
+                if not copied:
+                    vectors, copied = np.array(vectors, copy=True), True
+                vectors[:, cluster] = basis @ Q
     return vectors
 
 
