@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
+import operator
 import os
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -76,18 +77,21 @@ PRODUCT_ROWS = 512
 
 def _products(pairs, rows: int = PRODUCT_ROWS) -> list:
     """[L @ R for (L, R) in pairs], sparse, each in chunks of ``rows`` rows of L on host threads (scipy's sparse
-    products let go of the GIL). A row of L @ R (CSR) is summed over L's row in its stored order whatever rows go
-    with it, so the result is the one-call product bit for bit, on any number of threads. A 101 x 101 patch's four
-    products (``_mu``, ``_checks``) were most of its probe's host time on one thread each."""
-    tasks = []
-    for index, (L, R) in enumerate(pairs):
+    products let go of the GIL). scipy multiplies CSR by CSR row by row, a row's sum over L's row in its stored order
+    whatever rows go with it: for the canonical CSR (or CSC, which scipy turns into CSR on the right) factors of the
+    probed problem, the one-call product bit for bit, on any number of threads. A 101 x 101 patch's four products
+    (``_mu``, ``_checks``) were most of its probe's host time on one thread each. Each product's chunks are let go
+    once it is stacked (the chunks and the stack are two copies of it, briefly)."""
+    pool, pending = _product_pool(), []
+    for L, R in pairs:
         L, R = sp.csr_matrix(L), sp.csr_matrix(R)
-        for start in range(0, L.shape[0], rows):
-            tasks.append((index, L[start : start + rows], R))
-    parts = list(_product_pool().map(lambda t: t[1] @ t[2], tasks))
-    return [
-        sp.vstack([p for (i, _, _), p in zip(tasks, parts) if i == index], format="csr") for index in range(len(pairs))
-    ]
+        pending.append([pool.submit(operator.matmul, L[i : i + rows], R) for i in range(0, max(1, L.shape[0]), rows)])
+    out = []
+    while pending:
+        chunks = pending.pop(0)
+        out.append(sp.vstack([f.result() for f in chunks], format="csr"))
+        del chunks
+    return out
 
 
 def _mu(A11, A12, A21, A22, Dm) -> tuple:

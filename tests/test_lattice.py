@@ -360,6 +360,15 @@ def test_wide_colourings_take_as_many_colours_as_a_tiling_ball(builder, tiles):
             assert np.count_nonzero(colours[near] == colours[s]) == 1  # itself only
 
 
+def test_colourings_of_strips_and_of_distances_beyond_the_patch():
+    """A strip one site wide is coloured as the chain (s mod (distance + 1)); a distance that covers the patch gives
+    every site its own colour at once (no search over offsets that cannot occur); wide distances stay cheap."""
+    assert np.array_equal(square(41, 1, "fixed").colouring(8), np.arange(41) % 9)
+    assert np.array_equal(triangular(5, 5, "fixed").colouring(12), np.arange(25))
+    colours = square(101, 101, "fixed").colouring(128)  # ~1 GB per array before the offsets were bounded
+    assert colours.shape == (10201,) and colours.max() + 1 < 10201
+
+
 def test_chain_colouring_is_s_mod_3():
     for boundary in ("fixed", "free"):
         assert np.array_equal(chain(10, boundary).colouring(), np.arange(10) % 3)
