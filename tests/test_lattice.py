@@ -348,7 +348,7 @@ def test_wide_colourings_take_as_many_colours_as_a_tiling_ball(builder, tiles):
     """The probe's colourings (distance 2 b: no two sites within 2 b bonds share a colour) on patches without wrapped
     axes: valid, and with as many colours as a ball of b bonds has sites, the least any colouring can have (the
     greedy one took 256 and 464 at b = 10)."""
-    from warpchain.lattice import balls_of
+    from warpchain.colouring import balls_of
 
     lat = builder(23, 19, "fixed")
     for b in (2, 4, 6):

@@ -33,7 +33,8 @@ from typing import Callable
 import numpy as np
 
 from .integrators import get_method
-from .lattice import balls_of, geometry_key, kept_colouring, neighbour_table
+from .colouring import balls_of, kept_colouring
+from .lattice import geometry_key, neighbour_table
 from .model import ChainParams, as_batch, min_contact
 
 

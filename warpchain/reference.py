@@ -290,7 +290,7 @@ def table_peak_mask(lattice, env: np.ndarray, threshold: float, radius: int, con
     (the ball of ``lattice.balls_of``), and falls to ``contrast`` times its value along each bonded slot direction
     within ``radius`` steps (a step past a wall or a free edge reads 0; a weightless slot tests nothing). On a
     chain's table with fixed or free ends this is ``peak_mask``; on a ring the table's windows wrap."""
-    from .lattice import balls_of
+    from .colouring import balls_of
 
     env = np.asarray(env, dtype=np.float64)
     n, r = lattice.n_sites, int(radius)

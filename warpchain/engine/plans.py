@@ -241,7 +241,7 @@ class _SitesSplitting(_Plan):
                 nh.ball_ptr = nh.ball_idx = r.no_base
                 nh.table, nh.weights, nh.dist = r.table, r.weights, wp.zeros(1, dtype=f64, device=r.device)
                 return nh
-            from ..lattice import balls_of
+            from ..colouring import balls_of
 
             ball, _ = balls_of(lattice, int(radius))
             nh.degree = lattice.degree
