@@ -136,3 +136,9 @@ def _after_fork_in_child() -> None:
 
 if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=_after_fork_in_child)
+
+
+#: the host threads for chunked work whose tasks hand no work on (one per core, at most 16): the probed problem's sparse
+#: products (``krylov_floquet._products``), the eigenvectors' measures (``slicing._measures``), the blocks' inertia
+#: counts (``slicing._counted``)
+host_pool = HostPool(min(16, os.cpu_count() or 1), "warpchain-host")

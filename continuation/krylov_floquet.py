@@ -46,7 +46,6 @@ from __future__ import annotations
 import dataclasses
 import inspect
 import operator
-import os
 import time
 from concurrent.futures import ThreadPoolExecutor
 
@@ -55,7 +54,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.linalg.lapack import dgbtrf, dgbtrs
 
-from .hostblas import HostPool
+from .hostblas import host_pool
 from .spectrum import assemble, central_weight, energy_centre, participation
 
 
@@ -68,21 +67,18 @@ def _blocks(A, M: float) -> tuple:
     return A[:n2, :n2], A[:n2, n2:], A[n2:, :n2], A[n2:, n2:], sp.diags(m)
 
 
-#: host threads for the sparse products of the probed problem (``_products``)
-_product_pool = HostPool(min(16, os.cpu_count() or 1), "warpchain-products")
-
 #: rows of a product's left factor per task of ``_products``
 PRODUCT_ROWS = 512
 
 
 def _products(pairs, rows: int = PRODUCT_ROWS) -> list:
-    """[L @ R for (L, R) in pairs], sparse, each in chunks of ``rows`` rows of L on host threads (scipy's sparse
-    products let go of the GIL). scipy multiplies CSR by CSR row by row, a row's sum over L's row in its stored order
-    whatever rows go with it: for the canonical CSR (or CSC, which scipy turns into CSR on the right) factors of the
-    probed problem, the one-call product bit for bit, on any number of threads. A 101 x 101 patch's four products
-    (``_mu``, ``_checks``) were most of its probe's host time on one thread each. Each product's chunks are let go
-    once it is stacked (the chunks and the stack are two copies of it, briefly)."""
-    pool, pending = _product_pool(), []
+    """[L @ R for (L, R) in pairs], sparse, each in chunks of ``rows`` rows of L on ``hostblas.host_pool`` (scipy's
+    sparse products let go of the GIL). scipy multiplies CSR by CSR row by row, a row's sum over L's row in its
+    stored order whatever rows go with it: for the canonical CSR (or CSC, which scipy turns into CSR on the right)
+    factors of the probed problem, the one-call product bit for bit, on any number of threads. A 101 x 101 patch's
+    four products (``_mu``, ``_checks``) were most of its probe's host time on one thread each. Each product's chunks
+    are let go once it is stacked (the chunks and the stack are two copies of it, briefly)."""
+    pool, pending = host_pool(), []
     for L, R in pairs:
         L, R = sp.csr_matrix(L), sp.csr_matrix(R)
         pending.append([pool.submit(operator.matmul, L[i : i + rows], R) for i in range(0, max(1, L.shape[0]), rows)])

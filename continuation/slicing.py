@@ -42,7 +42,6 @@ takes it from ``SLICED_MIN_SITES`` sites on a GPU with CuPy, and on the host bel
 
 from __future__ import annotations
 
-import os
 import re
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -51,7 +50,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import ArpackError, ArpackNoConvergence
 
-from .hostblas import HostPool
+from .hostblas import host_pool
 from .krylov_floquet import OUTWARD_COUNT, OUTWARD_SHIFT, BandedShifts, _arnoldi, _disc, real_phase
 from .spectrum import assemble, central_weight, energy_centre, participation
 
@@ -168,7 +167,7 @@ def _measures(mu, vectors, P, E, M: float, centre: float) -> tuple:
     # row, as the whole array
     edges = np.linspace(0, n, -(-n // MEASURE_CHUNK) + 1).round().astype(int)
     chunks = [slice(a, b) for a, b in zip(edges[:-1], edges[1:])]
-    parts = list(_measure_pool().map(lambda c: _column_measures(mu[c], vectors[:, c], P, E, M, centre), chunks))
+    parts = list(host_pool().map(lambda c: _column_measures(mu[c], vectors[:, c], P, E, M, centre), chunks))
     return tuple(np.concatenate(column) for column in zip(*parts))
 
 
@@ -181,11 +180,8 @@ def _column_measures(mu, vectors, P, E, M: float, centre: float) -> tuple:
     return act, participation(x, M), weight
 
 
-#: ``_measures`` takes more columns than this in chunks of this many, on ``_measure_pool``'s threads
+#: ``_measures`` takes more columns than this in chunks of this many, on ``hostblas.host_pool``'s threads
 MEASURE_CHUNK = 256
-
-#: host threads for ``_measures``' column chunks, one per core (at most 16); its tasks hand no work on
-_measure_pool = HostPool(min(16, os.cpu_count() or 1), "warpchain-measures")
 
 
 #: a disc whose rim falls inside a dense cluster (the acoustic band's flat top: 110 of the paper chain's 6402 mu within
@@ -461,7 +457,7 @@ def _counted(problem: dict, reports: list, owner: list, coverage: dict, toleranc
     count against P's inertia (module docstring), complete when every one closes."""
     mark = time.perf_counter()
     forms = problem["forms"]
-    counts = list(_measure_pool().map(inertia, forms))  # the blocks' counts side by side (one BLAS thread each)
+    counts = list(host_pool().map(inertia, forms))  # the blocks' counts side by side (one BLAS thread each)
     seconds["count"] = time.perf_counter() - mark
     parts, coverage_blocks = [], []
     for b, (parity, _, _) in enumerate(problem["blocks"]):
