@@ -436,13 +436,15 @@ def probed_problem(lin, M: float, state=None, lattice=None) -> dict:
     groups, Mu (entries below ``MU_DROP`` dropped), the Krein form P and the symplecticity gauge (formed beside),
     and the parity blocks (``(parity, E, keep)``: ``parity_extensions`` when the orbit is mirror-symmetric and Mu
     commutes with the reflection, else ``(0, None, None)``; on a patch (``lattice``) whose mirror the orbit keeps
-    too, ``symmetry_extensions``' four). ``window_floquet`` and ``slicing.sliced_floquet`` start here."""
+    too, ``symmetry_extensions``' four; six on a square patch whose quarter turn it keeps, ``twins`` naming the block
+    that has another's multipliers). ``window_floquet`` and ``slicing.sliced_floquet`` start here."""
     from .parity import (
         PARITY_COUPLING_RTOL,
         SYMMETRIC_RTOL,
         mirror_symmetric,
         parity_extensions,
         patch_mirror,
+        patch_quarter,
         symmetry_extensions,
     )
 
@@ -458,12 +460,15 @@ def probed_problem(lin, M: float, state=None, lattice=None) -> dict:
         asym = abs(Mu - Mu[both][:, both])
         return asym.nnz == 0 or asym.max() <= PARITY_COUPLING_RTOL * abs(Mu).max()
 
-    blocks = [(0, None, None)]
+    blocks, twins = [(0, None, None)], {}
     if state is not None and mirror_symmetric(state, SYMMETRIC_RTOL) and commutes(np.arange(N)[::-1]):
         blocks = parity_extensions(N)
         mirror = patch_mirror(lattice, state)
         if mirror is not None and commutes(mirror):
-            blocks = symmetry_extensions(N, mirror)
+            quarter = patch_quarter(lattice, state)
+            blocks, twins = symmetry_extensions(
+                N, mirror, quarter if quarter is not None and commutes(quarter) else None
+            )
     side = ThreadPoolExecutor(1, thread_name_prefix="window-checks")
     checks = side.submit(_checks, X, Y, *blocks_of_A)  # beside the eigensolves: they need Mu alone
     side.shutdown(wait=False)
@@ -471,6 +476,7 @@ def probed_problem(lin, M: float, state=None, lattice=None) -> dict:
         "N": N,
         "Mu": Mu,
         "blocks": blocks,
+        "twins": twins,
         "checks": checks,
         "halfwidth": halfwidth,
         "tangent_columns": lin.stats["tangent_columns"] - cols,

@@ -38,6 +38,15 @@ def vector_parity(vectors: np.ndarray, threshold: float = 0.9) -> np.ndarray:
 SYMMETRIC_RTOL = 1e-9
 
 
+def patch_quarter(lattice, state) -> "np.ndarray | None":
+    """The quarter turn of a square patch (``Lattice.symmetries``' ``rot90``) when the orbit's positions keep it to
+    ``SYMMETRIC_RTOL``: with the mirror, the group D4 (``symmetry_extensions``); None elsewhere."""
+    if lattice is None or len(lattice.shape) == 1 or state is None:
+        return None
+    q = lattice.symmetries().get("rot90")
+    return q if q is not None and mirror_symmetric(state, SYMMETRIC_RTOL, q) else None
+
+
 def patch_mirror(lattice, state) -> "np.ndarray | None":
     """A mirror of a patch (``Lattice.symmetries``, in their order) that leaves the orbit's positions unchanged to
     ``SYMMETRIC_RTOL``: ``parity_blocks``' second symmetry; None on a chain, without a lattice, or when none does."""
@@ -74,26 +83,32 @@ def _parity_basis(n: int) -> tuple:
     return tuple(out)
 
 
+def _orbits(images: np.ndarray, chi) -> list:
+    """The orbits of a group of site permutations that carry the character ``chi``: ``images`` (n, |G|) holds each
+    site's image under every element (column 0 the identity), ``chi`` the character's value on each. One entry per
+    orbit, (its smallest site, sum_g chi(g) e[g site] as a dict {site: coefficient}); orbits where the character
+    vanishes (every coefficient 0: it is not trivial on the stabilizer) are left out."""
+    sites = np.arange(images.shape[0])
+    orbits = []
+    for s in sites[images.min(axis=1) == sites]:  # one site per orbit: its smallest
+        coefficient: dict = {}
+        for t, site in enumerate(images[s]):
+            coefficient[int(site)] = coefficient.get(int(site), 0.0) + chi[t]
+        if abs(coefficient[int(s)]) >= 0.5:
+            orbits.append((int(s), coefficient))
+    return orbits
+
+
 def _character_orbits(n: int, mirror) -> list:
     """The group {1, R, m, R m} on n sites (R: s -> n - 1 - s; m: ``mirror``) per character, in the order (R, m) =
-    (+, +), (+, -), (-, +), (-, -): (sign under R, [(site, {site': coefficient})]) with one entry per orbit that
-    carries the character (its smallest site, and sum_g chi(g) e[g site] as a dict); characters no orbit carries
-    (a 2 x 2 patch's diagonal mirror) are left out. ``symmetry_bases`` and ``symmetry_extensions`` share it."""
+    (+, +), (+, -), (-, +), (-, -): (sign under R, ``_orbits``); characters no orbit carries (a 2 x 2 patch's
+    diagonal mirror) are left out. ``symmetry_bases`` and ``symmetry_extensions`` share it."""
     mirror = np.asarray(mirror)
-    sites = np.arange(n)
-    reverse = n - 1 - sites
-    images = np.stack([sites, reverse, mirror, reverse[mirror]], axis=1)  # (n, 4): e, R, m, R m
-    reps = sites[images.min(axis=1) == sites]  # one site per orbit: its smallest
+    reverse = n - 1 - np.arange(n)
+    images = np.stack([np.arange(n), reverse, mirror, reverse[mirror]], axis=1)  # (n, 4): e, R, m, R m
     out = []
     for sr, sm in ((1, 1), (1, -1), (-1, 1), (-1, -1)):
-        chi = np.array([1.0, sr, sm, sr * sm])
-        orbits = []
-        for s in reps:
-            coefficient: dict = {}
-            for t, site in enumerate(images[s]):
-                coefficient[int(site)] = coefficient.get(int(site), 0.0) + chi[t]
-            if abs(coefficient[int(s)]) >= 0.5:  # else the character vanishes on this orbit (every coefficient 0)
-                orbits.append((int(s), coefficient))
+        orbits = _orbits(images, (1.0, sr, sm, sr * sm))
         if orbits:
             out.append((sr, orbits))
     return out
@@ -252,22 +267,59 @@ def parity_extensions(N: int) -> tuple:
     return tuple(out)
 
 
-def symmetry_extensions(N: int, mirror: np.ndarray) -> tuple:
+def _extension(N: int, orbits: list) -> tuple:
+    """The sparse E (2N x 2m) from the values at each orbit's own site (``_orbits``) to the vectors of the orbits'
+    character, x = E y (E is 1 at the own site), and those sites' rows (``keep``)."""
+    rows, cols, vals = [], [], []
+    for k, (s, coefficient) in enumerate(orbits):
+        own = coefficient[s]
+        for site, c in coefficient.items():
+            if c != 0.0:
+                rows.append(site), cols.append(k), vals.append(c / own)
+    m = len(orbits)
+    kept = np.array([s for s, _ in orbits], int)
+    r, c, v = np.array(rows, int), np.array(cols, int), np.array(vals, float)
+    E = sp.csc_matrix((np.r_[v, v], (np.r_[r, r + N], np.r_[c, c + m])), shape=(2 * N, 2 * m))
+    return E, np.r_[kept, N + kept]
+
+
+def symmetry_extensions(N: int, mirror: np.ndarray, quarter=None) -> tuple:
     """``parity_extensions`` for the group {1, R, m, R m} of ``symmetry_bases``: per character (in its order), the
     sparse E (2N x 2m) from the values at one site of each orbit (its smallest; orbits where the character vanishes
     left out) to the vectors of that character, x = E y (E is 1 at the orbit's own site), and those sites' rows
-    (``keep``): Mu E = E B with B = (Mu E)[keep]. Returns ((sign under R, E, keep), ...)."""
-    out = []
-    for sr, orbits in _character_orbits(N, mirror):
-        rows, cols, vals = [], [], []
-        for k, (s, coefficient) in enumerate(orbits):
-            own = coefficient[s]
-            for site, c in coefficient.items():
-                if c != 0.0:
-                    rows.append(site), cols.append(k), vals.append(c / own)
-        m = len(orbits)
-        kept = np.array([s for s, _ in orbits], int)
-        r, c, v = np.array(rows, int), np.array(cols, int), np.array(vals, float)
-        E = sp.csc_matrix((np.r_[v, v], (np.r_[r, r + N], np.r_[c, c + m])), shape=(2 * N, 2 * m))
-        out.append((sr, E, np.r_[kept, N + kept]))
-    return tuple(out)
+    (``keep``): Mu E = E B with B = (Mu E)[keep].
+
+    ``quarter``: a quarter turn Q (Q Q = R) that the orbit keeps too (a square patch's ``rot90``, ``patch_quarter``):
+    with the mirror it makes the group D4 (eight elements). Its four one-dimensional characters split the even
+    (R = +1) vectors in four blocks, (m, Q) = (+, +), (+, -), (-, +), (-, -), each a quarter of the even vectors.
+    The odd vectors carry D4's two-dimensional character: Q maps the (R, m) = (-, +) block onto the (-, -) block
+    (Q m Q = m), so the two have the same B and the same multipliers, with vectors and Krein forms mapped by Q
+    (participations and central weights alike), and the second is the *twin* of the first: found once. Six
+    blocks, of which five are solved, of about 1/8, 1/8, 1/8, 1/8, 1/4 and 1/4 of the problem: the dense eigs take
+    1.5 times the cost of one of the four blocks of {1, R, m, R m} instead of 4 times.
+
+    Returns:
+        (blocks, twins): blocks ((sign under R, E, keep), ...); twins {block: the block it is the twin of}.
+    """
+    if quarter is None:
+        return tuple((sr, *_extension(N, orbits)) for sr, orbits in _character_orbits(N, mirror)), {}
+    m, Q = np.asarray(mirror), np.asarray(quarter)
+    R = N - 1 - np.arange(N)
+    if not (np.array_equal(Q[Q], R) and np.array_equal(m[Q[m]], Q[R])):
+        raise ValueError("quarter must be a quarter turn (Q Q = R) that the mirror reverses (m Q m = Q^-1)")
+    # D4's elements e, R, m, R m, Q, R Q, m Q, R m Q as site images; its even characters by their values on (m, Q)
+    images = np.stack([np.arange(N), R, m, R[m], Q, R[Q], m[Q], R[m[Q]]], axis=1)
+    blocks, twins = [], {}
+    for sm, sq in ((1, 1), (1, -1), (-1, 1), (-1, -1)):
+        orbits = _orbits(images, (1.0, 1.0, sm, sm, sq, sq, sm * sq, sm * sq))
+        if orbits:
+            blocks.append((1, *_extension(N, orbits)))
+    odd = [orbits for sr, orbits in _character_orbits(N, m) if sr == -1]
+    if odd:  # (-, +) solved, (-, -) its image under Q; or no odd vectors at all (no site off the centre)
+        E, keep = _extension(N, odd[0])
+        both = np.r_[Q, N + Q]  # the site permutation on u and v: row r of E goes to row both[r]
+        coo = E.tocoo()
+        twin = sp.csc_matrix((coo.data, (both[coo.row], coo.col)), shape=E.shape)
+        blocks += [(-1, E, keep), (-1, twin, both[keep])]
+        twins[len(blocks) - 1] = len(blocks) - 2
+    return tuple(blocks), twins

@@ -435,8 +435,9 @@ PROCESS_MIN_ROWS = 600
 
 def _probed_blocks(lin, M: float, state, lattice) -> dict:
     """The probed problem (``krylov_floquet.probed_problem``) as per-block operators: ``ops`` (B = (Mu E)[keep], or
-    Mu), their Krein forms ``forms`` (E^T P E) and extensions, the symplecticity gauge and the energy centre. Runs
-    under ``blas_threads(1)`` (the caller's)."""
+    Mu), their Krein forms ``forms`` (E^T P E) and extensions, the symplecticity gauge and the energy centre. A twin
+    block (``problem["twins"]``) shares its source's operator and form: its multipliers are found once, for both
+    (``solved``). Runs under ``blas_threads(1)`` (the caller's)."""
     from .krylov_floquet import probed_problem
 
     problem = probed_problem(lin, M, state, lattice)
@@ -444,20 +445,35 @@ def _probed_blocks(lin, M: float, state, lattice) -> dict:
     sympl, P = problem["checks"].result()
     P = sp.csc_matrix(0.5 * (P + P.T))
     ops, forms, extensions = [], [], []
-    for _, E, keep in problem["blocks"]:
-        ops.append(Mu if E is None else sp.csc_matrix((Mu @ E)[keep]))
-        forms.append(P if E is None else sp.csc_matrix(E.T @ P @ E))
+    for b, (_, E, keep) in enumerate(problem["blocks"]):
+        twin = problem["twins"].get(b)  # the same B and form as that block's (``parity.symmetry_extensions``)
+        ops.append(Mu if E is None else ops[twin] if twin is not None else sp.csc_matrix((Mu @ E)[keep]))
+        forms.append(P if E is None else forms[twin] if twin is not None else sp.csc_matrix(E.T @ P @ E))
         extensions.append(E)
     centre = energy_centre(state) if state is not None else float("nan")
-    return {**problem, "ops": ops, "forms": forms, "extensions": extensions, "symplecticity": sympl, "centre": centre}
+    solved = [b for b in range(len(ops)) if b not in problem["twins"]]
+    return {
+        **problem, "ops": ops, "forms": forms, "extensions": extensions, "symplecticity": sympl, "centre": centre,
+        "solved": solved,
+    }  # fmt: skip
+
+
+def _with_twins(problem: dict, reports: list, owner: list) -> tuple:
+    """The solved blocks' reports, and each twin block's as its source's (the same mu, Krein forms, participations
+    and central weights: the quarter turn maps one block's vectors onto the other's and keeps P and the centre)."""
+    extra = [(r, b) for b, source in problem["twins"].items() for r, o in zip(reports, owner) if o == source]
+    return reports + [r for r, _ in extra], owner + [b for _, b in extra]
 
 
 def _counted(problem: dict, reports: list, owner: list, coverage: dict, tolerance, *, path: str, start, seconds):
     """The result of a path that found eigenvalues per block (``reports``, each of block ``owner[i]``): each block's
     count against P's inertia (module docstring), complete when every one closes."""
     mark = time.perf_counter()
-    forms = problem["forms"]
-    counts = list(host_pool().map(inertia, forms))  # the blocks' counts side by side (one BLAS thread each)
+    forms, twins = problem["forms"], problem["twins"]
+    reports, owner = _with_twins(problem, reports, owner)
+    solved = problem["solved"]
+    counts = dict(zip(solved, host_pool().map(inertia, [forms[b] for b in solved])))  # side by side, one BLAS thread
+    counts.update({b: counts[source] for b, source in twins.items()})  # a twin's form is its source's
     seconds["count"] = time.perf_counter() - mark
     parts, coverage_blocks = [], []
     for b, (parity, _, _) in enumerate(problem["blocks"]):
@@ -491,6 +507,7 @@ def _counted(problem: dict, reports: list, owner: list, coverage: dict, toleranc
                 "inertia_worst_condition": c["worst_condition"],
                 "found": found,
                 "closed": bool(closed),
+                **({"twin_of": int(twins[b])} if b in twins else {}),
             }
         )
         parts.append(part)
@@ -540,9 +557,11 @@ def sliced_floquet(
         if processes is None:
             processes = max(op.shape[0] for op in ops) >= PROCESS_MIN_ROWS
         workers = Workers.shared() if processes else None
-        count = max(1, (workers.count if workers else 1) * SEGMENTS_PER_WORKER // len(ops))
+        count = max(1, (workers.count if workers else 1) * SEGMENTS_PER_WORKER // len(problem["solved"]))
         tasks, owner = [], []
         for b, (op, form, E) in enumerate(zip(ops, forms, extensions)):
+            if b in problem["twins"]:
+                continue  # found with its source (``_counted``)
             shared = (Shared(op), Shared(form), Shared(E)) if processes else (op, form, E)
             k = int(min(SLICE_COUNT, op.shape[0] - 2))
             for lo, hi in segments(count, hint):
@@ -636,13 +655,13 @@ def probed_floquet(lin, M: float, state=None, tolerance=None, *, lattice=None, d
     mark = time.perf_counter()
     # the blocks on threads of their own: one block's host work (Krein forms, participations) beside the next one's
     # eig on the GPU (N = 12801 on an H200: 60 s for the two blocks one after the other)
-    blocks = list(zip(problem["ops"], problem["forms"], problem["extensions"]))
+    solved = problem["solved"]
+    blocks = [(problem["ops"][b], problem["forms"][b], problem["extensions"][b]) for b in solved]
     with blas_threads(None if gpu else 1), ThreadPoolExecutor(len(blocks)) as pool:
         reports = list(pool.map(lambda b: dense_task(*b, M, problem["centre"], eig_device), blocks))
     seconds["eig"] = time.perf_counter() - mark
     coverage = {"method": "probed", "eig": "gpu" if gpu else "host"}
     with blas_threads(1):
         return _counted(
-            problem, reports, list(range(len(reports))), coverage, tolerance, path="probed", start=start,
-            seconds=seconds,
+            problem, reports, list(solved), coverage, tolerance, path="probed", start=start, seconds=seconds
         )  # fmt: skip

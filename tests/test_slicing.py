@@ -604,8 +604,13 @@ def test_sliced_is_the_dense_spectrum_on_a_patch(name):
     assert [i.kind for i in sliced.instabilities] == [i.kind for i in dense.instabilities]
     assert dense.stable is (name.endswith("site"))
     assert sliced.unstable_counts == dense.unstable_counts
-    # the site breathers keep the rotation and a mirror: four blocks (symmetry_extensions); the others neither
-    assert [c["parity"] for c in sliced.coverage["counts"]] == ([1, 1, -1, -1] if name.endswith("site") else [0])
+    # the site breathers keep the rotation and a mirror: four blocks (symmetry_extensions); the square one the quarter
+    # turn too: six, the last the twin of the fifth (found once); the others neither
+    blocks = {"square-site": [1, 1, 1, 1, -1, -1], "triangular-site": [1, 1, -1, -1]}.get(name, [0])
+    assert [c["parity"] for c in sliced.coverage["counts"]] == blocks
+    assert [c.get("twin_of") for c in sliced.coverage["counts"]] == [None] * (len(blocks) - 1) + (
+        [4] if name == "square-site" else [None]
+    )
     if name == "square-site":  # the doubles are there; in the rotation's two blocks alone they meet in one block
         assert np.sum(np.diff(np.sort(dense.mu.real)) < 1e-10) >= 5
         two = slicing.sliced_floquet(b.linearization(), M, b.state)  # no lattice: no mirror
@@ -660,6 +665,37 @@ def test_a_patch_mirror_splits_the_dense_blocks_in_four(name):
         assert neighbour_table(b.params).symmetries()  # the mirror came from the lattice
     else:
         assert dense.spectral.parities == (0,)
+
+
+def test_the_quarter_turn_splits_a_square_patch_in_six_blocks_one_a_twin():
+    """A 9 x 9 square site breather keeps D4: the even vectors fall into four blocks of its one-dimensional
+    characters, the odd ones into the (R, m) = (-, +) block and its image under the quarter turn, whose B equals the
+    first's to round-off (``symmetry_extensions``); together the six extensions span R^2N, and the probed path's mu
+    (the twin's copied) are the dense eig's of the whole Mu. A permutation that is not a quarter turn is refused."""
+    from continuation.krylov_floquet import probed_problem
+    from continuation.parity import patch_mirror, patch_quarter, symmetry_extensions
+    from warpchain.lattice import LatticeParams, square
+
+    lattice = square(9, 9, "fixed")
+    p = LatticeParams(M, 1.0, lattice)
+    b = ct.require(ct.find_breather(p, 1.014, ct.anticontinuum_seed(p, 1.014), device="cpu", solver="dense"))
+    assert patch_quarter(lattice, b.state) is not None
+    problem = probed_problem(b.linearization(), M, b.state, lattice)
+    blocks, Mu = problem["blocks"], problem["Mu"]
+    assert [s for s, _, _ in blocks] == [1, 1, 1, 1, -1, -1] and problem["twins"] == {5: 4}
+    E = sp.hstack([e for _, e, _ in blocks]).toarray()
+    assert E.shape == (2 * p.N, 2 * p.N) and np.linalg.matrix_rank(E) == 2 * p.N
+    B = [(Mu @ e)[keep].toarray() for _, e, keep in blocks]
+    assert np.max(np.abs(B[5] - B[4])) <= 1e-11 * np.max(np.abs(B[4]))
+    for (_, e, _), Bk in zip(blocks, B):  # each block is invariant: Mu E = E B
+        assert np.max(np.abs(Mu @ e - e @ Bk)) <= 1e-11 * np.max(np.abs(Bk))
+    fl = ct.floquet(b, solver="probed")
+    assert fl.complete is True and [c.get("twin_of") for c in fl.coverage["counts"]] == [None] * 5 + [4]
+    _, _, dist = _match(np.linalg.eigvals(Mu.toarray()), fl.mu)
+    assert dist.max() <= 1e-12
+    mirror = patch_mirror(lattice, b.state)
+    with pytest.raises(ValueError, match="quarter turn"):
+        symmetry_extensions(p.N, mirror, mirror)
 
 
 def test_a_mirror_the_map_does_not_keep_falls_back_to_the_rotations_two_blocks():
