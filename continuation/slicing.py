@@ -465,14 +465,23 @@ def _with_twins(problem: dict, reports: list, owner: list) -> tuple:
     return reports + [r for r, _ in extra], owner + [b for _, b in extra]
 
 
-def _counted(problem: dict, reports: list, owner: list, coverage: dict, tolerance, *, path: str, start, seconds):
+def _start_counts(problem: dict) -> dict:
+    """P's inertia in each solved block (``inertia``), started side by side on ``hostblas.host_pool`` (one BLAS thread
+    each: the caller's ``blas_threads(1)``), so that they run beside the eigensolves: {block: future}."""
+    pool = host_pool()
+    return {b: pool.submit(inertia, problem["forms"][b]) for b in problem["solved"]}
+
+
+def _counted(
+    problem: dict, reports: list, owner: list, coverage: dict, tolerance, *, path: str, start, seconds, counts=None
+):
     """The result of a path that found eigenvalues per block (``reports``, each of block ``owner[i]``): each block's
-    count against P's inertia (module docstring), complete when every one closes."""
+    count against P's inertia (module docstring), complete when every one closes. ``counts``: ``_start_counts``'
+    futures where the caller started them early; ``seconds["count"]`` is the wait for them here."""
     mark = time.perf_counter()
     forms, twins = problem["forms"], problem["twins"]
     reports, owner = _with_twins(problem, reports, owner)
-    solved = problem["solved"]
-    counts = dict(zip(solved, host_pool().map(inertia, [forms[b] for b in solved])))  # side by side, one BLAS thread
+    counts = {b: f.result() for b, f in (counts if counts is not None else _start_counts(problem)).items()}
     counts.update({b: counts[source] for b, source in twins.items()})  # a twin's form is its source's
     seconds["count"] = time.perf_counter() - mark
     parts, coverage_blocks = [], []
@@ -553,6 +562,7 @@ def sliced_floquet(
     with blas_threads(1):
         problem = _probed_blocks(lin, M, state, lattice)
         seconds = {"probe": time.perf_counter() - start}
+        counts = _start_counts(problem)  # on host threads beside the slices
         ops, forms, extensions, centre = problem["ops"], problem["forms"], problem["extensions"], problem["centre"]
         if processes is None:
             processes = max(op.shape[0] for op in ops) >= PROCESS_MIN_ROWS
@@ -586,7 +596,9 @@ def sliced_floquet(
             "outliers_converged": all(r["converged"] for r in reports if "strip" not in r),
             "processes": bool(processes),
         }
-        return _counted(problem, reports, owner, coverage, tolerance, path="sliced", start=start, seconds=seconds)
+        return _counted(
+            problem, reports, owner, coverage, tolerance, path="sliced", start=start, seconds=seconds, counts=counts
+        )  # fmt: skip
 
 
 def dense_eig(matrix: np.ndarray, device=None) -> tuple:
@@ -643,25 +655,41 @@ def dense_task(op, P, E, M: float, centre: float, device=None) -> dict:
 def probed_floquet(lin, M: float, state=None, tolerance=None, *, lattice=None, device=None):
     """Every multiplier of a reversible orbit from the probed sparse Mu (no 4N tangent columns), by a dense eig of
     each parity block (``dense_eig``: on the GPU with CuPy where ``device`` is one), then counted against P's inertia
-    as the slices are (module docstring): ``path="probed"``, complete when every block's count closes."""
+    as the slices are (module docstring): ``path="probed"``, complete when every block's count closes.
+
+    Every host LAPACK call runs on one BLAS thread (``hostblas``), side by side: P's inertia per block from the
+    moment the forms are made (``_start_counts``), and each block's measures (Krein forms, participations) on a
+    thread of its own. On the GPU the eigs run one after another, the largest block first, so that the smaller ones
+    and every block's measures fall within the largest one's eig (a 101 x 101 square patch: one block of 1/4 and
+    four of 1/8); on the host each block's eig is on its thread."""
     from .hostblas import blas_threads
 
     start = time.perf_counter()
-    gpu = has_gpu_eig(device)  # else the host's eig: one BLAS thread per block, as ``parity.parity_blocks``
-    eig_device = device if gpu else None
-    with blas_threads(None if gpu else 1):
-        problem = _probed_blocks(lin, M, state, lattice)
-    seconds = {"probe": time.perf_counter() - start}
-    mark = time.perf_counter()
-    # the blocks on threads of their own: one block's host work (Krein forms, participations) beside the next one's
-    # eig on the GPU (N = 12801 on an H200: 60 s for the two blocks one after the other)
-    solved = problem["solved"]
-    blocks = [(problem["ops"][b], problem["forms"][b], problem["extensions"][b]) for b in solved]
-    with blas_threads(None if gpu else 1), ThreadPoolExecutor(len(blocks)) as pool:
-        reports = list(pool.map(lambda b: dense_task(*b, M, problem["centre"], eig_device), blocks))
-    seconds["eig"] = time.perf_counter() - mark
-    coverage = {"method": "probed", "eig": "gpu" if gpu else "host"}
+    gpu = has_gpu_eig(device)
     with blas_threads(1):
+        problem = _probed_blocks(lin, M, state, lattice)
+        seconds = {"probe": time.perf_counter() - start}
+        counts = _start_counts(problem)
+        mark = time.perf_counter()
+        solved, centre = problem["solved"], problem["centre"]
+        ops, forms, extensions = problem["ops"], problem["forms"], problem["extensions"]
+        order = sorted(solved, key=lambda b: -ops[b].shape[0])
+        with ThreadPoolExecutor(len(order)) as pool:
+            if gpu:
+                futures = {}
+                for b in order:
+                    t = time.perf_counter()
+                    mu, vectors = dense_eig(ops[b].toarray(), device)
+                    futures[b] = pool.submit(
+                        _report, mu, vectors, forms[b], extensions[b], M, centre, seconds=time.perf_counter() - t
+                    )  # fmt: skip
+                    mu = vectors = None
+            else:
+                futures = {b: pool.submit(dense_task, ops[b], forms[b], extensions[b], M, centre) for b in order}
+            reports = [futures[b].result() for b in solved]
+        seconds["eig"] = time.perf_counter() - mark
+        coverage = {"method": "probed", "eig": "gpu" if gpu else "host"}
         return _counted(
-            problem, reports, list(solved), coverage, tolerance, path="probed", start=start, seconds=seconds
+            problem, reports, list(solved), coverage, tolerance, path="probed", start=start, seconds=seconds,
+            counts=counts,
         )  # fmt: skip
