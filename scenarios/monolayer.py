@@ -37,8 +37,11 @@ How: Newton shooting on the time-reversible half-period map and the reduced Floq
 blocks under the patch's 180-degree rotation and a mirror) on the Warp ``Flow`` of ``--device``
 (``warpchain.lattice.LatticeParams``: the sites layout reads the patch's neighbour table; on the CPU its bits are
 the numpy reference's). Newton is dense up to 31 x 31 and on free or periodic patches, matrix-free beyond (the
-patch's sine modes precondition GMRES: ``continuation.krylov``); the Floquet analysis is dense, so the patches are
-small (15 x 15 by default). The walls are fixed by default (``boundary``). Measured on the square lattice
+patch's sine modes precondition GMRES: ``continuation.krylov``, so free and periodic patches stop at 41 x 41); the
+Floquet verdict is ``floquet(solver="auto")``'s: dense below 1601 sites (40 x 40), the probed path beyond (on a GPU
+with CuPy; on a host the sliced path past 2000 sites), complete either way. One breather and its verdict on one
+H200 (``benchmarks/breather_scaling.py``, 2026-11-28): 101 x 101 square 30 s, triangular 47 s; 201 x 201 square 204
+s. The default patches are 15 x 15. The walls are fixed by default (``boundary``). Measured on the square lattice
 (2026-11-27): 15 x 15 and 21 x 21 give the same energies to the 6 digits logged up to w_b = 1.0161 (past the
 threshold) and the same threshold and stability change; they part by 4e-6 at 1.0162 and 4e-5 at 1.0163, where the
 breather spreads over 4 to 8 sites.
@@ -63,6 +66,8 @@ from ._common import BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD, PAPER_M, Contex
 from ._params import Rule, param
 
 BUILDERS = {"square": square, "triangular": triangular}
+#: the largest side on free or periodic walls, where Newton is dense (the sine modes precondition fixed walls only)
+DENSE_NEWTON_SIDE = 41
 #: solves across the two steps around the lowest energy of the walk, to place the threshold
 REFINE = 8
 
@@ -73,7 +78,7 @@ class Parameters:
 
     M: float = param(PAPER_M, "mass ratio m1 / m2", gt=0)
     K: float = param(1.0, "coupling ratio k1 / k2 (every bond)", gt=0, le=10)
-    n: int = param(15, "the patches are n x n sites (odd: a centre site)", ge=5, le=41)
+    n: int = param(15, "the patches are n x n sites (odd: a centre site)", ge=5, le=201)
     lattice: str = param("both", "the patches: square, triangular or both", choices=("both", "square", "triangular"))
     boundary: str = param("fixed", "the patches' walls", choices=BOUNDARIES)
     omega: float | None = param(
@@ -95,7 +100,7 @@ class Parameters:
         choices=("anticontinuum", "dnls"),
     )
     check_size: int = param(
-        0, "a larger patch on which the threshold is located again, its size-independence (0: none)", ge=0, le=61
+        0, "a larger patch on which the threshold is located again, its size-independence (0: none)", ge=0, le=201
     )
     K_walk: tuple[float, ...] = param(
         (), "couplings walked in order at the threshold's w_b, from the breather there (); () skips it", gt=0, le=10,
@@ -128,6 +133,11 @@ class Parameters:
             ("family", "lattice"),
             "family=triangle on the triangular lattice only (lattice=triangular)",
             lambda P: P.family != "triangle" or P.lattice == "triangular",
+        ),
+        Rule(
+            ("n", "check_size", "boundary"),
+            f"n and check_size <= {DENSE_NEWTON_SIDE} unless boundary=fixed (Newton is matrix-free on fixed walls)",
+            lambda P: P.boundary == "fixed" or max(P.n, P.check_size) <= DENSE_NEWTON_SIDE,
         ),
         Rule(
             ("check_size", "n"),
@@ -228,6 +238,7 @@ def _one(ctx, name: str, P) -> dict:
         "max_floquet_modulus": float(fl.max_modulus),
         "stable": None if fl.stable is None else bool(fl.stable),
         "floquet_complete": bool(fl.complete),
+        "floquet_path": fl.path,
         "verdict": fl.verdict,
         "residual": float(r.residual),
         "breather_participation": _participation(r.state),
@@ -256,7 +267,7 @@ def _K_walk(ctx, name: str, params, omega: float, state, flow, P) -> list:
 
 def _solve(params, omega, seed, flow):
     r = _breather(params, omega, seed, flow)
-    return (None, None) if r is None else (r, ct.floquet(r, solver="dense"))
+    return (None, None) if r is None else (r, ct.floquet(r, solver="auto"))
 
 
 def _participation(state) -> float:

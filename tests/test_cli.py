@@ -366,6 +366,27 @@ def test_monolayer_quick_has_an_energy_threshold_where_the_stability_changes(tmp
 
 
 @pytest.mark.slow
+def test_monolayer_one_breather_on_a_patch_past_the_dense_size(tmp_path):
+    """A 41 x 41 square patch (1681 sites) takes ``floquet(solver="auto")``'s probed path (the dense one stops at 1600
+    sites): a complete verdict, stable, with every multiplier stored; a free or periodic patch past 41 x 41 is
+    refused (Newton is dense there), naming the rule."""
+    out = _run(
+        "run", "monolayer", "--out", str(tmp_path), "--device", "cpu", "--set", "lattice=square", "--set", "n=41",
+        "--set", "omega=1.014",
+    )  # fmt: skip
+    assert out.returncode == 0, out.stderr[-3000:]
+    s = json.loads((tmp_path / "monolayer" / "summary.json").read_text())
+    assert s["floquet_path"] == "probed" and s["floquet_complete"] is True and s["stable"] is True
+    assert abs(s["max_floquet_modulus"] - 1.0) < 1e-9 and abs(s["energy"] - 0.0584499326714) < 1e-9
+    import warpchain as wc
+
+    mu = wc.read_store(tmp_path / "monolayer" / "data.zarr", "square_multipliers")
+    assert mu.sizes["multiplier"] == 4 * 41 * 41
+    out = _run("run", "monolayer", "--out", str(tmp_path), "--device", "cpu", "--set", "n=51", "--set", "boundary=free")
+    assert out.returncode == 2 and "unless boundary=fixed" in out.stderr
+
+
+@pytest.mark.slow
 def test_monolayer_says_where_to_walk_when_the_walk_misses_the_minimum(tmp_path):
     """At K = 0.25 the threshold lies closer to the edge than the default walk resolves: no threshold is claimed,
     and the advice (from the discrete NLS's prediction) leads to it."""
