@@ -140,5 +140,5 @@ if hasattr(os, "register_at_fork"):
 
 #: the host threads for chunked work whose tasks hand no work on (one per core, at most 16): the probed problem's sparse
 #: products (``krylov_floquet._products``), the eigenvectors' measures (``slicing._measures``), the blocks' inertia
-#: counts (``slicing._counted``)
+#: counts (``slicing._start_counts``)
 host_pool = HostPool(min(16, os.cpu_count() or 1), "warpchain-host")

@@ -436,8 +436,9 @@ def probed_problem(lin, M: float, state=None, lattice=None) -> dict:
     groups, Mu (entries below ``MU_DROP`` dropped), the Krein form P and the symplecticity gauge (formed beside),
     and the parity blocks (``(parity, E, keep)``: ``parity_extensions`` when the orbit is mirror-symmetric and Mu
     commutes with the reflection, else ``(0, None, None)``; on a patch (``lattice``) whose mirror the orbit keeps
-    too, ``symmetry_extensions``' four; six on a square patch whose quarter turn it keeps, ``twins`` naming the block
-    that has another's multipliers). ``window_floquet`` and ``slicing.sliced_floquet`` start here."""
+    too, ``symmetry_extensions``' four; up to six on a square patch whose quarter turn it keeps, ``twins`` naming the
+    block that has another's multipliers and ``quarter`` the turn). ``window_floquet`` and ``slicing.sliced_floquet``
+    start here."""
     from .parity import (
         PARITY_COUPLING_RTOL,
         SYMMETRIC_RTOL,
@@ -460,7 +461,7 @@ def probed_problem(lin, M: float, state=None, lattice=None) -> dict:
         asym = abs(Mu - Mu[both][:, both])
         return asym.nnz == 0 or asym.max() <= PARITY_COUPLING_RTOL * abs(Mu).max()
 
-    blocks, twins = [(0, None, None)], {}
+    blocks, twins, quarter = [(0, None, None)], {}, None
     if state is not None and mirror_symmetric(state, SYMMETRIC_RTOL) and commutes(np.arange(N)[::-1]):
         blocks = parity_extensions(N)
         mirror = patch_mirror(lattice, state)
@@ -477,6 +478,7 @@ def probed_problem(lin, M: float, state=None, lattice=None) -> dict:
         "Mu": Mu,
         "blocks": blocks,
         "twins": twins,
+        "quarter": quarter if twins else None,
         "checks": checks,
         "halfwidth": halfwidth,
         "tangent_columns": lin.stats["tangent_columns"] - cols,

@@ -42,6 +42,7 @@ takes it from ``SLICED_MIN_SITES`` sites on a GPU with CuPy, and on the host bel
 
 from __future__ import annotations
 
+import contextlib
 import re
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -52,7 +53,7 @@ from scipy.sparse.linalg import ArpackError, ArpackNoConvergence
 
 from .hostblas import host_pool
 from .krylov_floquet import OUTWARD_COUNT, OUTWARD_SHIFT, BandedShifts, _arnoldi, _disc, real_phase
-from .spectrum import assemble, central_weight, energy_centre, participation
+from .spectrum import assemble, central_sites, central_weight, energy_centre, participation
 
 #: the slices cover [-1 - OUTER, 1 + OUTER]; the outward discs and the outlier Arnoldi look beyond. Small: a first
 #: shift far from the cluster at +1 converges slowly (paper breather, N = 1601: the segment from 1.02 down took 1.0 s
@@ -154,30 +155,33 @@ def segments(count: int, hint=None) -> list:
     return [(float(edges[i + 1]), float(edges[i])) for i in range(count)]
 
 
-def _measures(mu, vectors, P, E, M: float, centre: float) -> tuple:
+def _measures(mu, vectors, P, E, M: float, centre: float, twin_near=None) -> tuple:
     """Krein form a^T P a (of the real vectors of real mu: ``krylov_floquet.real_phase``, as the window takes it),
     participation and central weight of eigenvectors in a block's coordinates (E: the block's extension to 2N, None
     for the whole Mu). Each column's numbers depend on that column alone: more than ``MEASURE_CHUNK`` columns (a
     dense block's thousands) are taken in chunks on host threads (numpy and scipy's sparse products let go of the
-    GIL), each column's arithmetic the same either way."""
+    GIL), each column's arithmetic the same either way. ``twin_near``: the sites whose weight is a twin block's
+    central weight (``_probed_blocks``), a fourth column."""
     n = vectors.shape[1]
     if n <= MEASURE_CHUNK:
-        return _column_measures(mu, vectors, P, E, M, centre)
+        return _column_measures(mu, vectors, P, E, M, centre, twin_near)
     # near-equal chunks, none of one column: numpy sums a lone (contiguous) column pairwise, a wider slice row by
     # row, as the whole array
     edges = np.linspace(0, n, -(-n // MEASURE_CHUNK) + 1).round().astype(int)
     chunks = [slice(a, b) for a, b in zip(edges[:-1], edges[1:])]
-    parts = list(host_pool().map(lambda c: _column_measures(mu[c], vectors[:, c], P, E, M, centre), chunks))
+    parts = list(host_pool().map(lambda c: _column_measures(mu[c], vectors[:, c], P, E, M, centre, twin_near), chunks))
     return tuple(np.concatenate(column) for column in zip(*parts))
 
 
-def _column_measures(mu, vectors, P, E, M: float, centre: float) -> tuple:
+def _column_measures(mu, vectors, P, E, M: float, centre: float, twin_near=None) -> tuple:
     vec = real_phase(vectors, mu)
     real = np.real(vec)
     act = np.sum(real * (P @ real), axis=0)
     x = vec if E is None else E @ vec
     weight = central_weight(x, M, centre) if np.isfinite(centre) else np.full(vec.shape[1], np.nan)
-    return act, participation(x, M), weight
+    if twin_near is None:
+        return act, participation(x, M), weight
+    return act, participation(x, M), weight, central_weight(x, M, centre, near=twin_near)
 
 
 #: ``_measures`` takes more columns than this in chunks of this many, on ``hostblas.host_pool``'s threads
@@ -268,15 +272,17 @@ def sweep(op, lo: float, hi: float, k: int) -> tuple:
     return mu, vectors, strip, shifts
 
 
-def slice_task(op, P, E, lo: float, hi: float, k: int, M: float, centre: float) -> dict:
+def slice_task(op, P, E, lo: float, hi: float, k: int, M: float, centre: float, twin_near=None) -> dict:
     """One segment of one block (a worker's task): the eigenvalues, their Krein forms, participations and central
     weights (the vectors stay in the worker: 2N x 2N of them would not fit a long lattice's memory)."""
     start = time.perf_counter()
     mu, vectors, strip, shifts = sweep(op, lo, hi, k)
-    return _report(mu, vectors, P, E, M, centre, strip=strip, shifts=shifts, seconds=time.perf_counter() - start)
+    return _report(
+        mu, vectors, P, E, M, centre, twin_near, strip=strip, shifts=shifts, seconds=time.perf_counter() - start
+    )  # fmt: skip
 
 
-def outlier_task(op, P, E, sign: float, k: int, M: float, centre: float) -> dict:
+def outlier_task(op, P, E, sign: float, k: int, M: float, centre: float, twin_near=None) -> dict:
     """The eigenvalues of ``op`` beyond +(1 + OUTER) (``sign`` 1) or -(1 + OUTER) (-1): every one in the outward disc
     at 1 + ``OUTWARD_SHIFT`` (``krylov_floquet``'s, of ``OUTWARD_COUNT`` eigenvalues, fewer where its rim falls on a
     lattice's double eigenvalue: ``_shift``), and the converged ones of an
@@ -297,7 +303,9 @@ def outlier_task(op, P, E, sign: float, k: int, M: float, centre: float) -> dict
     good = (residual < 1e-10) & (np.real(far) > 1.0 + OUTER) & (np.abs(far - sigma) >= radius)
     mu = np.concatenate([vals[near], far[good]])
     vectors = np.hstack([vectors[:, near], far_vectors[:, good]])
-    return _report(sign * mu, vectors, P, E, M, centre, converged=converged, seconds=time.perf_counter() - start)
+    return _report(
+        sign * mu, vectors, P, E, M, centre, twin_near, converged=converged, seconds=time.perf_counter() - start
+    )  # fmt: skip
 
 
 def _plane_basis(columns: np.ndarray) -> "np.ndarray | None":
@@ -420,13 +428,21 @@ def hidden_neutral(mu, vectors, P):
     return vectors
 
 
-def _report(mu, vectors, P, E, M, centre, **extra) -> dict:
+def _report(mu, vectors, P, E, M, centre, twin_near=None, **extra) -> dict:
+    """The measures of a block's found eigenpairs (``_measures``); with ``twin_near``, the twin block's central weights
+    too (``twin_central_weight``: its vectors are these under the quarter turn, which moves the central window)."""
     if len(mu):
         mu, vectors = degenerate_reals(mu, vectors, P)
         vectors = hidden_neutral(mu, vectors, P)
-    act, pr, weight = _measures(mu, vectors, P, E, M, centre) if len(mu) else (np.zeros(0),) * 3
-    return {"mu": mu, "act": act, "participation": pr, "central_weight": weight, **extra}
+    columns = 3 if twin_near is None else 4
+    measures = _measures(mu, vectors, P, E, M, centre, twin_near) if len(mu) else (np.zeros(0),) * columns
+    names = ("act", "participation", "central_weight", "twin_central_weight")
+    return {"mu": mu, **dict(zip(names, measures)), **extra}
 
+
+#: a block of at most this many rows (a small patch's D4 blocks: 2 rows on 5 x 5, where ARPACK's k = rows - 2 is 0)
+#: gets a dense eig, not slices
+SMALL_BLOCK_ROWS = 8
 
 #: from this many rows of a parity block on, the slices run in worker processes (below, here: the workers' start
 #: and the operator's transfer cost more than they save)
@@ -452,24 +468,50 @@ def _probed_blocks(lin, M: float, state, lattice) -> dict:
         extensions.append(E)
     centre = energy_centre(state) if state is not None else float("nan")
     solved = [b for b in range(len(ops)) if b not in problem["twins"]]
+    # a twin's vectors are its source's under the quarter turn Q (x_twin[Q r] = x[r]): its central weight is the
+    # source vectors' weight on the sites that Q takes into the central window
+    twin_near = {}
+    if problem["quarter"] is not None and np.isfinite(centre):
+        window = central_sites(problem["N"], centre)
+        twin_near = {source: window[problem["quarter"]] for source in problem["twins"].values()}
     return {
         **problem, "ops": ops, "forms": forms, "extensions": extensions, "symplecticity": sympl, "centre": centre,
-        "solved": solved,
+        "solved": solved, "twin_near": twin_near,
     }  # fmt: skip
 
 
 def _with_twins(problem: dict, reports: list, owner: list) -> tuple:
-    """The solved blocks' reports, and each twin block's as its source's (the same mu, Krein forms, participations
-    and central weights: the quarter turn maps one block's vectors onto the other's and keeps P and the centre)."""
-    extra = [(r, b) for b, source in problem["twins"].items() for r, o in zip(reports, owner) if o == source]
+    """The solved blocks' reports, and each twin block's from its source's: the same mu, Krein forms and
+    participations (the quarter turn maps one block's vectors onto the other's, permuting sites, and keeps P), and the
+    central weights the source's task measured for the twin (``twin_central_weight``: the central window is a row of
+    sites, which the quarter turn moves)."""
+    extra = [
+        ({**r, "central_weight": r["twin_central_weight"]}, b)
+        for b, source in problem["twins"].items()
+        for r, o in zip(reports, owner)
+        if o == source
+    ]
     return reports + [r for r, _ in extra], owner + [b for _, b in extra]
 
 
 def _start_counts(problem: dict) -> dict:
     """P's inertia in each solved block (``inertia``), started side by side on ``hostblas.host_pool`` (one BLAS thread
-    each: the caller's ``blas_threads(1)``), so that they run beside the eigensolves: {block: future}."""
+    each: the caller's ``blas_threads(1)``), so that they run beside the eigensolves: {block: future}. The caller
+    wraps its eigensolves in ``_dropped_on_error``."""
     pool = host_pool()
     return {b: pool.submit(inertia, problem["forms"][b]) for b in problem["solved"]}
+
+
+@contextlib.contextmanager
+def _dropped_on_error(counts: dict):
+    """Where the eigensolves fail, the counts not yet started are cancelled (the error is raised at once; a count
+    already running ends on its own, its result unread)."""
+    try:
+        yield
+    except BaseException:
+        for future in counts.values():
+            future.cancel()
+        raise
 
 
 def _counted(
@@ -563,42 +605,52 @@ def sliced_floquet(
         problem = _probed_blocks(lin, M, state, lattice)
         seconds = {"probe": time.perf_counter() - start}
         counts = _start_counts(problem)  # on host threads beside the slices
-        ops, forms, extensions, centre = problem["ops"], problem["forms"], problem["extensions"], problem["centre"]
-        if processes is None:
-            processes = max(op.shape[0] for op in ops) >= PROCESS_MIN_ROWS
-        workers = Workers.shared() if processes else None
-        count = max(1, (workers.count if workers else 1) * SEGMENTS_PER_WORKER // len(problem["solved"]))
-        tasks, owner = [], []
-        for b, (op, form, E) in enumerate(zip(ops, forms, extensions)):
-            if b in problem["twins"]:
-                continue  # found with its source (``_counted``)
-            shared = (Shared(op), Shared(form), Shared(E)) if processes else (op, form, E)
-            k = int(min(SLICE_COUNT, op.shape[0] - 2))
-            for lo, hi in segments(count, hint):
-                tasks.append(("slice_task", (*shared, lo, hi, k, M, centre)))
-                owner.append(b)
-            for sign in (1.0, -1.0):
-                tasks.append(("outlier_task", (*shared, sign, int(min(OUTLIERS, k)), M, centre)))
-                owner.append(b)
-        mark = time.perf_counter()
-        if processes:
-            reports = workers.map("continuation.slicing", tasks, what="Floquet slice")
-        else:
-            reports = [globals()[f](*args) for f, args in tasks]
-        seconds["slices"] = time.perf_counter() - mark
-        slices = [r for r in reports if "strip" in r]
-        coverage = {
-            "method": "sliced",
-            "interval": [-1.0 - OUTER, 1.0 + OUTER],
-            "segments": len(slices),
-            "shifts": int(sum(r["shifts"] for r in slices)),
-            "strip_half_height": float(min(r["strip"] for r in slices)),
-            "outliers_converged": all(r["converged"] for r in reports if "strip" not in r),
-            "processes": bool(processes),
-        }
-        return _counted(
-            problem, reports, owner, coverage, tolerance, path="sliced", start=start, seconds=seconds, counts=counts
-        )  # fmt: skip
+        with _dropped_on_error(counts):
+            ops, forms, extensions = problem["ops"], problem["forms"], problem["extensions"]
+            centre = problem["centre"]
+            if processes is None:
+                processes = max(op.shape[0] for op in ops) >= PROCESS_MIN_ROWS
+            workers = Workers.shared() if processes else None
+            count = max(1, (workers.count if workers else 1) * SEGMENTS_PER_WORKER // len(problem["solved"]))
+            tasks, owner = [], []
+            small = []  # blocks too small to slice (ARPACK's k < rows - 1): a dense eig here
+            for b, (op, form, E) in enumerate(zip(ops, forms, extensions)):
+                near = problem["twin_near"].get(b)
+                if b in problem["twins"]:
+                    continue  # found with its source (``_counted``)
+                if op.shape[0] <= SMALL_BLOCK_ROWS:
+                    small.append((b, dense_task(op, form, E, M, centre, None, near)))
+                    continue
+                shared = (Shared(op), Shared(form), Shared(E)) if processes else (op, form, E)
+                k = int(min(SLICE_COUNT, op.shape[0] - 2))
+                for lo, hi in segments(count, hint):
+                    tasks.append(("slice_task", (*shared, lo, hi, k, M, centre, near)))
+                    owner.append(b)
+                for sign in (1.0, -1.0):
+                    tasks.append(("outlier_task", (*shared, sign, int(min(OUTLIERS, k)), M, centre, near)))
+                    owner.append(b)
+            mark = time.perf_counter()
+            if processes:
+                reports = workers.map("continuation.slicing", tasks, what="Floquet slice")
+            else:
+                reports = [globals()[f](*args) for f, args in tasks]
+            seconds["slices"] = time.perf_counter() - mark
+            slices = [r for r in reports if "strip" in r]
+            coverage = {
+                "method": "sliced",
+                "interval": [-1.0 - OUTER, 1.0 + OUTER],
+                "segments": len(slices),
+                "shifts": int(sum(r["shifts"] for r in slices)),
+                "strip_half_height": float(min((r["strip"] for r in slices), default=np.inf)),
+                "outliers_converged": all(r["converged"] for r in reports if "strip" not in r),
+                "processes": bool(processes),
+                "dense_blocks": [b for b, _ in small],
+            }
+            reports, owner = list(reports) + [r for _, r in small], owner + [b for b, _ in small]
+            return _counted(
+                problem, reports, owner, coverage, tolerance, path="sliced", start=start, seconds=seconds,
+                counts=counts,
+            )  # fmt: skip
 
 
 def dense_eig(matrix: np.ndarray, device=None) -> tuple:
@@ -644,12 +696,12 @@ def has_gpu_eig(device) -> bool:
         return False
 
 
-def dense_task(op, P, E, M: float, centre: float, device=None) -> dict:
+def dense_task(op, P, E, M: float, centre: float, device=None, twin_near=None) -> dict:
     """One block's eigenvalues all at once, by a dense eig of its probed operator (``dense_eig``), with their Krein
     forms, participations and central weights."""
     start = time.perf_counter()
     mu, vectors = dense_eig(op.toarray(), device)
-    return _report(mu, vectors, P, E, M, centre, seconds=time.perf_counter() - start)
+    return _report(mu, vectors, P, E, M, centre, twin_near, seconds=time.perf_counter() - start)
 
 
 def probed_floquet(lin, M: float, state=None, tolerance=None, *, lattice=None, device=None):
@@ -670,26 +722,33 @@ def probed_floquet(lin, M: float, state=None, tolerance=None, *, lattice=None, d
         problem = _probed_blocks(lin, M, state, lattice)
         seconds = {"probe": time.perf_counter() - start}
         counts = _start_counts(problem)
-        mark = time.perf_counter()
-        solved, centre = problem["solved"], problem["centre"]
-        ops, forms, extensions = problem["ops"], problem["forms"], problem["extensions"]
-        order = sorted(solved, key=lambda b: -ops[b].shape[0])
-        with ThreadPoolExecutor(len(order)) as pool:
-            if gpu:
-                futures = {}
-                for b in order:
-                    t = time.perf_counter()
-                    mu, vectors = dense_eig(ops[b].toarray(), device)
-                    futures[b] = pool.submit(
-                        _report, mu, vectors, forms[b], extensions[b], M, centre, seconds=time.perf_counter() - t
-                    )  # fmt: skip
-                    mu = vectors = None
-            else:
-                futures = {b: pool.submit(dense_task, ops[b], forms[b], extensions[b], M, centre) for b in order}
-            reports = [futures[b].result() for b in solved]
-        seconds["eig"] = time.perf_counter() - mark
-        coverage = {"method": "probed", "eig": "gpu" if gpu else "host"}
-        return _counted(
-            problem, reports, list(solved), coverage, tolerance, path="probed", start=start, seconds=seconds,
-            counts=counts,
-        )  # fmt: skip
+        with _dropped_on_error(counts):
+            mark = time.perf_counter()
+            solved, centre = problem["solved"], problem["centre"]
+            ops, forms, extensions = problem["ops"], problem["forms"], problem["extensions"]
+            order = sorted(solved, key=lambda b: -ops[b].shape[0])
+            with ThreadPoolExecutor(len(order)) as pool:
+                if gpu:
+                    futures = {}
+                    for b in order:
+                        t = time.perf_counter()
+                        mu, vectors = dense_eig(ops[b].toarray(), device)
+                        futures[b] = pool.submit(
+                            _report, mu, vectors, forms[b], extensions[b], M, centre, problem["twin_near"].get(b),
+                            seconds=time.perf_counter() - t,
+                        )  # fmt: skip
+                        mu = vectors = None
+                else:
+                    futures = {
+                        b: pool.submit(
+                            dense_task, ops[b], forms[b], extensions[b], M, centre, None, problem["twin_near"].get(b)
+                        )
+                        for b in order
+                    }
+                reports = [futures[b].result() for b in solved]
+            seconds["eig"] = time.perf_counter() - mark
+            coverage = {"method": "probed", "eig": "gpu" if gpu else "host"}
+            return _counted(
+                problem, reports, list(solved), coverage, tolerance, path="probed", start=start, seconds=seconds,
+                counts=counts,
+            )  # fmt: skip

@@ -22,13 +22,18 @@ def participation(vectors: np.ndarray, M: float) -> np.ndarray:
     return np.sum(w, axis=0) ** 2 / np.maximum(np.sum(w * w, axis=0), 1e-300)
 
 
-def central_weight(vectors: np.ndarray, M: float, centre: float, sites: int = CENTRAL_SITES) -> np.ndarray:
+def central_sites(n: int, centre: float, sites: int = CENTRAL_SITES) -> np.ndarray:
+    """The sites (a boolean mask of n) whose index lies within ``sites`` of ``centre``: ``central_weight``'s window."""
+    return np.abs(np.arange(n) - centre) <= sites + 0.5
+
+
+def central_weight(vectors: np.ndarray, M: float, centre: float, sites: int = CENTRAL_SITES, near=None) -> np.ndarray:
     """Fraction of each column's site weight (M|a_u|^2 + |a_v|^2; columns of length 2N) on the sites
-    within ``sites`` of ``centre``."""
+    within ``sites`` of ``centre`` (or on the sites of the mask ``near``)."""
     vectors = np.asarray(vectors)
     n = vectors.shape[0] // 2
     w = M * np.abs(vectors[:n]) ** 2 + np.abs(vectors[n:]) ** 2
-    near = np.abs(np.arange(n) - centre) <= sites + 0.5
+    near = central_sites(n, centre, sites) if near is None else near
     return np.sum(w[near], axis=0) / np.maximum(np.sum(w, axis=0), 1e-300)
 
 

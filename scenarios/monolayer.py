@@ -25,9 +25,10 @@ every point; ``monolayer-K.png``).
 store. ``n`` and ``boundary`` set the patch.
 
 ``family`` picks the breather: site-centred (default), bond-centred (two neighbours in phase) or triangle-centred
-(three mutual neighbours, the triangular lattice); ``check_size`` locates the threshold again on a larger patch
-(the refined solves, from the breather embedded in it) and states the relative difference: the threshold's
-independence of the patch size.
+(three mutual neighbours, the triangular lattice), or the multi-site ones with the last site out of phase
+(``bond-out``, ``triangle-out``: at the other turning point, half a period later); ``check_size`` locates the
+threshold again on a larger patch (the refined solves, from the breather embedded in it) and states the relative
+difference: the threshold's independence of the patch size.
 
 The linear waves beside them (``_monolayer_waves``): band edges, the dispersion along the Brillouin zone's
 high-symmetry path and over the zone, the patch's lowest optical modes, and the chain's coupling with the same
@@ -35,15 +36,15 @@ long-wave speed (``monolayer-waves.png``).
 
 How: Newton shooting on the time-reversible half-period map and the reduced Floquet analysis (every multiplier, in
 blocks under the patch's 180-degree rotation and a mirror) on the Warp ``Flow`` of ``--device``
-(``warpchain.lattice.LatticeParams``: the sites layout reads the patch's neighbour table; on the CPU its bits are
-the numpy reference's). Newton is dense up to 31 x 31 and on free or periodic patches, matrix-free beyond (the
-patch's sine modes precondition GMRES: ``continuation.krylov``, so free and periodic patches stop at 41 x 41); the
-Floquet verdict is ``floquet(solver="auto")``'s: dense below 1601 sites (40 x 40), the probed path beyond (on a GPU
-with CuPy; on a host the sliced path past 2000 sites), complete either way. One breather and its verdict on one
-H200 (``benchmarks/breather_scaling.py``, 2026-11-28): 101 x 101 square 30 s, triangular 47 s; 201 x 201 square 204
-s. The default patches are 15 x 15. The walls are fixed by default (``boundary``). Measured on the square lattice
-(2026-11-27): 15 x 15 and 21 x 21 give the same energies to the 6 digits logged up to w_b = 1.0161 (past the
-threshold) and the same threshold and stability change; they part by 4e-6 at 1.0162 and 4e-5 at 1.0163, where the
+(``warpchain.lattice.LatticeParams``: the sites layout reads the patch's neighbour table; on the CPU its bits are the
+numpy reference's). Newton is dense up to 31 x 31 and on free or periodic patches, matrix-free beyond (the patch's sine
+modes precondition GMRES: ``continuation.krylov``, so free and periodic patches stop at 41 x 41); the Floquet verdict is
+``floquet(solver="auto")``'s: dense below 1601 sites (40 x 40), the probed path beyond (on a GPU with CuPy; on a host
+the sliced path past 2000 sites), a verdict where its count closes (else the scene stops with the counts). One breather
+and its verdict on one H200 (``benchmarks/breather_scaling.py``, 2026-11-28): 101 x 101 square 30 s, triangular 47 s;
+201 x 201 square 204 s. The default patches are 15 x 15. The walls are fixed by default (``boundary``). Measured on the
+square lattice (2026-11-27): 15 x 15 and 21 x 21 give the same energies to the 6 digits logged up to w_b = 1.0161 (past
+the threshold) and the same threshold and stability change; they part by 4e-6 at 1.0162 and 4e-5 at 1.0163, where the
 breather spreads over 4 to 8 sites.
 """
 
@@ -59,6 +60,7 @@ import continuation as ct
 import warpchain as wc
 from warpchain.lattice import BOUNDARIES, LatticeParams, square, triangular
 from continuation.floquet import KINDS
+from continuation.seeds import state_from_positions
 from warpchain.store import read_group, write_table
 
 from ._monolayer_waves import draw, waves
@@ -66,6 +68,9 @@ from ._common import BREATHER_METHOD, BREATHER_STEPS_PER_PERIOD, PAPER_M, Contex
 from ._params import Rule, param
 
 BUILDERS = {"square": square, "triangular": triangular}
+#: the breathers' centres (``_seed``): a site, two neighbours or three mutual ones in phase, and "-out": the last of
+#: them out of phase
+FAMILIES = ("site", "bond", "triangle", "bond-out", "triangle-out")
 #: the largest side on free or periodic walls, where Newton is dense (the sine modes precondition fixed walls only)
 DENSE_NEWTON_SIDE = 41
 #: solves across the two steps around the lowest energy of the walk, to place the threshold
@@ -90,8 +95,9 @@ class Parameters:
     resolution: float = param(1e-7, "bracket of w_b the stability change is bisected to", ge=1e-10)
     family: str = param(
         "site",
-        "the breather's centre: a site; a bond (two neighbours in phase); a triangle (three, the triangular lattice)",
-        choices=("site", "bond", "triangle"),
+        "the breather's centre: a site; a bond (two neighbours in phase); a triangle (three, the triangular lattice); "
+        "bond-out and triangle-out: the last neighbour out of phase (half a period later)",
+        choices=FAMILIES,
     )
     seed: str = param(
         "anticontinuum",
@@ -131,13 +137,14 @@ class Parameters:
         ),
         Rule(
             ("family", "lattice"),
-            "family=triangle on the triangular lattice only (lattice=triangular)",
-            lambda P: P.family != "triangle" or P.lattice == "triangular",
+            "family=triangle or triangle-out on the triangular lattice only (lattice=triangular)",
+            lambda P: not P.family.startswith("triangle") or P.lattice == "triangular",
         ),
         Rule(
             ("n", "check_size", "boundary"),
-            f"n and check_size <= {DENSE_NEWTON_SIDE} unless boundary=fixed (Newton is matrix-free on fixed walls)",
-            lambda P: P.boundary == "fixed" or max(P.n, P.check_size) <= DENSE_NEWTON_SIDE,
+            f"n <= {DENSE_NEWTON_SIDE} and check_size <= 61 unless boundary=fixed (Newton is matrix-free on fixed "
+            "walls only)",
+            lambda P: P.boundary == "fixed" or (P.n <= DENSE_NEWTON_SIDE and P.check_size <= 61),
         ),
         Rule(
             ("check_size", "n"),
@@ -164,18 +171,21 @@ def _breather(params, omega, seed, flow):
 
 def _seed(params, omega: float, family: str, kind: str = "anticontinuum") -> np.ndarray:
     """With ``kind`` "dnls" the discrete NLS soliton (``continuation.dnls_seed``, site-centred); else the anti-continuum
-    seed of ``family``: the single-site orbit at the patch's centre, plus the same orbit in
-    phase on its +x neighbour (a bond), and on its +y neighbour too (a triangle: the three are mutual neighbours on
-    the triangular lattice)."""
+    seed of ``family``: the single-site orbit at the patch's centre, plus the same orbit in phase on its +x neighbour
+    (a bond), and on its +y neighbour too (a triangle: the three are mutual neighbours on the triangular lattice);
+    "bond-out" and "triangle-out" put the last of them out of phase: at the orbit's other turning point, half a period
+    later (the contact law is not symmetric, so that is z_min, not -z_max; ``anticontinuum_seed``'s
+    "bond-out-of-phase" on the chain)."""
     if kind == "dnls":
         return ct.dnls_seed(params, omega)
-    single = ct.anticontinuum_seed(params, omega)
-    seed = single.copy()
-    if family in ("bond", "triangle"):
-        seed = seed + np.roll(single, 1, axis=1)  # site i + 1 + nx j
-    if family == "triangle":
-        seed = seed + np.roll(single, params.lattice.shape[0], axis=1)  # site i + nx (j + 1)
-    return seed
+    orbit = ct.anticontinuum_orbit(omega, params.M)
+    c, nx = params.lattice.centre, params.lattice.shape[0]
+    sites = {"site": [c], "bond": [c, c + 1], "triangle": [c, c + 1, c + nx]}[family.removesuffix("-out")]
+    z = np.zeros(params.N)
+    z[sites] = orbit.z_max
+    if family.endswith("-out"):
+        z[sites[-1]] = orbit.z_min
+    return state_from_positions(z / (params.M + 1.0), -params.M * z / (params.M + 1.0))
 
 
 def _embed(state: np.ndarray, small: int, large: int) -> np.ndarray:

@@ -339,8 +339,8 @@ def test_a_wider_outer_interval_than_the_slices_cover_is_caught(monkeypatch):
     assert fl.verdict == "not decided"
 
 
-def _no_outliers(op, P, E, sign, k, M, centre):
-    return slicing._report(np.zeros(0, complex), np.zeros((op.shape[0], 0)), P, E, M, centre, converged=True)
+def _no_outliers(op, P, E, sign, k, M, centre, twin_near=None):
+    return slicing._report(np.zeros(0, complex), np.zeros((op.shape[0], 0)), P, E, M, centre, twin_near, converged=True)
 
 
 # ----------------------------------------------------------------------------- auto
@@ -696,6 +696,28 @@ def test_the_quarter_turn_splits_a_square_patch_in_six_blocks_one_a_twin():
     mirror = patch_mirror(lattice, b.state)
     with pytest.raises(ValueError, match="quarter turn"):
         symmetry_extensions(p.N, mirror, mirror)
+    # the twin's central weights are measured, not copied: the central window is a row, which the quarter turn moves
+    # (copied, the odd vectors' weights summed to 8.008 against the dense 4.004)
+    dense = ct.floquet(b, solver="dense")
+    odd = np.asarray(dense.central_weight)[np.asarray(dense.parity) == -1].sum()
+    for path in (fl, ct.floquet(b, solver="sliced")):
+        weight = np.asarray(path.central_weight)
+        assert abs(weight.sum() - np.sum(dense.central_weight)) <= 1e-9 * weight.sum()
+        assert abs(weight[np.asarray(path.parity) == -1].sum() - odd) <= 1e-9 * odd
+
+
+@pytest.mark.parametrize("n", [3, 5])
+def test_a_small_square_patch_gets_dense_blocks_on_the_sliced_path(n):
+    """D4 makes blocks of 2 rows on 3 x 3 and 5 x 5 patches, too few for ARPACK: the sliced path gives blocks of at
+    most ``SMALL_BLOCK_ROWS`` rows a dense eig (it crashed on k = 0), and its count closes with the dense mu."""
+    from warpchain.lattice import LatticeParams, square
+
+    p = LatticeParams(M, 1.0, square(n, n, "fixed"))
+    b = ct.require(ct.find_breather(p, 1.014, ct.anticontinuum_seed(p, 1.014), device="cpu", solver="dense"))
+    fl = ct.floquet(b, solver="sliced")
+    assert fl.complete is True and fl.coverage["dense_blocks"]
+    _, _, dist = _match(ct.floquet(b, solver="dense").mu, fl.mu)
+    assert dist.max() <= 1e-12
 
 
 def test_a_mirror_the_map_does_not_keep_falls_back_to_the_rotations_two_blocks():
