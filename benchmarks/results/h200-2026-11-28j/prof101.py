@@ -1,4 +1,9 @@
-import cProfile, io, json, pstats, sys, time
+import cProfile
+import io
+import json
+import pstats
+import sys
+import time
 import continuation as ct
 from warpchain.lattice import LatticeParams, square, triangular
 
