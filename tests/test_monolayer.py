@@ -96,6 +96,29 @@ def test_the_scene_seeds_each_family_and_embeds_a_patch():
 
 
 @pytest.mark.parametrize("build", [square, triangular])
+def test_the_out_of_phase_bond_is_stable_where_the_in_phase_one_is_not(build):
+    """9 x 9 patches at K = 0.25, w_b = 1.014 (complete dense verdicts): the bond in phase has one real pair, the bond
+    out of phase (the neighbour at the orbit's other turning point, z_min, not -z_max) is stable; on the triangular
+    lattice the triangle with one site out of phase keeps one real pair (the in-phase triangle has two). The energies
+    are those of the 15 x 15 patches to 6 digits (docs/findings/scenes.md)."""
+    from scenarios.monolayer import _seed
+
+    params = LatticeParams(30.0, 0.25, build(9, 9, "fixed"))
+    orbit = ct.anticontinuum_orbit(1.014, 30.0)
+    families = {"bond": ["real_pair"], "bond-out": []}
+    if build is triangular:
+        families.update({"triangle": ["real_pair", "real_pair"], "triangle-out": ["real_pair"]})
+    for family, kinds in families.items():
+        seed = _seed(params, 1.014, family)
+        z = seed[0] - seed[1]
+        assert np.isclose(z.min(), orbit.z_min if family.endswith("-out") else 0.0)
+        b = ct.require(ct.find_breather(params, 1.014, seed, device="cpu", solver="dense"))
+        fl = ct.floquet(b, solver="dense")
+        assert fl.complete and [i.kind for i in fl.instabilities] == kinds, family
+        assert fl.stable is (not kinds)
+
+
+@pytest.mark.parametrize("build", [square, triangular])
 def test_newton_from_the_discrete_nls_seed_near_the_band_edge(build):
     """``continuation.dnls_seed``: the discrete NLS soliton on the patch as a seed reaches a wide breather near the
     optical bottom in a few Newton iterations; outside the gap it is refused."""
