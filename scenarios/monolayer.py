@@ -41,8 +41,8 @@ numpy reference's). Newton is dense up to 31 x 31 and on free or periodic patche
 modes precondition GMRES: ``continuation.krylov``, so free and periodic patches stop at 41 x 41); the Floquet verdict is
 ``floquet(solver="auto")``'s: dense below 1601 sites (40 x 40), the probed path beyond (on a GPU with CuPy; on a host
 the sliced path past 2000 sites), a verdict where its count closes (else the scene stops with the counts). One breather
-and its verdict on one H200 (``benchmarks/breather_scaling.py``, 2026-11-28): 101 x 101 square 30 s, triangular 47 s;
-201 x 201 square 204 s. The default patches are 15 x 15. The walls are fixed by default (``boundary``). Measured on the
+and its verdict on one H200 (``benchmarks/breather_scaling.py``, 2026-11-28): 101 x 101 square 30-33 s, triangular 47 s;
+201 x 201 square 204-222 s. The default patches are 15 x 15. The walls are fixed by default (``boundary``). Measured on the
 square lattice (2026-11-27): 15 x 15 and 21 x 21 give the same energies to the 6 digits logged up to w_b = 1.0161 (past
 the threshold) and the same threshold and stability change; they part by 4e-6 at 1.0162 and 4e-5 at 1.0163, where the
 breather spreads over 4 to 8 sites.

@@ -50,7 +50,6 @@ import dataclasses
 import functools
 import math
 import time
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -369,23 +368,19 @@ def run(ctx: Context) -> dict:
     A = np.repeat(np.array(P.amplitudes, dtype=float), len(P.widths))
     W = np.tile(np.array(P.widths, dtype=float), len(P.amplitudes))
     # the discrete NLS's threshold on a patch of DNLS_SITES^2 of the same geometry: the minimal-norm soliton spans
-    # ~2 sites (15 x 15 and 41 x 41 agree to 1e-5), and its sparse Newton on a 201 x 201 patch took minutes. Host
-    # work of its own (2 s on an H200 machine), on a thread beside the spots' runs
-    small = BUILDERS[P.lattice](min(P.n, DNLS_SITES), min(P.n, DNLS_SITES), P.boundary)
-    with ThreadPoolExecutor(1, thread_name_prefix="dnls-threshold") as side:
-        threshold = side.submit(ct.dnls_threshold, small, P.M, K_patch)
-        ctx.log(
-            "%s, M = %g, K = %.6g (the chain's %g over kappa = %g): %d spots (A x W) and their linear controls, "
-            "%d periods", lattice.describe(), P.M, K_patch, P.K, lattice.long_wave_curvature, n_spots, P.periods,
-        )  # fmt: skip
-        t0 = time.perf_counter()
-        flat, flat_linear, movie_frames, patch_seconds = _run_spots(ctx, patch, P, P.lattice, movie)
-        t_patch = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        line_series, line_linear, _, chain_seconds = _run_spots(ctx, line, P, "chain", None)
-        t_chain = time.perf_counter() - t0
-        dnls = threshold.result()
-    ctx.log("the discrete NLS puts the breathers' energy threshold at E* = %.4g", dnls["energy"])
+    # ~2 sites (15 x 15 and 41 x 41 agree to 1e-5), and its sparse Newton on a 201 x 201 patch took minutes
+    dnls = ct.dnls_threshold(BUILDERS[P.lattice](min(P.n, DNLS_SITES), min(P.n, DNLS_SITES), P.boundary), P.M, K_patch)
+    ctx.log(
+        "%s, M = %g, K = %.6g (the chain's %g over kappa = %g): %d spots (A x W) and their linear controls, "
+        "%d periods; the discrete NLS puts the breathers' energy threshold at E* = %.4g", lattice.describe(), P.M,
+        K_patch, P.K, lattice.long_wave_curvature, n_spots, P.periods, dnls["energy"],
+    )  # fmt: skip
+    t0 = time.perf_counter()
+    flat, flat_linear, movie_frames, patch_seconds = _run_spots(ctx, patch, P, P.lattice, movie)
+    t_patch = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    line_series, line_linear, _, chain_seconds = _run_spots(ctx, line, P, "chain", None)
+    t_chain = time.perf_counter() - t0
     results = {"monolayer": _finals(flat, flat_linear, P), "chain": _finals(line_series, line_linear, P)}
     root = ctx.store(None)
     times = np.arange(P.periods + 1) * 2 * math.pi / OMEGA_PERIOD
