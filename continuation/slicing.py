@@ -484,7 +484,8 @@ def _with_twins(problem: dict, reports: list, owner: list) -> tuple:
     """The solved blocks' reports, and each twin block's from its source's: the same mu, Krein forms and
     participations (the quarter turn maps one block's vectors onto the other's, permuting sites, and keeps P), and the
     central weights the source's task measured for the twin (``twin_central_weight``: the central window is a row of
-    sites, which the quarter turn moves)."""
+    sites, which the quarter turn moves). A double mu's two weights depend on the basis chosen in its plane (here
+    (w(x), w(Q x)), split otherwise by the dense eig); their sum does not."""
     extra = [
         ({**r, "central_weight": r["twin_central_weight"]}, b)
         for b, source in problem["twins"].items()
@@ -504,8 +505,8 @@ def _start_counts(problem: dict) -> dict:
 
 @contextlib.contextmanager
 def _dropped_on_error(counts: dict):
-    """Where the eigensolves fail, the counts not yet started are cancelled (the error is raised at once; a count
-    already running ends on its own, its result unread)."""
+    """Where the eigensolves fail, the counts not yet started are cancelled once the error reaches here (on the probed
+    path after the blocks' eigs already running have ended); a count already running ends on its own, unread."""
     try:
         yield
     except BaseException:

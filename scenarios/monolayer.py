@@ -38,14 +38,14 @@ How: Newton shooting on the time-reversible half-period map and the reduced Floq
 blocks under the patch's 180-degree rotation and a mirror) on the Warp ``Flow`` of ``--device``
 (``warpchain.lattice.LatticeParams``: the sites layout reads the patch's neighbour table; on the CPU its bits are the
 numpy reference's). Newton is dense up to 31 x 31 and on free or periodic patches, matrix-free beyond (the patch's sine
-modes precondition GMRES: ``continuation.krylov``, so free and periodic patches stop at 41 x 41); the Floquet verdict is
-``floquet(solver="auto")``'s: dense below 1601 sites (40 x 40), the probed path beyond (on a GPU with CuPy; on a host
-the sliced path past 2000 sites), a verdict where its count closes (else the scene stops with the counts). One breather
-and its verdict on one H200 (``benchmarks/breather_scaling.py``, 2026-11-28): 101 x 101 square 30-33 s, triangular 47 s;
-201 x 201 square 204-222 s. The default patches are 15 x 15. The walls are fixed by default (``boundary``). Measured on the
-square lattice (2026-11-27): 15 x 15 and 21 x 21 give the same energies to the 6 digits logged up to w_b = 1.0161 (past
-the threshold) and the same threshold and stability change; they part by 4e-6 at 1.0162 and 4e-5 at 1.0163, where the
-breather spreads over 4 to 8 sites.
+modes precondition GMRES: ``continuation.krylov``, so free and periodic patches stop at 41 x 41, their ``check_size`` at
+61 x 61); the Floquet verdict is ``floquet(solver="auto")``'s: dense below 1601 sites (40 x 40), the probed path beyond
+(on a GPU with CuPy; on a host the sliced path past 2000 sites), a verdict where its count closes (else the scene stops
+with the counts). One breather and its verdict on one H200 (``benchmarks/breather_scaling.py``, 2026-11-28): 101 x 101
+square 30-33 s, triangular 47 s; 201 x 201 square 204-222 s. The default patches are 15 x 15. The walls are fixed by
+default (``boundary``). Measured on the square lattice (2026-11-27): 15 x 15 and 21 x 21 give the same energies to the 6
+digits logged up to w_b = 1.0161 (past the threshold) and the same threshold and stability change; they part by 4e-6 at
+1.0162 and 4e-5 at 1.0163, where the breather spreads over 4 to 8 sites.
 """
 
 from __future__ import annotations
@@ -73,6 +73,9 @@ BUILDERS = {"square": square, "triangular": triangular}
 FAMILIES = ("site", "bond", "triangle", "bond-out", "triangle-out")
 #: the largest side on free or periodic walls, where Newton is dense (the sine modes precondition fixed walls only)
 DENSE_NEWTON_SIDE = 41
+#: the largest check_size there (its refined solves are few: minutes of dense Newton each on 61 x 61, as before the
+#: probed verdicts let fixed patches grow)
+DENSE_CHECK_SIDE = 61
 #: solves across the two steps around the lowest energy of the walk, to place the threshold
 REFINE = 8
 
@@ -142,9 +145,9 @@ class Parameters:
         ),
         Rule(
             ("n", "check_size", "boundary"),
-            f"n <= {DENSE_NEWTON_SIDE} and check_size <= 61 unless boundary=fixed (Newton is matrix-free on fixed "
-            "walls only)",
-            lambda P: P.boundary == "fixed" or (P.n <= DENSE_NEWTON_SIDE and P.check_size <= 61),
+            f"n <= {DENSE_NEWTON_SIDE} and check_size <= {DENSE_CHECK_SIDE} unless boundary=fixed (Newton is "
+            "matrix-free on fixed walls only)",
+            lambda P: P.boundary == "fixed" or (P.n <= DENSE_NEWTON_SIDE and P.check_size <= DENSE_CHECK_SIDE),
         ),
         Rule(
             ("check_size", "n"),
@@ -167,6 +170,12 @@ def _breather(params, omega, seed, flow):
     breather, or None where Newton lost it (a residual above 1e-8, or the rest state)."""
     r = ct.find_breather(params, omega, seed, flow=flow, solver="auto")
     return None if r.residual > 1e-8 or r.energy <= 0 else r
+
+
+def family_label(family: str) -> str:
+    """``bond`` -> ``bond-centred``; ``bond-out`` -> ``bond-centred, out of phase`` (logs and titles)."""
+    base = family.removesuffix("-out")
+    return f"{base}-centred" + (", out of phase" if family.endswith("-out") else "")
 
 
 def _seed(params, omega: float, family: str, kind: str = "anticontinuum") -> np.ndarray:
@@ -218,13 +227,14 @@ def _one(ctx, name: str, P) -> dict:
     r, fl = _solve(params, P.omega, _seed(params, P.omega, P.family, P.seed), flow)
     if r is None:
         raise RuntimeError(
-            f"{name}: Newton found no breather at w_b = {P.omega:g} from the {P.family}-centred seed (it converged "
-            "to rest or not at all): try a w_b deeper in the gap (--set omega=...), or near the band edge the discrete "
-            "NLS's seed (--set seed=dnls)"
+            f"{name}: Newton found no breather at w_b = {P.omega:g} from the {family_label(P.family)} seed (it "
+            "converged to rest or not at all): try a w_b deeper in the gap (--set omega=...), or near the band edge "
+            "the discrete NLS's seed (--set seed=dnls)"
         )
     ctx.log(
-        "%s %dx%d %s, %s-centred, w_b = %.6f: E = %.10f, %s (max |l| = %.12f, complete %s), residual %.1e",
-        name, P.n, P.n, P.boundary, P.family, P.omega, r.energy, fl.verdict, fl.max_modulus, fl.complete, r.residual,
+        "%s %dx%d %s, %s, w_b = %.6f: E = %.10f, %s (max |l| = %.12f, complete %s), residual %.1e",
+        name, P.n, P.n, P.boundary, family_label(P.family), P.omega, r.energy, fl.verdict, fl.max_modulus,
+        fl.complete, r.residual,
     )  # fmt: skip
     root = ctx.store(None)
     x, y = params.lattice.positions.T
@@ -545,7 +555,7 @@ def plot(out) -> None:
         ylabel="energy H",
         title="energy threshold (star; X: the discrete NLS's); dotted: stability change\n"
         f"M = {s['M']:g}, K = {s['K']:g}, {s['n']} x {s['n']} {s['boundary']}, "
-        f"{s[names[0]].get('family', 'site')}-centred",
+        f"{family_label(s[names[0]].get('family', 'site'))}",
     )
     axes[1].set(
         yscale="log", ylabel=r"max $|\lambda|$ - 1", title="complete Floquet verdicts (dashed: optical band bottom)"
@@ -594,7 +604,8 @@ def _plot_one(out, s) -> None:
     im = axes[0].scatter(b["x"], b["y"], c=z, s=30, cmap="RdBu_r", vmin=-scale, vmax=scale)
     axes[0].set(aspect="equal", xticks=[], yticks=[])
     axes[0].set_title(
-        f"{s['lattice']} {s['n']} x {s['n']} {s['boundary']}, {s['family']}-centred, $\\omega_b$ = {s['omega']:g}\n"
+        f"{s['lattice']} {s['n']} x {s['n']} {s['boundary']}, {family_label(s['family'])}, "
+        f"$\\omega_b$ = {s['omega']:g}\n"
         f"z = u - v at t = 0; E = {s['energy']:.8f}"
     )
     fig.colorbar(im, ax=axes[0], shrink=0.8)
