@@ -50,7 +50,6 @@ import dataclasses
 import functools
 import math
 import time
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -274,9 +273,6 @@ def observables(
     }
 
 
-#: periods whose observables may wait for the host's worker while the device steps on (``_run_spots``)
-IN_FLIGHT = 2
-
 #: a spot is *self-localized* when its spread at the end is below this fraction of its linear control's
 LOCALIZED = 0.8
 
@@ -287,10 +283,9 @@ LINEAR = 1e-3
 def _run_spots(ctx: Context, params: LatticeParams, P: Parameters, label: str, movie: int | None):
     """Every spot on one lattice, and its linear control (the same spot times ``LINEAR``, peaks counted above the
     threshold times ``LINEAR``), in one batch for ``periods`` periods, a period per ``simulate`` call whose
-    observation (every step's |z| reduced on the device) gives the period's envelope and energy; the host's
-    observables of each period run on a worker thread beside the next period's steps. Returns the series of the
-    spots and of the controls (name -> (periods + 1, spots)), the movie spot's envelope per period and the seconds
-    spent stepping, on the host's observables (the worker's) and waiting for them."""
+    observation (every step's |z| reduced on the device) gives the period's envelope and energy. Returns the series
+    of the spots and of the controls (name -> (periods + 1, spots)), the movie spot's envelope per period and the
+    seconds spent stepping and on the host's observables."""
     x = spots(params.lattice, P)
     n_spots = len(x)
     x = np.concatenate([x, LINEAR * x])
@@ -306,51 +301,35 @@ def _run_spots(ctx: Context, params: LatticeParams, P: Parameters, label: str, m
     series = {k: [] for k in SERIES}
     frames = []
     start, last_log = time.perf_counter(), time.perf_counter()
-    seconds = {"simulate": 0.0, "observables": 0.0, "waiting": 0.0}
-
-    def measured(*args) -> dict:
-        t = time.perf_counter()
-        obs = observables(params, *args, P, scale)
-        seconds["observables"] += time.perf_counter() - t  # one worker thread: no race
-        return obs
-
-    def take(future) -> None:
-        t = time.perf_counter()
-        obs = future.result()
-        seconds["waiting"] += time.perf_counter() - t
+    seconds = {"simulate": 0.0, "observables": 0.0}
+    for p in range(P.periods):
+        t0 = time.perf_counter()
+        x0 = x
+        run = simulate(
+            params, x0, period, period / 32, method="kahan6", device=ctx.device, damping=damping, observe=watch,
+            guard=Guard(chunks=1),
+        )  # fmt: skip
+        x, seen = run.x, run.observed
+        t1 = time.perf_counter()
+        if p == 0:  # frame 0: the initial state (its envelope |z|, its energy from the same reduction)
+            first = observables(params, np.abs(x0[:, 1] - x0[:, 0]), x0, seen["energy"][0], P, scale)
+            for k in SERIES:
+                series[k].append(first[k])
+            if movie is not None:
+                frames.append(np.abs(x0[movie, 1] - x0[movie, 0]))
+        obs = observables(params, seen.envelope, x, seen["energy"][-1], P, scale)
+        seconds["simulate"] += t1 - t0
+        seconds["observables"] += time.perf_counter() - t1
         for k in SERIES:
             series[k].append(obs[k])
-
-    # a period's observables (host work on its envelope and end state) on a thread of its own while the device steps
-    # the next period; taken in order, at most IN_FLIGHT periods behind (each holds its envelope and state)
-    with ThreadPoolExecutor(1, thread_name_prefix="spot-observables") as worker:
-        pending = []
-        for p in range(P.periods):
-            t0 = time.perf_counter()
-            x0 = x
-            run = simulate(
-                params, x0, period, period / 32, method="kahan6", device=ctx.device, damping=damping, observe=watch,
-                guard=Guard(chunks=1),
+        if movie is not None:
+            frames.append(seen.envelope[movie])
+        if time.perf_counter() - last_log > 20 or p == P.periods - 1:
+            last_log = time.perf_counter()
+            ctx.log(
+                "%s: period %d / %d, peaks %s, linear controls %s (%.0f s)", label, p + 1, P.periods,
+                series["peaks"][-1][:n_spots].tolist(), series["peaks"][-1][n_spots:].tolist(), last_log - start,
             )  # fmt: skip
-            x, seen = run.x, run.observed
-            seconds["simulate"] += time.perf_counter() - t0
-            if p == 0:  # frame 0: the initial state (its envelope |z|, its energy from the same reduction)
-                pending.append(worker.submit(measured, np.abs(x0[:, 1] - x0[:, 0]), x0, seen["energy"][0]))
-                if movie is not None:
-                    frames.append(np.abs(x0[movie, 1] - x0[movie, 0]))
-            pending.append(worker.submit(measured, seen.envelope, x, seen["energy"][-1]))
-            if movie is not None:
-                frames.append(seen.envelope[movie])
-            while len(pending) > IN_FLIGHT:
-                take(pending.pop(0))
-            if time.perf_counter() - last_log > 20 or p == P.periods - 1:
-                while pending:
-                    take(pending.pop(0))
-                last_log = time.perf_counter()
-                ctx.log(
-                    "%s: period %d / %d, peaks %s, linear controls %s (%.0f s)", label, p + 1, P.periods,
-                    series["peaks"][-1][:n_spots].tolist(), series["peaks"][-1][n_spots:].tolist(), last_log - start,
-                )  # fmt: skip
     out = {k: np.array(v) for k, v in series.items()}
     spots_, controls = ({k: v[:, sl] for k, v in out.items()} for sl in (slice(0, n_spots), slice(n_spots, None)))
     return spots_, controls, (np.array(frames) if movie is not None else None), seconds
