@@ -423,8 +423,9 @@ def _walk(ctx, name: str, P: Parameters) -> dict:
     if threshold is None:  # the walk did not pass a minimum: where the small-amplitude theory puts it
         gap = max(edge - dnls["omega"], 1e-7)
         start, step = dnls["omega"] - 3.0 * gap, max(gap / 10.0, 2e-7)
+        whose = "" if P.family == "site" else " (the site breather's threshold: a guide only for this family)"
         advice = (
-            f"no energy minimum on the walk ({reason} at w_b = {w[-1]:.6f}); the discrete NLS puts it at w_b = "
+            f"no energy minimum on the walk ({reason} at w_b = {w[-1]:.6f}); the discrete NLS puts it{whose} at w_b = "
             f"{dnls['omega']:.6f}: try --set omega_start={start:.6f} --set omega_step={step:.2g}"
         )
         ctx.log("%s: %s", name, advice)
@@ -541,9 +542,10 @@ def plot(out) -> None:
                 [t["omega"]], [t["energy"]], "*", ms=12, color=colours[name], label=f"{name}: E* = {t['energy']:.5f}"
             )
         d = s[name]["dnls_threshold"]
+        site = "" if s[name].get("family", "site") == "site" else " (site)"
         axes[0].plot(
             [d["omega"]], [d["energy"]], "X", ms=8, mfc="none", color=colours[name],
-            label=f"{name}: discrete NLS, {d['energy']:.5f}",
+            label=f"{name}: discrete NLS{site}, {d['energy']:.5f}",
         )  # fmt: skip
     c, _ = read_group(out / "data.zarr", "chain")
     axes[0].plot(c["omega"], c["energy"], "-", color="0.35", lw=1.0, label="chain: no threshold")
