@@ -454,6 +454,9 @@ def probed_problem(lin, M: float, state=None, lattice=None) -> dict:
     A, halfwidth = lin.probed_columns("all")
     blocks_of_A = _blocks(A, M)
     Mu, X, Y = _mu(*blocks_of_A)
+    side = ThreadPoolExecutor(1, thread_name_prefix="window-checks")
+    checks = side.submit(_checks, X, Y, *blocks_of_A)  # beside the symmetry checks and the eigensolves: Mu alone
+    side.shutdown(wait=False)
     Mu = negligible_dropped(Mu)
 
     def commutes(sites) -> bool:  # Mu with the site permutation (on u and v alike), to PARITY_COUPLING_RTOL
@@ -470,9 +473,6 @@ def probed_problem(lin, M: float, state=None, lattice=None) -> dict:
             blocks, twins = symmetry_extensions(
                 N, mirror, quarter if quarter is not None and commutes(quarter) else None
             )
-    side = ThreadPoolExecutor(1, thread_name_prefix="window-checks")
-    checks = side.submit(_checks, X, Y, *blocks_of_A)  # beside the eigensolves: they need Mu alone
-    side.shutdown(wait=False)
     return {
         "N": N,
         "Mu": Mu,

@@ -457,15 +457,15 @@ def _probed_blocks(lin, M: float, state, lattice) -> dict:
     from .krylov_floquet import probed_problem
 
     problem = probed_problem(lin, M, state, lattice)
-    Mu = problem["Mu"]
+    Mu, blocks, twins = problem["Mu"], problem["blocks"], problem["twins"]
+    # the operators need Mu alone: made while the checks' thread forms P (``probed_problem``), then the forms
+    ops, forms, extensions = [], [], [E for _, E, _ in blocks]
+    for b, (_, E, keep) in enumerate(blocks):  # a twin has its source's B and form (``parity.symmetry_extensions``)
+        ops.append(Mu if E is None else ops[twins[b]] if b in twins else sp.csc_matrix((Mu @ E)[keep]))
     sympl, P = problem["checks"].result()
     P = sp.csc_matrix(0.5 * (P + P.T))
-    ops, forms, extensions = [], [], []
-    for b, (_, E, keep) in enumerate(problem["blocks"]):
-        twin = problem["twins"].get(b)  # the same B and form as that block's (``parity.symmetry_extensions``)
-        ops.append(Mu if E is None else ops[twin] if twin is not None else sp.csc_matrix((Mu @ E)[keep]))
-        forms.append(P if E is None else forms[twin] if twin is not None else sp.csc_matrix(E.T @ P @ E))
-        extensions.append(E)
+    for b, (_, E, _) in enumerate(blocks):
+        forms.append(P if E is None else forms[twins[b]] if b in twins else sp.csc_matrix(E.T @ P @ E))
     centre = energy_centre(state) if state is not None else float("nan")
     solved = [b for b in range(len(ops)) if b not in problem["twins"]]
     # a twin's vectors are its source's under the quarter turn Q (x_twin[Q r] = x[r]): its central weight is the
