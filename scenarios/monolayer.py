@@ -73,8 +73,8 @@ BUILDERS = {"square": square, "triangular": triangular}
 FAMILIES = ("site", "bond", "triangle", "bond-out", "triangle-out")
 #: the largest side on free or periodic walls, where Newton is dense (the sine modes precondition fixed walls only)
 DENSE_NEWTON_SIDE = 41
-#: the largest check_size there (its refined solves are few: minutes of dense Newton each on 61 x 61, as before the
-#: probed verdicts let fixed patches grow)
+#: the largest check_size there: the limit it had on every wall before fixed patches went to 201 (its few refined
+#: solves take dense Newton there)
 DENSE_CHECK_SIDE = 61
 #: solves across the two steps around the lowest energy of the walk, to place the threshold
 REFINE = 8
