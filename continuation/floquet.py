@@ -86,6 +86,7 @@ from .spectrum import (  # noqa: F401 (the results and their measures: importabl
     participation,
     reduced_matrix,
     reduced_products,
+    site_measures,
     symplecticity_error,
 )
 from .parity import (  # noqa: F401 (ParityBlock: importable from here as before)
@@ -169,12 +170,12 @@ def reduced_floquet(
     sympl = max(b.symplecticity for b in blocks)
     # a = S y with S real: a^T P a = y^T (S^T P S) y, each block's own P
     act = np.concatenate([np.sum(np.real(b.vectors) * (b.P @ np.real(b.vectors)), axis=0) for b in blocks])
-    weight = central_weight(vec, M, energy_centre(state)) if state is not None else np.full(len(mu), np.nan)
+    pr, weight = site_measures(vec, M, energy_centre(state) if state is not None else np.nan)
     return assemble(
         mu,
         parity,
         act,
-        participation(vec, M),
+        pr,
         weight,
         N,
         {"symplecticity": sympl},

@@ -55,7 +55,7 @@ import scipy.sparse.linalg as spla
 from scipy.linalg.lapack import dgbtrf, dgbtrs
 
 from .hostblas import host_pool
-from .spectrum import assemble, central_weight, energy_centre, participation
+from .spectrum import assemble, energy_centre, site_measures
 
 
 def _blocks(A, M: float) -> tuple:
@@ -513,12 +513,12 @@ def window_floquet(lin, M: float, state=None, tolerance=None, window: FloquetWin
     act = np.sum(np.real(vec) * (P @ np.real(vec)), axis=0)
     accuracy = {"symplecticity": sympl, "probe_halfwidth": problem["halfwidth"]}
     centre = energy_centre(state) if state is not None else np.nan
-    weight = central_weight(vec, M, centre) if state is not None else np.full(len(mu), np.nan)
+    pr, weight = site_measures(vec, M, centre)
     return assemble(
         mu,
         parity,
         act,
-        participation(vec, M),
+        pr,
         weight,
         problem["N"],
         accuracy,

@@ -53,7 +53,7 @@ from scipy.sparse.linalg import ArpackError, ArpackNoConvergence
 
 from .hostblas import host_pool
 from .krylov_floquet import OUTWARD_COUNT, OUTWARD_SHIFT, BandedShifts, _arnoldi, _disc, real_phase
-from .spectrum import assemble, central_sites, central_weight, energy_centre, participation
+from .spectrum import assemble, central_sites, energy_centre, site_measures
 
 #: the slices cover [-1 - OUTER, 1 + OUTER]; the outward discs and the outlier Arnoldi look beyond. Small: a first
 #: shift far from the cluster at +1 converges slowly (paper breather, N = 1601: the segment from 1.02 down took 1.0 s
@@ -178,10 +178,7 @@ def _column_measures(mu, vectors, P, E, M: float, centre: float, twin_near=None)
     real = np.real(vec)
     act = np.sum(real * (P @ real), axis=0)
     x = vec if E is None else E @ vec
-    weight = central_weight(x, M, centre) if np.isfinite(centre) else np.full(vec.shape[1], np.nan)
-    if twin_near is None:
-        return act, participation(x, M), weight
-    return act, participation(x, M), weight, central_weight(x, M, centre, near=twin_near)
+    return (act, *site_measures(x, M, centre, () if twin_near is None else (twin_near,)))
 
 
 #: ``_measures`` takes more columns than this in chunks of this many, on ``hostblas.host_pool``'s threads
@@ -467,13 +464,13 @@ def _probed_blocks(lin, M: float, state, lattice) -> dict:
     for b, (_, E, _) in enumerate(blocks):
         forms.append(P if E is None else forms[twins[b]] if b in twins else sp.csc_matrix(E.T @ P @ E))
     centre = energy_centre(state) if state is not None else float("nan")
-    solved = [b for b in range(len(ops)) if b not in problem["twins"]]
+    solved = [b for b in range(len(ops)) if b not in twins]
     # a twin's vectors are its source's under the quarter turn Q (x_twin[Q r] = x[r]): its central weight is the
     # source vectors' weight on the sites that Q takes into the central window
     twin_near = {}
     if problem["quarter"] is not None and np.isfinite(centre):
         window = central_sites(problem["N"], centre)
-        twin_near = {source: window[problem["quarter"]] for source in problem["twins"].values()}
+        twin_near = {source: window[problem["quarter"]] for source in twins.values()}
     return {
         **problem, "ops": ops, "forms": forms, "extensions": extensions, "symplecticity": sympl, "centre": centre,
         "solved": solved, "twin_near": twin_near,

@@ -15,10 +15,31 @@ import numpy as np
 CENTRAL_SITES = 2
 
 
+def _site_weights(vectors: np.ndarray, M: float) -> np.ndarray:
+    """Each column's site weight M|a_u|^2 + |a_v|^2 (columns of length 2N: u then v), (N, columns)."""
+    vectors = np.asarray(vectors)
+    n = vectors.shape[0] // 2
+    return M * np.abs(vectors[:n]) ** 2 + np.abs(vectors[n:]) ** 2
+
+
+def site_measures(vectors: np.ndarray, M: float, centre: float, windows=()) -> tuple:
+    """(participation, central weight, *the weight's share on each mask of ``windows``) of each column, from one site
+    weight (``participation`` and ``central_weight``, the same bits; the central weight NaN where ``centre`` is not
+    finite): the Floquet paths' measures of their vectors."""
+    w = _site_weights(vectors, M)
+    total = np.sum(w, axis=0)
+    pr = total**2 / np.maximum(np.sum(w * w, axis=0), 1e-300)
+
+    def share(near):
+        return np.sum(w[near], axis=0) / np.maximum(total, 1e-300)
+
+    central = share(central_sites(w.shape[0], centre)) if np.isfinite(centre) else np.full(w.shape[1], np.nan)
+    return (pr, central, *(share(near) for near in windows))
+
+
 def participation(vectors: np.ndarray, M: float) -> np.ndarray:
     """Participation ratio in sites of each column (2N: u then v), site weight M|a_u|^2 + |a_v|^2."""
-    n = vectors.shape[0] // 2
-    w = M * np.abs(vectors[:n]) ** 2 + np.abs(vectors[n:]) ** 2
+    w = _site_weights(vectors, M)
     return np.sum(w, axis=0) ** 2 / np.maximum(np.sum(w * w, axis=0), 1e-300)
 
 
@@ -27,14 +48,11 @@ def central_sites(n: int, centre: float, sites: int = CENTRAL_SITES) -> np.ndarr
     return np.abs(np.arange(n) - centre) <= sites + 0.5
 
 
-def central_weight(vectors: np.ndarray, M: float, centre: float, sites: int = CENTRAL_SITES, near=None) -> np.ndarray:
+def central_weight(vectors: np.ndarray, M: float, centre: float, sites: int = CENTRAL_SITES) -> np.ndarray:
     """Fraction of each column's site weight (M|a_u|^2 + |a_v|^2; columns of length 2N) on the sites
-    within ``sites`` of ``centre`` (or on the sites of the mask ``near``)."""
-    vectors = np.asarray(vectors)
-    n = vectors.shape[0] // 2
-    w = M * np.abs(vectors[:n]) ** 2 + np.abs(vectors[n:]) ** 2
-    near = central_sites(n, centre, sites) if near is None else near
-    return np.sum(w[near], axis=0) / np.maximum(np.sum(w, axis=0), 1e-300)
+    within ``sites`` of ``centre``."""
+    w = _site_weights(vectors, M)
+    return np.sum(w[central_sites(w.shape[0], centre, sites)], axis=0) / np.maximum(np.sum(w, axis=0), 1e-300)
 
 
 def energy_centre(state) -> float:
