@@ -4,7 +4,7 @@ tangent run from all of them gives each one's column over its ball.
 
 ``colouring`` picks the modular colouring on patches without wrapped axes (as few colours as the ball of half the
 distance has sites, where such balls tile the plane) and the greedy one otherwise; ``kept_colouring`` and
-``balls_of`` keep theirs per lattice (Newton asks at every iterate).
+``balls_and_rims`` (``balls_of``) keep theirs per lattice (Newton asks at every iterate).
 """
 
 from __future__ import annotations
@@ -86,26 +86,37 @@ def modular_colouring(lattice, distance: int) -> "np.ndarray | None":
 
 @functools.lru_cache(maxsize=8)
 def kept_colouring(lattice, distance: int) -> np.ndarray:
-    """``lattice.colouring(distance)``, kept (with ``balls_of``): Newton asks for a patch's probed columns at every
-    iterate (``flow.Linearization``), and a periodic patch's greedy colouring takes seconds at 101 x 101."""
+    """``lattice.colouring(distance)``, kept (with ``balls_and_rims``): Newton asks for a patch's probed columns at
+    every iterate (``flow.Linearization``), and a periodic patch's greedy colouring takes seconds at 101 x 101."""
     colours = lattice.colouring(distance)
     colours.setflags(write=False)
     return colours
 
 
-@functools.lru_cache(maxsize=8)
 def balls_of(lattice, b: int) -> tuple:
-    """CSR (sites x sites) of the sites within b bonds (weight != 0) of each site, and of those exactly b away."""
+    """CSR (sites x sites) of the sites within b bonds (weight != 0) of each site, and of those exactly b away (kept:
+    ``balls_and_rims``)."""
+    return balls_and_rims(lattice, b)[:2]
+
+
+@functools.lru_cache(maxsize=8)
+def balls_and_rims(lattice, b: int) -> tuple:
+    """``balls_of``'s ball and rim at b, and the rim one bond nearer (the sites exactly b - 1 away, for b >= 2), from
+    the same growth of the ball, kept per lattice and b: the probe's decay check reads both rims
+    (``Linearization._probed_lattice``), where it grew the ball to b - 1 a second time."""
     n, nb = lattice.n_sites, lattice.neighbours
     s, d = np.nonzero((nb >= 0) & (lattice.weights != 0))
     eye = sp.identity(n, dtype=bool, format="csr")
     step = sp.csr_matrix((np.ones(len(s), bool), (s, nb[s, d])), shape=(n, n)) + eye
-    inner = eye
+    nearer, inner = eye, eye
     for _ in range(b - 1):
-        inner = (inner @ step).astype(bool)
+        nearer, inner = inner, (inner @ step).astype(bool)
     ball = (inner @ step).astype(bool).tocsr()
-    rim = (ball.astype(np.int8) - inner.astype(np.int8)).astype(bool).tocsr()
-    rim.eliminate_zeros()
+    rims = []
+    for outer, within in ((ball, inner), (inner, nearer)):
+        rim = (outer.astype(np.int8) - within.astype(np.int8)).astype(bool).tocsr()
+        rim.eliminate_zeros()
+        rim.sort_indices()
+        rims.append(rim)
     ball.sort_indices()
-    rim.sort_indices()
-    return ball, rim
+    return ball, rims[0], rims[1]

@@ -33,7 +33,7 @@ from typing import Callable
 import numpy as np
 
 from .integrators import get_method
-from .colouring import balls_of, kept_colouring
+from .colouring import balls_and_rims, kept_colouring
 from .lattice import geometry_key, neighbour_table
 from .model import ChainParams, as_batch, min_contact
 
@@ -201,7 +201,8 @@ class Linearization:
             colours = None if 2 * b >= span else kept_colouring(lat, 2 * b)
             if colours is None or colours.max() + 1 >= N:
                 return sp.csc_matrix(self._plain_columns(which)), N
-            A, edge, inner = self._probe_groups(comps, colours, balls_of(lat, b), balls_of(lat, b - 1)[1])
+            ball, rim, inner_rim = balls_and_rims(lat, b)
+            A, edge, inner = self._probe_groups(comps, colours, (ball, rim), inner_rim)
             if edge <= PROBE_TOLERANCE:
                 return A, b
             b = _next_halfwidth(b, edge, inner)
