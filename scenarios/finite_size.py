@@ -41,7 +41,7 @@ import numpy as np
 
 from continuation import anticontinuum_seed, find_breather, floquet, nls_seed, require
 from continuation.branch import NaturalParameter
-from continuation.driver import ContinuationSettings, continuation
+from continuation.driver import ContinuationSettings, IncompleteVerdict, continuation
 from continuation.hostblas import blas_threads
 from warpchain import ChainParams, Flow
 from warpchain.store import read_group, write_table
@@ -217,13 +217,10 @@ def _family(flow: Flow, P: "Parameters", family: str, analyses: Workers, ctx) ->
     return rows, state
 
 
-class IncompleteVerdict(RuntimeError):
-    """A foam point whose Floquet count did not close: never counted as stable or unstable, the scene fails."""
-
-
 def _foam_point(flow: Flow, b, solver: str) -> tuple:
     """One foam point's verdict, reduced to what the foam keeps: (stable, max |l|, extended and localized
-    instabilities); ``IncompleteVerdict`` where the count did not close."""
+    instabilities); ``continuation.driver.IncompleteVerdict`` where the count did not close (never counted as stable
+    or unstable: the scene fails, in one line on the command line as a branch's would)."""
     fl = floquet(b, solver=solver, flow=flow)
     if not fl.complete:
         counts = None if fl.coverage is None else fl.coverage.get("counts")
