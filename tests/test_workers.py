@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from continuation import slicing, workers
+from continuation import slicing, spectrum, workers
 from continuation.workers import Shared, WorkerError, Workers
 
 
@@ -261,10 +261,10 @@ def test_a_shared_object_is_sent_once_per_worker(pool, monkeypatch):
     counting = _CountingPickle()
     monkeypatch.setattr(workers, "pickle", counting)
     masses = [1.0, 2.0, 3.0, 30.0, 0.5, 7.0, 11.0, 13.0]
-    out = pool.map("continuation.slicing", [("participation", (shared, m)) for m in masses])
+    out = pool.map("continuation.spectrum", [("participation", (shared, m)) for m in masses])
     monkeypatch.undo()
     for m, got in zip(masses, out):
-        assert np.allclose(got, slicing.participation(vectors, m), rtol=1e-14, atol=0)
+        assert np.allclose(got, spectrum.participation(vectors, m), rtol=1e-14, atol=0)
     used = [w for w in pool.started if shared.key in w.held]
     assert 1 <= len(used) <= 2 and len(pool.started) <= 2
     assert all(list(w.held).count(shared.key) == 1 for w in used)
@@ -275,7 +275,7 @@ def test_a_shared_object_is_sent_once_per_worker(pool, monkeypatch):
     # reused in a second map: sent no more
     counting = _CountingPickle()
     monkeypatch.setattr(workers, "pickle", counting)
-    again = pool.map("continuation.slicing", [("participation", (shared, m)) for m in masses])
+    again = pool.map("continuation.spectrum", [("participation", (shared, m)) for m in masses])
     monkeypatch.undo()
     assert all(np.array_equal(a, b) for a, b in zip(again, out))
     assert sum(s > vectors.nbytes for s in counting.sizes) == sum(1 for w in pool.started if w not in used)
